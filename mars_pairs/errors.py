@@ -1,0 +1,33 @@
+"""Exception types. Every error a user can cause names the file and the field at fault."""
+
+from __future__ import annotations
+
+
+class MarsPairsError(Exception):
+    """Base class of every error mars-pairs raises on bad input."""
+
+
+class LabelError(MarsPairsError):
+    """A PDS label is missing, unreadable, or lacks a required field.
+
+    The message always names the file and, where one is at fault, the field.
+    """
+
+    def __init__(self, path: object, field: str | None, reason: str) -> None:
+        self.path = str(path)
+        self.field = field
+        self.reason = reason
+        where = f"{self.path}: {field}" if field else self.path
+        super().__init__(f"{where}: {reason}")
+
+
+class PlacesError(MarsPairsError):
+    """A PLACES table is unreadable, or has no row that can place an observation."""
+
+
+class TerrainError(MarsPairsError):
+    """A DEM or orthoimage cannot serve a request (no CRS, observer off the raster, nodata)."""
+
+
+class ConfigError(MarsPairsError):
+    """A build configuration is invalid; the message names the key and what was expected."""
