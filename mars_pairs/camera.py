@@ -160,7 +160,7 @@ def _cahv_ray(cam: CameraModel, x: FloatArray, y: FloatArray) -> FloatArray:
     u = np.cross(f, g)
     u /= np.linalg.norm(u, axis=-1, keepdims=True)
     u *= np.sign(u @ cam.a)[:, None]
-    return u.reshape(np.shape(x) + (3,))
+    return u.reshape((*np.shape(x), 3))
 
 
 # -- CAHVOR ------------------------------------------------------------------------------------
