@@ -2,6 +2,7 @@
 
 from mars_pairs.camera import CameraModel
 from mars_pairs.errors import ConfigError, LabelError, MarsPairsError, PlacesError, TerrainError
+from mars_pairs.manifest import Manifest
 from mars_pairs.observation import MotionCounter, Observation
 
 __version__ = "0.1.0"
@@ -10,6 +11,9 @@ __all__ = [
     "CameraModel",
     "ConfigError",
     "LabelError",
+    "Manifest",
+    "MarsPairsDataset",
+    "MarsPairsIterableDataset",
     "MarsPairsError",
     "MotionCounter",
     "Observation",
@@ -17,3 +21,12 @@ __all__ = [
     "TerrainError",
     "__version__",
 ]
+
+
+def __getattr__(name: str) -> object:
+    """Torch datasets load lazily, so that label and build code never imports torch."""
+    if name in ("MarsPairsDataset", "MarsPairsIterableDataset", "collate_samples"):
+        from mars_pairs import dataset
+
+        return getattr(dataset, name)
+    raise AttributeError(f"module 'mars_pairs' has no attribute {name!r}")

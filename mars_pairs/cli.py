@@ -34,6 +34,66 @@ def _cmd_locate(args: argparse.Namespace) -> int:
     return status
 
 
+def _cmd_build(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+    from pathlib import Path
+
+    from mars_pairs.build import BuildError, run_build
+    from mars_pairs.config import load_config
+
+    config = load_config(args.config)
+    if args.out:
+        config = replace(config, output=replace(config.output, dir=Path(args.out).resolve()))
+    _ensure_synthetic(config)
+    try:
+        summary = run_build(config, workers=args.workers, resume=args.resume, limit=args.limit,
+                            strict=args.strict, progress=not args.quiet)  # fmt: skip
+    except BuildError as exc:
+        print(f"mars-pairs build: --strict: {exc}", file=sys.stderr)
+        return 2
+    print(summary.format())
+    return 0
+
+
+def _ensure_synthetic(config: object) -> None:
+    """Generate the config's synthetic mission when its files are absent (the demo)."""
+    spec = config.inputs.synthetic  # type: ignore[attr-defined]
+    inputs = config.inputs  # type: ignore[attr-defined]
+    if spec is None or (inputs.dem.exists() and inputs.places.exists() and inputs.label_paths()):
+        return
+    from mars_pairs.synth import generate_mission
+
+    print(f"generating the synthetic {spec.mission} mission in {spec.root} ...", flush=True)
+    generate_mission(spec.root, seed=spec.seed, mission=spec.mission, stops=spec.stops,
+                     images_per_stop=spec.images_per_stop, size=spec.size)  # fmt: skip
+
+
+def _cmd_inspect(args: argparse.Namespace) -> int:
+    from mars_pairs.inspect import inspect_dataset
+
+    print(inspect_dataset(args.dataset))
+    return 0
+
+
+def _cmd_synth(args: argparse.Namespace) -> int:
+    from mars_pairs.synth import generate_mission
+
+    result = generate_mission(args.out, seed=args.seed, mission=args.mission, stops=args.stops,
+                              images_per_stop=args.images_per_stop, size=args.size)  # fmt: skip
+    print(json.dumps(result, indent=2, default=str))
+    return 0
+
+
+def _add_build_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", required=True, help="build configuration (YAML)")
+    p.add_argument("--out", help="dataset folder (overrides output.dir)")
+    p.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    p.add_argument("--resume", action="store_true", help="keep finished shards of a killed build")
+    p.add_argument("--limit", type=int, help="build at most N observations")
+    p.add_argument("--strict", action="store_true", help="stop at the first failure")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with every sub-command."""
     parser = argparse.ArgumentParser(
@@ -47,6 +107,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--places", help="PLACES table (best_interp.csv / localized_interp.csv)")
     p.add_argument("--json", action="store_true", help="one JSON object per line")
     p.set_defaults(func=_cmd_locate)
+
+    p = sub.add_parser("build", help="build a dataset from a config")
+    _add_build_arguments(p)
+    p.set_defaults(func=_cmd_build)
+
+    p = sub.add_parser("inspect", help="counts, failures and size of a built dataset")
+    p.add_argument("dataset", help="dataset folder")
+    p.set_defaults(func=_cmd_inspect)
+
+    p = sub.add_parser("synth", help="generate the synthetic mission (terrain, labels, images)")
+    p.add_argument("out", help="output folder")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--mission", choices=("m2020", "msl", "both"), default="m2020")
+    p.add_argument("--stops", type=int, default=6, help="rover stops on the traverse")
+    p.add_argument("--images-per-stop", type=int, default=4)
+    p.add_argument("--size", choices=("small", "default"), default="small")
+    p.set_defaults(func=_cmd_synth)
     return parser
 
 

@@ -1,0 +1,263 @@
+"""Build configuration: a YAML file validated into typed dataclasses before any work starts.
+
+Relative paths in a config are resolved against the config file's folder. Every error names
+the key (``geometry.radius``) and what was expected.
+"""
+
+from __future__ import annotations
+
+import glob
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from mars_pairs.errors import ConfigError
+
+VIEWSHED_MODES = ("wedge", "raycast", "both")
+ORIENTATIONS = ("north-up", "heading-up")
+IMAGE_ENCODINGS = ("png", "jpg")
+
+
+@dataclass(frozen=True)
+class SyntheticSpec:
+    """Generate the synthetic mission into ``root`` when its files are absent (demo)."""
+
+    root: Path
+    mission: str = "m2020"
+    seed: int = 0
+    stops: int = 6
+    images_per_stop: int = 4
+    size: str = "small"
+
+
+@dataclass(frozen=True)
+class InputsConfig:
+    """Where the labels, images, PLACES table and orbital rasters are."""
+
+    labels: tuple[str, ...]  # glob patterns (absolute after loading)
+    places: Path
+    dem: Path
+    ortho: Path
+    images: Path | None = None  # a folder to look for images in, besides the label's folder
+    synthetic: SyntheticSpec | None = None
+
+    def label_paths(self) -> list[Path]:
+        """Every label the globs match, sorted and de-duplicated."""
+        found = {Path(p) for pattern in self.labels for p in glob.glob(pattern, recursive=True)}
+        return sorted(found)
+
+
+@dataclass(frozen=True)
+class GeometryConfig:
+    """Observer, viewshed and ray casting parameters (metres, degrees)."""
+
+    observer_height: float | None = None  # above the terrain; None: the camera centre's height
+    radius: float = 2000.0  # metres
+    viewshed: str = "both"  # wedge | raycast | both
+    ray_stride: int = 8  # pixels
+
+
+@dataclass(frozen=True)
+class ChipsConfig:
+    """Orbital chips: a square of ``size_m`` metres sampled at ``size_px`` pixels."""
+
+    size_m: float = 256.0
+    size_px: int = 512
+    orientation: str = "north-up"  # or heading-up (the camera azimuth points up)
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    """Dataset folder, samples per shard and the encoding of decoded (IMG) ground images."""
+
+    dir: Path
+    shard_size: int = 64
+    image_encoding: str = "png"
+
+
+@dataclass(frozen=True)
+class SplitsConfig:
+    """Spatial-block splits: blocks of ``block_m`` metres go whole into one split."""
+
+    block_m: float = 250.0
+    ratios: dict[str, float] = field(
+        default_factory=lambda: {"train": 0.8, "val": 0.1, "test": 0.1}
+    )
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class BuildConfig:
+    """A whole build configuration."""
+
+    inputs: InputsConfig
+    geometry: GeometryConfig
+    chips: ChipsConfig
+    output: OutputConfig
+    splits: SplitsConfig
+    source: Path | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain values (paths as strings) for dataset.json."""
+
+        def plain(value: Any) -> Any:
+            if isinstance(value, Path):
+                return str(value)
+            if isinstance(value, dict):
+                return {k: plain(v) for k, v in value.items()}
+            if isinstance(value, (list, tuple)):
+                return [plain(v) for v in value]
+            return value
+
+        return plain(asdict(self))
+
+
+# -- validation ------------------------------------------------------------------------------
+class _Section:
+    """Reads typed keys from one mapping, naming ``prefix.key`` in every error."""
+
+    def __init__(self, data: Any, prefix: str, known: set[str]) -> None:
+        if data is None:
+            data = {}
+        if not isinstance(data, dict):
+            raise ConfigError(f"{prefix}: expected a mapping, got {type(data).__name__}")
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ConfigError(f"{prefix}.{unknown[0]}: unknown key (expected one of {sorted(known)})")
+        self.data, self.prefix = data, prefix
+
+    def _name(self, key: str) -> str:
+        return f"{self.prefix}.{key}" if self.prefix else key
+
+    def raw(self, key: str, default: Any = ...) -> Any:
+        if key not in self.data or self.data[key] is None:
+            if default is ...:
+                raise ConfigError(f"{self._name(key)}: required key is missing")
+            return default
+        return self.data[key]
+
+    def number(self, key: str, default: Any = ..., *, positive: bool = True) -> Any:
+        value = self.raw(key, default)
+        if value is None:
+            return None
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{self._name(key)}: expected a number, got {value!r}")
+        if positive and value <= 0:
+            raise ConfigError(f"{self._name(key)}: expected a positive number, got {value!r}")
+        return float(value)
+
+    def integer(self, key: str, default: Any = ..., *, minimum: int = 1) -> int:
+        value = self.raw(key, default)
+        if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+            raise ConfigError(f"{self._name(key)}: expected an integer >= {minimum}, got {value!r}")
+        return value
+
+    def choice(self, key: str, options: tuple[str, ...], default: Any = ...) -> str:
+        value = self.raw(key, default)
+        if value not in options:
+            raise ConfigError(f"{self._name(key)}: expected one of {list(options)}, got {value!r}")
+        return str(value)
+
+    def path(self, key: str, base: Path, default: Any = ...) -> Path | None:
+        value = self.raw(key, default)
+        if value is None:
+            return None
+        if not isinstance(value, str) or not value:
+            raise ConfigError(f"{self._name(key)}: expected a path, got {value!r}")
+        return (base / Path(value).expanduser()).resolve()
+
+
+def _inputs(data: Any, base: Path) -> InputsConfig:
+    known = {"labels", "places", "dem", "ortho", "images", "synthetic"}
+    sec = _Section(data, "inputs", known)
+    labels = sec.raw("labels")
+    if isinstance(labels, str):
+        labels = [labels]
+    if not isinstance(labels, list) or not labels or not all(isinstance(x, str) for x in labels):
+        raise ConfigError(f"inputs.labels: expected a glob or a list of globs, got {labels!r}")
+    synthetic = None
+    if sec.raw("synthetic", None) is not None:
+        syn = _Section(sec.raw("synthetic"), "inputs.synthetic",
+                       {"root", "mission", "seed", "stops", "images_per_stop", "size"})  # fmt: skip
+        synthetic = SyntheticSpec(
+            root=syn.path("root", base),  # type: ignore[arg-type]
+            mission=syn.choice("mission", ("m2020", "msl"), "m2020"),
+            seed=syn.integer("seed", 0, minimum=0),
+            stops=syn.integer("stops", 6),
+            images_per_stop=syn.integer("images_per_stop", 4),
+            size=syn.choice("size", ("small", "default"), "small"),
+        )
+    return InputsConfig(
+        labels=tuple(str((base / Path(p).expanduser())) for p in labels),
+        places=sec.path("places", base),  # type: ignore[arg-type]
+        dem=sec.path("dem", base),  # type: ignore[arg-type]
+        ortho=sec.path("ortho", base),  # type: ignore[arg-type]
+        images=sec.path("images", base, None),
+        synthetic=synthetic,
+    )
+
+
+def _splits(data: Any) -> SplitsConfig:
+    sec = _Section(data, "splits", {"block_m", "ratios", "seed"})
+    ratios = sec.raw("ratios", {"train": 0.8, "val": 0.1, "test": 0.1})
+    ok = isinstance(ratios, dict) and ratios and all(
+        isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0
+        for k, v in ratios.items()
+    )
+    if not ok or abs(sum(ratios.values()) - 1.0) > 1e-6:
+        raise ConfigError(
+            f"splits.ratios: expected a mapping of split name to a fraction, summing to 1, "
+            f"got {ratios!r}"
+        )
+    return SplitsConfig(
+        block_m=sec.number("block_m", 250.0),
+        ratios={str(k): float(v) for k, v in ratios.items()},
+        seed=sec.integer("seed", 0, minimum=0),
+    )
+
+
+def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConfig:
+    """Validate a config mapping (relative paths against ``base``) into a BuildConfig."""
+    top = _Section(data, "", {"inputs", "geometry", "chips", "output", "splits"})
+    geo = _Section(top.raw("geometry", {}), "geometry",
+                   {"observer_height", "radius", "viewshed", "ray_stride"})  # fmt: skip
+    chips = _Section(top.raw("chips", {}), "chips", {"size_m", "size_px", "orientation"})
+    out = _Section(top.raw("output"), "output", {"dir", "shard_size", "image_encoding"})
+    return BuildConfig(
+        inputs=_inputs(top.raw("inputs"), base),
+        geometry=GeometryConfig(
+            observer_height=geo.number("observer_height", None),
+            radius=geo.number("radius", 2000.0),
+            viewshed=geo.choice("viewshed", VIEWSHED_MODES, "both"),
+            ray_stride=geo.integer("ray_stride", 8),
+        ),
+        chips=ChipsConfig(
+            size_m=chips.number("size_m", 256.0),
+            size_px=chips.integer("size_px", 512, minimum=8),
+            orientation=chips.choice("orientation", ORIENTATIONS, "north-up"),
+        ),
+        output=OutputConfig(
+            dir=out.path("dir", base),  # type: ignore[arg-type]
+            shard_size=out.integer("shard_size", 64),
+            image_encoding=out.choice("image_encoding", IMAGE_ENCODINGS, "png"),
+        ),
+        splits=_splits(top.raw("splits", {})),
+        source=source,
+    )
+
+
+def load_config(path: str | Path) -> BuildConfig:
+    """Read and validate a YAML build config."""
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read config: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    try:
+        return parse_config(data, path.resolve().parent, source=path.resolve())
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None

@@ -1,0 +1,41 @@
+"""``mars-pairs inspect``: what a built dataset holds."""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+
+import pyarrow.parquet as pq
+
+from mars_pairs.errors import MarsPairsError
+
+
+def _counts(title: str, values: list[object]) -> list[str]:
+    lines = [f"{title}:"]
+    lines += [f"  {value!s:<24} {n:>8}" for value, n in sorted(Counter(values).items(), key=str)]
+    return lines
+
+
+def _size(root: Path) -> int:
+    return sum(p.stat().st_size for p in root.rglob("*") if p.is_file())
+
+
+def inspect_dataset(dataset: str | Path) -> str:
+    """A text report: counts by mission, sol, instrument and split; failures; size."""
+    root = Path(dataset)
+    manifest_path = root / "manifest.parquet"
+    if not manifest_path.is_file():
+        raise MarsPairsError(f"{root}: no manifest.parquet (not a mars-pairs dataset)")
+    manifest = pq.read_table(manifest_path, columns=["mission", "sol", "instrument", "split"])
+    lines = [f"dataset: {root}", f"samples: {manifest.num_rows}"]
+    for name in ("mission", "instrument", "split", "sol"):
+        lines += _counts(name, manifest.column(name).to_pylist())
+    failures_path = root / "failures.parquet"
+    if failures_path.is_file():
+        failures = pq.read_table(failures_path)
+        reasons = [f"{s} ({e})" for s, e in zip(failures.column("stage").to_pylist(),
+                                                failures.column("error_type").to_pylist())]  # fmt: skip
+        lines.append(f"failures: {failures.num_rows}")
+        lines += _counts("failures by reason", reasons)[1:] if reasons else []
+    lines.append(f"size on disk: {_size(root) / 1e6:.1f} MB")
+    return "\n".join(lines)

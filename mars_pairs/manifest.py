@@ -1,0 +1,256 @@
+"""The dataset manifest: one Parquet row per sample, GeoParquet footprints, atomic writes."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+from pyproj import CRS
+
+MEMBERS = ("ground", "ortho", "dem", "viewshed", "corr", "meta")
+
+_FIELDS: list[tuple[str, pa.DataType]] = [
+    ("key", pa.string()),
+    ("mission", pa.string()),
+    ("instrument", pa.string()),
+    ("product_id", pa.string()),
+    ("label_path", pa.string()),
+    ("sol", pa.int32()),
+    ("site", pa.int32()),
+    ("drive", pa.int32()),
+    ("pose", pa.int32()),
+    ("time", pa.timestamp("ms", tz="UTC")),
+    ("latitude", pa.float64()),  # planetocentric degrees
+    ("longitude", pa.float64()),  # degrees east
+    ("easting", pa.float64()),  # dataset CRS, map units
+    ("northing", pa.float64()),
+    ("elevation", pa.float64()),  # metres above the areoid
+    ("azimuth_deg", pa.float64()),  # camera axis, clockwise from north
+    ("elevation_deg", pa.float64()),  # camera axis, up from the horizon
+    ("hfov_deg", pa.float64()),
+    ("vfov_deg", pa.float64()),
+    ("width", pa.int32()),
+    ("height", pa.int32()),
+    ("localization", pa.string()),  # places | label
+    ("viewshed_area_m2", pa.float64()),
+    ("visible_cells", pa.int64()),
+    ("max_visible_range_m", pa.float64()),
+    ("ray_hit_fraction", pa.float64()),
+    ("footprint", pa.binary()),  # WKB polygon, dataset CRS
+    ("chip_xmin", pa.float64()),
+    ("chip_ymin", pa.float64()),
+    ("chip_xmax", pa.float64()),
+    ("chip_ymax", pa.float64()),
+    ("chip_rotation_deg", pa.float64()),  # 0 north-up; heading-up: the camera azimuth
+    ("split", pa.string()),
+    ("hilbert", pa.int64()),
+    ("ground_member", pa.string()),  # e.g. "ground.jpg"
+]
+for _m in MEMBERS:
+    _FIELDS += [(f"{_m}_shard", pa.string()), (f"{_m}_offset", pa.int64()),
+                (f"{_m}_size", pa.int64())]  # fmt: skip
+
+MANIFEST_SCHEMA = pa.schema(_FIELDS)
+
+FAILURE_SCHEMA = pa.schema(
+    [
+        ("product_id", pa.string()),
+        ("path", pa.string()),
+        ("stage", pa.string()),
+        ("error_type", pa.string()),
+        ("message", pa.string()),
+    ]
+)
+
+
+def geo_metadata(crs: str, bbox: list[float] | None) -> dict[bytes, bytes]:
+    """GeoParquet 1.0 metadata for the ``footprint`` column, CRS as PROJJSON."""
+    column: dict[str, Any] = {
+        "encoding": "WKB",
+        "geometry_types": ["Polygon"],
+        "crs": json.loads(CRS.from_user_input(crs).to_json()),
+    }
+    if bbox is not None:
+        column["bbox"] = bbox
+    meta = {"version": "1.0.0", "primary_column": "footprint", "columns": {"footprint": column}}
+    return {b"geo": json.dumps(meta).encode()}
+
+
+def write_parquet_atomic(table: pa.Table, path: Path, row_group_size: int = 4096) -> None:
+    """Write a Parquet file through a temporary name and a rename."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    pq.write_table(
+        table, tmp, row_group_size=row_group_size, compression="zstd", write_statistics=True
+    )
+    with open(tmp, "rb") as fh:
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def rows_to_table(rows: list[dict[str, Any]], schema: pa.Schema) -> pa.Table:
+    """A table of ``schema`` from row dicts (missing keys become nulls)."""
+    return pa.Table.from_pylist(
+        [{f.name: row.get(f.name) for f in schema} for row in rows], schema=schema
+    )
+
+
+# -- reading and filtering ----------------------------------------------------------------------
+MARS_RADIUS_M = 3396190.0
+
+
+class Manifest:
+    """A dataset's manifest, filtered lazily: predicates are pushed down into pyarrow.
+
+    Location filters test the rover position of each sample (where the image was taken).
+    ``filter`` returns a new Manifest; nothing is read until ``to_table``/``len``.
+
+    >>> m = Manifest.open("out/demo/dataset").filter(near=(18.44, 77.45, 500.0), split="train")
+    >>> len(m), m.to_pandas()
+    """
+
+    def __init__(self, root: Path, expression: Any = None, exact: tuple[Any, ...] = ()) -> None:
+        import pyarrow.dataset as ds
+
+        self.root = Path(root)
+        self._dataset = ds.dataset(self.root / "manifest.parquet", format="parquet")
+        self._expression = expression
+        self._exact = exact  # callables table -> boolean mask, applied after the scan
+
+    @classmethod
+    def open(cls, root: str | Path) -> Manifest:
+        """The manifest of a built dataset folder."""
+        root = Path(root)
+        if not (root / "manifest.parquet").is_file():
+            from mars_pairs.errors import MarsPairsError
+
+            raise MarsPairsError(f"{root}: no manifest.parquet (not a mars-pairs dataset)")
+        return cls(root)
+
+    @property
+    def crs(self) -> str | None:
+        """The dataset CRS (PROJJSON text) from the GeoParquet metadata."""
+        meta = self._dataset.schema.metadata or {}
+        geo = json.loads(meta.get(b"geo", b"{}") or b"{}")
+        crs = geo.get("columns", {}).get("footprint", {}).get("crs")
+        return json.dumps(crs) if crs is not None else None
+
+    def filter(
+        self,
+        *,
+        bbox_lonlat: tuple[float, float, float, float] | None = None,
+        bbox_map: tuple[float, float, float, float] | None = None,
+        near: tuple[float, float, float] | None = None,
+        polygon: Any = None,
+        mission: str | list[str] | None = None,
+        instrument: str | list[str] | None = None,
+        sol: tuple[int, int] | None = None,
+        split: str | list[str] | None = None,
+    ) -> Manifest:
+        """A new Manifest keeping rows that satisfy every given predicate.
+
+        ``bbox_lonlat``: (west, south, east, north) degrees; ``bbox_map``: (xmin, ymin, xmax,
+        ymax) in the dataset CRS; ``near``: (lat, lon, radius_m), great circle on the Mars
+        sphere; ``polygon``: shapely geometry or WKT in the dataset CRS; ``sol``: inclusive
+        (first, last); ``mission``/``instrument``/``split``: a value or a list of values.
+        """
+        import pyarrow.dataset as ds
+
+        f = ds.field
+        terms = []
+        exact = list(self._exact)
+        if bbox_lonlat is not None:
+            w, s, e, n = bbox_lonlat
+            terms.append((f("longitude") >= w) & (f("longitude") <= e)
+                         & (f("latitude") >= s) & (f("latitude") <= n))  # fmt: skip
+        if bbox_map is not None:
+            x0, y0, x1, y1 = bbox_map
+            terms.append((f("easting") >= x0) & (f("easting") <= x1)
+                         & (f("northing") >= y0) & (f("northing") <= y1))  # fmt: skip
+        if near is not None:
+            lat, lon, radius = near
+            dlat = math.degrees(radius / MARS_RADIUS_M)
+            coslat = max(math.cos(math.radians(min(abs(lat) + dlat, 90.0))), 1e-9)
+            dlon = min(180.0, dlat / coslat)
+            terms.append((f("latitude") >= lat - dlat) & (f("latitude") <= lat + dlat)
+                         & (f("longitude") >= lon - dlon) & (f("longitude") <= lon + dlon))  # fmt: skip
+            exact.append(_NearPredicate(lat, lon, radius))
+        if polygon is not None:
+            import shapely
+
+            geom = shapely.from_wkt(polygon) if isinstance(polygon, str) else polygon
+            x0, y0, x1, y1 = geom.bounds
+            terms.append((f("easting") >= x0) & (f("easting") <= x1)
+                         & (f("northing") >= y0) & (f("northing") <= y1))  # fmt: skip
+            exact.append(_PolygonPredicate(shapely.to_wkb(geom)))
+        for name, value in (("mission", mission), ("instrument", instrument), ("split", split)):
+            if value is not None:
+                values = [value] if isinstance(value, str) else list(value)
+                terms.append(f(name).isin(values))
+        if sol is not None:
+            terms.append((f("sol") >= sol[0]) & (f("sol") <= sol[1]))
+        expression = self._expression
+        for term in terms:
+            expression = term if expression is None else expression & term
+        return Manifest(self.root, expression, tuple(exact))
+
+    def to_table(self, columns: list[str] | None = None) -> pa.Table:
+        """The filtered rows (all columns, or ``columns``)."""
+        needed = None
+        if columns is not None:
+            extra = {"latitude", "longitude", "easting", "northing"} if self._exact else set()
+            needed = list(dict.fromkeys([*columns, *sorted(extra)]))
+        table = self._dataset.to_table(columns=needed, filter=self._expression)
+        for predicate in self._exact:
+            table = table.filter(predicate(table))
+        return table.select(columns) if columns is not None else table
+
+    def to_pandas(self) -> Any:
+        """The filtered rows as a pandas DataFrame."""
+        return self.to_table().to_pandas()
+
+    def __len__(self) -> int:
+        if not self._exact:
+            return self._dataset.count_rows(filter=self._expression)
+        return self.to_table(columns=["key"]).num_rows
+
+
+def great_circle_m(lat1: Any, lon1: Any, lat2: Any, lon2: Any) -> Any:
+    """Great-circle distance (metres) on the Mars sphere between planetocentric degrees."""
+    import numpy as np
+
+    p1, p2 = np.radians(lat1), np.radians(lat2)
+    dp, dl = p2 - p1, np.radians(np.asarray(lon2) - np.asarray(lon1))
+    a = np.sin(dp / 2) ** 2 + np.cos(p1) * np.cos(p2) * np.sin(dl / 2) ** 2
+    return 2 * MARS_RADIUS_M * np.arcsin(np.sqrt(np.clip(a, 0, 1)))
+
+
+@dataclass(frozen=True)
+class _NearPredicate:
+    lat: float
+    lon: float
+    radius_m: float
+
+    def __call__(self, table: pa.Table) -> pa.Array:
+        d = great_circle_m(self.lat, self.lon, table["latitude"].to_numpy(),
+                           table["longitude"].to_numpy())  # fmt: skip
+        return pa.array(d <= self.radius_m)
+
+
+@dataclass(frozen=True)
+class _PolygonPredicate:
+    wkb: bytes
+
+    def __call__(self, table: pa.Table) -> pa.Array:
+        import shapely
+
+        geom = shapely.from_wkb(self.wkb)
+        inside = shapely.intersects_xy(geom, table["easting"].to_numpy(),
+                                       table["northing"].to_numpy())  # fmt: skip
+        return pa.array(inside)
