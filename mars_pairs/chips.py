@@ -58,7 +58,7 @@ class ChipGrid:
     def corners(self) -> NDArray[np.float64]:
         """Map coordinates (4, 2) of the outer corners: top-left, top-right, bottom-right, ..."""
         n = self.size_px
-        return np.array([self.transform * p for p in ((0, 0), (n, 0), (n, n), (0, n))])
+        return np.array([self.transform @ p for p in ((0, 0), (n, 0), (n, n), (0, n))])
 
     def bounds(self) -> tuple[float, float, float, float]:
         """Axis-aligned map bounds (xmin, ymin, xmax, ymax) of the chip."""

@@ -58,7 +58,9 @@ class ShardWriter:
             info.size, info.mtime, info.mode = len(data), 0, 0o644
             info.uname = info.gname = ""
             self._tar.addfile(info, io.BytesIO(data))
-            out[fld] = MemberLocation(self.relpath, info.offset_data, len(data))
+            # the data ends the member, padded to whole 512-byte blocks
+            padded = -(-len(data) // tarfile.BLOCKSIZE) * tarfile.BLOCKSIZE
+            out[fld] = MemberLocation(self.relpath, self._tar.offset - padded, len(data))
         self.count += 1
         return out
 
