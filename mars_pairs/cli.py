@@ -84,6 +84,43 @@ def _cmd_synth(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_viewshed(args: argparse.Namespace) -> int:
+    from mars_pairs.terrain import Terrain
+    from mars_pairs.viewshed_io import (
+        ViewshedRequest,
+        compute_request,
+        request_from_label,
+        write_viewshed_geotiff,
+    )
+
+    with Terrain.open(args.dem) as terrain:
+        if args.label:
+            if not args.places:
+                raise UsageError("--label needs --places")
+            req = request_from_label(args.label, args.places, terrain, args.radius, args.height)
+        else:
+            if args.x is None or args.y is None or args.height is None:
+                raise UsageError("without --label, give --x, --y and --height")
+            az = None if args.az_min is None else (args.az_min, args.az_max)
+            el = None if args.el_min is None else (args.el_min, args.el_max)
+            terrain._require_inside(args.x, args.y, "observer")
+            req = ViewshedRequest(args.x, args.y, args.height, args.radius, az, el,
+                                  height_is_absolute=args.absolute)  # fmt: skip
+        codes, window = compute_request(terrain, req)
+    write_viewshed_geotiff(args.out, codes, window)
+    visible = int((codes == 1).sum())
+    print(
+        f"{args.out}: {visible} visible cells of {codes.size}; observer x={req.x:.3f} "
+        f"y={req.y:.3f} height={req.height:.3f} m; az band {req.az_band}; "
+        f"el band {req.el_band}"
+    )
+    return 0
+
+
+class UsageError(Exception):
+    """A command-line misuse: reported in one line, exit status 2."""
+
+
 def _add_build_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", required=True, help="build configuration (YAML)")
     p.add_argument("--out", help="dataset folder (overrides output.dir)")
@@ -107,6 +144,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--places", help="PLACES table (best_interp.csv / localized_interp.csv)")
     p.add_argument("--json", action="store_true", help="one JSON object per line")
     p.set_defaults(func=_cmd_locate)
+
+    p = sub.add_parser("viewshed", help="one image's (or a raw observer's) viewshed GeoTIFF")
+    p.add_argument("--dem", required=True, help="DEM raster (any GDAL path, projected CRS)")
+    p.add_argument("--out", required=True, help="output GeoTIFF")
+    p.add_argument("--label", help="PDS label of the image (with --places)")
+    p.add_argument("--places", help="PLACES table")
+    p.add_argument("--radius", type=float, default=5000.0, help="metres (default 5000)")
+    p.add_argument(
+        "--height",
+        type=float,
+        help="observer height above the terrain, metres (label default: camera's)",
+    )
+    p.add_argument("--absolute", action="store_true", help="--height is an absolute elevation")
+    p.add_argument("--x", type=float, help="observer x, DEM CRS map units")
+    p.add_argument("--y", type=float, help="observer y, DEM CRS map units")
+    for name in ("az-min", "az-max", "el-min", "el-max"):
+        p.add_argument(f"--{name}", type=float, help="degrees (azimuth clockwise from north)")
+    p.set_defaults(func=_cmd_viewshed)
 
     p = sub.add_parser("build", help="build a dataset from a config")
     _add_build_arguments(p)
@@ -132,7 +187,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args))
-    except MarsPairsError as exc:
+    except (MarsPairsError, UsageError) as exc:
         print(f"mars-pairs {args.command}: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -12,19 +12,26 @@ from mars_pairs.places import Pose
 
 
 def model_pointing_deg(
-    obs: Observation, quaternion: np.ndarray | None = None
+    obs: Observation, quaternion: np.ndarray | None = None, *, convention: str | None = None
 ) -> tuple[float, float] | None:
-    """Azimuth/elevation (degrees, SITE_FRAME) of the image-centre ray, from the camera model.
+    """Azimuth/elevation (degrees, SITE_FRAME) of the camera's pointing, from the camera model.
 
-    The centre pixel's ray in the model frame (ROVER_NAV_FRAME) is turned into SITE_FRAME by
-    ``quaternion`` (default: the label's rover quaternion). None without an attitude.
+    ``convention`` says which ray the label's derived pointing describes, checked on the real
+    labels: "centre" (Perseverance: the ray through the image centre) or "axis" (Curiosity:
+    the camera axis A, which for a subframe such as 2663ML's 1152 x 432 lies 50 px off the
+    image centre). The default is the mission's. The ray is turned from the model frame
+    (ROVER_NAV_FRAME) into SITE_FRAME by ``quaternion`` (default: the label's); None without.
     """
     q = obs.rover_quaternion if quaternion is None else quaternion
     if q is None:
         return None
-    centre = np.array([[(obs.width - 1) / 2.0, (obs.height - 1) / 2.0]])
-    _, ray = obs.camera.unproject(centre)
-    az, el = azimuth_elevation_deg(quaternion_to_matrix(q) @ ray[0])
+    kind = convention or ("axis" if obs.mission == "msl" else "centre")
+    if kind == "axis":
+        ray = obs.camera.a
+    else:
+        centre = np.array([[(obs.width - 1) / 2.0, (obs.height - 1) / 2.0]])
+        ray = obs.camera.unproject(centre)[1][0]
+    az, el = azimuth_elevation_deg(quaternion_to_matrix(q) @ ray)
     return float(az), float(el)
 
 

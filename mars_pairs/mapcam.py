@@ -66,6 +66,35 @@ class MapCamera:
         az, el = azimuth_elevation_deg(self.camera.a)
         return float(az), float(el)
 
+    def view_band_deg(
+        self, samples_per_edge: int = 64
+    ) -> tuple[tuple[float, float], tuple[float, float]]:
+        """The image's exact azimuth band and elevation band (degrees, local NED at the rover).
+
+        From the rays through the image border: azimuth clockwise from north, as (start, end)
+        taken clockwise (it may cross north, e.g. (355, 5)); elevation (low, high). When the
+        nadir or zenith lies inside the image the azimuth band is the full circle (0, 360).
+        """
+        w, h = self.width - 0.5, self.height - 0.5
+        t = np.linspace(0.0, 1.0, samples_per_edge)
+        edges = np.concatenate([
+            np.stack([-0.5 + t * (w + 0.5), np.full_like(t, -0.5)], axis=-1),
+            np.stack([np.full_like(t, w), -0.5 + t * (h + 0.5)], axis=-1),
+            np.stack([-0.5 + t * (w + 0.5), np.full_like(t, h)], axis=-1),
+            np.stack([np.full_like(t, -0.5), -0.5 + t * (h + 0.5)], axis=-1),
+        ])  # fmt: skip
+        _, rays = self.camera.unproject(edges)
+        az, el = azimuth_elevation_deg(rays)
+        el_band = (float(el.min()), float(el.max()))
+        for pole in ((0.0, 0.0, 1.0), (0.0, 0.0, -1.0)):
+            px = self.camera.project(self.camera.c + np.asarray(pole))
+            if np.all(np.isfinite(px)) and -0.5 <= px[0] <= w and -0.5 <= px[1] <= h:
+                return (0.0, 360.0), (el_band if pole[2] < 0 else (-90.0, el_band[1]))
+        centre_az = self.pointing_az_el()[0]
+        rel = (az - centre_az + 180.0) % 360.0 - 180.0
+        return ((float(centre_az + rel.min()) % 360.0, float(centre_az + rel.max()) % 360.0),
+                el_band)  # fmt: skip
+
     def pixel_grid(self, stride: int = 1) -> FloatArray:
         """Pixel centres (N, 2) as (sample, line) on every ``stride``-th row and column."""
         xs = np.arange(0, self.width, stride, dtype=np.float64)

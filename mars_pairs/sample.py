@@ -167,6 +167,9 @@ def _geometry(obs: Observation, pose: Pose, cam: MapCamera, ctx: SampleContext,
     cam = MapCamera(cam.camera, cam.origin_map + [0.0, 0.0, ground_z + height - centre[2]],
                     cam.jacobian, cam.crs, cam.width, cam.height)  # fmt: skip
     az, el, hfov, vfov = _pointing(obs, cam)
+    # the exact band the image covers, from its border rays (wider than az +/- hFOV/2 when
+    # the camera looks up or down)
+    az_band, el_band = cam.view_band_deg()
 
     stage = "viewshed"
     try:
@@ -174,8 +177,7 @@ def _geometry(obs: Observation, pose: Pose, cam: MapCamera, ctx: SampleContext,
         if geo.viewshed in ("wedge", "both"):
             mask = compute_viewshed(
                 window, float(centre[0]), float(centre[1]), height=height, radius=radius,
-                az_band=((az - hfov / 2) % 360, (az + hfov / 2) % 360),
-                el_band=(el - vfov / 2, el + vfov / 2), planet_radius=MARS_RADIUS_M,
+                az_band=az_band, el_band=el_band, planet_radius=MARS_RADIUS_M,
             )  # fmt: skip
         stage = "raycast"
         hits = ranges = None

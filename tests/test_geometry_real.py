@@ -29,15 +29,25 @@ def test_model_fov_matches_the_label_within_one_percent(label: Path) -> None:
 
 @needs_samples
 @pytest.mark.parametrize("label", LABELS, ids=[p.name for p in LABELS])
-def test_centre_pixel_pointing_matches_the_label_within_half_a_degree(label: Path) -> None:
+def test_model_pointing_matches_the_label_derived_azimuth_elevation(label: Path) -> None:
+    """The label's SITE_FRAME azimuth/elevation from the model + label quaternion.
+
+    Perseverance labels give the image-centre ray, Curiosity labels the camera axis A; each
+    matches to 0.2 degree (the 2663ML subframe's centre pixel is 0.51 degree off its axis).
+    """
     obs = read_observation(label)
     assert obs.azimuth_deg is not None and obs.elevation_deg is not None
     pointing = model_pointing_deg(obs)
     assert pointing is not None
     az, el = pointing
     daz = (az - obs.azimuth_deg + 180.0) % 360.0 - 180.0
-    assert abs(daz) < 0.5, (az, obs.azimuth_deg)
-    assert abs(el - obs.elevation_deg) < 0.5, (el, obs.elevation_deg)
+    assert abs(daz) < 0.2, (az, obs.azimuth_deg)
+    assert abs(el - obs.elevation_deg) < 0.2, (el, obs.elevation_deg)
+    # and the image-centre ray is within about half a degree in every product
+    centre = model_pointing_deg(obs, convention="centre")
+    assert centre is not None
+    assert abs((centre[0] - obs.azimuth_deg + 180.0) % 360.0 - 180.0) < 0.55
+    assert abs(centre[1] - obs.elevation_deg) < 0.55
 
 
 @needs_samples
