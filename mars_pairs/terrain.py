@@ -3,7 +3,7 @@
 Frames and units:
 
 - *raster CRS*: the DEM's own projected CRS; x, y in its map units (metres for the Mars
-  equirectangular maps), cell centres at ``transform * (col + 0.5, row + 0.5)``.
+  equirectangular maps), cell centres at ``transform @ (col + 0.5, row + 0.5)``.
 - *lon/lat*: planetocentric latitude and east-positive longitude in degrees on the Mars sphere
   (``MARS_LONLAT`` = ``+proj=longlat +R=3396190``).
 - Elevations are DEM values in metres (heights above the areoid for HiRISE DTMs); nodata is NaN.
@@ -68,12 +68,12 @@ class DemWindow:
 
     def xy_to_colrow(self, x: ArrayLike, y: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Map x, y -> fractional (col, row) with cell centres at integers."""
-        col, row = ~self.transform * (np.asarray(x, float), np.asarray(y, float))
+        col, row = ~self.transform @ (np.asarray(x, float), np.asarray(y, float))
         return np.asarray(col) - 0.5, np.asarray(row) - 0.5
 
     def colrow_to_xy(self, col: ArrayLike, row: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Fractional (col, row), centres at integers -> map x, y of the raster CRS."""
-        x, y = self.transform * (np.asarray(col, float) + 0.5, np.asarray(row, float) + 0.5)
+        x, y = self.transform @ (np.asarray(col, float) + 0.5, np.asarray(row, float) + 0.5)
         return np.asarray(x), np.asarray(y)
 
 
@@ -99,8 +99,8 @@ class OrthoWindow:
 
 def _bounds_of(transform: Affine, shape: tuple[int, ...]) -> Bounds:
     """(left, bottom, right, top) of a north-up or south-up grid of ``shape`` (rows, cols)."""
-    x0, y0 = transform * (0, 0)
-    x1, y1 = transform * (shape[1], shape[0])
+    x0, y0 = transform @ (0, 0)
+    x1, y1 = transform @ (shape[1], shape[0])
     return min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1)
 
 
@@ -285,9 +285,9 @@ class Terrain:
 
     def _check_data_under(self, dem: DemWindow, x: float, y: float) -> None:
         """Raise TerrainError when the DEM cell under (x, y) is nodata."""
-        col, row = (~dem.transform) * (x, y)
-        r = min(max(int(math.floor(row)), 0), dem.shape[0] - 1)
-        c = min(max(int(math.floor(col)), 0), dem.shape[1] - 1)
+        col, row = ~dem.transform @ (x, y)
+        r = min(max(math.floor(row), 0), dem.shape[0] - 1)
+        c = min(max(math.floor(col), 0), dem.shape[1] - 1)
         if not np.isfinite(dem.data[r, c]):
             raise TerrainError(
                 f"{self.dem_path}: DEM has no data under the observer at x={x:.3f}, y={y:.3f}"
@@ -301,7 +301,7 @@ class Terrain:
         """
         x, y = float(x), float(y)
         self._require_inside(x, y, "point")
-        col, row = (~self.transform) * (x, y)
+        col, row = ~self.transform @ (x, y)
         col, row = col - 0.5, row - 0.5
         c0 = min(max(math.floor(col), 0), max(self._dem.width - 2, 0))
         r0 = min(max(math.floor(row), 0), max(self._dem.height - 2, 0))

@@ -1,0 +1,183 @@
+"""Benchmark: numba viewshed / ray casting against gdal_viewshed on one fractal DEM.
+
+    python benchmarks/bench_viewshed.py            # 4096 x 4096 DEM at 1 m, radius 2000 m
+    python benchmarks/bench_viewshed.py --size 1024 --radius 500   # quick run
+
+Builds a seeded spectral fractal DEM as a GeoTIFF (Mars equirectangular CRS) in a temp dir,
+puts the observer at its centre 2 m above the ground, and prints a markdown table of median
+wall times (ms) with the speed-up against gdal_viewshed's full 360-degree run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import rasterio
+from affine import Affine
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from mars_pairs.kernels import cast_rays, compute_viewshed  # noqa: E402
+from mars_pairs.terrain import Terrain  # noqa: E402
+
+EQC = "+proj=eqc +lat_ts=0 +lon_0=0 +R=3396190 +units=m +no_defs"
+X0, Y0 = 8141036.0, -271512.0  # a Gale-like map corner (metres)
+HEIGHT = 2.0
+CAM_EL = -3.0  # camera looks slightly down (degrees); azimuth: the most open direction
+
+
+def fractal_dem(n: int, seed: int = 42, std: float = 25.0, beta: float = 2.0) -> np.ndarray:
+    """Seeded spectral-synthesis fractal (n x n float32 metres)."""
+    rng = np.random.default_rng(seed)
+    k = np.hypot(np.fft.fftfreq(n)[:, None], np.fft.rfftfreq(n)[None, :])
+    k[0, 0] = 1.0
+    spec = (rng.normal(size=k.shape) + 1j * rng.normal(size=k.shape)) / k**beta
+    spec[0, 0] = 0.0
+    z = np.fft.irfft2(spec, s=(n, n))
+    return (z * std / z.std()).astype(np.float32)
+
+
+def write_dem(path: Path, dem: np.ndarray, cell: float) -> None:
+    """Single-band float32 GeoTIFF in the Mars eqc CRS."""
+    tr = Affine(cell, 0.0, X0, 0.0, -cell, Y0)
+    with rasterio.open(
+        path, "w", driver="GTiff", width=dem.shape[1], height=dem.shape[0], count=1,
+        dtype="float32", crs=EQC, transform=tr, tiled=True, blockxsize=256, blockysize=256,
+    ) as ds:  # fmt: skip
+        ds.write(dem, 1)
+
+
+def median_ms(fn: Callable[[], object], repeats: int) -> float:
+    """Median wall time of ``fn`` in milliseconds."""
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - t) * 1e3)
+    return float(np.median(times))
+
+
+def open_azimuth(mask: np.ndarray, win, x: float, y: float, reach: float) -> float:
+    """Centre (deg) of the 6-degree sector with most visible cells within ``reach`` metres."""
+    rr, cc = np.nonzero(mask)
+    xs, ys = win.colrow_to_xy(cc, rr)
+    ok = np.hypot(xs - x, ys - y) <= reach
+    az = np.degrees(np.arctan2(xs[ok] - x, ys[ok] - y)) % 360.0
+    counts = np.bincount((az // 6).astype(int), minlength=60)
+    return float(np.argmax(counts) * 6 + 3)
+
+
+def camera_rays(width: int, height: int, stride: int, hfov: float, eye: np.ndarray, cam_az):
+    """Pinhole camera at ``eye`` looking (cam_az, CAM_EL): origins, unit directions (map)."""
+    az, el = math.radians(cam_az), math.radians(CAM_EL)
+    fwd = np.array([math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)])
+    right = np.array([math.cos(az), -math.sin(az), 0.0])
+    up = np.cross(right, fwd)
+    f = (width / 2) / math.tan(math.radians(hfov / 2))
+    s, ln = np.meshgrid(np.arange(0, width, stride), np.arange(0, height, stride))
+    xs = (s.ravel() - (width - 1) / 2) / f
+    ys = (ln.ravel() - (height - 1) / 2) / f
+    d = fwd[None, :] + xs[:, None] * right[None, :] - ys[:, None] * up[None, :]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return np.tile(eye, (len(d), 1)), d
+
+
+def run_gdal(dem_path: Path, out: Path, x: float, y: float, radius: float) -> list[str] | None:
+    """gdal_viewshed command line, or None when the binary is absent."""
+    exe = shutil.which("gdal_viewshed")
+    if exe is None:
+        return None
+    return [exe, "-q", "-ox", repr(x), "-oy", repr(y), "-oz", str(HEIGHT), "-md", str(radius),
+            "-b", "1", "-cc", "1", str(dem_path), str(out)]  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--size", type=int, default=4096, help="DEM size in cells (square)")
+    ap.add_argument("--cell", type=float, default=1.0, help="cell size in metres")
+    ap.add_argument("--radius", type=float, default=2000.0, help="viewshed radius, metres")
+    ap.add_argument("--repeats", type=int, default=5)
+    args = ap.parse_args(argv)
+
+    rows: list[tuple[str, float | None, str]] = []
+    t0 = time.perf_counter()
+    tiny = np.zeros((16, 16), np.float32), Affine(1, 0, 0, 0, -1, 16)
+    compute_viewshed(tiny, 8, 8, height=2, radius=5)
+    compute_viewshed(tiny, 8, 8, height=2, radius=5, az_band=(0, 10), el_band=(-10, 0))
+    cast_rays([[8.0, 8.0, 2.0]], [[0.0, 0.6, -0.8]], tiny, max_range=5)
+    rows.append(("numba first call (compile or cache load)", (time.perf_counter() - t0) * 1e3,
+                 "once per process"))  # fmt: skip
+
+    with tempfile.TemporaryDirectory() as tmp:
+        dem_path = Path(tmp) / "dem.tif"
+        write_dem(dem_path, fractal_dem(args.size, std=25.0 * args.size / 4096), args.cell)
+        half = args.size * args.cell / 2
+        x, y = X0 + half + args.cell / 2, Y0 - half - args.cell / 2
+        with Terrain.open(dem_path) as t:
+            win = t.read_dem_window(x, y, args.radius)
+            rows.append(("DEM window read (rasterio)",
+                         median_ms(lambda: t.read_dem_window(x, y, args.radius), args.repeats),
+                         f"{win.shape[0]} x {win.shape[1]} window"))  # fmt: skip
+            eye = np.array([x, y, t.elevation_at(x, y) + HEIGHT])
+
+        vs_kw = {"height": HEIGHT, "radius": args.radius}
+        full = compute_viewshed(win, x, y, **vs_kw)
+        cam_az = open_azimuth(full, win, x, y, 20 * HEIGHT / math.tan(math.radians(-CAM_EL)))
+        cases = [
+            ("viewshed full 360 (oversample=2, default)", {}),
+            ("viewshed full 360 (oversample=1)", {"oversample": 1}),
+            (f"viewshed wedge 6 x 5 deg (Mastcam-like, az {cam_az:.0f})",
+             {"az_band": (cam_az - 3, cam_az + 3), "el_band": (CAM_EL - 2.5, CAM_EL + 2.5)}),
+            ("viewshed wedge 20 x 11 deg",
+             {"az_band": (cam_az - 10, cam_az + 10), "el_band": (CAM_EL - 5.5, CAM_EL + 5.5)}),
+        ]  # fmt: skip
+        for name, kw in cases:
+            mask = compute_viewshed(win, x, y, **vs_kw, **kw)
+            ms = median_ms(lambda kw=kw: compute_viewshed(win, x, y, **vs_kw, **kw), args.repeats)
+            rows.append((name, ms, f"{int(mask.sum())} cells visible"))
+
+        cmd = run_gdal(dem_path, Path(tmp) / "gdal_vs.tif", x, y, args.radius)
+        gdal_ms = None
+        if cmd is None:
+            rows.append(("gdal_viewshed full 360 (subprocess)", None, "not installed"))
+        else:
+            subprocess.run(cmd, check=True)  # warm the file cache
+            gdal_ms = median_ms(lambda: subprocess.run(cmd, check=True), args.repeats)
+            with rasterio.open(Path(tmp) / "gdal_vs.tif") as ds:
+                n_vis = int((ds.read(1) == 255).sum())
+            rows.append(("gdal_viewshed full 360 (subprocess)", gdal_ms,
+                         f"{n_vis} cells visible; incl. process start + GeoTIFF I/O"))  # fmt: skip
+
+        origins, dirs = camera_rays(1648, 1200, 4, 20.0, eye, cam_az)
+        hits, _ = cast_rays(origins, dirs, win, max_range=args.radius)
+        ms = median_ms(lambda: cast_rays(origins, dirs, win, max_range=args.radius), args.repeats)
+        rows.append((f"ray casting 1648 x 1200 / stride 4 ({len(dirs)} rays)", ms,
+                     f"{int(np.isfinite(hits[:, 0]).sum())} hits"))  # fmt: skip
+
+    print_table(rows, gdal_ms, args)
+
+
+def print_table(rows, gdal_ms: float | None, args: argparse.Namespace) -> None:
+    """Markdown table: name, median ms, speed-up vs gdal_viewshed full run, note."""
+    print(f"\nDEM {args.size} x {args.size} at {args.cell} m, radius {args.radius} m, observer "
+          f"{HEIGHT} m above the centre, median of {args.repeats}\n")  # fmt: skip
+    print("| case | median ms | speed-up vs gdal_viewshed full | note |")
+    print("|---|---:|---:|---|")
+    for name, ms, note in rows:
+        ms_s = "n/a" if ms is None else f"{ms:.1f}"
+        ratio = "n/a" if (ms is None or gdal_ms is None) else f"{gdal_ms / ms:.1f}x"
+        print(f"| {name} | {ms_s} | {ratio} | {note} |")
+
+
+if __name__ == "__main__":
+    main()

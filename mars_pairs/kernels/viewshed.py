@@ -1,0 +1,413 @@
+"""Numba viewshed on a DEM window: radial sweep with a running maximum slope.
+
+Frames and units: the DEM window grid of a projected raster CRS. x, y are map units (taken as
+metres, square-ish pixels), elevations metres, azimuth degrees clockwise from grid north
+(+y), elevation angles degrees above the horizontal. Grid coordinates (u, v) = fractional
+(col, row) with cell centres at integers: x = c + a (u + 0.5), y = f + e (v + 0.5).
+
+Algorithm (an "R2"-style sweep): one ray from the observer's cell to every cell of the perimeter
+of the (2D+1)^2 radius box. A ray steps one cell along its major axis at a time and samples the
+terrain where it crosses that grid line (linear interpolation between the two straddling cells),
+keeping the running maximum of the slope (z - eye) / distance. Each cell is *owned* by exactly
+one ray, the one passing closest to its centre (integer test, so no two threads write a cell);
+the owner declares the cell visible when the slope to the cell's surface (+ target height) is at
+least the running maximum of the samples strictly before it, and the cell lies inside the
+elevation band, the azimuth band and the radius. The terrain at horizontal distance d is lowered
+by d^2 / (2R) (Earth-style curvature correction; R = 0 disables it). In wedge mode only rays
+inside the azimuth band (and, near the observer, rays close to it) are marched.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from affine import Affine
+from numba import njit, prange
+
+MARS_RADIUS_M = 3396190.0
+# no 'nnan'/'ninf': NaN nodata and +-inf band limits must compare exactly
+_SAFE_FM = {"arcp", "contract"}
+_AZ_EPS = 1e-9
+_PARALLEL_MIN_STEPS = 200_000  # below this many ray steps one thread is faster
+_HEAVY_STEPS = 8  # rays with at most this many steps go to the cheap second pass
+
+
+# ---------------------------------------------------------------------------------------------
+# shared grid helpers (also used by the ray caster)
+# ---------------------------------------------------------------------------------------------
+def as_grid(window: Any, transform: Any = None) -> tuple[np.ndarray, Affine]:
+    """(float32 C-contiguous DEM array, Affine) from a DemWindow, (array, transform) or array.
+
+    ``transform`` may be a rasterio ``Affine`` or its six coefficients (a, b, c, d, e, f).
+    Raises ValueError for rotated/sheared transforms or a missing transform.
+    """
+    if hasattr(window, "data") and hasattr(window, "transform"):
+        data, tr = window.data, window.transform
+    elif isinstance(window, tuple) and len(window) == 2:
+        data, tr = window
+    else:
+        data, tr = window, transform
+    if tr is None:
+        raise ValueError("a DEM array needs its affine transform (transform=...)")
+    tr = _as_affine(tr)
+    if tr.b != 0.0 or tr.d != 0.0:
+        raise ValueError(f"rotated or sheared transforms are not supported: {tuple(tr)[:6]}")
+    if tr.a == 0.0 or tr.e == 0.0:
+        raise ValueError(f"degenerate transform (zero pixel size): {tuple(tr)[:6]}")
+    arr = np.ascontiguousarray(data, dtype=np.float32)
+    if arr.ndim != 2:
+        raise ValueError(f"DEM window must be 2-D, got shape {arr.shape}")
+    return arr, tr
+
+
+def _as_affine(tr: Any) -> Affine:
+    """Affine from an Affine or a sequence of 6 (or 9) coefficients a, b, c, d, e, f."""
+    if isinstance(tr, Affine):
+        return tr
+    coeffs = [float(v) for v in tr]  # type: ignore[union-attr]
+    if len(coeffs) not in (6, 9):
+        raise ValueError(f"transform needs 6 coefficients (a, b, c, d, e, f), got {len(coeffs)}")
+    return Affine(*coeffs[:6])
+
+
+def xy_to_uv(tr: Affine, x: Any, y: Any) -> tuple[Any, Any]:
+    """Map x, y -> grid (u, v) = fractional (col, row), cell centres at integers."""
+    return (np.asarray(x) - tr.c) / tr.a - 0.5, (np.asarray(y) - tr.f) / tr.e - 0.5
+
+
+@njit(cache=True)
+def bilinear(dem: np.ndarray, u: float, v: float) -> float:
+    """Bilinear DEM value (metres) at grid (u, v); NaN off the centre grid or next to nodata.
+
+    Cells with zero weight are skipped, so points on grid lines/centres by nodata still work.
+    """
+    h, w = dem.shape
+    if not (u >= 0.0 and v >= 0.0 and u <= w - 1 and v <= h - 1):
+        return np.nan
+    c0 = min(int(u), w - 2) if w > 1 else 0
+    r0 = min(int(v), h - 2) if h > 1 else 0
+    fu = u - c0
+    fv = v - r0
+    acc = 0.0
+    for i in range(2):
+        wv = fv if i == 1 else 1.0 - fv
+        if wv == 0.0:
+            continue
+        for j in range(2):
+            wu = fu if j == 1 else 1.0 - fu
+            if wu == 0.0:
+                continue
+            acc += wv * wu * dem[r0 + i, c0 + j]
+    return acc
+
+
+# ---------------------------------------------------------------------------------------------
+# kernel
+# ---------------------------------------------------------------------------------------------
+@njit(cache=True)
+def _decode_ray(r: int, big_d: int) -> tuple[bool, int, int]:
+    """Ray index -> (u-major?, direction sign, perimeter offset k)."""
+    n_u = 2 * big_d + 1
+    n_v = 2 * big_d - 1
+    if r < n_u:
+        return True, 1, r - big_d
+    if r < 2 * n_u:
+        return True, -1, r - n_u - big_d
+    if r < 2 * n_u + n_v:
+        return False, 1, r - 2 * n_u - (big_d - 1)
+    return False, -1, r - 2 * n_u - n_v - (big_d - 1)
+
+
+@njit(cache=True)
+def _in_az(cx: float, cy: float, az_min: float, az_width: float) -> bool:
+    """Is the map offset (cx east, cy north) inside the azimuth band?"""
+    az = math.degrees(math.atan2(cx, cy))
+    rel = (az - az_min) % 360.0
+    # 1e-9 deg tolerance: degrees(atan2) may land an ulp below a band edge (179.99999999999997)
+    return rel <= az_width + _AZ_EPS or rel >= 360.0 - _AZ_EPS
+
+
+@njit(cache=True, fastmath=_SAFE_FM)
+def _last_step(c_maj, sgn, size_maj, c_min, k, inv_p, size_min, s_max):
+    """Last step whose major index and owned minor cell stay on the grid."""
+    last = min(s_max, size_maj - 1 - c_maj if sgn > 0 else c_maj)
+    if k != 0:
+        room = (size_min - 1 - c_min + 0.5) if k > 0 else (c_min + 0.5)
+        last = min(last, int(room / (abs(k) * inv_p)))
+    return last
+
+
+@njit(cache=True, fastmath=_SAFE_FM)
+def _line_z(flat, major, st_maj, st_min, n_min, mn):
+    """Terrain (metres) at minor coordinate ``mn`` on grid line ``major`` (linear along the
+    line); NaN when off the grid or nodata."""
+    m0 = math.floor(mn)
+    fm = mn - m0
+    if m0 < 0 or m0 > n_min - 1 or (m0 == n_min - 1 and fm > 0.0):
+        return np.nan
+    idx = major * st_maj + m0 * st_min
+    return flat[idx] if fm == 0.0 else flat[idx] * (1.0 - fm) + flat[idx + st_min] * fm
+
+
+@njit(cache=True, fastmath=_SAFE_FM)
+def _clears_last_lines(flat, major, sgn, s, cm, o_maj, o_min, st_maj, st_min, n_min, dc, sl,
+                       inv2r, eye):  # fmt: skip
+    """Does the exact sight line (slope ``sl``) to cell (major, cm) clear the two grid lines
+    just before it? (NaN terrain never blocks.)"""
+    inv = 1.0 / (major - o_maj)
+    for j in range(1, 3):
+        if s - j < 1:
+            break
+        line = major - sgn * j
+        t = (line - o_maj) * inv
+        z = _line_z(flat, line, st_maj, st_min, n_min, o_min + t * (cm - o_min))
+        dist = t * dc
+        if z - dist * dist * inv2r - eye > sl * dist:
+            return False
+    return True
+
+
+@njit(cache=True, fastmath=_SAFE_FM)
+def _sweep_ray(
+    flat, out, h, w, r, big_p, s_max, ic, ir, u0, v0, a, e, eye, radius, inv2r, th,
+    tmin, tmax, az_on, az_min, az_w,
+):  # fmt: skip
+    """March ray ``r`` for up to ``s_max`` steps, judging every cell it owns.
+
+    ``flat``/``out``: the DEM and mask raveled (row-major, ``h`` x ``w``). The horizon of a
+    cell is the ray's running maximum up to three lines before it, plus the terrain on the
+    two grid lines just before it sampled on the exact line of sight (where the ray's offset
+    from the true sight line is largest).
+    """
+    umaj, sgn, k = _decode_ray(r, big_p)
+    if umaj:
+        st_maj, st_min, n_maj, n_min = 1, w, w, h
+        c_maj, c_min, o_maj, o_min, sc_maj, sc_min = ic, ir, u0, v0, a, e
+    else:
+        st_maj, st_min, n_maj, n_min = w, 1, h, w
+        c_maj, c_min, o_maj, o_min, sc_maj, sc_min = ir, ic, v0, u0, e, a
+    inv_p = 1.0 / big_p
+    last = _last_step(c_maj, sgn, n_maj, c_min, k, inv_p, n_min, s_max)
+    r2 = radius * radius
+    lim = radius + 1.5 * max(abs(a), abs(e))
+    lim2 = lim * lim
+    lag = -np.inf  # running max of the ray's samples up to line s - 3
+    prev1 = -np.inf  # ray sample on line s - 1
+    prev2 = -np.inf  # ray sample on line s - 2
+    for s in range(1, last + 1):
+        major = c_maj + sgn * s
+        dmaj = (major - o_maj) * sc_maj
+        dmaj2 = dmaj * dmaj
+        frac = k * s * inv_p
+        m = c_min + frac
+        dmin = (m - o_min) * sc_min
+        d2 = dmaj2 + dmin * dmin
+        if d2 > lim2:
+            break
+        c_off = math.floor(frac + 0.5)
+        if (2 * k - 1) * s <= c_off * 2 * big_p < (2 * k + 1) * s:
+            cm = c_min + c_off
+            zc = flat[major * st_maj + cm * st_min]
+            dcm = (cm - o_min) * sc_min
+            dc2 = dmaj2 + dcm * dcm
+            dc = math.sqrt(dc2)
+            sl = (zc + th - dc2 * inv2r - eye) / dc
+            # branch-free: NaN zc fails every comparison
+            vis = (dc2 <= r2) & (sl >= lag) & (sl >= tmin) & (sl <= tmax)
+            if vis:
+                vis = _clears_last_lines(flat, major, sgn, s, cm, o_maj, o_min, st_maj, st_min,
+                                         n_min, dc, sl, inv2r, eye)  # fmt: skip
+            if vis and az_on:
+                vis = _in_az(dmaj, dcm, az_min, az_w) if umaj else _in_az(dcm, dmaj, az_min, az_w)
+            out[major * st_maj + cm * st_min] = vis
+        lag = max(lag, prev2)
+        prev2 = prev1
+        sl = (_line_z(flat, major, st_maj, st_min, n_min, m) - d2 * inv2r - eye) / math.sqrt(d2)
+        prev1 = sl if sl == sl else -np.inf
+
+
+@njit(cache=True)
+def _ray_steps(big_d, big_p, a, e, az_on, az_min, az_w, ratio):
+    """Steps to march per ray: all of them in the band, a few near it, 4 elsewhere."""
+    n = 8 * big_p
+    steps = np.empty(n, dtype=np.int64)
+    for r in range(n):
+        if not az_on:
+            steps[r] = big_d
+            continue
+        umaj, sgn, k = _decode_ray(r, big_p)
+        du, dv = (sgn * big_p, k) if umaj else (k, sgn * big_p)
+        az = math.degrees(math.atan2(du * a, dv * e))
+        rel = (az - az_min) % 360.0
+        if rel <= az_w + _AZ_EPS or rel >= 360.0 - _AZ_EPS:
+            steps[r] = big_d
+        else:
+            off = math.radians(min(rel - az_w, 360.0 - rel))
+            steps[r] = min(big_d, math.ceil(2.0 * ratio / off) + 4)
+    return steps
+
+
+@njit(cache=True, parallel=True)
+def _sweep_parallel(flat, oflat, h, w, rays, steps, big_p, ic, ir, u0, v0, a, e, eye, radius,
+                    inv2r, th, tmin, tmax, az_on, az_min, az_w):  # fmt: skip
+    """Sweep ``rays`` over the threads (each cell has one owner ray: no write conflicts)."""
+    for i in prange(rays.size):
+        r = rays[i]
+        _sweep_ray(
+            flat, oflat, h, w, r, big_p, steps[r], ic, ir, u0, v0, a, e, eye, radius, inv2r, th,
+            tmin, tmax, az_on, az_min, az_w,
+        )  # fmt: skip
+
+
+@njit(cache=True)
+def _sweep_serial(flat, oflat, h, w, rays, steps, big_p, ic, ir, u0, v0, a, e, eye, radius,
+                  inv2r, th, tmin, tmax, az_on, az_min, az_w):  # fmt: skip
+    """Sweep ``rays`` on the calling thread (small jobs: wedges, the short rays)."""
+    for i in range(rays.size):
+        r = rays[i]
+        _sweep_ray(
+            flat, oflat, h, w, r, big_p, steps[r], ic, ir, u0, v0, a, e, eye, radius, inv2r, th,
+            tmin, tmax, az_on, az_min, az_w,
+        )  # fmt: skip
+
+
+@njit(cache=True)
+def _viewshed_kernel(
+    dem, u0, v0, a, e, eye, radius, inv2r, th, tmin, tmax, el_min_deg, el_max_deg,
+    az_on, az_min, az_w, big_d, big_p,
+):  # fmt: skip
+    """uint8 visibility mask of ``dem`` seen from grid point (u0, v0) at elevation ``eye``.
+
+    ``big_d``: steps per ray (radius in cells + 1); ``big_p``: perimeter resolution, i.e.
+    rays end at minor offsets k / (big_p / big_d) cells (oversampling when big_p > big_d).
+    Jobs under ``_PARALLEL_MIN_STEPS`` ray steps run on one thread.
+    """
+    h, w = dem.shape
+    out = np.zeros((h, w), dtype=np.uint8)
+    flat = dem.reshape(-1)
+    oflat = out.reshape(-1)
+    ic = math.floor(u0 + 0.5)
+    ir = math.floor(v0 + 0.5)
+    ratio = max(abs(a), abs(e)) / min(abs(a), abs(e))
+    steps = _ray_steps(big_d, big_p, a, e, az_on, az_min, az_w, ratio)
+    heavy = np.nonzero(steps > _HEAVY_STEPS)[0]
+    light = np.nonzero(steps <= _HEAVY_STEPS)[0]
+    if steps[heavy].sum() >= _PARALLEL_MIN_STEPS:
+        _sweep_parallel(flat, oflat, h, w, heavy, steps, big_p, ic, ir, u0, v0, a, e, eye, radius,
+                        inv2r, th, tmin, tmax, az_on, az_min, az_w)  # fmt: skip
+    else:
+        _sweep_serial(flat, oflat, h, w, heavy, steps, big_p, ic, ir, u0, v0, a, e, eye, radius,
+                      inv2r, th, tmin, tmax, az_on, az_min, az_w)  # fmt: skip
+    _sweep_serial(flat, oflat, h, w, light, steps, big_p, ic, ir, u0, v0, a, e, eye, radius,
+                  inv2r, th, tmin, tmax, az_on, az_min, az_w)  # fmt: skip
+    _judge_origin(dem, out, ic, ir, u0, v0, a, e, eye, th, el_min_deg, el_max_deg, az_on, az_min,
+                  az_w)  # fmt: skip
+    return out
+
+
+@njit(cache=True)
+def _judge_origin(dem, out, ic, ir, u0, v0, a, e, eye, th, el_min, el_max, az_on, az_min, az_w):
+    """The observer's own cell: nothing lies in between; only the bands apply."""
+    zc = dem[ir, ic]
+    if zc != zc:
+        return
+    cx = (ic - u0) * a
+    cy = (ir - v0) * e
+    dc = math.sqrt(cx * cx + cy * cy)
+    el = math.degrees(math.atan2(zc + th - eye, dc))
+    if el < el_min or el > el_max:
+        return
+    if az_on and dc > 0.0 and not _in_az(cx, cy, az_min, az_w):
+        return
+    out[ir, ic] = 1
+
+
+# ---------------------------------------------------------------------------------------------
+# public wrapper
+# ---------------------------------------------------------------------------------------------
+def _az_params(az_band: Sequence[float] | None) -> tuple[bool, float, float]:
+    """(band on?, az_min in [0, 360), clockwise width in degrees) of an azimuth band."""
+    if az_band is None:
+        return False, 0.0, 360.0
+    az_min, az_max = (float(v) for v in az_band)
+    if not (math.isfinite(az_min) and math.isfinite(az_max)):
+        raise ValueError(f"azimuth band must be finite, got {az_band}")
+    if az_max - az_min >= 360.0:
+        return False, 0.0, 360.0
+    return True, az_min % 360.0, (az_max - az_min) % 360.0
+
+
+def _el_params(el_band: Sequence[float] | None) -> tuple[float, float, float, float]:
+    """(tan lower, tan upper, lower deg, upper deg) of an elevation band, +-inf when open."""
+    if el_band is None:
+        return -np.inf, np.inf, -90.0, 90.0
+    lo, hi = (float(v) for v in el_band)
+    if not (-90.0 <= lo <= hi <= 90.0):
+        raise ValueError(f"elevation band must satisfy -90 <= el_min <= el_max <= 90: {el_band}")
+    tlo = -np.inf if lo <= -90.0 else math.tan(math.radians(lo))
+    thi = np.inf if hi >= 90.0 else math.tan(math.radians(hi))
+    return tlo, thi, lo, hi
+
+
+def observer_eye(
+    dem: np.ndarray, tr: Affine, x: float, y: float, height: float, absolute: bool
+) -> tuple[float, float, float]:
+    """(u0, v0, eye elevation in metres) of an observer at map (x, y); ValueError off-grid/NaN."""
+    u0, v0 = (float(t) for t in xy_to_uv(tr, x, y))
+    h, w = dem.shape
+    if not (-0.5 <= u0 < w - 0.5 and -0.5 <= v0 < h - 0.5):
+        raise ValueError(f"observer x={x}, y={y} lies outside the DEM window")
+    if absolute:
+        return u0, v0, float(height)
+    ground = bilinear(dem, min(max(u0, 0.0), w - 1.0), min(max(v0, 0.0), h - 1.0))
+    if not math.isfinite(ground):
+        raise ValueError(f"no DEM data under the observer at x={x}, y={y}")
+    return u0, v0, ground + float(height)
+
+
+def compute_viewshed(
+    window: Any,
+    x: float,
+    y: float,
+    *,
+    height: float,
+    radius: float,
+    height_is_absolute: bool = False,
+    az_band: Sequence[float] | None = None,
+    el_band: Sequence[float] | None = None,
+    target_height: float = 0.0,
+    planet_radius: float = MARS_RADIUS_M,
+    transform: Any = None,
+    oversample: int = 2,
+) -> np.ndarray:
+    """Visibility mask (uint8, 1 = visible) on the DEM window grid.
+
+    ``window``: a ``DemWindow``, an (array, transform) pair, or an array with ``transform=``
+    (NaN = nodata). Observer at map (x, y) of the window's CRS; eye at ``height`` metres above
+    the terrain there, or at absolute elevation ``height`` when ``height_is_absolute``.
+    ``radius`` in map units. ``az_band`` = (az_min, az_max) degrees clockwise from grid north,
+    taken clockwise from az_min (355..5 crosses north); None = all azimuths. ``el_band`` =
+    (el_min, el_max) degrees above the horizontal; None = all. ``target_height`` (metres) is
+    added to each cell's surface. ``planet_radius`` (metres) drives the d^2/(2R) curvature drop;
+    0 disables it. Cells are judged against the terrain strictly between the observer's cell
+    and the target cell. ``oversample``: rays per perimeter cell (2: a cell lies within a
+    quarter cell of its ray; 1 is ~1.7x faster, half a cell, slightly less exact).
+    """
+    dem, tr = as_grid(window, transform)
+    if not (radius > 0 and math.isfinite(radius)):
+        raise ValueError(f"radius must be positive and finite, got {radius}")
+    u0, v0, eye = observer_eye(dem, tr, x, y, height, height_is_absolute)
+    az_on, az_min, az_w = _az_params(az_band)
+    tmin, tmax, el_lo, el_hi = _el_params(el_band)
+    inv2r = 0.0 if not planet_radius or not math.isfinite(planet_radius) else 0.5 / planet_radius
+    big_d = math.ceil(radius / min(abs(tr.a), abs(tr.e))) + 1
+    if int(oversample) < 1:
+        raise ValueError(f"oversample must be >= 1, got {oversample}")
+    big_p = big_d * int(oversample)
+    return _viewshed_kernel(
+        dem, u0, v0, float(tr.a), float(tr.e), eye, float(radius), inv2r, float(target_height),
+        tmin, tmax, el_lo, el_hi, az_on, az_min, az_w, big_d, big_p,
+    )  # fmt: skip
