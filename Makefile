@@ -18,7 +18,8 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(PY) -m mars_pairs.demo --out out/demo
+	$(VENV)/bin/mars-pairs build --config configs/demo.yaml --workers 2
+	$(VENV)/bin/mars-pairs inspect out/demo/dataset
 
 test: $(STAMP)
 	$(PY) -m pytest -q
@@ -29,6 +30,8 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_viewshed.py
+	$(PY) benchmarks/bench_build.py
+	$(PY) benchmarks/bench_loader.py
 
 clean:
 	rm -rf out .pytest_cache

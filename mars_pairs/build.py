@@ -9,6 +9,7 @@ output is the same whatever the worker count.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import multiprocessing as mp
 import platform
@@ -24,6 +25,7 @@ import pyarrow.parquet as pq
 from tqdm import tqdm
 
 from mars_pairs.config import BuildConfig
+from mars_pairs.errors import ConfigError
 from mars_pairs.manifest import (
     FAILURE_SCHEMA,
     MANIFEST_SCHEMA,
@@ -58,7 +60,9 @@ class BuildSummary:
             f"time: {self.seconds:.1f} s ({rate:.1f} samples/s)",
             f"chunks: {self.chunks_built} built, {self.chunks_resumed} resumed",
         ]
-        lines += [f"  failed at {reason}: {n}" for reason, n in sorted(self.failures_by_reason.items())]
+        lines += [
+            f"  failed at {reason}: {n}" for reason, n in sorted(self.failures_by_reason.items())
+        ]
         return "\n".join(lines)
 
 
@@ -78,7 +82,7 @@ def _work(label: str) -> tuple[str, Any]:
         return "ok", build_sample(Path(label), _CONTEXT)
     except StageError as exc:
         return "fail", _failure_row(label, exc.stage, exc.error)
-    except Exception as exc:  # noqa: BLE001 - one bad observation never stops the build
+    except Exception as exc:
         return "fail", _failure_row(label, "internal", exc)
 
 
@@ -97,8 +101,11 @@ def _chunks(labels: list[Path], size: int) -> list[list[Path]]:
 
 
 def _part_paths(out: Path, k: int) -> tuple[str, Path, Path]:
-    return (f"shards/shard-{k:06d}.tar", out / "parts" / f"manifest-{k:06d}.parquet",
-            out / "parts" / f"failures-{k:06d}.parquet")  # fmt: skip
+    return (
+        f"shards/shard-{k:06d}.tar",
+        out / "parts" / f"manifest-{k:06d}.parquet",
+        out / "parts" / f"failures-{k:06d}.parquet",
+    )
 
 
 def _results(config: BuildConfig, labels: list[str], workers: int) -> Iterator[tuple[str, Any]]:
@@ -132,30 +139,56 @@ def _write_chunk(out: Path, k: int, results: list[tuple[str, Any]], strict: bool
                 row = dict(sample.row)
                 for name, loc in locs.items():
                     fld = name.split(".")[0]
-                    row.update({f"{fld}_shard": loc.shard, f"{fld}_offset": loc.offset,
-                                f"{fld}_size": loc.size})  # fmt: skip
+                    row.update(
+                        {
+                            f"{fld}_shard": loc.shard,
+                            f"{fld}_offset": loc.offset,
+                            f"{fld}_size": loc.size,
+                        }
+                    )
                 rows.append(row)
     write_parquet_atomic(rows_to_table(failures, FAILURE_SCHEMA), failures_part)
     write_parquet_atomic(rows_to_table(rows, MANIFEST_SCHEMA), manifest_part)  # commit marker
     return len(samples)
 
 
-def run_build(config: BuildConfig, *, workers: int = 1, resume: bool = False,
-              limit: int | None = None, strict: bool = False,
-              progress: bool = True) -> BuildSummary:  # fmt: skip
+def run_build(
+    config: BuildConfig,
+    *,
+    workers: int = 1,
+    resume: bool = False,
+    limit: int | None = None,
+    strict: bool = False,
+    progress: bool = True,
+) -> BuildSummary:
     """Build the dataset described by ``config`` into ``config.output.dir``."""
     start = time.perf_counter()
     out = config.output.dir
     out.mkdir(parents=True, exist_ok=True)
     labels = config.inputs.label_paths()[: limit if limit else None]
     chunks = _chunks(labels, config.output.shard_size)
+    for leftover in out.rglob(".*.tmp-*"):  # temporary files of a killed build
+        leftover.unlink()
+    fingerprint = _fingerprint(config, labels)
+    stamp = out / "parts" / "build.json"
+    if resume and stamp.is_file() and json.loads(stamp.read_text()) != fingerprint:
+        raise ConfigError(
+            f"{out}: cannot resume: the config or the label list changed since the "
+            "interrupted build; rerun without --resume"
+        )
     if not resume:
-        for stale in (out / "parts").glob("*.parquet") if (out / "parts").is_dir() else []:
-            stale.unlink()
+        _clear_outputs(out)
+    stamp.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(stamp, json.dumps(fingerprint).encode())
     todo = [k for k in range(len(chunks)) if not _part_paths(out, k)[1].exists()]
     pending = [str(p) for k in todo for p in chunks[k]]
-    bar = tqdm(total=len(labels), initial=len(labels) - len(pending), unit="img",
-               disable=not progress, desc="build")  # fmt: skip
+    bar = tqdm(
+        total=len(labels),
+        initial=len(labels) - len(pending),
+        unit="img",
+        disable=not progress,
+        desc="build",
+    )
     results = _results(config, pending, workers)
     try:
         for k in todo:
@@ -174,14 +207,45 @@ def run_build(config: BuildConfig, *, workers: int = 1, resume: bool = False,
         out_dir=out,
         samples=manifest.num_rows,
         failures=failures.num_rows,
-        failures_by_reason=dict(Counter(f"{s} ({e})" for s, e in zip(
-            failures.column("stage").to_pylist(), failures.column("error_type").to_pylist()))),
+        failures_by_reason=dict(
+            Counter(
+                f"{s} ({e})"
+                for s, e in zip(
+                    failures.column("stage").to_pylist(),
+                    failures.column("error_type").to_pylist(),
+                    strict=False,
+                )
+            )
+        ),
         chunks_built=len(todo),
         chunks_resumed=len(chunks) - len(todo),
         seconds=time.perf_counter() - start,
-    )  # fmt: skip
+    )
     _write_dataset_json(config, summary, manifest)
     return summary
+
+
+def _fingerprint(config: BuildConfig, labels: list[Path]) -> dict[str, Any]:
+    """What a resumed build must share with the interrupted one."""
+    doc = config.to_dict()
+    doc.pop("source", None)
+    doc["output"].pop("dir", None)
+    names = "\n".join(str(p) for p in labels).encode()
+    return {"config": doc, "labels": hashlib.sha256(names).hexdigest(), "count": len(labels)}
+
+
+def _clear_outputs(out: Path) -> None:
+    """Remove what an earlier build left: parts, shards, manifest, failures."""
+    for pattern in (
+        "parts/*.parquet",
+        "shards/*.tar",
+        "manifest.parquet",
+        "failures.parquet",
+        "dataset.json",
+    ):
+        for stale in out.glob(pattern):
+            if stale.is_file():
+                stale.unlink()
 
 
 def _merge(config: BuildConfig, n_chunks: int) -> tuple[pa.Table, pa.Table]:
@@ -212,8 +276,12 @@ def _bbox(manifest: pa.Table) -> list[float] | None:
         return None
     import pyarrow.compute as pc
 
-    return [pc.min(manifest["chip_xmin"]).as_py(), pc.min(manifest["chip_ymin"]).as_py(),
-            pc.max(manifest["chip_xmax"]).as_py(), pc.max(manifest["chip_ymax"]).as_py()]  # fmt: skip
+    return [
+        pc.min(manifest["chip_xmin"]).as_py(),
+        pc.min(manifest["chip_ymin"]).as_py(),
+        pc.max(manifest["chip_xmax"]).as_py(),
+        pc.max(manifest["chip_ymax"]).as_py(),
+    ]
 
 
 def _write_dataset_json(config: BuildConfig, summary: BuildSummary, manifest: pa.Table) -> None:
@@ -230,14 +298,22 @@ def _write_dataset_json(config: BuildConfig, summary: BuildSummary, manifest: pa
         counts["by_mission"] = dict(Counter(manifest.column("mission").to_pylist()))
     doc = {
         "config": config.to_dict(),
-        "versions": {"mars_pairs": __version__, "numpy": numpy.__version__,
-                     "rasterio": rasterio.__version__, "pyarrow": pyarrow.__version__,
-                     "numba": numba.__version__, "python": platform.python_version()},
+        "versions": {
+            "mars_pairs": __version__,
+            "numpy": numpy.__version__,
+            "rasterio": rasterio.__version__,
+            "pyarrow": pyarrow.__version__,
+            "numba": numba.__version__,
+            "python": platform.python_version(),
+        },
         "crs": _dataset_crs(config),
-        "chip": {"size_m": config.chips.size_m, "size_px": config.chips.size_px,
-                 "orientation": config.chips.orientation},
+        "chip": {
+            "size_m": config.chips.size_m,
+            "size_px": config.chips.size_px,
+            "orientation": config.chips.orientation,
+        },
         "counts": counts,
         "failures_by_reason": summary.failures_by_reason,
         "build_seconds": round(summary.seconds, 3),
-    }  # fmt: skip
+    }
     atomic_write_bytes(config.output.dir / "dataset.json", json.dumps(doc, indent=2).encode())

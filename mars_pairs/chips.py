@@ -36,8 +36,9 @@ class ChipGrid:
     rotation_deg: float = 0.0
 
     @classmethod
-    def around(cls, x: float, y: float, size_m: float, size_px: int, crs: object,
-               rotation_deg: float = 0.0) -> ChipGrid:  # fmt: skip
+    def around(
+        cls, x: float, y: float, size_m: float, size_px: int, crs: object, rotation_deg: float = 0.0
+    ) -> ChipGrid:
         """A grid centred on map point (x, y) whose up direction is ``rotation_deg``."""
         res = size_m / size_px
         t = math.radians(rotation_deg)
@@ -63,8 +64,12 @@ class ChipGrid:
     def bounds(self) -> tuple[float, float, float, float]:
         """Axis-aligned map bounds (xmin, ymin, xmax, ymax) of the chip."""
         c = self.corners()
-        return (float(c[:, 0].min()), float(c[:, 1].min()),
-                float(c[:, 0].max()), float(c[:, 1].max()))  # fmt: skip
+        return (
+            float(c[:, 0].min()),
+            float(c[:, 1].min()),
+            float(c[:, 0].max()),
+            float(c[:, 1].max()),
+        )
 
     def to_pixel(self, x: ArrayLike, y: ArrayLike) -> NDArray[np.float64]:
         """Map points -> chip pixel coordinates (..., 2) as (column, row), pixel-edge origin."""
@@ -75,8 +80,9 @@ class ChipGrid:
         return np.stack([col, row], axis=-1)
 
 
-def read_chip(path: str, grid: ChipGrid, *, resampling: Resampling = Resampling.bilinear,
-              band: int = 1) -> NDArray[np.float32]:  # fmt: skip
+def read_chip(
+    path: str, grid: ChipGrid, *, resampling: Resampling = Resampling.bilinear, band: int = 1
+) -> NDArray[np.float32]:
     """Resample one band of a raster onto a chip grid; nodata and outside become NaN.
 
     GDAL's warper reads only the source blocks the chip touches, never the whole raster, and
@@ -97,9 +103,14 @@ def read_chip(path: str, grid: ChipGrid, *, resampling: Resampling = Resampling.
     return out
 
 
-def resample_array(values: NDArray[np.generic], transform: Affine, crs: object, grid: ChipGrid,
-                   resampling: Resampling = Resampling.nearest,
-                   nodata: float = np.nan) -> NDArray[np.float32]:  # fmt: skip
+def resample_array(
+    values: NDArray[np.generic],
+    transform: Affine,
+    crs: object,
+    grid: ChipGrid,
+    resampling: Resampling = Resampling.nearest,
+    nodata: float = np.nan,
+) -> NDArray[np.float32]:
     """Resample an in-memory grid (e.g. a viewshed on the DEM window) onto a chip grid."""
     out = np.full((grid.size_px, grid.size_px), nodata, dtype=np.float32)
     reproject(

@@ -46,8 +46,14 @@ def _cmd_build(args: argparse.Namespace) -> int:
         config = replace(config, output=replace(config.output, dir=Path(args.out).resolve()))
     _ensure_synthetic(config)
     try:
-        summary = run_build(config, workers=args.workers, resume=args.resume, limit=args.limit,
-                            strict=args.strict, progress=not args.quiet)  # fmt: skip
+        summary = run_build(
+            config,
+            workers=args.workers,
+            resume=args.resume,
+            limit=args.limit,
+            strict=args.strict,
+            progress=not args.quiet,
+        )
     except BuildError as exc:
         print(f"mars-pairs build: --strict: {exc}", file=sys.stderr)
         return 2
@@ -64,8 +70,14 @@ def _ensure_synthetic(config: object) -> None:
     from mars_pairs.synth import generate_mission
 
     print(f"generating the synthetic {spec.mission} mission in {spec.root} ...", flush=True)
-    generate_mission(spec.root, seed=spec.seed, mission=spec.mission, stops=spec.stops,
-                     images_per_stop=spec.images_per_stop, size=spec.size)  # fmt: skip
+    generate_mission(
+        spec.root,
+        seed=spec.seed,
+        mission=spec.mission,
+        stops=spec.stops,
+        images_per_stop=spec.images_per_stop,
+        size=spec.size,
+    )
 
 
 def _cmd_inspect(args: argparse.Namespace) -> int:
@@ -78,8 +90,14 @@ def _cmd_inspect(args: argparse.Namespace) -> int:
 def _cmd_synth(args: argparse.Namespace) -> int:
     from mars_pairs.synth import generate_mission
 
-    result = generate_mission(args.out, seed=args.seed, mission=args.mission, stops=args.stops,
-                              images_per_stop=args.images_per_stop, size=args.size)  # fmt: skip
+    result = generate_mission(
+        args.out,
+        seed=args.seed,
+        mission=args.mission,
+        stops=args.stops,
+        images_per_stop=args.images_per_stop,
+        size=args.size,
+    )
     print(json.dumps(result, indent=2, default=str))
     return 0
 
@@ -104,8 +122,9 @@ def _cmd_viewshed(args: argparse.Namespace) -> int:
             az = None if args.az_min is None else (args.az_min, args.az_max)
             el = None if args.el_min is None else (args.el_min, args.el_max)
             terrain._require_inside(args.x, args.y, "observer")
-            req = ViewshedRequest(args.x, args.y, args.height, args.radius, az, el,
-                                  height_is_absolute=args.absolute)  # fmt: skip
+            req = ViewshedRequest(
+                args.x, args.y, args.height, args.radius, az, el, height_is_absolute=args.absolute
+            )
         codes, window = compute_request(terrain, req)
     write_viewshed_geotiff(args.out, codes, window)
     visible = int((codes == 1).sum())

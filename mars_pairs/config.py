@@ -125,7 +125,9 @@ class _Section:
             raise ConfigError(f"{prefix}: expected a mapping, got {type(data).__name__}")
         unknown = sorted(set(data) - known)
         if unknown:
-            raise ConfigError(f"{prefix}.{unknown[0]}: unknown key (expected one of {sorted(known)})")
+            raise ConfigError(
+                f"{prefix}.{unknown[0]}: unknown key (expected one of {sorted(known)})"
+            )
         self.data, self.prefix = data, prefix
 
     def _name(self, key: str) -> str:
@@ -179,8 +181,11 @@ def _inputs(data: Any, base: Path) -> InputsConfig:
         raise ConfigError(f"inputs.labels: expected a glob or a list of globs, got {labels!r}")
     synthetic = None
     if sec.raw("synthetic", None) is not None:
-        syn = _Section(sec.raw("synthetic"), "inputs.synthetic",
-                       {"root", "mission", "seed", "stops", "images_per_stop", "size"})  # fmt: skip
+        syn = _Section(
+            sec.raw("synthetic"),
+            "inputs.synthetic",
+            {"root", "mission", "seed", "stops", "images_per_stop", "size"},
+        )
         synthetic = SyntheticSpec(
             root=syn.path("root", base),  # type: ignore[arg-type]
             mission=syn.choice("mission", ("m2020", "msl"), "m2020"),
@@ -190,7 +195,7 @@ def _inputs(data: Any, base: Path) -> InputsConfig:
             size=syn.choice("size", ("small", "default"), "small"),
         )
     return InputsConfig(
-        labels=tuple(str((base / Path(p).expanduser())) for p in labels),
+        labels=tuple(str(base / Path(p).expanduser()) for p in labels),
         places=sec.path("places", base),  # type: ignore[arg-type]
         dem=sec.path("dem", base),  # type: ignore[arg-type]
         ortho=sec.path("ortho", base),  # type: ignore[arg-type]
@@ -202,9 +207,16 @@ def _inputs(data: Any, base: Path) -> InputsConfig:
 def _splits(data: Any) -> SplitsConfig:
     sec = _Section(data, "splits", {"block_m", "ratios", "seed"})
     ratios = sec.raw("ratios", {"train": 0.8, "val": 0.1, "test": 0.1})
-    ok = isinstance(ratios, dict) and ratios and all(
-        isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0
-        for k, v in ratios.items()
+    ok = (
+        isinstance(ratios, dict)
+        and ratios
+        and all(
+            isinstance(k, str)
+            and isinstance(v, (int, float))
+            and not isinstance(v, bool)
+            and v >= 0
+            for k, v in ratios.items()
+        )
     )
     if not ok or abs(sum(ratios.values()) - 1.0) > 1e-6:
         raise ConfigError(
@@ -221,8 +233,9 @@ def _splits(data: Any) -> SplitsConfig:
 def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConfig:
     """Validate a config mapping (relative paths against ``base``) into a BuildConfig."""
     top = _Section(data, "", {"inputs", "geometry", "chips", "output", "splits"})
-    geo = _Section(top.raw("geometry", {}), "geometry",
-                   {"observer_height", "radius", "viewshed", "ray_stride"})  # fmt: skip
+    geo = _Section(
+        top.raw("geometry", {}), "geometry", {"observer_height", "radius", "viewshed", "ray_stride"}
+    )
     chips = _Section(top.raw("chips", {}), "chips", {"size_m", "size_px", "orientation"})
     out = _Section(top.raw("output"), "output", {"dir", "shard_size", "image_encoding"})
     return BuildConfig(

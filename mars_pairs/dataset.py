@@ -26,13 +26,38 @@ from mars_pairs.manifest import Manifest
 DEFAULT_FIELDS = ("ground", "ortho", "dem", "viewshed")
 ALL_FIELDS = ("ground", "ortho", "dem", "viewshed", "corr")
 META_COLUMNS = (
-    "key", "mission", "instrument", "product_id", "sol", "site", "drive", "split", "latitude",
-    "longitude", "easting", "northing", "elevation", "azimuth_deg", "elevation_deg", "hfov_deg",
-    "vfov_deg", "localization", "viewshed_area_m2", "max_visible_range_m",
-)  # fmt: skip
+    "key",
+    "mission",
+    "instrument",
+    "product_id",
+    "sol",
+    "site",
+    "drive",
+    "split",
+    "latitude",
+    "longitude",
+    "easting",
+    "northing",
+    "elevation",
+    "azimuth_deg",
+    "elevation_deg",
+    "hfov_deg",
+    "vfov_deg",
+    "localization",
+    "viewshed_area_m2",
+    "max_visible_range_m",
+)
 
-FILTER_KEYS = ("bbox_lonlat", "bbox_map", "near", "polygon", "mission", "instrument", "sol",
-               "split")  # fmt: skip
+FILTER_KEYS = (
+    "bbox_lonlat",
+    "bbox_map",
+    "near",
+    "polygon",
+    "mission",
+    "instrument",
+    "sol",
+    "split",
+)
 
 
 # -- decoding ------------------------------------------------------------------------------------
@@ -42,10 +67,7 @@ def _decode_image(data: bytes, mode: str, size: tuple[int, int] | None = None) -
         if size is not None and (im.height, im.width) != tuple(size):
             im = im.resize((size[1], size[0]), Image.BILINEAR)
         arr = np.asarray(im, dtype=np.float32) / 255.0
-    if arr.ndim == 2:
-        arr = arr[None]
-    else:
-        arr = np.ascontiguousarray(arr.transpose(2, 0, 1))
+    arr = arr[None] if arr.ndim == 2 else np.ascontiguousarray(arr.transpose(2, 0, 1))
     return torch.from_numpy(arr)
 
 
@@ -53,8 +75,13 @@ def _decode_npy(data: bytes) -> np.ndarray:
     return np.load(io.BytesIO(data), allow_pickle=False)
 
 
-def decode_member(field: str, data: bytes, *, ground_size: tuple[int, int] | None = None,
-                  normalize_dem: bool = False) -> Any:  # fmt: skip
+def decode_member(
+    field: str,
+    data: bytes,
+    *,
+    ground_size: tuple[int, int] | None = None,
+    normalize_dem: bool = False,
+) -> Any:
     """Decode one member's bytes into its tensor (or dict, for ``meta``)."""
     if field == "ground":
         return _decode_image(data, "RGB", ground_size)
@@ -141,7 +168,7 @@ class MarsPairsDataset(Dataset):
         self.ground_size = _ground_size(ground_size)
         self.normalize_dem = normalize_dem
         manifest = Manifest.open(self.root).filter(**filters)
-        columns = list(META_COLUMNS) + ["ground_member"]
+        columns = [*list(META_COLUMNS), "ground_member"]
         for name in self.fields:
             columns += [f"{name}_shard", f"{name}_offset", f"{name}_size"]
         table = manifest.to_table(columns=list(dict.fromkeys(columns)))
@@ -155,10 +182,12 @@ class MarsPairsDataset(Dataset):
         row = self._rows[index]
         sample: dict[str, Any] = {}
         for name in self.fields:
-            data = self._files.read(row[f"{name}_shard"], row[f"{name}_offset"],
-                                    row[f"{name}_size"])  # fmt: skip
-            sample[name] = decode_member(name, data, ground_size=self.ground_size,
-                                         normalize_dem=self.normalize_dem)  # fmt: skip
+            data = self._files.read(
+                row[f"{name}_shard"], row[f"{name}_offset"], row[f"{name}_size"]
+            )
+            sample[name] = decode_member(
+                name, data, ground_size=self.ground_size, normalize_dem=self.normalize_dem
+            )
         sample["meta"] = {k: row[k] for k in META_COLUMNS}
         return self.transform(sample) if self.transform is not None else sample
 
@@ -190,9 +219,14 @@ class MarsPairsIterableDataset(IterableDataset):
         seed: int = 0,
         **filters: Any,
     ) -> None:
-        self._inner = MarsPairsDataset(root, fields=fields, transform=transform,
-                                       ground_size=ground_size, normalize_dem=normalize_dem,
-                                       **filters)  # fmt: skip
+        self._inner = MarsPairsDataset(
+            root,
+            fields=fields,
+            transform=transform,
+            ground_size=ground_size,
+            normalize_dem=normalize_dem,
+            **filters,
+        )
         self.shuffle_buffer = shuffle_buffer
         self.seed = seed
         self.epoch = 0

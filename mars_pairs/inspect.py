@@ -33,8 +33,14 @@ def inspect_dataset(dataset: str | Path) -> str:
     failures_path = root / "failures.parquet"
     if failures_path.is_file():
         failures = pq.read_table(failures_path)
-        reasons = [f"{s} ({e})" for s, e in zip(failures.column("stage").to_pylist(),
-                                                failures.column("error_type").to_pylist())]  # fmt: skip
+        reasons = [
+            f"{s} ({e})"
+            for s, e in zip(
+                failures.column("stage").to_pylist(),
+                failures.column("error_type").to_pylist(),
+                strict=False,
+            )
+        ]
         lines.append(f"failures: {failures.num_rows}")
         lines += _counts("failures by reason", reasons)[1:] if reasons else []
     lines.append(f"size on disk: {_size(root) / 1e6:.1f} MB")

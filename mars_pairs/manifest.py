@@ -53,8 +53,11 @@ _FIELDS: list[tuple[str, pa.DataType]] = [
     ("ground_member", pa.string()),  # e.g. "ground.jpg"
 ]
 for _m in MEMBERS:
-    _FIELDS += [(f"{_m}_shard", pa.string()), (f"{_m}_offset", pa.int64()),
-                (f"{_m}_size", pa.int64())]  # fmt: skip
+    _FIELDS += [
+        (f"{_m}_shard", pa.string()),
+        (f"{_m}_offset", pa.int64()),
+        (f"{_m}_size", pa.int64()),
+    ]
 
 MANIFEST_SCHEMA = pa.schema(_FIELDS)
 
@@ -167,27 +170,43 @@ class Manifest:
         exact = list(self._exact)
         if bbox_lonlat is not None:
             w, s, e, n = bbox_lonlat
-            terms.append((f("longitude") >= w) & (f("longitude") <= e)
-                         & (f("latitude") >= s) & (f("latitude") <= n))  # fmt: skip
+            terms.append(
+                (f("longitude") >= w)
+                & (f("longitude") <= e)
+                & (f("latitude") >= s)
+                & (f("latitude") <= n)
+            )
         if bbox_map is not None:
             x0, y0, x1, y1 = bbox_map
-            terms.append((f("easting") >= x0) & (f("easting") <= x1)
-                         & (f("northing") >= y0) & (f("northing") <= y1))  # fmt: skip
+            terms.append(
+                (f("easting") >= x0)
+                & (f("easting") <= x1)
+                & (f("northing") >= y0)
+                & (f("northing") <= y1)
+            )
         if near is not None:
             lat, lon, radius = near
             dlat = math.degrees(radius / MARS_RADIUS_M)
             coslat = max(math.cos(math.radians(min(abs(lat) + dlat, 90.0))), 1e-9)
             dlon = min(180.0, dlat / coslat)
-            terms.append((f("latitude") >= lat - dlat) & (f("latitude") <= lat + dlat)
-                         & (f("longitude") >= lon - dlon) & (f("longitude") <= lon + dlon))  # fmt: skip
+            terms.append(
+                (f("latitude") >= lat - dlat)
+                & (f("latitude") <= lat + dlat)
+                & (f("longitude") >= lon - dlon)
+                & (f("longitude") <= lon + dlon)
+            )
             exact.append(_NearPredicate(lat, lon, radius))
         if polygon is not None:
             import shapely
 
             geom = shapely.from_wkt(polygon) if isinstance(polygon, str) else polygon
             x0, y0, x1, y1 = geom.bounds
-            terms.append((f("easting") >= x0) & (f("easting") <= x1)
-                         & (f("northing") >= y0) & (f("northing") <= y1))  # fmt: skip
+            terms.append(
+                (f("easting") >= x0)
+                & (f("easting") <= x1)
+                & (f("northing") >= y0)
+                & (f("northing") <= y1)
+            )
             exact.append(_PolygonPredicate(shapely.to_wkb(geom)))
         for name, value in (("mission", mission), ("instrument", instrument), ("split", split)):
             if value is not None:
@@ -238,8 +257,9 @@ class _NearPredicate:
     radius_m: float
 
     def __call__(self, table: pa.Table) -> pa.Array:
-        d = great_circle_m(self.lat, self.lon, table["latitude"].to_numpy(),
-                           table["longitude"].to_numpy())  # fmt: skip
+        d = great_circle_m(
+            self.lat, self.lon, table["latitude"].to_numpy(), table["longitude"].to_numpy()
+        )
         return pa.array(d <= self.radius_m)
 
 
@@ -251,6 +271,7 @@ class _PolygonPredicate:
         import shapely
 
         geom = shapely.from_wkb(self.wkb)
-        inside = shapely.intersects_xy(geom, table["easting"].to_numpy(),
-                                       table["northing"].to_numpy())  # fmt: skip
+        inside = shapely.intersects_xy(
+            geom, table["easting"].to_numpy(), table["northing"].to_numpy()
+        )
         return pa.array(inside)

@@ -23,9 +23,19 @@ from mars_pairs.observation import Observation
 MISSING = -9999.0
 
 REQUIRED_COLUMNS = (
-    "frame", "site", "drive", "northing", "easting", "planetocentric_latitude", "longitude",
-    "elevation", "quat_s", "quat_v1", "quat_v2", "quat_v3",
-)  # fmt: skip
+    "frame",
+    "site",
+    "drive",
+    "northing",
+    "easting",
+    "planetocentric_latitude",
+    "longitude",
+    "elevation",
+    "quat_s",
+    "quat_v1",
+    "quat_v2",
+    "quat_v3",
+)
 
 
 @dataclass(frozen=True)
@@ -147,10 +157,18 @@ class Places:
             return None
         q = self._quaternion(row)
         return Pose(
-            site=site, drive=drive, easting=e, northing=n, crs=self.crs, latitude=lat,
-            longitude=lon, elevation_m=elev, quaternion=q, source="places",
+            site=site,
+            drive=drive,
+            easting=e,
+            northing=n,
+            crs=self.crs,
+            latitude=lat,
+            longitude=lon,
+            elevation_m=elev,
+            quaternion=q,
+            source="places",
             attitude_source="places" if q is not None else None,
-        )  # fmt: skip
+        )
 
     def locate(self, obs: Observation) -> Pose:
         """The rover Pose for an observation, by the fallback in DESIGN.md.
@@ -179,8 +197,15 @@ class Places:
         x, y = lonlat_to_map(lon, lat, self.crs)
         q = obs.rover_quaternion
         return Pose(
-            site=site, drive=drive, easting=float(x), northing=float(y), crs=self.crs,
-            latitude=float(lat), longitude=float(lon), elevation_m=float(h),
-            quaternion=None if q is None else np.asarray(q, dtype=np.float64), source="label",
+            site=site,
+            drive=drive,
+            easting=float(x),
+            northing=float(y),
+            crs=self.crs,
+            latitude=float(lat),
+            longitude=float(lon),
+            elevation_m=float(h),
+            quaternion=None if q is None else np.asarray(q, dtype=np.float64),
+            source="label",
             attitude_source=None if q is None else "label",
-        )  # fmt: skip
+        )

@@ -15,8 +15,7 @@ from typing import Any
 import numpy as np
 from PIL import Image
 from rasterio.enums import Resampling
-from shapely import MultiPoint, Polygon
-from shapely import to_wkb
+from shapely import MultiPoint, Polygon, to_wkb
 
 from mars_pairs.chips import ChipGrid, read_chip, resample_array
 from mars_pairs.config import BuildConfig
@@ -151,8 +150,9 @@ def build_sample(label: Path, ctx: SampleContext) -> Sample:
     return Sample(row["key"], row, members)
 
 
-def _geometry(obs: Observation, pose: Pose, cam: MapCamera, ctx: SampleContext,
-              ground_size: tuple[int, int]) -> tuple[dict[str, Any], dict[str, bytes]]:  # fmt: skip
+def _geometry(
+    obs: Observation, pose: Pose, cam: MapCamera, ctx: SampleContext, ground_size: tuple[int, int]
+) -> tuple[dict[str, Any], dict[str, bytes]]:
     cfg = ctx.config
     geo = cfg.geometry
     rover_x, rover_y = float(cam.origin_map[0]), float(cam.origin_map[1])
@@ -162,10 +162,20 @@ def _geometry(obs: Observation, pose: Pose, cam: MapCamera, ctx: SampleContext,
     ground_z = ctx.terrain.elevation_at(float(centre[0]), float(centre[1]))
     if not math.isfinite(ground_z):
         raise MarsPairsError(f"{ctx.config.inputs.dem}: no DEM data under the camera")
-    height = geo.observer_height if geo.observer_height is not None else float(centre[2] - pose.elevation_m)
+    height = (
+        geo.observer_height
+        if geo.observer_height is not None
+        else float(centre[2] - pose.elevation_m)
+    )
     # anchor the camera to the DEM: its centre stands `height` above the terrain under it
-    cam = MapCamera(cam.camera, cam.origin_map + [0.0, 0.0, ground_z + height - centre[2]],
-                    cam.jacobian, cam.crs, cam.width, cam.height)  # fmt: skip
+    cam = MapCamera(
+        cam.camera,
+        [*cam.origin_map, 0.0, 0.0, ground_z + height - centre[2]],
+        cam.jacobian,
+        cam.crs,
+        cam.width,
+        cam.height,
+    )
     az, el, hfov, vfov = _pointing(obs, cam)
     # the exact band the image covers, from its border rays (wider than az +/- hFOV/2 when
     # the camera looks up or down)
@@ -176,22 +186,45 @@ def _geometry(obs: Observation, pose: Pose, cam: MapCamera, ctx: SampleContext,
         mask = None
         if geo.viewshed in ("wedge", "both"):
             mask = compute_viewshed(
-                window, float(centre[0]), float(centre[1]), height=height, radius=radius,
-                az_band=az_band, el_band=el_band, planet_radius=MARS_RADIUS_M,
-            )  # fmt: skip
+                window,
+                float(centre[0]),
+                float(centre[1]),
+                height=height,
+                radius=radius,
+                az_band=az_band,
+                el_band=el_band,
+                planet_radius=MARS_RADIUS_M,
+            )
         stage = "raycast"
         hits = ranges = None
         pixels = None
         if geo.viewshed in ("raycast", "both"):
             pixels = cam.pixel_grid(geo.ray_stride)
             origins, dirs = cam.pixel_rays(pixels)
-            hits, ranges = cast_rays(origins, dirs, window, max_range=radius,
-                                     observer_xy=(float(centre[0]), float(centre[1])))  # fmt: skip
+            hits, ranges = cast_rays(
+                origins,
+                dirs,
+                window,
+                max_range=radius,
+                observer_xy=(float(centre[0]), float(centre[1])),
+            )
             if mask is None:
                 mask = _mask_from_hits(hits, window)
         stage = "chips"
-        row, members = _chips(obs, pose, cam, ctx, window, mask, hits, ranges, pixels,
-                              (az, el, hfov, vfov), ground_size, (rover_x, rover_y))  # fmt: skip
+        row, members = _chips(
+            obs,
+            pose,
+            cam,
+            ctx,
+            window,
+            mask,
+            hits,
+            ranges,
+            pixels,
+            (az, el, hfov, vfov),
+            ground_size,
+            (rover_x, rover_y),
+        )
     except MarsPairsError as exc:
         raise StageError(stage, exc) from exc
     except (ValueError, OSError) as exc:
@@ -209,17 +242,27 @@ def _mask_from_hits(hits: np.ndarray, window: Any) -> np.ndarray:
     return mask
 
 
-def _chips(obs: Observation, pose: Pose, cam: MapCamera, ctx: SampleContext, window: Any,
-           mask: np.ndarray, hits: np.ndarray | None, ranges: np.ndarray | None,
-           pixels: np.ndarray | None, pointing: tuple[float, float, float, float],
-           ground_size: tuple[int, int],
-           rover_xy: tuple[float, float]) -> tuple[dict[str, Any], dict[str, bytes]]:  # fmt: skip
+def _chips(
+    obs: Observation,
+    pose: Pose,
+    cam: MapCamera,
+    ctx: SampleContext,
+    window: Any,
+    mask: np.ndarray,
+    hits: np.ndarray | None,
+    ranges: np.ndarray | None,
+    pixels: np.ndarray | None,
+    pointing: tuple[float, float, float, float],
+    ground_size: tuple[int, int],
+    rover_xy: tuple[float, float],
+) -> tuple[dict[str, Any], dict[str, bytes]]:
     cfg = ctx.config
     az, el, hfov, vfov = pointing
     crs = ctx.terrain.crs
     rotation = az if cfg.chips.orientation == "heading-up" else 0.0
-    grid = ChipGrid.around(rover_xy[0], rover_xy[1], cfg.chips.size_m, cfg.chips.size_px, crs,
-                           rotation_deg=rotation)  # fmt: skip
+    grid = ChipGrid.around(
+        rover_xy[0], rover_xy[1], cfg.chips.size_m, cfg.chips.size_px, crs, rotation_deg=rotation
+    )
     ortho = read_chip(str(cfg.inputs.ortho), grid, resampling=Resampling.bilinear)
     dem = read_chip(str(cfg.inputs.dem), grid, resampling=Resampling.bilinear)
     vis = resample_array(mask, window.transform, crs, grid, Resampling.nearest, nodata=0.0)
@@ -251,33 +294,58 @@ def _chips(obs: Observation, pose: Pose, cam: MapCamera, ctx: SampleContext, win
         footprint_pts = hits[ok, :2]
     footprint = _footprint(footprint_pts, (float(centre[0]), float(centre[1])))
     xmin, ymin, xmax, ymax = grid.bounds()
-    split = assign_splits([rover_xy[0]], [rover_xy[1]], cfg.splits.block_m,
-                          cfg.splits.ratios, cfg.splits.seed)[0]  # fmt: skip
+    split = assign_splits(
+        [rover_xy[0]], [rover_xy[1]], cfg.splits.block_m, cfg.splits.ratios, cfg.splits.seed
+    )[0]
     b = ctx.terrain.bounds
     hilbert = int(hilbert_index([rover_xy[0]], [rover_xy[1]], (b[0], b[1], b[2], b[3]))[0])
     key = sample_key(obs)
     row: dict[str, Any] = {
-        "key": key, "mission": obs.mission, "instrument": obs.instrument,
-        "product_id": obs.product_id, "label_path": str(obs.label_path), "sol": obs.sol,
-        "site": obs.rmc.site, "drive": obs.rmc.drive, "pose": obs.rmc.pose,
-        "time": obs.start_time, "latitude": pose.latitude, "longitude": pose.longitude,
-        "easting": rover_xy[0], "northing": rover_xy[1], "elevation": pose.elevation_m,
-        "azimuth_deg": az, "elevation_deg": el, "hfov_deg": hfov, "vfov_deg": vfov,
-        "width": obs.width, "height": obs.height, "localization": pose.source,
+        "key": key,
+        "mission": obs.mission,
+        "instrument": obs.instrument,
+        "product_id": obs.product_id,
+        "label_path": str(obs.label_path),
+        "sol": obs.sol,
+        "site": obs.rmc.site,
+        "drive": obs.rmc.drive,
+        "pose": obs.rmc.pose,
+        "time": obs.start_time,
+        "latitude": pose.latitude,
+        "longitude": pose.longitude,
+        "easting": rover_xy[0],
+        "northing": rover_xy[1],
+        "elevation": pose.elevation_m,
+        "azimuth_deg": az,
+        "elevation_deg": el,
+        "hfov_deg": hfov,
+        "vfov_deg": vfov,
+        "width": obs.width,
+        "height": obs.height,
+        "localization": pose.source,
         "viewshed_area_m2": float(len(vx) * cell_area * area_scale),
-        "visible_cells": len(vx), "max_visible_range_m": max_range,
-        "ray_hit_fraction": hit_fraction, "footprint": footprint,
-        "chip_xmin": xmin, "chip_ymin": ymin, "chip_xmax": xmax, "chip_ymax": ymax,
-        "chip_rotation_deg": rotation, "split": split, "hilbert": hilbert,
-    }  # fmt: skip
+        "visible_cells": len(vx),
+        "max_visible_range_m": max_range,
+        "ray_hit_fraction": hit_fraction,
+        "footprint": footprint,
+        "chip_xmin": xmin,
+        "chip_ymin": ymin,
+        "chip_xmax": xmax,
+        "chip_ymax": ymax,
+        "chip_rotation_deg": rotation,
+        "split": split,
+        "hilbert": hilbert,
+    }
     meta = {k: v for k, v in row.items() if k not in ("footprint", "time")}
     meta.update(
         time=obs.start_time.isoformat() if obs.start_time else None,
-        crs=str(crs), chip_transform=list(grid.transform)[:6],
-        ray_stride=cfg.geometry.ray_stride, ground_size=list(ground_size),
+        crs=str(crs),
+        chip_transform=list(grid.transform)[:6],
+        ray_stride=cfg.geometry.ray_stride,
+        ground_size=list(ground_size),
         camera_center_map=[float(v) for v in cam.center_map],
         camera_model_type=obs.camera.model_type,
-    )  # fmt: skip
+    )
     members = {
         "ortho.png": _png(ortho_u8),
         "dem.npy": _npy(dem.astype(np.float32)),

@@ -45,7 +45,9 @@ class ShardWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
         self._fh = open(self._tmp, "wb")  # noqa: SIM115 - closed in close()
-        self._tar = tarfile.open(fileobj=self._fh, mode="w", format=tarfile.USTAR_FORMAT)
+        self._tar = tarfile.open(  # noqa: SIM115 - closed in close()
+            fileobj=self._fh, mode="w", format=tarfile.USTAR_FORMAT
+        )
         self.count = 0
 
     def add(self, key: str, members: dict[str, bytes]) -> dict[str, MemberLocation]:
@@ -79,7 +81,10 @@ class ShardWriter:
         return self
 
     def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
     ) -> None:
         self.close(commit=exc_type is None)
 

@@ -40,8 +40,9 @@ def assign_splits(
     return out
 
 
-def hilbert_index(x: ArrayLike, y: ArrayLike, bounds: tuple[float, float, float, float],
-                  order: int = 16) -> NDArray[np.int64]:  # fmt: skip
+def hilbert_index(
+    x: ArrayLike, y: ArrayLike, bounds: tuple[float, float, float, float], order: int = 16
+) -> NDArray[np.int64]:
     """Hilbert-curve index of positions on a 2^order grid spanning ``bounds`` (W, S, E, N).
 
     Sorting rows by it keeps nearby positions in the same Parquet row groups.

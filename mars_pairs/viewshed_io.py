@@ -37,8 +37,13 @@ class ViewshedRequest:
     height_is_absolute: bool = False
 
 
-def request_from_label(label: str | Path, places: str | Path, terrain: Terrain, radius: float,
-                       height: float | None = None) -> ViewshedRequest:  # fmt: skip
+def request_from_label(
+    label: str | Path,
+    places: str | Path,
+    terrain: Terrain,
+    radius: float,
+    height: float | None = None,
+) -> ViewshedRequest:
     """The viewshed request of a labelled image: camera centre, and the image's exact band.
 
     The height defaults to the camera centre's height above the rover origin (camera model).
@@ -60,9 +65,16 @@ def compute_request(terrain: Terrain, req: ViewshedRequest) -> tuple[np.ndarray,
     """
     window = terrain.read_dem_window(req.x, req.y, req.radius)
     mask = compute_viewshed(
-        window, req.x, req.y, height=req.height, height_is_absolute=req.height_is_absolute,
-        radius=req.radius, az_band=req.az_band, el_band=req.el_band, planet_radius=MARS_RADIUS_M,
-    )  # fmt: skip
+        window,
+        req.x,
+        req.y,
+        height=req.height,
+        height_is_absolute=req.height_is_absolute,
+        radius=req.radius,
+        az_band=req.az_band,
+        el_band=req.el_band,
+        planet_radius=MARS_RADIUS_M,
+    )
     rows, cols = np.indices(mask.shape)
     x, y = window.colrow_to_xy(cols, rows)
     outside = (np.hypot(x - req.x, y - req.y) > req.radius) | ~np.isfinite(window.data)
@@ -76,11 +88,20 @@ def write_viewshed_geotiff(path: str | Path, codes: np.ndarray, window: DemWindo
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     profile = {
-        "driver": "GTiff", "width": codes.shape[1], "height": codes.shape[0], "count": 1,
-        "dtype": "uint8", "crs": window.crs, "transform": window.transform, "nodata": NODATA,
-        "compress": "deflate", "tiled": True, "blockxsize": 256, "blockysize": 256,
+        "driver": "GTiff",
+        "width": codes.shape[1],
+        "height": codes.shape[0],
+        "count": 1,
+        "dtype": "uint8",
+        "crs": window.crs,
+        "transform": window.transform,
+        "nodata": NODATA,
+        "compress": "deflate",
+        "tiled": True,
+        "blockxsize": 256,
+        "blockysize": 256,
         "photometric": "palette",
-    }  # fmt: skip
+    }
     with rasterio.open(tmp, "w", **profile) as dst:
         dst.write(codes, 1)
         dst.write_colormap(1, COLOURS)

@@ -23,9 +23,22 @@ def test_locate_reports_the_places_row(
     assert (out["site"], out["drive"]) == (3, 1950)
     assert (out["easting"], out["northing"]) == (4354557.816, 1093309.691)
     assert out["localization"] == "places"
-    for key in ("product_id", "mission", "instrument", "sol", "azimuth_deg", "elevation_deg",
-                "hfov_deg", "vfov_deg", "width", "height", "camera_model_type", "latitude",
-                "longitude", "elevation_m"):  # fmt: skip
+    for key in (
+        "product_id",
+        "mission",
+        "instrument",
+        "sol",
+        "azimuth_deg",
+        "elevation_deg",
+        "hfov_deg",
+        "vfov_deg",
+        "width",
+        "height",
+        "camera_model_type",
+        "latitude",
+        "longitude",
+        "elevation_m",
+    ):
         assert out[key] is not None, key
     assert out["mission"] == "m2020" and out["sol"] == 52
 
@@ -45,8 +58,10 @@ def test_bad_label_exits_2_with_one_line_naming_file_and_field(tmp_path: Path) -
     bad.write_text('PDS_VERSION_ID = PDS3\nPRODUCT_ID = "X"\nEND\n')
     proc = subprocess.run(
         [sys.executable, "-m", "mars_pairs.cli", "locate", str(bad), "--json"],
-        capture_output=True, text=True, check=False,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1, proc.stderr

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import sample_labels
+
 from mars_pairs.labels import read_observation
 from mars_pairs.locate import model_pointing_deg
 from mars_pairs.mapcam import MapCamera
@@ -64,5 +64,5 @@ def test_m2020_camera_on_the_map(samples_dir: Path) -> None:
     mid = np.array([[(obs.width - 1) / 2, (obs.height - 1) / 2]])
     origins, dirs = cam.pixel_rays(mid)
     np.testing.assert_allclose(cam.project_map(origins + 100.0 * dirs), mid, atol=1e-6)
-    az, el = cam.pointing_az_el()
+    az, _el = cam.pointing_az_el()
     assert (az - obs.azimuth_deg + 180) % 360 - 180 == pytest.approx(0.0, abs=0.6)

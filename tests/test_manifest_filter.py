@@ -44,7 +44,7 @@ def dataset(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, pa.Table]:
             "longitude": float(lon[i]),
             "easting": float(x[i]),
             "northing": float(y[i]),
-        }  # fmt: skip
+        }
         for i in order
     ]
     table = rows_to_table(rows, MANIFEST_SCHEMA)
@@ -91,10 +91,16 @@ def test_near_great_circle(
 
 
 @settings(max_examples=40, deadline=None)
-@given(a=coords, c=coords, size=st.floats(100.0, 3000.0), sol=st.integers(0, 699),
-       split=st.sampled_from(["train", "val", "test"]))  # fmt: skip
-def test_polygon_with_attributes(dataset: tuple[Path, pa.Table], a: float, c: float,
-                                 size: float, sol: int, split: str) -> None:  # fmt: skip
+@given(
+    a=coords,
+    c=coords,
+    size=st.floats(100.0, 3000.0),
+    sol=st.integers(0, 699),
+    split=st.sampled_from(["train", "val", "test"]),
+)
+def test_polygon_with_attributes(
+    dataset: tuple[Path, pa.Table], a: float, c: float, size: float, sol: int, split: str
+) -> None:
     root, table = dataset
     cx, cy = lonlat_to_map(LON0 + a, LAT0 + c, M2020_PLACES_CRS)
     tri = shapely.Polygon([(cx - size, cy - size), (cx + size, cy - size), (cx, cy + size)])
@@ -109,8 +115,9 @@ def test_polygon_with_attributes(dataset: tuple[Path, pa.Table], a: float, c: fl
 
 @settings(max_examples=40, deadline=None)
 @given(a=coords, b=coords, c=coords, d=coords, mission=st.sampled_from(["m2020", "msl"]))
-def test_bbox_map_and_mission(dataset: tuple[Path, pa.Table], a: float, b: float, c: float,
-                              d: float, mission: str) -> None:  # fmt: skip
+def test_bbox_map_and_mission(
+    dataset: tuple[Path, pa.Table], a: float, b: float, c: float, d: float, mission: str
+) -> None:
     root, table = dataset
     x0, y0 = lonlat_to_map(LON0 + min(a, b), LAT0 + min(c, d), M2020_PLACES_CRS)
     x1, y1 = lonlat_to_map(LON0 + max(a, b), LAT0 + max(c, d), M2020_PLACES_CRS)
@@ -136,8 +143,12 @@ def test_location_filter_skips_row_groups(dataset: tuple[Path, pa.Table]) -> Non
     root, _ = dataset
     small = (LON0 - 0.005, LAT0 - 0.005, LON0 + 0.005, LAT0 + 0.005)
     fragment = next(iter(ds.dataset(root / "manifest.parquet").get_fragments()))
-    expr = ((ds.field("longitude") >= small[0]) & (ds.field("longitude") <= small[2])
-            & (ds.field("latitude") >= small[1]) & (ds.field("latitude") <= small[3]))  # fmt: skip
+    expr = (
+        (ds.field("longitude") >= small[0])
+        & (ds.field("longitude") <= small[2])
+        & (ds.field("latitude") >= small[1])
+        & (ds.field("latitude") <= small[3])
+    )
     kept = fragment.split_by_row_group(filter=expr)
     total = fragment.metadata.num_row_groups
     assert len(kept) < total / 3, (len(kept), total)  # Hilbert order makes statistics useful

@@ -21,23 +21,63 @@ HEADER = (
 )
 
 
-def _row(frame: str, site: int, drive: int, lon: float, lat: float, elev: float, crs: str,
-         quat: tuple[float, float, float, float] | None) -> str:  # fmt: skip
+def _row(
+    frame: str,
+    site: int,
+    drive: int,
+    lon: float,
+    lat: float,
+    elev: float,
+    crs: str,
+    quat: tuple[float, float, float, float] | None,
+) -> str:
     x, y = lonlat_to_map(lon, lat, crs)
     q = quat if quat is not None else (-9999.0,) * 4
-    cols = [frame, site, drive, -1, 0, 0, 0, f"{y:.3f}", f"{x:.3f}", lat, lat, lon, elev,
-            0, 0, 0, 0, 0, 0, 0, *q, 3394507.0, 3391937.0, 0, 10]  # fmt: skip
+    cols = [
+        frame,
+        site,
+        drive,
+        -1,
+        0,
+        0,
+        0,
+        f"{y:.3f}",
+        f"{x:.3f}",
+        lat,
+        lat,
+        lon,
+        elev,
+        0,
+        0,
+        0,
+        0,
+        0,
+        0,
+        0,
+        *q,
+        3394507.0,
+        3391937.0,
+        0,
+        10,
+    ]
     return ",".join(str(c) for c in cols)
 
 
 def _observation(site: int, drive: int, offset: tuple[float, float, float] | None) -> Observation:
     cam = CameraModel("CAHV", [0.8, 0.5, -1.97], [1, 0, 0], [0, 4000, 0], [0, 0, 4000])
     return Observation(
-        label_path=Path("fake.LBL"), mission="msl", product_id="X", instrument="MAST_LEFT",
-        sol=10, rmc=MotionCounter(site, drive, 0), width=1000, height=800, camera=cam,
+        label_path=Path("fake.LBL"),
+        mission="msl",
+        product_id="X",
+        instrument="MAST_LEFT",
+        sol=10,
+        rmc=MotionCounter(site, drive, 0),
+        width=1000,
+        height=800,
+        camera=cam,
         rover_offset_m=None if offset is None else np.array(offset),
         rover_quaternion=np.array([0.9238795, 0, 0, 0.3826834]),
-    )  # fmt: skip
+    )
 
 
 @pytest.fixture()
