@@ -140,6 +140,34 @@ class UsageError(Exception):
     """A command-line misuse: reported in one line, exit status 2."""
 
 
+def _cmd_show(args: argparse.Namespace) -> int:
+    from mars_pairs.viz import show_sample
+
+    out = args.out or f"{args.key}.png"
+    print(show_sample(args.dataset, args.key, out))
+    return 0
+
+
+def _cmd_overview(args: argparse.Namespace) -> int:
+    from mars_pairs.viz import overview
+
+    print(overview(args.dataset, args.out, colour_by=args.colour_by))
+    return 0
+
+
+def _cmd_export_qgis(args: argparse.Namespace) -> int:
+    from mars_pairs.qgis import export_geopackage
+
+    print(export_geopackage(args.dataset, args.out, with_viewsheds=args.viewsheds))
+    return 0
+
+
+def _cmd_query(args: argparse.Namespace) -> int:
+    from mars_pairs.query import run_query
+
+    return run_query(args)
+
+
 def _add_build_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", required=True, help="build configuration (YAML)")
     p.add_argument("--out", help="dataset folder (overrides output.dir)")
@@ -189,6 +217,57 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("inspect", help="counts, failures and size of a built dataset")
     p.add_argument("dataset", help="dataset folder")
     p.set_defaults(func=_cmd_inspect)
+
+    p = sub.add_parser("query", help="filter a dataset's manifest by place and attributes")
+    p.add_argument("dataset", help="dataset folder")
+    where = p.add_mutually_exclusive_group(required=True)
+    where.add_argument(
+        "--bbox",
+        nargs=4,
+        type=float,
+        metavar=("W", "S", "E", "N"),
+        help="longitude/latitude box, degrees",
+    )
+    where.add_argument(
+        "--bbox-map",
+        nargs=4,
+        type=float,
+        metavar=("XMIN", "YMIN", "XMAX", "YMAX"),
+        help="box in the dataset CRS, map units",
+    )
+    where.add_argument(
+        "--near",
+        nargs=3,
+        type=float,
+        metavar=("LAT", "LON", "RADIUS_M"),
+        help="within a great-circle radius (metres) of a point",
+    )
+    where.add_argument("--polygon", help="WKT polygon in the dataset CRS")
+    p.add_argument("--mission")
+    p.add_argument("--instrument")
+    p.add_argument("--split")
+    p.add_argument("--sol", nargs=2, type=int, metavar=("FIRST", "LAST"))
+    p.add_argument("--format", choices=("table", "csv", "parquet", "geojson"), default="table")
+    p.add_argument("--out", help="output file (parquet needs one; others default to stdout)")
+    p.set_defaults(func=_cmd_query)
+
+    p = sub.add_parser("show", help="a figure of one sample (needs the viz extra)")
+    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("key", help="sample key (see mars-pairs query)")
+    p.add_argument("--out", help="PNG path (default KEY.png)")
+    p.set_defaults(func=_cmd_show)
+
+    p = sub.add_parser("overview", help="all footprints over the orthoimage (needs the viz extra)")
+    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("--out", default="overview.png", help="PNG path")
+    p.add_argument("--colour-by", choices=("sol", "split"), default="sol")
+    p.set_defaults(func=_cmd_overview)
+
+    p = sub.add_parser("export-qgis", help="a GeoPackage of positions, footprints and wedges")
+    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("out", help="output .gpkg")
+    p.add_argument("--viewsheds", action="store_true", help="also write viewshed GeoTIFFs")
+    p.set_defaults(func=_cmd_export_qgis)
 
     p = sub.add_parser("synth", help="generate the synthetic mission (terrain, labels, images)")
     p.add_argument("out", help="output folder")

@@ -1,0 +1,118 @@
+"""``mars-pairs query``: filter a manifest by place and print or save the rows."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.csv as pacsv
+import shapely
+
+from mars_pairs.errors import MarsPairsError
+from mars_pairs.manifest import Manifest, write_parquet_atomic
+
+SHOWN = (
+    "key",
+    "mission",
+    "instrument",
+    "sol",
+    "site",
+    "drive",
+    "split",
+    "latitude",
+    "longitude",
+    "azimuth_deg",
+    "elevation_deg",
+)
+
+
+def filter_arguments(args: argparse.Namespace) -> dict[str, Any]:
+    """Manifest.filter keyword arguments from parsed command-line arguments."""
+    out: dict[str, Any] = {}
+    if args.bbox:
+        out["bbox_lonlat"] = tuple(args.bbox)
+    if args.bbox_map:
+        out["bbox_map"] = tuple(args.bbox_map)
+    if args.near:
+        out["near"] = tuple(args.near)
+    if args.polygon:
+        try:
+            out["polygon"] = shapely.from_wkt(args.polygon)
+        except shapely.errors.GEOSException as exc:
+            raise MarsPairsError(f"--polygon: not valid WKT: {exc}") from None
+    for name in ("mission", "instrument", "split"):
+        if getattr(args, name):
+            out[name] = getattr(args, name)
+    if args.sol:
+        out["sol"] = tuple(args.sol)
+    return out
+
+
+def _geojson(table: pa.Table) -> str:
+    features = []
+    for row in table.to_pylist():
+        wkb = row.pop("footprint", None)
+        props = {
+            k: (v.isoformat() if hasattr(v, "isoformat") else v)
+            for k, v in row.items()
+            if not k.endswith(("_shard", "_offset", "_size"))
+        }
+        geom = shapely.from_wkb(wkb) if wkb else shapely.Point(row["easting"], row["northing"])
+        features.append(
+            {"type": "Feature", "geometry": shapely.geometry.mapping(geom), "properties": props}
+        )
+    # coordinates are in the dataset CRS (map units), not longitude/latitude
+    return json.dumps({"type": "FeatureCollection", "features": features})
+
+
+def run_query(args: argparse.Namespace) -> int:
+    """Print (or write) the rows that match, in the requested format."""
+    table = Manifest.open(args.dataset).filter(**filter_arguments(args)).to_table()
+    if args.format == "parquet":
+        if not args.out:
+            raise MarsPairsError("--format parquet needs --out FILE")
+        write_parquet_atomic(table, __import__("pathlib").Path(args.out))
+        print(f"{args.out}: {table.num_rows} rows")
+        return 0
+    if args.format == "csv":
+        text = _csv(table.drop_columns(["footprint"]))
+    elif args.format == "geojson":
+        text = _geojson(table)
+    else:
+        text = _table(table)
+    if args.out:
+        with open(args.out, "w") as fh:
+            fh.write(text)
+    else:
+        sys.stdout.write(text if text.endswith("\n") else text + "\n")
+    return 0
+
+
+def _csv(table: pa.Table) -> str:
+    import io
+
+    buf = io.BytesIO()
+    pacsv.write_csv(table, buf)
+    return buf.getvalue().decode()
+
+
+def _table(table: pa.Table) -> str:
+    rows = table.select(list(SHOWN)).to_pylist()
+    fmt = {k: ("{:.6f}" if k in ("latitude", "longitude") else "{}") for k in SHOWN}
+    cells = [
+        [
+            fmt[k].format(r[k])
+            if isinstance(r[k], float) and k in ("latitude", "longitude")
+            else (f"{r[k]:.2f}" if isinstance(r[k], float) else str(r[k]))
+            for k in SHOWN
+        ]
+        for r in rows
+    ]
+    widths = [max([len(k)] + [len(c[i]) for c in cells]) for i, k in enumerate(SHOWN)]
+    lines = ["  ".join(k.ljust(w) for k, w in zip(SHOWN, widths, strict=True))]
+    lines += ["  ".join(c.ljust(w) for c, w in zip(cell, widths, strict=True)) for cell in cells]
+    lines.append(f"({len(rows)} rows)")
+    return "\n".join(lines)
