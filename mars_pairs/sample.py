@@ -8,7 +8,7 @@ from __future__ import annotations
 import io
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -168,14 +168,8 @@ def _geometry(
         else float(centre[2] - pose.elevation_m)
     )
     # anchor the camera to the DEM: its centre stands `height` above the terrain under it
-    cam = MapCamera(
-        cam.camera,
-        [*cam.origin_map, 0.0, 0.0, ground_z + height - centre[2]],
-        cam.jacobian,
-        cam.crs,
-        cam.width,
-        cam.height,
-    )
+    lift = np.array([0.0, 0.0, ground_z + height - centre[2]])
+    cam = replace(cam, origin_map=cam.origin_map + lift)
     az, el, hfov, vfov = _pointing(obs, cam)
     # the exact band the image covers, from its border rays (wider than az +/- hFOV/2 when
     # the camera looks up or down)

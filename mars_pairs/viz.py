@@ -211,7 +211,7 @@ def overview(
     ys = np.array([r["northing"] for r in rows])
     foot = [shapely.from_wkb(r["footprint"]) for r in rows if r["footprint"] is not None]
     bounds = (
-        shapely.union_all([*foot, shapely.points(xs, ys)]).bounds
+        shapely.union_all([*foot, *shapely.points(xs, ys)]).bounds
         if foot
         else (xs.min(), ys.min(), xs.max(), ys.max())
     )

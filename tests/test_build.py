@@ -10,6 +10,7 @@ import subprocess
 import sys
 import tarfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +33,12 @@ def mission(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def write_config(
-    path: Path, mission: Path, out: Path, labels: str | None = None, **geometry: object
+    path: Path,
+    mission: Path,
+    out: Path,
+    labels: str | None = None,
+    shard_size: int = 2,
+    **geometry: object,
 ) -> Path:
     doc = {
         "inputs": {
@@ -43,7 +49,7 @@ def write_config(
         },
         "geometry": {"radius": 600, "ray_stride": 16, **geometry},
         "chips": {"size_m": 128, "size_px": 128},
-        "output": {"dir": str(out), "shard_size": 2},
+        "output": {"dir": str(out), "shard_size": shard_size},
         "splits": {"block_m": 100},
     }
     path.write_text(yaml.safe_dump(doc))
@@ -201,10 +207,28 @@ def test_two_workers_give_the_same_output(mission: Path, built: Path, tmp_path: 
     assert member_bytes(tmp_path / "ds2") == member_bytes(built)
 
 
+def _kill_when(cmd: list[str], ready: Callable[[], bool], timeout: float = 60.0) -> bool:
+    """Start ``cmd``, SIGKILL it as soon as ``ready()``; False if it finished first."""
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + timeout
+    while proc.poll() is None and time.monotonic() < deadline:
+        if ready():
+            proc.send_signal(signal.SIGKILL)
+            proc.wait()
+            return True
+        time.sleep(0.005)
+    proc.wait()
+    return False
+
+
 def test_killed_build_resumes_to_the_same_dataset(
     mission: Path, built: Path, tmp_path: Path
 ) -> None:
-    config_path = write_config(tmp_path / "c.yaml", mission, tmp_path / "ds")
+    out = tmp_path / "ds"
+    config_path = write_config(tmp_path / "c.yaml", mission, out, shard_size=1)
+    reference = tmp_path / "reference"
+    ref_config = write_config(tmp_path / "r.yaml", mission, reference, shard_size=1)
+    run_build(load_config(ref_config), progress=False)
     cmd = [
         sys.executable,
         "-m",
@@ -215,16 +239,22 @@ def test_killed_build_resumes_to_the_same_dataset(
         "--quiet",
         "--resume",
     ]
-    for delay in (1.0, 2.5):
-        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        time.sleep(delay)
-        proc.send_signal(signal.SIGKILL)
-        proc.wait()
+
+    def parts() -> int:
+        return len(list((out / "parts").glob("manifest-*.parquet")))
+
+    # killed while writing its first shards, then again two chunks later: never finished
+    assert _kill_when(cmd, lambda: parts() >= 1 or bool(list(out.glob("shards/.*.tmp-*"))))
+    first = parts()
+    assert first < 5
+    assert _kill_when(cmd, lambda: parts() >= first + 1)
+    assert first < parts() < 6
     done = subprocess.run(cmd, capture_output=True, text=True, check=False)
     assert done.returncode == 0, done.stderr
-    out = tmp_path / "ds"
-    assert read_rows(out) == read_rows(built)
-    assert member_bytes(out) == member_bytes(built)
+    assert " resumed" in done.stdout and "0 built" not in done.stdout
+    assert read_rows(out) == read_rows(reference)
+    assert member_bytes(out) == member_bytes(reference)
+    assert {r["key"] for r in read_rows(out)} == {r["key"] for r in read_rows(built)}
     assert not list(out.rglob(".*.tmp-*"))
 
 

@@ -1,0 +1,326 @@
+"""``generate_mission``: a synthetic Mars mission with exact ground truth.
+
+Layout written for one mission (``OUT`` directly, or ``OUT/m2020`` and ``OUT/msl`` for
+"both"):
+
+    orbital/dem.tif     float32 DEM, 1 m/px, mission map CRS, nodata -3.4028235e38
+    orbital/ortho.tif   uint8 ortho (0.25 m/px small, 0.5 m/px default), nodata 0
+    places/best_interp.csv | places/localized_interp.csv   PLACES table
+    labels/<product>.xml|.LBL and labels/<product>.jpg     labels, each with its image
+    truth.parquet       one row per image: pose, camera, pointing (the exact truth)
+
+Frames and units follow ``mars_pairs.frames`` (map CRS metres, SITE_FRAME NED, ROVER_NAV_FRAME).
+The same seed gives the same bytes in every file.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import datetime, timedelta
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import rasterio
+from affine import Affine
+from PIL import Image
+from rasterio.crs import CRS as RioCRS
+
+from mars_pairs.frames import M2020_PLACES_CRS, MSL_PLACES_CRS, quaternion_to_matrix
+from mars_pairs.mapcam import MapCamera
+from mars_pairs.observation import MotionCounter, Observation
+from mars_pairs.places import Pose
+from mars_pairs.synth.cameras import (
+    build_camera,
+    centre_pointing_site,
+    m2020_product_id,
+    mission_cameras,
+    msl_product_id,
+    zoom_focal_mm,
+)
+from mars_pairs.synth.ortho import make_ortho
+from mars_pairs.synth.render import DemGrid, block_ranges, render_view
+from mars_pairs.synth.terrain import make_dem
+from mars_pairs.synth.traverse import (
+    DemSampler,
+    RoverState,
+    Traverse,
+    euler_zyx_deg,
+    make_traverse,
+    write_places_csv,
+)
+
+DEM_NODATA = -3.4028235e38
+MISSIONS = ("m2020", "msl")
+_SCLK_EPOCH = datetime(2000, 1, 1, 11, 58, 55, 816000)  # SCLK 0 (J2000), UTC
+
+
+@dataclass(frozen=True)
+class MissionSpec:
+    """Where and how a mission is generated."""
+
+    name: str
+    crs: str
+    centre_xy: tuple[float, float]  # map metres, inside the real DEM extent
+    base_elevation_m: float
+    places_name: str
+    label_suffix: str
+    first_site: int
+    first_sol: int
+    sclk_sol0: int  # spacecraft clock at the start of sol 0
+
+
+@dataclass(frozen=True)
+class SizeSpec:
+    """Raster sizes and default counts for a ``size`` preset."""
+
+    dem_cells: int  # DEM is dem_cells x dem_cells at 1 m
+    ortho_factor: int  # ortho pixels per DEM cell
+    stops: int
+    images_per_stop: int
+
+
+SPECS = {
+    "m2020": MissionSpec("m2020", M2020_PLACES_CRS, (4353445.0, 1093485.0), -2570.0,
+                         "best_interp.csv", ".xml", 3, 52, 666910000),
+    "msl": MissionSpec("msl", MSL_PLACES_CRS, (8144406.0, -277128.0), -4500.0,
+                       "localized_interp.csv", ".LBL", 56, 1429, 397450000),
+}  # fmt: skip
+SIZES = {"small": SizeSpec(1024, 4, 3, 4), "default": SizeSpec(3072, 2, 10, 6)}
+DEM_RES_M = 1.0
+
+
+def generate_mission(
+    out_dir: str | Path,
+    *,
+    seed: int = 0,
+    mission: str = "m2020",
+    stops: int | None = None,
+    images_per_stop: int | None = None,
+    size: str = "small",
+) -> dict[str, Any]:
+    """Generate a synthetic mission ("m2020", "msl" or "both") under ``out_dir``.
+
+    ``stops`` / ``images_per_stop`` default to the size preset (small: 3 x 4, default:
+    10 x 6). Returns {"out_dir", "missions": {name: {paths..., counts...}}, "images"}.
+    """
+    if mission not in (*MISSIONS, "both"):
+        raise ValueError(f"mission must be 'm2020', 'msl' or 'both', got {mission!r}")
+    if size not in SIZES:
+        raise ValueError(f"size must be 'small' or 'default', got {size!r}")
+    preset = SIZES[size]
+    k = preset.stops if stops is None else int(stops)
+    m = preset.images_per_stop if images_per_stop is None else int(images_per_stop)
+    if k < 1 or m < 1:
+        raise ValueError("stops and images_per_stop must be >= 1")
+    out = Path(out_dir)
+    names = MISSIONS if mission == "both" else (mission,)
+    result: dict[str, Any] = {"out_dir": str(out), "missions": {}}
+    for name in names:
+        target = out / name if mission == "both" else out
+        rng = np.random.default_rng([int(seed), MISSIONS.index(name)])
+        result["missions"][name] = _generate_one(target, rng, SPECS[name], size, k, m)
+    result["images"] = sum(v["images"] for v in result["missions"].values())
+    return result
+
+
+# -- rasters -------------------------------------------------------------------------------------
+def _write_geotiff(path: Path, data: np.ndarray, transform: Affine, crs: str, nodata: float,
+                   predictor: int) -> None:  # fmt: skip
+    path.parent.mkdir(parents=True, exist_ok=True)
+    profile = {
+        "driver": "GTiff", "width": data.shape[1], "height": data.shape[0], "count": 1,
+        "dtype": data.dtype.name, "crs": RioCRS.from_user_input(crs), "transform": transform,
+        "nodata": nodata, "tiled": True, "blockxsize": 256, "blockysize": 256,
+        "compress": "deflate", "predictor": predictor, "zlevel": 6, "num_threads": 1,
+    }  # fmt: skip
+    with rasterio.open(path, "w", **profile) as dst:
+        dst.write(data, 1)
+
+
+def _terrain(rng: np.random.Generator, spec: MissionSpec, size: SizeSpec):
+    """DEM (float32 with NaN nodata), its transform, ortho (uint8) and ortho transform."""
+    n = size.dem_cells
+    z, boulders = make_dem(rng, n, DEM_RES_M, spec.base_elevation_m)
+    # a nodata notch at the north-west corner, as real DTMs have ragged edges
+    ii, jj = np.mgrid[0:n, 0:n]
+    z[ii + jj < n // 64] = np.nan
+    dem32 = z.astype(np.float32)
+    left = round(spec.centre_xy[0] - n * DEM_RES_M / 2)
+    top = round(spec.centre_xy[1] + n * DEM_RES_M / 2)
+    transform = Affine(DEM_RES_M, 0.0, left, 0.0, -DEM_RES_M, top)
+    ortho = make_ortho(rng, dem32.astype(np.float64), DEM_RES_M, size.ortho_factor, boulders)
+    res_o = DEM_RES_M / size.ortho_factor
+    ortho_tr = Affine(res_o, 0.0, left, 0.0, -res_o, top)
+    return dem32, transform, ortho, ortho_tr
+
+
+# -- images --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Shot:
+    """One planned image: the stop, the camera, its pointing and names."""
+
+    stop: RoverState
+    index: int  # image index within the mission
+    obs: Observation
+    pose: Pose
+    sclk: int
+
+
+def _pose(state: RoverState, crs: str) -> Pose:
+    return Pose(
+        site=state.site, drive=state.drive, easting=state.x, northing=state.y, crs=crs,
+        latitude=state.lat, longitude=state.lon, elevation_m=state.z,
+        quaternion=state.quaternion.copy(), source="places", attitude_source="places",
+    )  # fmt: skip
+
+
+def _plan_shots(rng: np.random.Generator, spec: MissionSpec, size: str, trav: Traverse,
+                per_stop: int, label_dir: Path) -> list[Shot]:  # fmt: skip
+    """Cameras, pointings and product names of every image (deterministic in ``rng``)."""
+    cams = mission_cameras(spec.name, size)
+    shots: list[Shot] = []
+    index = 0
+    for k, stop in enumerate(trav.stops):
+        rot = quaternion_to_matrix(stop.quaternion)
+        az0 = rng.uniform(0.0, 360.0)
+        el_slots = rng.permutation(per_stop)
+        for j in range(per_stop):
+            cam_spec = cams[index % len(cams)]
+            if cam_spec.hfov_choices is None:
+                hfov = float(rng.uniform(*cam_spec.hfov_range))
+            else:
+                hfov = float(cam_spec.hfov_choices[int(rng.integers(len(cam_spec.hfov_choices)))])
+            vfov = hfov * cam_spec.height / cam_spec.width
+            az = (az0 + 360.0 * (j + rng.uniform(0.1, 0.9)) / per_stop) % 360.0
+            el = -12.0 + 14.0 * (el_slots[j] + rng.uniform(0.1, 0.9)) / per_stop
+            el = min(el, 0.5 * vfov - 1.5)  # keep some terrain at the bottom of every image
+            model_type = "CAHVOR" if index % 2 == 0 else "CAHV"
+            camera = build_camera(rng, cam_spec, rot, az, el, hfov, model_type)
+            sclk = stop.sclk + 40 * j + int(rng.integers(0, 20))
+            pid = _product_id(spec.name, cam_spec.eye, stop, sclk, k, j, index, hfov,
+                              int(rng.integers(0, 1000)))  # fmt: skip
+            label = label_dir / f"{pid}{spec.label_suffix}"
+            hfov_m, vfov_m = camera.fov_deg(cam_spec.width, cam_spec.height)
+            az_c, el_c = centre_pointing_site(camera, cam_spec.width, cam_spec.height, rot)
+            obs = Observation(
+                label_path=label, mission=spec.name, product_id=pid,
+                instrument=cam_spec.instrument, sol=stop.sol,
+                rmc=MotionCounter(stop.site, stop.drive, None),
+                width=cam_spec.width, height=cam_spec.height, camera=camera,
+                rover_offset_m=np.asarray(stop.landing, dtype=np.float64).copy(),
+                rover_quaternion=stop.quaternion.copy(),
+                azimuth_deg=float(az_c), elevation_deg=float(el_c),
+                hfov_deg=hfov_m, vfov_deg=vfov_m,
+                start_time=_SCLK_EPOCH + timedelta(seconds=sclk),
+                image_path=label.with_suffix(".jpg"),
+            )  # fmt: skip
+            shots.append(Shot(stop, index, obs, _pose(stop, spec.crs), sclk))
+            index += 1
+    return shots
+
+
+def _product_id(mission: str, eye: str, stop: RoverState, sclk: int, k: int, j: int,
+                index: int, hfov: float, msec: int) -> str:  # fmt: skip
+    if mission == "m2020":
+        return m2020_product_id(eye, stop.sol, sclk, msec, stop.site, stop.drive,
+                                5000 + 7 * k, zoom_focal_mm(hfov))  # fmt: skip
+    return msl_product_id(eye, stop.sol, 7000 + k, j + 1, 702000 + index)
+
+
+def _write_label(obs: Observation) -> None:
+    from mars_pairs.labels.write import write_pds3_label, write_pds4_label
+
+    if obs.mission == "m2020":
+        write_pds4_label(obs, obs.label_path)
+    else:
+        write_pds3_label(obs, obs.label_path)
+
+
+# -- truth ---------------------------------------------------------------------------------------
+def _truth_table(shots: list[Shot], root: Path, crs: str) -> pa.Table:
+    rows: dict[str, list[Any]] = {}
+
+    def add(key: str, value: Any) -> None:
+        rows.setdefault(key, []).append(value)
+
+    for s in shots:
+        o, st, cam = s.obs, s.stop, s.obs.camera
+        roll, pitch, yaw = euler_zyx_deg(st.rotation)
+        for key, value in (
+            ("product_id", o.product_id), ("mission", o.mission), ("instrument", o.instrument),
+            ("label_path", o.label_path.relative_to(root).as_posix()),
+            ("image_path", o.image_path.relative_to(root).as_posix() if o.image_path else None),
+            ("sol", o.sol), ("sclk", s.sclk), ("site", st.site), ("drive", st.drive),
+            ("stop", st.stop), ("easting", st.x), ("northing", st.y), ("elevation", st.z),
+            ("longitude", st.lon), ("latitude", st.lat),
+            ("site_offset_ned", [float(v) for v in st.landing]),
+            ("quaternion", [float(v) for v in st.quaternion]),
+            ("heading_deg", yaw), ("roll_deg", roll), ("pitch_deg", pitch),
+            ("camera_model_type", cam.model_type), ("camera_frame", cam.frame),
+            ("camera_c", cam.c.tolist()), ("camera_a", cam.a.tolist()),
+            ("camera_h", cam.h.tolist()), ("camera_v", cam.v.tolist()),
+            ("camera_o", None if cam.o is None else cam.o.tolist()),
+            ("camera_r", None if cam.r is None else cam.r.tolist()),
+            ("width", o.width), ("height", o.height),
+            ("azimuth_deg", o.azimuth_deg), ("elevation_deg", o.elevation_deg),
+            ("hfov_deg", o.hfov_deg), ("vfov_deg", o.vfov_deg), ("crs", crs),
+        ):  # fmt: skip
+            add(key, value)
+    vec = pa.list_(pa.float64())
+    types = {k: vec for k in ("site_offset_ned", "quaternion", "camera_c", "camera_a",
+                              "camera_h", "camera_v", "camera_o", "camera_r")}  # fmt: skip
+    return pa.table({k: pa.array(v, type=types.get(k)) for k, v in rows.items()})
+
+
+# -- one mission ---------------------------------------------------------------------------------
+def _generate_one(out: Path, rng: np.random.Generator, spec: MissionSpec, size: str,
+                  stops: int, per_stop: int) -> dict[str, Any]:  # fmt: skip
+    preset = SIZES[size]
+    dem32, dem_tr, ortho, ortho_tr = _terrain(rng, spec, preset)
+    dem_path, ortho_path = out / "orbital" / "dem.tif", out / "orbital" / "ortho.tif"
+    _write_geotiff(dem_path, np.where(np.isfinite(dem32), dem32, np.float32(DEM_NODATA)),
+                   dem_tr, spec.crs, DEM_NODATA, predictor=3)  # fmt: skip
+    _write_geotiff(ortho_path, ortho, ortho_tr, spec.crs, 0, predictor=2)
+
+    dem64 = dem32.astype(np.float64)
+    sampler = DemSampler(np.where(np.isfinite(dem64), dem64, np.nanmean(dem64)), dem_tr)
+    n = preset.dem_cells
+    margin = 0.25 * n * DEM_RES_M
+    left, top = dem_tr.c, dem_tr.f
+    inner = (left + margin, top - n * DEM_RES_M + margin, left + n * DEM_RES_M - margin,
+             top - margin)  # fmt: skip
+    trav = make_traverse(rng, sampler, spec.crs, inner, stops, spec.first_site,
+                         spec.first_sol, spec.sclk_sol0)  # fmt: skip
+    places_path = out / "places" / spec.places_name
+    write_places_csv(places_path, trav, dem_tr, ortho_tr)
+
+    label_dir = out / "labels"
+    label_dir.mkdir(parents=True, exist_ok=True)
+    shots = _plan_shots(rng, spec, size, trav, per_stop, label_dir)
+    grid = DemGrid(dem64, dem_tr)
+    blocks = block_ranges(dem64)
+    for shot in shots:
+        mc = MapCamera.from_observation(shot.obs, shot.pose, spec.crs)
+        rgb, _ = render_view(mc, grid, blocks, ortho, preset.ortho_factor)
+        assert shot.obs.image_path is not None
+        Image.fromarray(rgb).save(shot.obs.image_path, format="JPEG", quality=90)
+        _write_label(shot.obs)
+    truth_path = out / "truth.parquet"
+    pq.write_table(_truth_table(shots, out, spec.crs), truth_path, compression="zstd")
+    return {
+        "dir": str(out),
+        "dem": str(dem_path),
+        "ortho": str(ortho_path),
+        "places": str(places_path),
+        "truth": str(truth_path),
+        "labels": [str(s.obs.label_path) for s in shots],
+        "image_files": [str(s.obs.image_path) for s in shots],
+        "stops": len(trav.stops),
+        "sites": len(trav.sites),
+        "places_rows": len(trav.sites) + len(trav.rovers),
+        "images": len(shots),
+    }
+
