@@ -50,6 +50,7 @@ class BuildSummary:
     chunks_built: int
     chunks_resumed: int
     seconds: float
+    stage_seconds: dict[str, float]  # summed over the samples built in this run
 
     def format(self) -> str:
         """A short human-readable summary."""
@@ -123,10 +124,13 @@ def _results(config: BuildConfig, labels: list[str], workers: int) -> Iterator[t
         yield from pool.imap(_work, labels, chunksize=1)
 
 
-def _write_chunk(out: Path, k: int, results: list[tuple[str, Any]], strict: bool) -> int:
+def _write_chunk(out: Path, k: int, results: list[tuple[str, Any]], strict: bool,
+                 stage_seconds: Counter[str]) -> int:  # fmt: skip
     shard_rel, manifest_part, failures_part = _part_paths(out, k)
     rows, failures = [], []
     samples = [r for status, r in results if status == "ok"]
+    for sample in samples:
+        stage_seconds.update(sample.seconds)
     for status, r in results:
         if status == "fail":
             if strict:
@@ -190,13 +194,14 @@ def run_build(
         desc="build",
     )
     results = _results(config, pending, workers)
+    stage_seconds: Counter[str] = Counter()
     try:
         for k in todo:
             batch = []
             for _ in chunks[k]:
                 batch.append(next(results))
                 bar.update(1)
-            _write_chunk(out, k, batch, strict)
+            _write_chunk(out, k, batch, strict, stage_seconds)
     finally:
         bar.close()
         close = getattr(results, "close", None)
@@ -220,6 +225,7 @@ def run_build(
         chunks_built=len(todo),
         chunks_resumed=len(chunks) - len(todo),
         seconds=time.perf_counter() - start,
+        stage_seconds=dict(stage_seconds),
     )
     _write_dataset_json(config, summary, manifest)
     return summary

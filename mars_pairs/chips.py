@@ -9,15 +9,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import rasterio
 from affine import Affine
 from numpy.typing import ArrayLike, NDArray
+from rasterio.crs import CRS
 from rasterio.enums import Resampling
 from rasterio.warp import reproject
+from rasterio.windows import Window, from_bounds
 
 from mars_pairs.frames import crs_string
+from mars_pairs.kernels.resample import sample_affine
 
 
 @dataclass(frozen=True)
@@ -80,39 +84,87 @@ class ChipGrid:
         return np.stack([col, row], axis=-1)
 
 
-def read_chip(
-    path: str, grid: ChipGrid, *, resampling: Resampling = Resampling.bilinear, band: int = 1
-) -> NDArray[np.float32]:
-    """Resample one band of a raster onto a chip grid; nodata and outside become NaN.
+def _same_crs(a: object, b: object) -> bool:
+    return CRS.from_user_input(crs_string(a)) == CRS.from_user_input(crs_string(b))
 
-    GDAL's warper reads only the source blocks the chip touches, never the whole raster, and
-    reprojects from the raster's CRS when it differs from the chip's.
+
+def _sample_grid(values: NDArray[np.float32], src_transform: Affine, grid: ChipGrid,
+                 nearest: bool) -> NDArray[np.float32]:  # fmt: skip
+    """Resample an array on ``src_transform`` onto ``grid`` (same CRS) with the numba kernel."""
+    m = ~src_transform * grid.transform  # chip pixel -> source pixel
+    n = grid.size_px
+    return sample_affine(np.ascontiguousarray(values, dtype=np.float32), m.a, m.b, m.c, m.d,
+                         m.e, m.f, n, n, nearest)  # fmt: skip
+
+
+class ChipReader:
+    """An open raster that cuts chips; use as a context manager, like a rasterio dataset.
+
+    In the raster's own CRS a chip is one windowed read of the pixels it covers plus a numba
+    resampling (any rotation); in another CRS GDAL's warper reprojects it. Either way only
+    the blocks under the chip are read, never the whole raster. Nodata becomes NaN.
     """
-    out = np.full((grid.size_px, grid.size_px), np.nan, dtype=np.float32)
-    with rasterio.open(path) as src:
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = str(path)
+        self.dataset = rasterio.open(self.path)
+
+    def read(self, grid: ChipGrid, *, nearest: bool = False, band: int = 1) -> NDArray[np.float32]:
+        """The chip of ``band`` on ``grid`` (bilinear, or nearest for masks and classes)."""
+        src = self.dataset
+        if not _same_crs(src.crs, grid.crs):
+            return self._warp(grid, nearest, band)
+        xs, ys = grid.corners().T
+        window = from_bounds(xs.min(), ys.min(), xs.max(), ys.max(), transform=src.transform)
+        col0 = max(math.floor(window.col_off) - 2, 0)
+        row0 = max(math.floor(window.row_off) - 2, 0)
+        col1 = min(math.ceil(window.col_off + window.width) + 2, src.width)
+        row1 = min(math.ceil(window.row_off + window.height) + 2, src.height)
+        n = grid.size_px
+        if col1 - col0 < 2 or row1 - row0 < 2:
+            return np.full((n, n), np.nan, dtype=np.float32)
+        win = Window(col0, row0, col1 - col0, row1 - row0)
+        values = src.read(band, window=win, masked=True).astype(np.float32).filled(np.nan)
+        return _sample_grid(values, src.window_transform(win), grid, nearest)
+
+    def _warp(self, grid: ChipGrid, nearest: bool, band: int) -> NDArray[np.float32]:
+        out = np.full((grid.size_px, grid.size_px), np.nan, dtype=np.float32)
         reproject(
-            source=rasterio.band(src, band),
+            source=rasterio.band(self.dataset, band),
             destination=out,
-            src_nodata=src.nodata,
+            src_nodata=self.dataset.nodata,
             dst_transform=grid.transform,
             dst_crs=grid.crs,
             dst_nodata=np.nan,
-            resampling=resampling,
+            resampling=Resampling.nearest if nearest else Resampling.bilinear,
             tolerance=0.0,
         )
-    return out
+        return out
+
+    def close(self) -> None:
+        """Close the raster."""
+        self.dataset.close()
+
+    def __enter__(self) -> ChipReader:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
-def resample_array(
-    values: NDArray[np.generic],
-    transform: Affine,
-    crs: object,
-    grid: ChipGrid,
-    resampling: Resampling = Resampling.nearest,
-    nodata: float = np.nan,
-) -> NDArray[np.float32]:
+def read_chip(path: str, grid: ChipGrid, *, nearest: bool = False,
+              band: int = 1) -> NDArray[np.float32]:  # fmt: skip
+    """One chip of a raster file (opens and closes it; use ChipReader for many chips)."""
+    with ChipReader(path) as reader:
+        return reader.read(grid, nearest=nearest, band=band)
+
+
+def resample_array(values: NDArray[np.generic], transform: Affine, crs: object, grid: ChipGrid,
+                   nearest: bool = True) -> NDArray[np.float32]:  # fmt: skip
     """Resample an in-memory grid (e.g. a viewshed on the DEM window) onto a chip grid."""
-    out = np.full((grid.size_px, grid.size_px), nodata, dtype=np.float32)
+    if _same_crs(crs, grid.crs):
+        return _sample_grid(np.asarray(values, dtype=np.float32), transform, grid, nearest)
+    out = np.full((grid.size_px, grid.size_px), np.nan, dtype=np.float32)
     reproject(
         source=np.asarray(values, dtype=np.float32),
         destination=out,
@@ -120,8 +172,8 @@ def resample_array(
         src_crs=crs_string(crs),
         dst_transform=grid.transform,
         dst_crs=grid.crs,
-        dst_nodata=nodata,
-        resampling=resampling,
+        dst_nodata=np.nan,
+        resampling=Resampling.nearest if nearest else Resampling.bilinear,
         tolerance=0.0,
     )
     return out

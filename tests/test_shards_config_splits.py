@@ -10,7 +10,7 @@ import pytest
 import rasterio
 from rasterio.transform import from_origin
 
-from mars_pairs.chips import ChipGrid, read_chip
+from mars_pairs.chips import ChipGrid, read_chip, resample_array
 from mars_pairs.config import load_config, parse_config
 from mars_pairs.errors import ConfigError
 from mars_pairs.frames import MSL_PLACES_CRS
@@ -165,3 +165,28 @@ def test_chip_off_the_raster_is_nan(ramp: tuple[Path, float, float]) -> None:
     path, x0, y0 = ramp
     chip = read_chip(str(path), ChipGrid.around(x0, y0, 100.0, 20, MSL_PLACES_CRS))
     assert np.isnan(chip[0, 0]) and np.isfinite(chip[-1, -1])
+
+
+def test_chip_in_another_crs_is_warped(ramp: tuple[Path, float, float]) -> None:
+    """A chip asked in a lat_ts = 10 CRS samples the same ground as in the raster's CRS."""
+    from mars_pairs.frames import map_to_map
+
+    path, x0, y0 = ramp
+    other = MSL_PLACES_CRS.replace("+lat_ts=0", "+lat_ts=10")
+    cx, cy = map_to_map(x0 + 150, y0 - 150, MSL_PLACES_CRS, other)
+    grid = ChipGrid.around(float(cx), float(cy), 60.0, 30, other)
+    east = read_chip(str(path), grid, band=1)
+    x, _ = map_to_map(*(grid.transform @ (15.5, 15.5)), other, MSL_PLACES_CRS)
+    assert east[15, 15] == pytest.approx(float(x) - x0, abs=0.2)
+
+
+def test_resampled_mask_keeps_its_cells() -> None:
+    from affine import Affine
+
+    mask = np.zeros((100, 100), dtype=np.uint8)
+    mask[40:60, 10:30] = 1
+    transform = Affine(1.0, 0, 1000.0, 0, -1.0, 2000.0)
+    grid = ChipGrid.around(1050.0, 1950.0, 100.0, 50, MSL_PLACES_CRS)
+    chip = resample_array(mask, transform, MSL_PLACES_CRS, grid, nearest=True)
+    assert chip.sum() == pytest.approx(20 * 20 / 4, abs=20)
+    assert chip[25, 10] == 1 and chip[25, 40] == 0
