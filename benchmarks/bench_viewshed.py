@@ -5,13 +5,16 @@
 
 Builds a seeded spectral fractal DEM as a GeoTIFF (Mars equirectangular CRS) in a temp dir,
 puts the observer at its centre 2 m above the ground, and prints a markdown table of median
-wall times (ms) with the speed-up against gdal_viewshed's full 360-degree run.
+wall times (ms; warm-up runs first, then the median of --repeats runs) with the speed-up
+against gdal_viewshed's full 360-degree run, and the machine load (os.getloadavg) before and
+after: numba's threads stall when other processes hold the cores, so compare rows of one run.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
 import shutil
 import subprocess
 import sys
@@ -28,6 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from mars_pairs.kernels import cast_rays, compute_viewshed  # noqa: E402
+from mars_pairs.kernels.raycast import max_pyramid  # noqa: E402
 from mars_pairs.terrain import Terrain  # noqa: E402
 
 EQC = "+proj=eqc +lat_ts=0 +lon_0=0 +R=3396190 +units=m +no_defs"
@@ -57,8 +61,10 @@ def write_dem(path: Path, dem: np.ndarray, cell: float) -> None:
         ds.write(dem, 1)
 
 
-def median_ms(fn: Callable[[], object], repeats: int) -> float:
-    """Median wall time of ``fn`` in milliseconds."""
+def median_ms(fn: Callable[[], object], repeats: int, warmup: int = 2) -> float:
+    """Median wall time of ``fn`` in milliseconds, after ``warmup`` untimed runs."""
+    for _ in range(warmup):
+        fn()
     times = []
     for _ in range(repeats):
         t = time.perf_counter()
@@ -106,8 +112,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--size", type=int, default=4096, help="DEM size in cells (square)")
     ap.add_argument("--cell", type=float, default=1.0, help="cell size in metres")
     ap.add_argument("--radius", type=float, default=2000.0, help="viewshed radius, metres")
-    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--repeats", type=int, default=7, help="timed runs per case (>= 5)")
     args = ap.parse_args(argv)
+    args.repeats = max(5, args.repeats)
+    args.load_before = os.getloadavg()
 
     rows: list[tuple[str, float | None, str]] = []
     t0 = time.perf_counter()
@@ -115,6 +123,7 @@ def main(argv: list[str] | None = None) -> None:
     compute_viewshed(tiny, 8, 8, height=2, radius=5)
     compute_viewshed(tiny, 8, 8, height=2, radius=5, az_band=(0, 10), el_band=(-10, 0))
     cast_rays([[8.0, 8.0, 2.0]], [[0.0, 0.6, -0.8]], tiny, max_range=5)
+    cast_rays([[8.0, 8.0, 2.0]], [[0.0, 0.6, -0.8]], tiny, max_range=5, pyramid=max_pyramid(tiny))
     rows.append(("numba first call (compile or cache load)", (time.perf_counter() - t0) * 1e3,
                  "once per process"))  # fmt: skip
 
@@ -134,8 +143,8 @@ def main(argv: list[str] | None = None) -> None:
         full = compute_viewshed(win, x, y, **vs_kw)
         cam_az = open_azimuth(full, win, x, y, 20 * HEIGHT / math.tan(math.radians(-CAM_EL)))
         cases = [
-            ("viewshed full 360 (oversample=2, default)", {}),
-            ("viewshed full 360 (oversample=1)", {"oversample": 1}),
+            ("viewshed full 360 (oversample=1, default)", {}),
+            ("viewshed full 360 (oversample=2)", {"oversample": 2}),
             (f"viewshed wedge 6 x 5 deg (Mastcam-like, az {cam_az:.0f})",
              {"az_band": (cam_az - 3, cam_az + 3), "el_band": (CAM_EL - 2.5, CAM_EL + 2.5)}),
             ("viewshed wedge 20 x 11 deg",
@@ -151,7 +160,6 @@ def main(argv: list[str] | None = None) -> None:
         if cmd is None:
             rows.append(("gdal_viewshed full 360 (subprocess)", None, "not installed"))
         else:
-            subprocess.run(cmd, check=True)  # warm the file cache
             gdal_ms = median_ms(lambda: subprocess.run(cmd, check=True), args.repeats)
             with rasterio.open(Path(tmp) / "gdal_vs.tif") as ds:
                 n_vis = int((ds.read(1) == 255).sum())
@@ -160,17 +168,30 @@ def main(argv: list[str] | None = None) -> None:
 
         origins, dirs = camera_rays(1648, 1200, 4, 20.0, eye, cam_az)
         hits, _ = cast_rays(origins, dirs, win, max_range=args.radius)
+        n_hits = f"{int(np.isfinite(hits[:, 0]).sum())} hits"
+        pyr = max_pyramid(win)
+        rows.append(("max pyramid of the window (`max_pyramid`, once per window)",
+                     median_ms(lambda: max_pyramid(win), args.repeats),
+                     f"levels 2..{pyr.n_levels}"))  # fmt: skip
+        ms = median_ms(lambda: cast_rays(origins, dirs, win, max_range=args.radius, pyramid=pyr),
+                       args.repeats)  # fmt: skip
+        rows.append((f"ray casting 1648 x 1200 / stride 4 ({len(dirs)} rays), pyramid given", ms,
+                     n_hits))  # fmt: skip
         ms = median_ms(lambda: cast_rays(origins, dirs, win, max_range=args.radius), args.repeats)
-        rows.append((f"ray casting 1648 x 1200 / stride 4 ({len(dirs)} rays)", ms,
-                     f"{int(np.isfinite(hits[:, 0]).sum())} hits"))  # fmt: skip
+        rows.append(("ray casting, same rays, pyramid built in the call", ms, n_hits))
 
     print_table(rows, gdal_ms, args)
 
 
 def print_table(rows, gdal_ms: float | None, args: argparse.Namespace) -> None:
     """Markdown table: name, median ms, speed-up vs gdal_viewshed full run, note."""
-    print(f"\nDEM {args.size} x {args.size} at {args.cell} m, radius {args.radius} m, observer "
-          f"{HEIGHT} m above the centre, median of {args.repeats}\n")  # fmt: skip
+    before = ", ".join(f"{v:.2f}" for v in args.load_before)
+    after = ", ".join(f"{v:.2f}" for v in os.getloadavg())
+    print(
+        f"\nDEM {args.size} x {args.size} at {args.cell} m, radius {args.radius} m, observer "
+        f"{HEIGHT} m above the centre, median of {args.repeats} after 2 warm-up runs; "
+        f"{os.cpu_count()} CPUs, load average (1, 5, 15 min) {before} before, {after} after\n"
+    )
     print("| case | median ms | speed-up vs gdal_viewshed full | note |")
     print("|---|---:|---:|---|")
     for name, ms, note in rows:

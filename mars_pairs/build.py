@@ -119,6 +119,7 @@ def _results(config: BuildConfig, labels: list[str], workers: int) -> Iterator[t
             if _CONTEXT is not None:
                 _CONTEXT.close()
         return
+    # spawn, not fork: a parent that already ran numba's OpenMP threads cannot fork safely
     ctx = mp.get_context("spawn")
     with ctx.Pool(workers, initializer=_init_worker, initargs=(config,)) as pool:
         yield from pool.imap(_work, labels, chunksize=1)

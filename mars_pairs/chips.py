@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -84,8 +85,13 @@ class ChipGrid:
         return np.stack([col, row], axis=-1)
 
 
+@lru_cache(maxsize=64)
+def _same_crs_text(a: str, b: str) -> bool:
+    return a == b or CRS.from_user_input(a) == CRS.from_user_input(b)
+
+
 def _same_crs(a: object, b: object) -> bool:
-    return CRS.from_user_input(crs_string(a)) == CRS.from_user_input(crs_string(b))
+    return _same_crs_text(crs_string(a), crs_string(b))
 
 
 def _sample_grid(values: NDArray[np.float32], src_transform: Affine, grid: ChipGrid,
@@ -108,11 +114,12 @@ class ChipReader:
     def __init__(self, path: str | Path) -> None:
         self.path = str(path)
         self.dataset = rasterio.open(self.path)
+        self.crs_wkt = self.dataset.crs.to_wkt() if self.dataset.crs else ""
 
     def read(self, grid: ChipGrid, *, nearest: bool = False, band: int = 1) -> NDArray[np.float32]:
         """The chip of ``band`` on ``grid`` (bilinear, or nearest for masks and classes)."""
         src = self.dataset
-        if not _same_crs(src.crs, grid.crs):
+        if not _same_crs(self.crs_wkt, grid.crs):
             return self._warp(grid, nearest, band)
         xs, ys = grid.corners().T
         window = from_bounds(xs.min(), ys.min(), xs.max(), ys.max(), transform=src.transform)

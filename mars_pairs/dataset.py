@@ -4,27 +4,32 @@ Samples are dicts of tensors (torchgeo style): ``ground`` float32 [3, H, W] in [
 ``ortho`` float32 [1, h, w] in [0, 1], ``dem`` float32 [1, h, w] (metres, or normalised),
 ``viewshed`` float32 [1, h, w] in {0, 1}, ``corr`` float32 [2, H/k, W/k] (chip column, row of
 each strided ground pixel's ray hit, NaN for no hit) and ``meta`` (plain Python values).
+With ``image_dtype=torch.uint8`` ground and ortho are uint8 0..255 and viewshed uint8 {0, 1}.
 """
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
 import random
+from collections import OrderedDict
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 import torch
 from PIL import Image
-from torch.utils.data import Dataset, IterableDataset, get_worker_info
+from torch.utils.data import Dataset, IterableDataset, default_collate, get_worker_info
 
 from mars_pairs.manifest import Manifest
 
 DEFAULT_FIELDS = ("ground", "ortho", "dem", "viewshed")
 ALL_FIELDS = ("ground", "ortho", "dem", "viewshed", "corr")
+IMAGE_FIELDS = ("ground", "ortho", "viewshed")  # uint8 with image_dtype=torch.uint8
 META_COLUMNS = (
     "key",
     "mission",
@@ -61,46 +66,158 @@ FILTER_KEYS = (
 
 
 # -- decoding ------------------------------------------------------------------------------------
-def _decode_image(data: bytes, mode: str, size: tuple[int, int] | None = None) -> torch.Tensor:
+def _image_u8(
+    data: bytes | bytearray, mode: str, size: tuple[int, int] | None = None
+) -> np.ndarray:
+    """Decode an image to uint8 [H, W] or [H, W, C] (resized to ``size`` (H, W) if given)."""
     with Image.open(io.BytesIO(data)) as im:
-        im = im.convert(mode)
+        if im.mode != mode:
+            im = im.convert(mode)
         if size is not None and (im.height, im.width) != tuple(size):
             im = im.resize((size[1], size[0]), Image.BILINEAR)
-        arr = np.asarray(im, dtype=np.float32) / 255.0
-    arr = arr[None] if arr.ndim == 2 else np.ascontiguousarray(arr.transpose(2, 0, 1))
-    return torch.from_numpy(arr)
+        return _pil_array(im)
 
 
-def _decode_npy(data: bytes) -> np.ndarray:
-    return np.load(io.BytesIO(data), allow_pickle=False)
+def _pil_array(im: Image.Image) -> np.ndarray:
+    """An "L" or "RGB" image's pixels as numpy, zero-copy through Pillow's Arrow export.
+
+    (``np.asarray(im)`` copies the pixels through ``tobytes``; asking PIL for float32 is
+    ~10x slower still.) Falls back to ``np.asarray`` on Pillow without Arrow support.
+    """
+    if im.mode in ("L", "RGB") and hasattr(im, "__arrow_c_array__"):
+        try:
+            im.load()
+            arr = pa.array(im)
+            if im.mode == "L":
+                return arr.to_numpy(zero_copy_only=True).reshape(im.height, im.width)
+            pixels = arr.values.to_numpy(zero_copy_only=True)  # RGBX, 4 bytes a pixel
+            return pixels.reshape(im.height, im.width, 4)[..., :3]
+        except (ValueError, TypeError, pa.ArrowException):
+            pass
+    return np.asarray(im)
+
+
+def _decode_npy(data: bytes | bytearray) -> np.ndarray:
+    """A .npy array; zero-copy (and writable) over a ``bytearray``."""
+    buf = io.BytesIO(data)
+    version = np.lib.format.read_magic(buf)
+    if version == (1, 0):
+        shape, fortran, dtype = np.lib.format.read_array_header_1_0(buf)
+    elif version == (2, 0):
+        shape, fortran, dtype = np.lib.format.read_array_header_2_0(buf)
+    else:
+        return np.load(io.BytesIO(data), allow_pickle=False)
+    if dtype.hasobject:
+        raise ValueError("object arrays are not allowed")
+    count = int(np.prod(shape, dtype=np.int64))
+    arr = np.frombuffer(data, dtype=dtype, count=count, offset=buf.tell())
+    arr = arr.reshape(shape[::-1]).T if fortran else arr.reshape(shape)
+    return arr if arr.flags.writeable else arr.copy()
+
+
+def _decode_raw(
+    field: str,
+    data: bytes | bytearray,
+    ground_size: tuple[int, int] | None = None,
+    normalize_dem: bool = False,
+) -> np.ndarray:
+    """Stage 1: a member's compact array (uint8 images, channels last; float32 DEM / corr)."""
+    if field == "ground":
+        return _image_u8(data, "RGB", ground_size)
+    if field in ("ortho", "viewshed"):
+        return _image_u8(data, "L")
+    if field == "dem":
+        dem = _decode_npy(data).astype(np.float32, copy=False)
+        if normalize_dem:
+            finite = np.isfinite(dem)
+            centre = float(np.median(dem[finite])) if finite.any() else 0.0
+            dem = np.where(finite, dem - centre, np.float32(0.0)).astype(np.float32)
+        return dem
+    if field == "corr":
+        return _decode_npy(data)
+    raise KeyError(f"unknown field {field!r}")
+
+
+def _chw_shape(raw: np.ndarray) -> tuple[int, int, int]:
+    """The [C, H, W] shape of a stage-1 array."""
+    return (1, *raw.shape) if raw.ndim == 2 else (raw.shape[2], raw.shape[0], raw.shape[1])
+
+
+_TORCH_DTYPES = {np.dtype(np.uint8): torch.uint8, np.dtype(np.float32): torch.float32}
+
+
+def _out_dtype(field: str, image_dtype: torch.dtype) -> np.dtype:
+    """The numpy dtype of a field's tensor: ``image_dtype`` for images, else float32."""
+    if field in IMAGE_FIELDS and image_dtype == torch.uint8:
+        return np.dtype(np.uint8)
+    if image_dtype not in (torch.float32, torch.uint8):
+        raise ValueError(f"image_dtype must be torch.float32 or torch.uint8, got {image_dtype}")
+    return np.dtype(np.float32)
+
+
+def _finish(field: str, raw: np.ndarray, out: np.ndarray) -> None:
+    """Stage 2: write the [C, H, W] tensor of a stage-1 array into ``out``, in one pass.
+
+    float32 ``out``: images in [0, 1], viewshed {0, 1}; uint8 ``out`` (images only): images
+    as they are (0..255), viewshed {0, 1}.
+
+    (numpy, not torch: torch's strided uint8 -> float copy is several times slower here and
+    spawns intra-op threads in the main process.)
+    """
+    chw = raw[None] if raw.ndim == 2 else raw.transpose(2, 0, 1)
+    if field in ("ground", "ortho") and out.dtype != np.uint8:
+        np.divide(chw, np.float32(255.0), out=out)
+    elif field == "viewshed":
+        np.greater(chw, 127, out=out, casting="unsafe")
+    else:
+        np.copyto(out, chw, casting="same_kind")
 
 
 def decode_member(
     field: str,
-    data: bytes,
+    data: bytes | bytearray,
     *,
     ground_size: tuple[int, int] | None = None,
     normalize_dem: bool = False,
+    image_dtype: torch.dtype = torch.float32,
 ) -> Any:
     """Decode one member's bytes into its tensor (or dict, for ``meta``)."""
-    if field == "ground":
-        return _decode_image(data, "RGB", ground_size)
-    if field == "ortho":
-        return _decode_image(data, "L")
-    if field == "viewshed":
-        return (_decode_image(data, "L") > 0.5).float()
-    if field == "dem":
-        dem = _decode_npy(data).astype(np.float32)
-        if normalize_dem:
-            finite = np.isfinite(dem)
-            centre = float(np.median(dem[finite])) if finite.any() else 0.0
-            dem = np.where(finite, dem - centre, 0.0).astype(np.float32)
-        return torch.from_numpy(dem)[None]
-    if field == "corr":
-        return torch.from_numpy(np.ascontiguousarray(_decode_npy(data).transpose(2, 0, 1)))
     if field == "meta":
         return json.loads(data)
-    raise KeyError(f"unknown field {field!r}")
+    raw = _decode_raw(field, data, ground_size, normalize_dem)
+    out = np.empty(_chw_shape(raw), dtype=_out_dtype(field, image_dtype))
+    _finish(field, raw, out)
+    return torch.from_numpy(out)
+
+
+def _shared_empty(shape: tuple[int, ...], dtype: torch.dtype) -> torch.Tensor:
+    """A tensor in shared memory (sent from a DataLoader worker without a copy)."""
+    numel = int(np.prod(shape))
+    try:
+        empty = torch.empty(0, dtype=dtype)
+        storage = empty._typed_storage()._new_shared(numel)  # as default_collate does
+        return empty.set_(storage).view(shape)
+    except (AttributeError, RuntimeError):  # private API moved: share afterwards instead
+        return torch.empty(shape, dtype=dtype).share_memory_()
+
+
+def _stacked_base(tensors: Sequence[torch.Tensor]) -> torch.Tensor | None:
+    """The [B, ...] tensor whose rows are exactly ``tensors`` (consecutive views), or None."""
+    first = tensors[0]
+    storage = first.untyped_storage()
+    n = first.numel()
+    for j, t in enumerate(tensors):
+        if (
+            t.untyped_storage().data_ptr() != storage.data_ptr()
+            or t.storage_offset() != j * n
+            or t.shape != first.shape
+            or t.dtype != first.dtype
+            or not t.is_contiguous()
+        ):
+            return None
+    if storage.nbytes() != len(tensors) * n * first.element_size():
+        return None
+    return torch.empty(0, dtype=first.dtype).set_(storage, 0, (len(tensors), *first.shape))
 
 
 def _ground_size(value: int | Sequence[int] | None) -> tuple[int, int] | None:
@@ -120,24 +237,64 @@ def _check_fields(fields: Sequence[str]) -> tuple[str, ...]:
 
 
 class _ShardFiles:
-    """Open shard file handles, opened lazily and per process (safe under fork and spawn)."""
+    """Shard file descriptors, opened lazily and per process (safe under fork and spawn).
 
-    def __init__(self, root: Path) -> None:
+    At most ``max_open`` stay open (least recently used closed first), so datasets with many
+    shards do not run out of descriptors. Reads are positioned (``preadv``): no seek state.
+    """
+
+    def __init__(self, root: Path, max_open: int = 64) -> None:
         self.root = root
+        self.max_open = max_open
         self._pid = -1
-        self._files: dict[str, Any] = {}
+        self._files: OrderedDict[str, int] = OrderedDict()
 
-    def read(self, shard: str, offset: int, size: int) -> bytes:
-        if self._pid != os.getpid():
-            self._files, self._pid = {}, os.getpid()
-        fh = self._files.get(shard)
-        if fh is None:
-            fh = self._files[shard] = open(self.root / shard, "rb")  # noqa: SIM115
-        fh.seek(offset)
-        return fh.read(size)
+    def _fd(self, shard: str) -> int:
+        if self._pid != os.getpid():  # inherited through fork: the parent's, leave them be
+            self._files, self._pid = OrderedDict(), os.getpid()
+        fd = self._files.get(shard)
+        if fd is None:
+            while len(self._files) >= self.max_open:
+                os.close(self._files.popitem(last=False)[1])
+            fd = self._files[shard] = os.open(self.root / shard, os.O_RDONLY)
+        else:
+            self._files.move_to_end(shard)
+        return fd
+
+    def read(self, shard: str, offset: int, size: int) -> bytearray:
+        """``size`` bytes at ``offset``, into a fresh writable buffer."""
+        fd = self._fd(shard)
+        buf = bytearray(size)
+        view, done = memoryview(buf), 0
+        while done < size:
+            if hasattr(os, "preadv"):
+                n = os.preadv(fd, [view[done:]], offset + done)
+            else:  # no positioned reads (Windows)
+                os.lseek(fd, offset + done, os.SEEK_SET)
+                chunk = os.read(fd, size - done)
+                view[done : done + len(chunk)] = chunk
+                n = len(chunk)
+            if n <= 0:
+                raise OSError(f"{self.root / shard}: short read at offset {offset}")
+            done += n
+        return buf
+
+    def close(self) -> None:
+        """Close this process's descriptors."""
+        if self._pid == os.getpid():
+            for fd in self._files.values():
+                os.close(fd)
+        self._files = OrderedDict()
+
+    def __del__(self) -> None:
+        with contextlib.suppress(Exception):
+            self.close()
 
     def __getstate__(self) -> dict[str, Any]:
-        return {"root": self.root, "_pid": -1, "_files": {}}
+        return {"root": self.root, "max_open": self.max_open, "_pid": -1, "_files": {}}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state, _files=OrderedDict())
 
 
 # -- map-style ---------------------------------------------------------------------------------
@@ -146,7 +303,9 @@ class MarsPairsDataset(Dataset):
 
     Filter arguments are those of :meth:`mars_pairs.Manifest.filter`. ``ground_size`` (int or
     (H, W)) resizes ground images so they batch; ``normalize_dem`` subtracts each chip's
-    median elevation. ``transform`` is applied to the sample dict.
+    median elevation. ``image_dtype=torch.uint8`` returns ground and ortho as uint8 (0..255)
+    and viewshed as uint8 {0, 1}: a quarter of the bytes through DataLoader workers (convert
+    on the device). ``transform`` is applied to the sample dict.
     """
 
     def __init__(
@@ -157,6 +316,7 @@ class MarsPairsDataset(Dataset):
         transform: Callable[[dict[str, Any]], dict[str, Any]] | None = None,
         ground_size: int | Sequence[int] | None = None,
         normalize_dem: bool = False,
+        image_dtype: torch.dtype = torch.float32,
         **filters: Any,
     ) -> None:
         unknown = set(filters) - set(FILTER_KEYS)
@@ -167,6 +327,8 @@ class MarsPairsDataset(Dataset):
         self.transform = transform
         self.ground_size = _ground_size(ground_size)
         self.normalize_dem = normalize_dem
+        self._dtypes = {f: _out_dtype(f, image_dtype) for f in self.fields}
+        self.image_dtype = image_dtype
         manifest = Manifest.open(self.root).filter(**filters)
         columns = [*list(META_COLUMNS), "ground_member"]
         for name in self.fields:
@@ -178,18 +340,59 @@ class MarsPairsDataset(Dataset):
     def __len__(self) -> int:
         return len(self._rows)
 
-    def __getitem__(self, index: int) -> dict[str, Any]:
+    def _raw(self, index: int) -> dict[str, np.ndarray]:
         row = self._rows[index]
-        sample: dict[str, Any] = {}
+        raw = {}
         for name in self.fields:
             data = self._files.read(
                 row[f"{name}_shard"], row[f"{name}_offset"], row[f"{name}_size"]
             )
-            sample[name] = decode_member(
-                name, data, ground_size=self.ground_size, normalize_dem=self.normalize_dem
-            )
+            raw[name] = _decode_raw(name, data, self.ground_size, self.normalize_dem)
+        return raw
+
+    def _sample(self, index: int, tensors: dict[str, torch.Tensor]) -> dict[str, Any]:
+        row = self._rows[index]
+        sample: dict[str, Any] = dict(tensors)
         sample["meta"] = {k: row[k] for k in META_COLUMNS}
         return self.transform(sample) if self.transform is not None else sample
+
+    def __getitem__(self, index: int) -> dict[str, Any]:
+        tensors = {}
+        for name, raw in self._raw(index).items():
+            out = np.empty(_chw_shape(raw), dtype=self._dtypes[name])
+            _finish(name, raw, out)
+            tensors[name] = torch.from_numpy(out)
+        return self._sample(index, tensors)
+
+    def __getitems__(self, indices: Sequence[int]) -> list[dict[str, Any]]:
+        """A batch of samples (the DataLoader's batched fetch).
+
+        Members are decoded to compact arrays first; each field whose shapes agree across the
+        batch is then converted into one [B, C, H, W] buffer (in shared memory inside a
+        DataLoader worker) whose rows are the samples' tensors, so ``collate_samples`` hands
+        it on without another copy.
+        """
+        raws = [self._raw(int(i)) for i in indices]
+        tensors: list[dict[str, torch.Tensor]] = [{} for _ in raws]
+        in_worker = get_worker_info() is not None
+        for name in self.fields:
+            shapes = {_chw_shape(r[name]) for r in raws}
+            if len(shapes) == 1:
+                shape = (len(raws), *shapes.pop())
+                dtype = self._dtypes[name]
+                if in_worker:
+                    batch = _shared_empty(shape, _TORCH_DTYPES[dtype])
+                else:  # numpy reuses freed memory; torch.empty page-faults it in anew
+                    batch = torch.from_numpy(np.empty(shape, dtype=dtype))
+                for j, r in enumerate(raws):
+                    _finish(name, r[name], batch[j].numpy())
+                    tensors[j][name] = batch[j]
+            else:
+                for j, r in enumerate(raws):
+                    out = np.empty(_chw_shape(r[name]), dtype=self._dtypes[name])
+                    _finish(name, r[name], out)
+                    tensors[j][name] = torch.from_numpy(out)
+        return [self._sample(int(i), t) for i, t in zip(indices, tensors, strict=True)]
 
 
 # -- streaming -----------------------------------------------------------------------------------
@@ -215,6 +418,7 @@ class MarsPairsIterableDataset(IterableDataset):
         transform: Callable[[dict[str, Any]], dict[str, Any]] | None = None,
         ground_size: int | Sequence[int] | None = None,
         normalize_dem: bool = False,
+        image_dtype: torch.dtype = torch.float32,
         shuffle_buffer: int = 64,
         seed: int = 0,
         **filters: Any,
@@ -225,6 +429,7 @@ class MarsPairsIterableDataset(IterableDataset):
             transform=transform,
             ground_size=ground_size,
             normalize_dem=normalize_dem,
+            image_dtype=image_dtype,
             **filters,
         )
         self.shuffle_buffer = shuffle_buffer
@@ -270,11 +475,20 @@ class MarsPairsIterableDataset(IterableDataset):
 
 
 def collate_samples(batch: list[dict[str, Any]]) -> dict[str, Any]:
-    """Stack tensors of a batch; ``meta`` becomes a dict of lists."""
+    """Stack tensors of a batch; ``meta`` becomes a dict of lists.
+
+    Rows of one batch buffer (from ``MarsPairsDataset.__getitems__``) are returned as that
+    buffer, without a copy; other tensors are stacked with ``default_collate``, which in a
+    DataLoader worker writes the batch straight into shared memory.
+    """
     out: dict[str, Any] = {}
     for key in batch[0]:
         if key == "meta":
             out["meta"] = {k: [b["meta"][k] for b in batch] for k in batch[0]["meta"]}
+        elif isinstance(batch[0][key], torch.Tensor):
+            tensors = [b[key] for b in batch]
+            base = _stacked_base(tensors)
+            out[key] = base if base is not None else default_collate(tensors)
         else:
-            out[key] = torch.stack([b[key] for b in batch])
+            out[key] = [b[key] for b in batch]
     return out

@@ -67,11 +67,16 @@ def export_geopackage(root: str | Path, out: str | Path, with_viewsheds: bool = 
     """Write ``out`` (.gpkg) with layers rover_positions, footprints, camera_wedges.
 
     Geometries are in the dataset CRS; attributes come from the manifest. With
-    ``with_viewsheds``, each sample's viewshed chip is written beside it as a GeoTIFF.
+    ``with_viewsheds``, each sample's viewshed chip is written as ``KEY_viewshed.tif`` in the
+    folder ``viewsheds_folder(out)`` beside it.
     """
     from pyogrio.raw import write_arrow
 
     root, out = Path(root), Path(out)
+    if out.suffix.lower() != ".gpkg":
+        raise MarsPairsError(f"{out}: the output must be a .gpkg file")
+    if not root.is_dir():
+        raise MarsPairsError(f"{root}: no such dataset folder")
     manifest = Manifest.open(root)
     rows = manifest.to_table().to_pylist()
     if not rows:
@@ -104,8 +109,14 @@ def export_geopackage(root: str | Path, out: str | Path, with_viewsheds: bool = 
         )
     os.replace(tmp, out)
     if with_viewsheds:
-        _write_viewsheds(root, rows, out.with_suffix(""), crs)
+        _write_viewsheds(root, rows, viewsheds_folder(out), crs)
     return out
+
+
+def viewsheds_folder(out: str | Path) -> Path:
+    """The folder of the viewshed GeoTIFFs written beside ``out`` (``NAME_viewsheds``)."""
+    out = Path(out)
+    return out.with_name(f"{out.stem}_viewsheds")
 
 
 def _write_viewsheds(root: Path, rows: list[dict[str, Any]], folder: Path, crs: str) -> None:

@@ -61,6 +61,9 @@ class SampleContext:
     terrain: Terrain
     ortho: ChipReader
     dem: ChipReader
+    crs_wkt: str = ""
+    _window: DemWindow | None = None
+    _window_key: tuple[int, int, float] | None = None
 
     @classmethod
     def open(cls, config: BuildConfig) -> SampleContext:
@@ -68,7 +71,21 @@ class SampleContext:
         places = Places.from_csv(config.inputs.places)
         terrain = Terrain.open(config.inputs.dem)
         return cls(config, places, terrain, ChipReader(config.inputs.ortho),
-                   ChipReader(config.inputs.dem))  # fmt: skip
+                   ChipReader(config.inputs.dem), terrain.crs.to_wkt())  # fmt: skip
+
+    def dem_window(self, x: float, y: float, radius: float, snap: float = 32.0) -> DemWindow:
+        """A DEM window holding everything within ``radius`` of map point (x, y).
+
+        The window is centred on (x, y) snapped to a ``snap``-unit grid and reaches ``snap``
+        further, so the images of one stop share one read, and a sample never depends on
+        which images a worker built before it (same window for the same position).
+        """
+        key = (round(x / snap), round(y / snap), radius)
+        if self._window is None or key != self._window_key:
+            x0, y0 = key[0] * snap, key[1] * snap
+            self._window = self.terrain.read_dem_window(x0, y0, radius + snap, check_observer=False)
+            self._window_key = key
+        return self._window
 
     def close(self) -> None:
         """Close the rasters."""
@@ -172,10 +189,10 @@ def _view(obs: Observation, pose: Pose, camera: MapCamera, ctx: SampleContext,
     geo = ctx.config.geometry
     with stage("terrain"):
         cx, cy, cz = (float(v) for v in camera.center_map)
-        window = ctx.terrain.read_dem_window(cx, cy, geo.radius + 2.0)
-        ground_z = ctx.terrain.elevation_at(cx, cy)
+        ground_z = ctx.terrain.elevation_at(cx, cy)  # TerrainError off the DEM
         if not math.isfinite(ground_z):
             raise MarsPairsError(f"{ctx.config.inputs.dem}: no DEM data under the camera")
+        window = ctx.dem_window(cx, cy, geo.radius + 2.0)
         height = geo.observer_height
         if height is None:  # the camera centre's height above the rover origin
             height = cz - pose.elevation_m
@@ -221,10 +238,10 @@ def _cut_chips(view: View, ctx: SampleContext, obs: Observation) -> tuple[ChipGr
     if spec.orientation == "heading-up":
         rotation = view.camera.pointing_az_el()[0]
     grid = ChipGrid.around(float(rover[0]), float(rover[1]), spec.size_m, spec.size_px,
-                           ctx.terrain.crs, rotation_deg=rotation)  # fmt: skip
+                           ctx.crs_wkt, rotation_deg=rotation)  # fmt: skip
     ortho = ctx.ortho.read(grid)
     dem = ctx.dem.read(grid)
-    vis = resample_array(view.mask, view.window.transform, ctx.terrain.crs, grid, nearest=True)
+    vis = resample_array(view.mask, view.window.transform, ctx.crs_wkt, grid, nearest=True)
     return grid, {
         "ortho": np.nan_to_num(ortho, nan=0.0).clip(0, 255).astype(np.uint8),
         "dem": dem.astype(np.float32),
@@ -315,7 +332,7 @@ def _meta(row: dict[str, Any], obs: Observation, view: View, grid: ChipGrid, ctx
     meta = {k: v for k, v in row.items() if k not in ("footprint", "time")}
     meta.update(
         time=obs.start_time.isoformat() if obs.start_time else None,
-        crs=ctx.terrain.crs.to_wkt(),
+        crs=ctx.crs_wkt,
         chip_transform=list(grid.transform)[:6],
         ray_stride=ctx.config.geometry.ray_stride,
         ground_size=list(ground_size),

@@ -1,17 +1,20 @@
 """Pictures of a built dataset: one sample, and all footprints over the map.
 
-matplotlib is imported here only (the ``viz`` extra), so a build needs no plotting stack.
+matplotlib is imported here only, inside the functions (the ``viz`` extra), so a build, a
+query or ``import mars_pairs.cli`` needs no plotting stack.
 """
 
 from __future__ import annotations
 
+import colorsys
 import io
 import json
+import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pyarrow.parquet as pq
 import shapely
 from PIL import Image
 
@@ -19,13 +22,10 @@ from mars_pairs.errors import MarsPairsError
 from mars_pairs.manifest import Manifest
 from mars_pairs.shards import MemberLocation, read_member
 
-MEMBER_FILES = {
-    "ortho": "ortho.png",
-    "dem": "dem.npy",
-    "viewshed": "viewshed.png",
-    "corr": "corr.npy",
-    "meta": "meta.json",
-}
+DPI = 90
+SHOW_SIZE = (16.0, 10.0)  # inches: show_sample writes SHOW_SIZE * DPI pixels
+OVERVIEW_SIZE = (16.0, 8.0)  # inches: overview writes OVERVIEW_SIZE * DPI pixels
+SPLIT_COLOURS = {"train": "#1f77b4", "val": "#ff7f0e", "test": "#2ca02c"}
 
 
 def _pyplot() -> Any:
@@ -39,11 +39,16 @@ def _pyplot() -> Any:
     return plt
 
 
+def _rows(root: Path) -> list[dict[str, Any]]:
+    if not root.is_dir():
+        raise MarsPairsError(f"{root}: no such dataset folder")
+    return Manifest.open(root).to_table().to_pylist()
+
+
 def _row(root: Path, key: str) -> dict[str, Any]:
-    table = Manifest.open(root).to_table()
-    rows = [r for r in table.to_pylist() if r["key"] == key]
+    rows = [r for r in _rows(root) if r["key"] == key]
     if not rows:
-        raise MarsPairsError(f"{root}: no sample with key {key!r}")
+        raise MarsPairsError(f"{root}: no sample with key {key!r} (see mars-pairs query)")
     return rows[0]
 
 
@@ -55,18 +60,228 @@ def _member(root: Path, row: dict[str, Any], name: str) -> bytes:
 def hillshade(
     dem: np.ndarray, res: float, azimuth: float = 315.0, altitude: float = 35.0
 ) -> np.ndarray:
-    """Hillshade in [0, 1] of a north-up elevation grid (metres, ``res`` metres per pixel)."""
-    z = np.where(np.isfinite(dem), dem, np.nanmedian(dem) if np.isfinite(dem).any() else 0.0)
-    gy, gx = np.gradient(z, res)
+    """Hillshade in [0, 1] of an elevation grid (metres, ``res`` metres per pixel; NaN kept).
+
+    ``azimuth`` is the light's direction clockwise from the grid's up (row 0) direction.
+    """
+    finite = np.isfinite(dem)
+    z = np.where(finite, dem, np.nanmedian(dem) if finite.any() else 0.0)
+    gy, gx = np.gradient(z, res)  # gy: d z / d row (rows go down the grid)
     slope = np.arctan(np.hypot(gx, gy))
-    aspect = np.arctan2(-gx, gy)
+    aspect = np.arctan2(-gx, gy)  # the downhill direction, clockwise from up
     az, alt = np.radians(azimuth), np.radians(altitude)
     shade = np.sin(alt) * np.cos(slope) + np.cos(alt) * np.sin(slope) * np.cos(az - aspect)
-    return np.clip(shade, 0, 1)
+    return np.where(finite, np.clip(shade, 0, 1), np.nan)
 
 
-def show_sample(root: str | Path, key: str, out: str | Path) -> Path:
-    """One figure: ground image; ortho + viewshed + rover + wedge; DEM hillshade; correspondence."""
+# -- one sample -----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Links:
+    """Sampled ground pixels and their map points (chip pixels), colour-linked."""
+
+    ground: np.ndarray  # (N, 2) displayed ground image (x, y), pixel-centre coordinates
+    chip: np.ndarray  # (N, 2) chip (column, row), pixel-edge coordinates as the transform
+    colours: np.ndarray  # (N, 3) RGB
+    on_chip: np.ndarray  # (N,) bool
+    rays: int  # strided rays cast
+    hits: int  # of which hit the terrain
+
+
+def _links(
+    corr: np.ndarray,
+    meta: dict[str, Any],
+    ground_shape: tuple[int, ...],
+    chip_shape: tuple[int, ...],
+    target: tuple[int, int] = (18, 13),
+) -> _Links | None:
+    """About ``target`` (columns, lines) evenly spread strided pixels that hit the terrain."""
+    if corr.size == 0:
+        return None
+    k = int(meta["ray_stride"])
+    gh, gw = corr.shape[:2]
+    sy, sx = max(1, math.ceil(gh / target[1])), max(1, math.ceil(gw / target[0]))
+    lines, samples = np.meshgrid(np.arange(0, gh, sy) * k, np.arange(0, gw, sx) * k, indexing="ij")
+    pts = corr[::sy, ::sx].reshape(-1, 2).astype(np.float64)
+    hit = np.all(np.isfinite(pts), axis=1)
+    width, height = max(int(meta["width"]), 1), max(int(meta["height"]), 1)
+    s, ln = samples.ravel()[hit], lines.ravel()[hit]
+    ground = np.stack(
+        [
+            (s + 0.5) * ground_shape[1] / width - 0.5,
+            (ln + 0.5) * ground_shape[0] / height - 0.5,
+        ],
+        axis=-1,
+    )
+    chip = pts[hit]
+    on_chip = (
+        (chip[:, 0] >= 0)
+        & (chip[:, 1] >= 0)
+        & (chip[:, 0] <= chip_shape[1])
+        & (chip[:, 1] <= chip_shape[0])
+    )
+    colours = _colour_wheel(s / width, ln / height)
+    all_hits = int(np.all(np.isfinite(corr.reshape(-1, 2)), axis=1).sum())
+    return _Links(ground, chip, colours, on_chip, gh * gw, all_hits)
+
+
+def _colour_wheel(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """RGB colours: hue from the column, brightness from the line (top dark, bottom bright)."""
+    rgb = [
+        colorsys.hsv_to_rgb(float(a) * 0.85, 0.95, 0.4 + 0.6 * float(b))
+        for a, b in zip(u, v, strict=True)
+    ]
+    return np.array(rgb, dtype=np.float64).reshape(-1, 3)
+
+
+def _inverse(t: list[float]) -> tuple[float, ...]:
+    a, b, c, d, e, f = t
+    det = a * e - b * d
+    return (e / det, -b / det, (b * f - c * e) / det, -d / det, a / det, (c * d - a * f) / det)
+
+
+def _apply(t: tuple[float, ...], x: Any, y: Any) -> tuple[Any, Any]:
+    a, b, c, d, e, f = t
+    return a * np.asarray(x) + b * np.asarray(y) + c, d * np.asarray(x) + e * np.asarray(y) + f
+
+
+def _wedge_pixels(
+    row: dict[str, Any], origin: list[float], inv: tuple[float, ...]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The camera's azimuth wedge (az +/- hFOV/2) from ``origin`` to the farthest visible range,
+    as a closed ring of chip pixel coordinates."""
+    rng = max(float(row["max_visible_range_m"] or 0.0), 1.0)
+    half = float(row["hfov_deg"]) / 2
+    az = np.radians(np.linspace(row["azimuth_deg"] - half, row["azimuth_deg"] + half, 33))
+    x = np.concatenate([[origin[0]], origin[0] + rng * np.sin(az), [origin[0]]])
+    y = np.concatenate([[origin[1]], origin[1] + rng * np.cos(az), [origin[1]]])
+    return _apply(inv, x, y)
+
+
+def _limits(ax: Any, box: tuple[float, float, float, float]) -> None:
+    ax.set_xlim(box[0], box[2])
+    ax.set_ylim(box[3], box[1])
+
+
+def _ortho_panel(
+    ax: Any,
+    ortho: np.ndarray,
+    vis: np.ndarray,
+    rover: tuple[float, float],
+    wedge: tuple[np.ndarray, np.ndarray],
+    alpha: float = 0.45,
+) -> None:
+    """The ortho chip with the viewshed (green), the camera wedge and the rover."""
+    n_rows, n_cols = ortho.shape[:2]
+    extent = (0, n_cols, n_rows, 0)  # pixel-edge coordinates, as the chip transform
+    ax.imshow(ortho, cmap="gray", vmin=0, vmax=255, extent=extent, interpolation="nearest")
+    overlay = np.zeros((*vis.shape, 4))
+    overlay[vis] = (0.1, 0.95, 0.3, alpha)
+    ax.imshow(overlay, extent=extent, interpolation="nearest")
+    ax.plot(*wedge, color="orange", lw=1.3)
+    ax.plot(*rover, marker="^", color="red", markersize=9, markeredgecolor="white", ls="none")
+    _limits(ax, (0, 0, n_cols, n_rows))
+
+
+def _zoom_box(
+    vis: np.ndarray,
+    rover: tuple[float, float],
+    links: _Links | None,
+    n: int,
+    min_px: float = 32.0,
+) -> tuple[float, float, float, float] | None:
+    """A square (x0, y0, x1, y1) in chip pixels around the viewshed, the map points and the
+    rover; None when it would cover most of the chip anyway."""
+    rows, cols = np.nonzero(vis)
+    xs = [cols + 0.5, np.array([rover[0]])]
+    ys = [rows + 0.5, np.array([rover[1]])]
+    if links is not None and links.on_chip.any():
+        xs.append(links.chip[links.on_chip, 0])
+        ys.append(links.chip[links.on_chip, 1])
+    x, y = np.concatenate(xs), np.concatenate(ys)
+    x0, x1, y0, y1 = x.min(), x.max(), y.min(), y.max()
+    side = max(x1 - x0, y1 - y0) * 1.25 + 6.0
+    side = max(side, min_px)
+    if side > 0.7 * n:
+        return None
+    cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+    cx = min(max(cx, side / 2), n - side / 2)
+    cy = min(max(cy, side / 2), n - side / 2)
+    return (cx - side / 2, cy - side / 2, cx + side / 2, cy + side / 2)
+
+
+def _north_arrow(ax: Any, inv: tuple[float, ...], n: int) -> None:
+    """A north arrow in the top-left corner of a chip panel."""
+    dx, dy = inv[1], inv[4]  # chip pixels per map unit northwards
+    norm = math.hypot(dx, dy) or 1.0
+    length = 0.08 * n
+    x0, y0 = 0.07 * n - dx / norm * length / 2, 0.1 * n - dy / norm * length / 2
+    x1, y1 = x0 + dx / norm * length, y0 + dy / norm * length
+    ax.annotate(
+        "N",
+        xy=(x1, y1),
+        xytext=(x0, y0),
+        color="white",
+        fontsize=9,
+        ha="center",
+        va="center",
+        arrowprops={"arrowstyle": "->", "color": "white", "lw": 1.5},
+    )
+
+
+def _draw_links(ground_ax: Any, map_ax: Any, links: _Links | None) -> None:
+    """Ground pixels over the image and their map points over the ortho, same colours."""
+    if links is None or len(links.chip) == 0:
+        return
+    on, off = links.on_chip, ~links.on_chip
+    ground_ax.scatter(
+        *links.ground[on].T, c=links.colours[on], s=16, edgecolors="black", linewidths=0.4
+    )
+    if off.any():  # map points beyond the chip: hollow rings on the ground image
+        ground_ax.scatter(
+            *links.ground[off].T, facecolors="none", edgecolors=links.colours[off], s=16,
+            linewidths=0.9,
+        )  # fmt: skip
+    map_ax.scatter(*links.chip[on].T, c=links.colours[on], s=16, edgecolors="black", linewidths=0.4)
+
+
+def _info_panel(ax: Any, row: dict[str, Any], meta: dict[str, Any], links: _Links | None) -> None:
+    """The sample's numbers as text."""
+    ax.axis("off")
+    lines = [
+        f"key  {row['key']}",
+        f"mission  {row['mission']}   instrument  {row['instrument']}",
+        f"sol {row['sol']}   site {row['site']}   drive {row['drive']}   split {row['split']}",
+        f"rover  E {row['easting']:.1f}  N {row['northing']:.1f}  ({row['localization']})",
+        f"lat {row['latitude']:.6f}   lon {row['longitude']:.6f}",
+        f"elevation  {row['elevation']:.1f} m",
+        f"camera  az {row['azimuth_deg']:.1f}°  el {row['elevation_deg']:.1f}°  "
+        f"FOV {row['hfov_deg']:.1f}° x {row['vfov_deg']:.1f}°",
+        f"viewshed  {row['visible_cells']} cells, {row['viewshed_area_m2']:.0f} m², "
+        f"max range {row['max_visible_range_m']:.0f} m",
+        f"chip  {meta.get('chip_transform', [0])[0] * 1.0:.2f} map units / px, "
+        f"rotation {row['chip_rotation_deg']:.0f}°",
+    ]
+    if links is not None:
+        lines += [
+            f"rays  {links.hits} of {links.rays} strided pixels hit the terrain",
+            f"shown  {int(links.on_chip.sum())} links on the chip"
+            + (f", {int((~links.on_chip).sum())} beyond it (rings)" if not links.on_chip.all()
+               else ""),
+            "colour: hue = image column, brightness = image line",
+        ]  # fmt: skip
+    else:
+        lines.append("no correspondence (ray casting off)")
+    ax.text(0.0, 1.0, "\n".join(lines), va="top", ha="left", fontsize=9, family="monospace",
+            transform=ax.transAxes, wrap=True)  # fmt: skip
+
+
+def show_sample(root: str | Path, key: str, out: str | Path, dpi: int = DPI) -> Path:
+    """One figure of a sample, written to ``out`` (PNG of ``SHOW_SIZE`` inches at ``dpi``).
+
+    Top: the ground image; the ortho chip with the viewshed, the rover and the camera wedge;
+    the DEM chip as a hillshade. Bottom: ground pixels and their map points, colour-linked,
+    over the ground image and over the ortho zoomed on the viewshed; the sample's numbers.
+    """
     plt = _pyplot()
     root, out = Path(root), Path(out)
     row = _row(root, key)
@@ -81,197 +296,232 @@ def show_sample(root: str | Path, key: str, out: str | Path) -> Path:
     res = float(np.hypot(transform[0], transform[3]))  # map units per chip pixel
     inv = _inverse(transform)
     rover = _apply(inv, row["easting"], row["northing"])
+    cam_xy = (meta.get("camera_center_map") or [row["easting"], row["northing"]])[:2]
+    wedge = _wedge_pixels(row, cam_xy, inv)
+    links = _links(corr, meta, ground.shape, ortho.shape)
+    zoom = _zoom_box(vis, rover, links, n)
 
-    fig, axes = plt.subplots(2, 2, figsize=(12, 10))
+    fig, axes = plt.subplots(2, 3, figsize=SHOW_SIZE)
     ax = axes[0, 0]
     ax.imshow(ground)
     ax.set_title(
-        f"{row['product_id']}\nsol {row['sol']}, az {row['azimuth_deg']:.1f}°, "
-        f"el {row['elevation_deg']:.1f}°",
+        f"ground image\n{row['product_id']}\n{row['instrument']}, sol {row['sol']}, "
+        f"az {row['azimuth_deg']:.1f}°, el {row['elevation_deg']:.1f}°",
         fontsize=9,
     )
     ax = axes[0, 1]
-    ax.imshow(ortho, cmap="gray", vmin=0, vmax=255)
-    overlay = np.zeros((*vis.shape, 4))
-    overlay[vis] = (0.1, 0.9, 0.3, 0.45)
-    ax.imshow(overlay)
-    _draw_wedge(ax, row, rover, inv, n)
-    ax.plot(*rover, marker="^", color="red", markersize=9, markeredgecolor="white")
+    _ortho_panel(ax, ortho, vis, rover, wedge)
+    if zoom is not None:
+        x0, y0, x1, y1 = zoom
+        ax.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], color="cyan", lw=1, ls="--")
+    _north_arrow(ax, inv, n)
     ax.set_title(
-        f"ortho chip + viewshed ({row['visible_cells']} cells, {row['viewshed_area_m2']:.0f} m²)",
+        f"ortho chip {n * res:.0f} m: viewshed (green) {row['viewshed_area_m2']:.0f} m², "
+        f"rover ▲,\ncamera wedge (orange) az {row['azimuth_deg']:.0f}° ± "
+        f"{row['hfov_deg'] / 2:.1f}° to {row['max_visible_range_m']:.0f} m",
         fontsize=9,
     )
-    ax = axes[1, 0]
-    ax.imshow(hillshade(dem, abs(res)), cmap="gray")
-    ax.plot(*rover, marker="^", color="red", markersize=9, markeredgecolor="white")
-    ax.set_title(f"DEM chip hillshade ({np.nanmin(dem):.0f} to {np.nanmax(dem):.0f} m)", fontsize=9)
-    _draw_correspondence(axes[1, 1], axes[0, 0], ortho, corr, meta, ground.shape)
+    ax = axes[0, 2]
+    ax.imshow(hillshade(dem, res), cmap="gray", vmin=0, vmax=1, extent=(0, n, n, 0))
+    if vis.any() and not vis.all():
+        centres = np.arange(n) + 0.5  # pixel centres, in the panel's pixel-edge coordinates
+        ax.contour(
+            centres, centres, vis.astype(float), levels=[0.5], colors=["lime"], linewidths=0.8
+        )
+    ax.plot(*wedge, color="orange", lw=1.0)
+    ax.plot(*rover, marker="^", color="red", markersize=9, markeredgecolor="white", ls="none")
+    _north_arrow(ax, inv, n)
+    _limits(ax, (0, 0, n, n))
+    lo, hi = (np.nanmin(dem), np.nanmax(dem)) if np.isfinite(dem).any() else (np.nan, np.nan)
+    ax.set_title(
+        f"DEM chip hillshade ({lo:.0f} to {hi:.0f} m)\nviewshed outline (green), wedge",
+        fontsize=9,
+    )
+
+    axes[1, 0].imshow(ground)
+    axes[1, 0].set_title("ground pixels (sampled) ...", fontsize=9)
+    ax = axes[1, 1]
+    _ortho_panel(ax, ortho, vis, rover, wedge, alpha=0.3)
+    _draw_links(axes[1, 0], ax, links)
+    if zoom is not None:
+        _limits(ax, zoom)
+        ax.set_title(
+            f"... and their map points, same colours\n(ortho zoom {(zoom[2] - zoom[0]) * res:.0f}"
+            " m across: cyan box)",
+            fontsize=9,
+        )
+    else:
+        ax.set_title("... and their map points on the ortho chip, same colours", fontsize=9)
+    _info_panel(axes[1, 2], row, meta, links)
     for a in axes.ravel():
         a.set_xticks([])
         a.set_yticks([])
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=90)
+    fig.savefig(out, dpi=dpi)
     plt.close(fig)
     return out
 
 
-def _inverse(t: list[float]) -> tuple[float, ...]:
-    a, b, c, d, e, f = t
-    det = a * e - b * d
-    return (e / det, -b / det, (b * f - c * e) / det, -d / det, a / det, (c * d - a * f) / det)
-
-
-def _apply(t: tuple[float, ...], x: Any, y: Any) -> tuple[Any, Any]:
-    a, b, c, d, e, f = t
-    return a * np.asarray(x) + b * np.asarray(y) + c, d * np.asarray(x) + e * np.asarray(y) + f
-
-
-def _draw_wedge(
-    ax: Any, row: dict[str, Any], rover: tuple[float, float], inv: tuple[float, ...], n: int
-) -> None:
-    """The camera's azimuth wedge out to the farthest visible range."""
-    rng = max(row["max_visible_range_m"], 1.0)
-    az0 = row["azimuth_deg"] - row["hfov_deg"] / 2
-    az1 = row["azimuth_deg"] + row["hfov_deg"] / 2
-    az = np.radians(np.linspace(az0, az1, 32))
-    x = row["easting"] + rng * np.sin(az)
-    y = row["northing"] + rng * np.cos(az)
-    px, py = _apply(inv, x, y)
-    ax.plot([rover[0], *px, rover[0]], [rover[1], *py, rover[1]], color="orange", lw=1.2)
-    ax.set_xlim(0, n)
-    ax.set_ylim(n, 0)
-
-
-def _draw_correspondence(
-    ax: Any,
-    ground_ax: Any,
-    ortho: np.ndarray,
-    corr: np.ndarray,
-    meta: dict[str, Any],
-    ground_shape: tuple[int, ...],
-) -> None:
-    """Ground pixels and their map points, colour-linked (a colour wheel over the image)."""
-    ax.imshow(ortho, cmap="gray", vmin=0, vmax=255)
-    if corr.size == 0:
-        ax.set_title("no correspondence (ray casting off)", fontsize=9)
-        return
-    k = meta["ray_stride"]
-    gh, gw = corr.shape[:2]
-    lines, samples = np.meshgrid(np.arange(gh) * k, np.arange(gw) * k, indexing="ij")
-    scale_x = ground_shape[1] / meta["width"]
-    scale_y = ground_shape[0] / meta["height"]
-    pts = corr.reshape(-1, 2)
-    ok = np.all(np.isfinite(pts), axis=1)
-    step = max(1, int(ok.sum() // 600))
-    idx = np.flatnonzero(ok)[::step]
-    colours = _colour_wheel(
-        samples.ravel()[idx] / max(meta["width"], 1), lines.ravel()[idx] / max(meta["height"], 1)
-    )
-    ax.scatter(pts[idx, 0], pts[idx, 1], c=colours, s=4, linewidths=0)
-    ground_ax.scatter(
-        samples.ravel()[idx] * scale_x, lines.ravel()[idx] * scale_y, c=colours, s=4, linewidths=0
-    )
-    ax.set_xlim(0, ortho.shape[1])
-    ax.set_ylim(ortho.shape[0], 0)
-    ax.set_title(
-        f"correspondence: {ok.sum()} of {ok.size} strided pixels hit the terrain", fontsize=9
-    )
-
-
-def _colour_wheel(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """RGB colours: hue from the column, brightness from the line (top dark, bottom bright)."""
-    import colorsys
-
-    return np.array(
-        [
-            colorsys.hsv_to_rgb(float(a) * 0.85, 0.9, 0.45 + 0.55 * float(b))
-            for a, b in zip(u, v, strict=True)
-        ]
-    )
-
-
+# -- all samples ----------------------------------------------------------------------------
 def overview(
     root: str | Path,
     out: str | Path,
     ortho_path: str | Path | None = None,
     colour_by: str = "sol",
     max_px: int = 1400,
+    dpi: int = DPI,
 ) -> Path:
-    """All footprints over a downsampled ortho with the rover traverse, coloured by sol/split."""
+    """All footprints over a downsampled ortho with the rover traverse, coloured by sol/split.
+
+    Left: every footprint; right: a zoom on the traverse. Writes a PNG of ``OVERVIEW_SIZE``
+    inches at ``dpi``.
+    """
+    if colour_by not in ("sol", "split"):
+        raise MarsPairsError(f"colour_by must be 'sol' or 'split', not {colour_by!r}")
     plt = _pyplot()
     root, out = Path(root), Path(out)
-    table = Manifest.open(root).to_table()
-    if table.num_rows == 0:
+    rows = _rows(root)
+    if not rows:
         raise MarsPairsError(f"{root}: the dataset has no samples")
-    rows = table.to_pylist()
-    doc = json.loads((root / "dataset.json").read_text())
-    ortho_path = Path(ortho_path or doc["config"]["inputs"]["ortho"])
-    xs = np.array([r["easting"] for r in rows])
-    ys = np.array([r["northing"] for r in rows])
-    foot = [shapely.from_wkb(r["footprint"]) for r in rows if r["footprint"] is not None]
-    bounds = (
-        shapely.union_all([*foot, *shapely.points(xs, ys)]).bounds
-        if foot
-        else (xs.min(), ys.min(), xs.max(), ys.max())
-    )
-    pad = 0.08 * max(bounds[2] - bounds[0], bounds[3] - bounds[1], 50.0)
-    west, south, east, north = bounds[0] - pad, bounds[1] - pad, bounds[2] + pad, bounds[3] + pad
-    image = _ortho_overview(ortho_path, (west, south, east, north), max_px)
+    if ortho_path is None:
+        doc = json.loads((root / "dataset.json").read_text())
+        ortho_path = doc.get("config", {}).get("inputs", {}).get("ortho")
+    xs = np.array([r["easting"] for r in rows], dtype=np.float64)
+    ys = np.array([r["northing"] for r in rows], dtype=np.float64)
+    geoms = [shapely.from_wkb(r["footprint"]) if r["footprint"] is not None else None for r in rows]
+    points = list(shapely.points(xs, ys))
+    everything = shapely.total_bounds([g for g in geoms if g is not None] + points)
+    full = _square(tuple(everything), pad=0.06, min_side=50.0)
+    near = _square((xs.min(), ys.min(), xs.max(), ys.max()), pad=0.25, min_side=60.0)
 
-    fig, ax = plt.subplots(figsize=(10, 10 * (north - south) / max(east - west, 1e-9)))
-    if image is not None:
-        ax.imshow(image, cmap="gray", extent=(west, east, south, north), vmin=0, vmax=255)
-    values = [r[colour_by] for r in rows]
-    cats = sorted(set(values), key=str)
-    cmap = plt.get_cmap("viridis" if colour_by == "sol" else "Set1")
-    colour = {c: cmap(i / max(len(cats) - 1, 1)) for i, c in enumerate(cats)}
-    for r in rows:
-        if r["footprint"] is None:
-            continue
-        geom = shapely.from_wkb(r["footprint"])
-        gx, gy = geom.exterior.xy
-        ax.fill(gx, gy, color=colour[r[colour_by]], alpha=0.25, lw=0)
-        ax.plot(gx, gy, color=colour[r[colour_by]], lw=0.8)
-    order = np.argsort([(r["sol"], r["site"], r["drive"]) for r in rows], axis=0)[:, 0]
-    ax.plot(xs[order], ys[order], "-", color="white", lw=1.5, alpha=0.8)
-    ax.plot(xs, ys, "^", color="red", markersize=6, markeredgecolor="white")
-    for c in cats:
-        ax.plot([], [], "s", color=colour[c], label=f"{colour_by} {c}")
-    ax.legend(loc="upper right", fontsize=8, ncol=2 if len(cats) > 8 else 1)
-    ax.set_xlim(west, east)
-    ax.set_ylim(south, north)
-    ax.set_title(
-        f"{len(rows)} samples: footprints and rover traverse (map CRS metres)", fontsize=10
+    colour, legend = _colours(plt, rows, colour_by)
+    fig, (ax_full, ax_near) = plt.subplots(1, 2, figsize=OVERVIEW_SIZE, layout="constrained")
+    for ax, box in ((ax_full, full), (ax_near, near)):
+        ax.set_facecolor("#d9d9d9")
+        image, extent = _ortho_overview(Path(ortho_path) if ortho_path else None, box, max_px)
+        if image is not None:
+            ax.imshow(image, cmap="gray", extent=extent, vmin=0, vmax=255, interpolation="bilinear")
+        order = sorted(range(len(rows)), key=lambda i: -(geoms[i].area if geoms[i] else 0.0))
+        for i in order:
+            if geoms[i] is None:
+                continue
+            for poly in getattr(geoms[i], "geoms", [geoms[i]]):
+                gx, gy = poly.exterior.xy
+                ax.fill(gx, gy, color=colour[i], alpha=0.22, lw=0)
+                ax.plot(gx, gy, color=colour[i], lw=0.9)
+        _traverse(ax, rows, xs, ys, label_sols=ax is ax_near)
+        ax.set_xlim(box[0], box[2])
+        ax.set_ylim(box[1], box[3])
+        ax.set_aspect("equal")
+        ax.ticklabel_format(useOffset=False, style="plain")
+        ax.tick_params(labelsize=7)
+    if near[2] - near[0] < full[2] - full[0]:
+        x0, y0, x1, y1 = near
+        ax_full.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], color="cyan", lw=1, ls="--")
+    legend(ax_full, ax_near)
+    ax_full.set_title(
+        f"{len(rows)} samples: footprints coloured by {colour_by}, rover traverse (white)\n"
+        "map CRS metres",
+        fontsize=10,
     )
-    ax.ticklabel_format(useOffset=False, style="plain")
-    ax.tick_params(labelsize=7)
-    fig.tight_layout()
+    ax_near.set_title(
+        f"the traverse ({len(set(zip(xs, ys, strict=True)))} rover positions, cyan box)",
+        fontsize=10,
+    )
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=90)
+    fig.savefig(out, dpi=dpi)
     plt.close(fig)
     return out
 
 
-def _ortho_overview(
-    path: Path, bounds: tuple[float, float, float, float], max_px: int
-) -> np.ndarray | None:
-    """A decimated read of the ortho over ``bounds`` (GDAL overview/decimated window read)."""
-    import rasterio
-    from rasterio.windows import from_bounds
+def _square(
+    bounds: tuple[float, ...], pad: float, min_side: float
+) -> tuple[float, float, float, float]:
+    """A square box around ``bounds``, padded by ``pad`` of its side, at least ``min_side``."""
+    side = max(bounds[2] - bounds[0], bounds[3] - bounds[1], min_side) * (1 + 2 * pad)
+    cx, cy = (bounds[0] + bounds[2]) / 2, (bounds[1] + bounds[3]) / 2
+    return (cx - side / 2, cy - side / 2, cx + side / 2, cy + side / 2)
 
-    if not path.is_file():
-        return None
+
+def _colours(plt: Any, rows: list[dict[str, Any]], colour_by: str) -> tuple[list[Any], Any]:
+    """A colour per row and a function drawing the key (colour bar or legend)."""
+    if colour_by == "sol":
+        from matplotlib.colors import Normalize
+
+        sols = [int(r["sol"]) if r["sol"] is not None else 0 for r in rows]
+        norm = Normalize(min(sols), max(max(sols), min(sols) + 1))
+        cmap = plt.get_cmap("viridis")
+
+        def key(ax: Any, other: Any) -> None:
+            sm = plt.cm.ScalarMappable(norm=norm, cmap=cmap)
+            bar = ax.figure.colorbar(sm, ax=other, fraction=0.04, pad=0.02)
+            bar.set_label("sol", fontsize=9)
+            bar.ax.tick_params(labelsize=7)
+
+        return [cmap(norm(s)) for s in sols], key
+    values = [str(r["split"]) for r in rows]
+    extra = iter(plt.get_cmap("tab10").colors[3:])
+    palette = {v: SPLIT_COLOURS.get(v) or next(extra, "grey") for v in sorted(set(values))}
+
+    def legend(ax: Any, other: Any) -> None:
+        for v, c in palette.items():
+            ax.plot([], [], "s", color=c, label=f"{v} ({values.count(v)})")
+        ax.legend(loc="upper right", fontsize=8, title="split", title_fontsize=8)
+
+    return [palette[v] for v in values], legend
+
+
+def _traverse(
+    ax: Any, rows: list[dict[str, Any]], xs: np.ndarray, ys: np.ndarray, label_sols: bool
+) -> None:
+    """The rover traverse: positions in (sol, site, drive) order, joined by a white line."""
+    import matplotlib.patheffects as pe
+
+    order = sorted(
+        range(len(rows)), key=lambda i: (rows[i]["sol"] or 0, rows[i]["site"], rows[i]["drive"])
+    )
+    stops: list[tuple[float, float, Any]] = []
+    for i in order:
+        if not stops or (xs[i], ys[i]) != stops[-1][:2]:
+            stops.append((float(xs[i]), float(ys[i]), rows[i]["sol"]))
+    px, py = [s[0] for s in stops], [s[1] for s in stops]
+    outline = [pe.Stroke(linewidth=3.2, foreground="black"), pe.Normal()]
+    ax.plot(px, py, "-", color="white", lw=1.8, path_effects=outline)
+    ax.plot(px, py, "^", color="red", markersize=7, markeredgecolor="white", ls="none")
+    if label_sols:
+        for x, y, sol in stops:
+            ax.annotate(
+                f"sol {sol}", (x, y), xytext=(6, 4), textcoords="offset points", fontsize=8,
+                color="white", path_effects=[pe.withStroke(linewidth=2.5, foreground="black")],
+            )  # fmt: skip
+
+
+def _ortho_overview(
+    path: Path | None, bounds: tuple[float, float, float, float], max_px: int
+) -> tuple[np.ndarray | None, tuple[float, float, float, float]]:
+    """A decimated read of the ortho where it overlaps ``bounds``: (image, imshow extent)."""
+    empty = (bounds[0], bounds[2], bounds[1], bounds[3])
+    if path is None or not path.is_file():
+        return None, empty
+    import rasterio
+    from rasterio.windows import Window, from_bounds
+    from rasterio.windows import bounds as window_bounds
+
     with rasterio.open(path) as src:
         window = from_bounds(*bounds, transform=src.transform)
-        scale = max(window.width, window.height) / max_px
+        full = Window(0, 0, src.width, src.height)
+        try:
+            window = window.intersection(full)
+        except Exception:  # no overlap
+            return None, empty
+        if window.width < 1 or window.height < 1:
+            return None, empty
+        scale = max(window.width, window.height, 1) / max_px
         shape = (
-            max(1, int(window.height / max(scale, 1))),
-            max(1, int(window.width / max(scale, 1))),
+            max(1, round(window.height / max(scale, 1))),
+            max(1, round(window.width / max(scale, 1))),
         )
-        return src.read(1, window=window, out_shape=shape, boundless=True, fill_value=0)
-
-
-def read_manifest_rows(root: Path) -> list[dict[str, Any]]:
-    """All manifest rows (plain values)."""
-    return pq.read_table(root / "manifest.parquet").to_pylist()
+        image = src.read(1, window=window, out_shape=shape, masked=True)
+        w, s, e, n = window_bounds(window, src.transform)
+    return image, (w, e, s, n)

@@ -152,15 +152,25 @@ def test_corr_points_land_on_the_chip_where_the_viewshed_is(built: Path) -> None
     inside = agree = 0
     for row in read_rows(built):
         corr = np.load(io.BytesIO(members[f"{row['key']}.corr.npy"]))
-        vis = np.asarray(Image.open(io.BytesIO(members[f"{row['key']}.viewshed.png"])))
+        vis = np.asarray(Image.open(io.BytesIO(members[f"{row['key']}.viewshed.png"]))) > 0
+        # a hit may sit in a cell whose centre is hidden: allow one chip pixel (1 m)
+        padded = np.pad(vis, 1)
+        vis = np.max(
+            [
+                padded[i : i + vis.shape[0], j : j + vis.shape[1]]
+                for i in range(3)
+                for j in range(3)
+            ],
+            axis=0,
+        )
         pts = corr.reshape(-1, 2)
         pts = pts[np.all(np.isfinite(pts), axis=1)]
         col, line = np.floor(pts[:, 0]).astype(int), np.floor(pts[:, 1]).astype(int)
         ok = (col >= 0) & (line >= 0) & (col < vis.shape[1]) & (line < vis.shape[0])
         inside += int(ok.sum())
-        agree += int((vis[line[ok], col[ok]] > 0).sum())
+        agree += int(vis[line[ok], col[ok]].sum())
     assert inside > 100
-    assert agree / inside >= 0.9
+    assert agree / inside >= 0.95
 
 
 def test_broken_labels_become_failure_rows(mission: Path, tmp_path: Path) -> None:

@@ -16,6 +16,7 @@ from test_viewshed import (
 )
 
 from mars_pairs.kernels import cast_rays, compute_viewshed
+from mars_pairs.kernels.raycast import max_pyramid
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -193,3 +194,46 @@ def test_shapes_and_empty_input():
     assert hits.shape == (0, 3) and ranges.shape == (0,)
     with pytest.raises(ValueError, match="differ in shape"):
         cast_rays(np.zeros((2, 3)), np.zeros((3, 3)), (dem, tr), max_range=10.0)
+
+
+def test_grazing_rays_match_dense_march_over_long_ranges():
+    # near-horizontal rays cross many pyramid levels before they land (or leave the window)
+    n = 600
+    dem = fractal_dem(n, 41, std=8.0, beta=2.0)
+    tr = grid(n)
+    x, y = centre_xy(tr, 300.4, 299.8)
+    o = np.array([x, y, float(dem[300, 300]) + 2.0])
+    dirs = _cone(60, 41, (-0.03, 0.01))
+    _, r = cast_rays(np.tile(o, (len(dirs), 1)), dirs, (dem, tr), max_range=420.0,
+                     planet_radius=0.0)  # fmt: skip
+    ref = np.array([_march_reference(dem, tr, o, dd, 420.0, step=0.02) for dd in dirs])
+    same = (np.isnan(r) & np.isnan(ref)) | (np.abs(r - ref) <= 0.05)
+    assert same.mean() >= 0.95
+    assert np.isfinite(r).sum() >= 15 and (np.nan_to_num(r) > 50).sum() >= 5
+
+
+def test_max_pyramid_bounds_quads_and_is_reusable():
+    n = 75
+    dem = fractal_dem(n, 12, std=5.0)
+    dem[40, 17] = np.nan
+    tr = grid(n)
+    pyr = max_pyramid((dem, tr))
+    quad = np.maximum.reduce([dem[:-1, :-1], dem[:-1, 1:], dem[1:, :-1], dem[1:, 1:]])
+    quad = np.where(np.isnan(quad), np.inf, quad)  # np.maximum propagates NaN
+    for k in range(2, pyr.n_levels + 1):
+        hk, wk = pyr.dims[k]
+        level = pyr.data[pyr.offsets[k] : pyr.offsets[k] + hk * wk].reshape(hk, wk)
+        b = 2**k
+        for j in range(hk):
+            for i in range(wk):
+                want = quad[j * b : (j + 1) * b, i * b : (i + 1) * b].max()
+                assert level[j, i] == want
+    x, y = centre_xy(tr, 37, 37)
+    o = np.tile([x, y, float(np.nanmax(dem)) + 1.0], (300, 1))
+    dirs = _cone(300, 12, (-0.6, -0.02))
+    plain = cast_rays(o, dirs, (dem, tr), max_range=200.0)
+    given = cast_rays(o, dirs, (dem, tr), max_range=200.0, pyramid=pyr)
+    np.testing.assert_array_equal(plain[1], given[1])
+    np.testing.assert_array_equal(plain[0], given[0])
+    with pytest.raises(ValueError, match="pyramid"):
+        cast_rays(o, dirs, (dem[:-1], tr), max_range=200.0, pyramid=pyr)

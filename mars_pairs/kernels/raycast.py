@@ -5,14 +5,20 @@ x, y in map units (~metres) and z metres of elevation; directions are unit vecto
 (z up). Ranges are metres along the ray. Terrain is the bilinear surface through the cell
 centres, lowered by d^2 / (2R) at horizontal distance d from the observer (curvature).
 
-Each ray marches with a horizontal step of half a cell, jumping over 64x64- and 8x8-cell
-blocks whose maximum elevation lies below the ray (block maxima computed on first visit), and
-refines the first above -> below crossing with Illinois regula falsi (exact for planar terrain).
+Traversal: a maximum mipmap (Tevs et al. 2008). Level 0 is the grid of *quads* between four
+neighbouring cell centres; level k holds the maximum elevation of 2^k x 2^k quads (+inf where
+any corner is nodata). A ray climbs one level after clearing a block (its lowest point over
+the block's span stays above the block maximum minus the smallest curvature drop there) and
+descends one level otherwise. In a level-0 quad the ray height minus the bilinear, curvature-
+lowered terrain is a quadratic in the ray parameter, solved exactly for its first root (exact
+for planar terrain and for the curvature drop). The pyramid can be built once per DEM window
+with ``max_pyramid`` and passed to every ``cast_rays`` call on that window.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -20,182 +26,259 @@ from numba import njit, prange
 
 from mars_pairs.kernels.viewshed import MARS_RADIUS_M, as_grid, bilinear
 
-_BLOCKS = (64, 8)  # two levels of max-elevation blocks (cells), coarse first
-_REFINE_ITERS = 40
-_SKIP_EPS = 1e-6  # metres past a block edge after a jump
-_SKIP_MIN_GAP_CELLS = 1.0  # try block jumps only this many cells above the ground
+_MAX_LEVEL = 9  # coarsest pyramid blocks: 512 x 512 quads
+_BASE = 2  # finest stored level (4 x 4 quads); below it rays walk the quads themselves
+_NUDGE = 1e-7  # cells: block lookups look this far ahead along the ray (progress at edges)
+_CHUNK = 32  # consecutive rays per work item
+_SCATTER = 7919  # prime stride that scatters the work items over the threads
+
+
+@dataclass(frozen=True)
+class MaxPyramid:
+    """Maximum mipmap of one DEM window (see the module docstring); build with ``max_pyramid``.
+
+    ``dem``: the float32 window it was built from; ``data``: levels 1.. raveled one after the
+    other; ``offsets[k]`` / ``dims[k]`` = start and (rows, cols) of level k (level 0 = quads).
+    """
+
+    dem: np.ndarray
+    data: np.ndarray
+    offsets: np.ndarray
+    dims: np.ndarray
+
+    @property
+    def n_levels(self) -> int:
+        """Coarsest level stored (0 when the window has no level above the quads)."""
+        return len(self.dims) - 1
 
 
 @njit(cache=True)
-def _block_max(dem: np.ndarray, b: int, bu: int, bv: int) -> float:
-    """Max elevation of b x b block (bu, bv) incl. the next row/column (+inf if it has NaN)."""
+def _rows_max(dem, r0, r1, tmp, poison):
+    """Column-wise max of rows r0..r1-1 into ``tmp``; ``poison`` turns NaN under NaN/inf."""
+    w = dem.shape[1]
+    for r in range(r0, r1):
+        row = dem[r]
+        for cc in range(w):
+            z = row[cc]
+            m = tmp[cc]
+            tmp[cc] = z if z > m else m
+            poison[cc] += z * np.float32(0.0)
+
+
+@njit(cache=True, parallel=True)
+def _pyramid_kernel(dem, n_levels):
+    """(data, offsets, dims) of the max pyramid of ``dem``: levels _BASE..n_levels stored
+    (dims/offsets rows for the levels below _BASE are placeholders)."""
     h, w = dem.shape
-    m = -np.inf
-    for r in range(bv * b, min(h, (bv + 1) * b + 1)):
-        for c in range(bu * b, min(w, (bu + 1) * b + 1)):
-            z = dem[r, c]
-            if z != z:
-                return np.inf
-            m = max(m, z)
-    return m
+    dims = np.zeros((n_levels + 1, 2), dtype=np.int64)
+    offsets = np.zeros(n_levels + 2, dtype=np.int64)
+    dims[0, 0] = h - 1
+    dims[0, 1] = w - 1
+    for k in range(1, n_levels + 1):
+        dims[k, 0] = (dims[k - 1, 0] + 1) // 2
+        dims[k, 1] = (dims[k - 1, 1] + 1) // 2
+        offsets[k + 1] = offsets[k] + (dims[k, 0] * dims[k, 1] if k >= _BASE else 0)
+    data = np.empty(offsets[n_levels + 1], dtype=np.float32)
+    if n_levels < _BASE:
+        return data, offsets, dims
+    sb = 1 << _BASE
+    hb, wb = dims[_BASE, 0], dims[_BASE, 1]
+    dst = offsets[_BASE]
+    for j in prange(hb):  # base level: sb x sb quads = (sb + 1)^2 cell centres, row-major
+        tmp = dem[j * sb].copy()
+        poison = np.zeros(w, dtype=np.float32)  # NaN where a column holds NaN (or inf)
+        _rows_max(dem, j * sb, min(j * sb + sb + 1, h), tmp, poison)
+        bad = False
+        for cc in range(w):
+            bad |= poison[cc] != 0.0
+        for i in range(wb):
+            c0 = i * sb
+            m = tmp[c0]
+            for cc in range(c0 + 1, min(c0 + sb + 1, w)):
+                z = tmp[cc]
+                m = z if z > m else m
+            if bad:
+                for cc in range(c0, min(c0 + sb + 1, w)):
+                    if poison[cc] != 0.0:
+                        m = np.inf
+            data[dst + j * wb + i] = m
+    for k in range(_BASE + 1, n_levels + 1):  # serial: small, and each parallel region
+        hk, wk = dims[k, 0], dims[k, 1]  # waits for a descheduled thread on a busy machine
+        hp, wp = dims[k - 1, 0], dims[k - 1, 1]
+        src = offsets[k - 1]
+        dst = offsets[k]
+        for j in range(hk):
+            for i in range(wk):
+                m = data[src + 2 * j * wp + 2 * i]
+                if 2 * i + 1 < wp:
+                    m = max(m, data[src + 2 * j * wp + 2 * i + 1])
+                if 2 * j + 1 < hp:
+                    m = max(m, data[src + (2 * j + 1) * wp + 2 * i])
+                    if 2 * i + 1 < wp:
+                        m = max(m, data[src + (2 * j + 1) * wp + 2 * i + 1])
+                data[dst + j * wk + i] = m
+    return data, offsets, dims
 
 
-@njit(cache=True)
-def _cached_block_max(dem, cache, b, bu, bv):
-    """Block max from ``cache`` (NaN = not yet computed; threads may race benignly)."""
-    m = cache[bv, bu]
-    if m != m:
-        m = _block_max(dem, b, bu, bv)
-        cache[bv, bu] = m
-    return m
+def max_pyramid(window: Any, transform: Any = None) -> MaxPyramid:
+    """Maximum mipmap of a DEM window (``DemWindow``, (array, transform) or array), to pass as
+    ``cast_rays(..., pyramid=...)`` when casting several ray sets over the same window."""
+    if isinstance(window, np.ndarray) and transform is None:
+        dem = np.ascontiguousarray(window, dtype=np.float32)
+        if dem.ndim != 2:
+            raise ValueError(f"DEM window must be 2-D, got shape {dem.shape}")
+    else:
+        dem, _ = as_grid(window, transform)
+    h, w = dem.shape
+    n = max(h - 1, w - 1, 1)
+    n_levels = 0 if min(h, w) < 2 else min(_MAX_LEVEL, max(_BASE, math.ceil(math.log2(n))))
+    data, offsets, dims = _pyramid_kernel(dem, n_levels)
+    return MaxPyramid(dem, data, offsets, dims)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _gap(dem, t, o, d, c, a, f, e, obs_x, obs_y, inv2r):
     """Ray height above the curvature-lowered terrain at ray parameter t (NaN off-grid)."""
     x = o[0] + t * d[0]
     y = o[1] + t * d[1]
-    u = (x - c) / a - 0.5
-    v = (y - f) / e - 0.5
-    h, w = dem.shape
-    c0 = math.floor(u)
-    r0 = math.floor(v)
-    if 0 <= c0 < w - 1 and 0 <= r0 < h - 1:
-        fu = u - c0
-        fv = v - r0
-        top = dem[r0, c0] + fu * (dem[r0, c0 + 1] - dem[r0, c0])
-        bot = dem[r0 + 1, c0] + fu * (dem[r0 + 1, c0 + 1] - dem[r0 + 1, c0])
-        z = top + fv * (bot - top)
-        if z != z:  # nodata next to the point: weights of zero must not poison it
-            z = bilinear(dem, u, v)
-    else:
-        z = bilinear(dem, u, v)
+    z = bilinear(dem, (x - c) / a - 0.5, (y - f) / e - 0.5)
     ddx = x - obs_x
     ddy = y - obs_y
     return o[2] + t * d[2] - (z - (ddx * ddx + ddy * ddy) * inv2r)
 
 
-@njit(cache=True)
-def _refine(dem, ta, ga, tb, gb, o, d, c, a, f, e, obs_x, obs_y, inv2r):
-    """Ray parameter of the crossing in [ta, tb] (ga > 0 >= gb), Illinois regula falsi."""
-    side = 0
-    for _ in range(_REFINE_ITERS):
-        if tb - ta < 1e-9:
-            break
-        tm = tb - gb * (tb - ta) / (gb - ga)
-        if not (ta < tm < tb):
-            tm = 0.5 * (ta + tb)
-        gm = _gap(dem, tm, o, d, c, a, f, e, obs_x, obs_y, inv2r)
-        if gm != gm:
-            tm = 0.5 * (ta + tb)
-            gm = _gap(dem, tm, o, d, c, a, f, e, obs_x, obs_y, inv2r)
-            if gm != gm:
-                break
-        if abs(gm) < 1e-9:
-            return tm
-        if gm > 0:
-            ta, ga = tm, gm
-            if side == 1:
-                gb *= 0.5
-            side = 1
-        else:
-            tb, gb = tm, gm
-            if side == -1:
-                ga *= 0.5
-            side = -1
-    return tb - gb * (tb - ta) / (gb - ga) if gb != ga else tb
+@njit(cache=True, inline="always")
+def _quad_hit(dem, bu, bv, ts, te, uo, vo, du, dv, o, d, px, py, hor2, inv2r):
+    """First ray parameter in [ts, te] where the ray meets the bilinear, curvature-lowered
+    surface of quad (bu, bv); -1 when it stays above, NaN when a corner is nodata."""
+    z00 = np.float64(dem[bv, bu])
+    z01 = np.float64(dem[bv, bu + 1])
+    z10 = np.float64(dem[bv + 1, bu])
+    z11 = np.float64(dem[bv + 1, bu + 1])
+    a1 = z01 - z00
+    a2 = z10 - z00
+    a3 = z11 - z10 - a1
+    if a3 != a3:
+        return np.nan
+    fu = uo + du * ts - bu
+    fv = vo + dv * ts - bv
+    qx = px + ts * d[0]
+    qy = py + ts * d[1]
+    # gap(ts + s) = A s^2 + B s + C
+    cc = o[2] + d[2] * ts - (z00 + fu * a1 + fv * a2 + fu * fv * a3) + (qx * qx + qy * qy) * inv2r
+    if not cc > 0.0:
+        return ts
+    bb = d[2] - du * (a1 + fv * a3) - dv * (a2 + fu * a3) + 2.0 * inv2r * (qx * d[0] + qy * d[1])
+    aa = inv2r * hor2 - du * dv * a3
+    ln = te - ts
+    if not (aa * ln + bb) * ln + cc <= 0.0:  # above at the exit: a dip in between?
+        if not (aa > 0.0 and bb < 0.0 and -bb < 2.0 * aa * ln):
+            return -1.0
+        if cc - bb * bb / (4.0 * aa) > 0.0:
+            return -1.0
+    disc = max(bb * bb - 4.0 * aa * cc, 0.0)
+    q = -0.5 * (bb + math.copysign(math.sqrt(disc), bb))
+    s = cc / q if q != 0.0 else 0.0
+    if not s >= 0.0:
+        s = q / aa if aa != 0.0 else 0.0
+    return ts + min(max(s, 0.0), ln)
 
 
-@njit(cache=True)
-def _block_exit(u, v, du, dv, b):
-    """Ray-parameter increment to leave the b x b block containing grid point (u, v)."""
-    bu = math.floor(u / b)
-    bv = math.floor(v / b)
-    tu = np.inf
-    tv = np.inf
-    if du > 0:
-        tu = ((bu + 1) * b - u) / du
-    elif du < 0:
-        tu = (bu * b - u) / du
-    if dv > 0:
-        tv = ((bv + 1) * b - v) / dv
-    elif dv < 0:
-        tv = (bv * b - v) / dv
-    return min(tu, tv)
-
-
-@njit(cache=True)
-def _skip_to(dem, cache0, cache1, t, z, u, v, du, dv, dz):
-    """Ray parameter past the largest block (coarse, else fine) whose max stays under the ray
-    across it; ``t`` when none does (cheap when the ray is below the fine block's max)."""
-    b0, b1 = _BLOCKS
-    bu = math.floor(u / b1)
-    bv = math.floor(v / b1)
-    if bu < 0 or bv < 0 or bu >= cache1.shape[1] or bv >= cache1.shape[0]:
-        return t
-    m1 = _cached_block_max(dem, cache1, b1, bu, bv)
-    if not z > m1:
-        return t
-    cu = math.floor(u / b0)
-    cv = math.floor(v / b0)
-    if z > _cached_block_max(dem, cache0, b0, cu, cv):
-        tx = _block_exit(u, v, du, dv, b0)
-        if z + tx * dz > cache0[cv, cu]:
-            return t + tx + _SKIP_EPS
-    tx = _block_exit(u, v, du, dv, b1)
-    if z + tx * dz > m1:
-        return t + tx + _SKIP_EPS
-    return t
-
-
-@njit(cache=True)
-def _cast_one(dem, cache0, cache1, o, d, max_range, step_h, c, a, f, e, obs_x, obs_y, inv2r):
+@njit(cache=True, inline="always")
+def _cast_one(dem, pyr, offs, dims, zmax, o, d, max_range, c, a, f, e, obs_x, obs_y, inv2r):
     """Ray parameter (metres) of the first terrain hit of one ray, NaN when none."""
-    hor = math.sqrt(d[0] * d[0] + d[1] * d[1])
-    dt = min(step_h / hor, max_range) if hor > 1e-12 else max_range
+    h, w = dem.shape
+    if not _gap(dem, 0.0, o, d, c, a, f, e, obs_x, obs_y, inv2r) > 0.0:
+        return np.nan
+    top = dims.shape[0] - 1
+    uo = (o[0] - c) / a - 0.5
+    vo = (o[1] - f) / e - 0.5
     du = d[0] / a  # grid cells per metre of ray
     dv = d[1] / e
-    skip_gap = _SKIP_MIN_GAP_CELLS * 2.0 * step_h
+    nu = _NUDGE if du > 0 else (-_NUDGE if du < 0 else 0.0)
+    nv = _NUDGE if dv > 0 else (-_NUDGE if dv < 0 else 0.0)
+    px = o[0] - obs_x
+    py = o[1] - obs_y
+    hor2 = d[0] * d[0] + d[1] * d[1]
+    t_near = -(px * d[0] + py * d[1]) / hor2 if hor2 > 0.0 else 0.0  # closest to observer
+    inv_du = 1.0 / du if du != 0.0 else 0.0
+    inv_dv = 1.0 / dv if dv != 0.0 else 0.0
+    umax = w - 1.0
+    vmax = h - 1.0
     t = 0.0
-    g = _gap(dem, 0.0, o, d, c, a, f, e, obs_x, obs_y, inv2r)
-    if not g > 0.0:
-        return np.nan
+    k = 0
     while t < max_range:
-        u = (o[0] + t * d[0] - c) / a - 0.5
-        v = (o[1] + t * d[1] - f) / e - 0.5
-        t_next = t + dt
-        if g > skip_gap:  # only rays well above the ground can clear a whole block
-            t_next = max(t_next, _skip_to(dem, cache0, cache1, t, o[2] + t * d[2], u, v, du, dv,
-                                          d[2]))  # fmt: skip
-        t_next = min(t_next, max_range)
-        g_next = _gap(dem, t_next, o, d, c, a, f, e, obs_x, obs_y, inv2r)
-        if g_next != g_next:
+        u = uo + du * t + nu
+        v = vo + dv * t + nv
+        if not (0.0 <= u <= umax and 0.0 <= v <= vmax):
             return np.nan
-        if g_next <= 0.0:
-            return _refine(dem, t, g, t_next, g_next, o, d, c, a, f, e, obs_x, obs_y, inv2r)
-        t, g = t_next, g_next
+        bu = min(int(u) >> k, dims[k, 1] - 1)
+        bv = min(int(v) >> k, dims[k, 0] - 1)
+        t1 = np.inf
+        if du > 0:
+            t1 = (((bu + 1) << k) - uo) * inv_du
+        elif du < 0:
+            t1 = ((bu << k) - uo) * inv_du
+        if dv > 0:
+            t1 = min(t1, (((bv + 1) << k) - vo) * inv_dv)
+        elif dv < 0:
+            t1 = min(t1, ((bv << k) - vo) * inv_dv)
+        te = min(t1, max_range)
+        if k == 0:
+            th = _quad_hit(dem, bu, bv, t, te, uo, vo, du, dv, o, d, px, py, hor2, inv2r)
+            if th != -1.0:
+                return th
+            t = t1
+            # stay on the quads while inside the same (failed) base block
+            nbu = int(uo + du * t + nu) >> _BASE
+            nbv = int(vo + dv * t + nv) >> _BASE
+            if (nbu != bu >> _BASE or nbv != bv >> _BASE) and top >= _BASE:
+                k = _BASE
+            continue
+        m = pyr[offs[k] + bv * dims[k, 1] + bu]
+        zr = o[2] + d[2] * (te if d[2] < 0 else t)
+        tc = min(max(t_near, t), te)
+        qx = px + tc * d[0]
+        qy = py + tc * d[1]
+        if zr > m - (qx * qx + qy * qy) * inv2r:
+            if d[2] >= 0.0 and zr > zmax:
+                return np.nan  # rising above the highest point of the window
+            t = t1
+            k = min(k + 1, top)
+        else:
+            k = k - 1 if k > _BASE else 0
     return np.nan
 
 
 @njit(cache=True, parallel=True)
-def _cast_kernel(dem, origins, dirs, max_range, c, a, f, e, obs_x, obs_y, inv2r):
-    """(hits (N, 3), ranges (N,)) for every ray; NaN rows for rays without a hit."""
+def _cast_kernel(dem, pyr, offs, dims, origins, dirs, max_range, c, a, f, e, obs_x, obs_y,
+                 inv2r):  # fmt: skip
+    """(hits (N, 3), ranges (N,)) for every ray; NaN rows for rays without a hit.
+
+    Rays go out in blocks of ``_CHUNK`` consecutive rays (coherent: neighbouring pixels), the
+    blocks in a scattered order (block j -> j * _SCATTER mod n_blocks, a permutation) so that
+    each thread's share samples the whole image: cheap near-ground and costly grazing rays.
+    """
     n = origins.shape[0]
     hits = np.full((n, 3), np.nan)
     ranges = np.full(n, np.nan)
-    h, w = dem.shape
-    b0, b1 = _BLOCKS
-    cache0 = np.full(((h + b0 - 1) // b0, (w + b0 - 1) // b0), np.nan)
-    cache1 = np.full(((h + b1 - 1) // b1, (w + b1 - 1) // b1), np.nan)
-    step_h = 0.5 * min(abs(a), abs(e))
-    for i in prange(n):
-        o = origins[i]
-        d = dirs[i]
-        t = _cast_one(dem, cache0, cache1, o, d, max_range, step_h, c, a, f, e, obs_x, obs_y, inv2r)
-        if t == t:
-            ranges[i] = t
-            for j in range(3):
-                hits[i, j] = o[j] + t * d[j]
+    n_blocks = (n + _CHUNK - 1) // _CHUNK
+    top = dims.shape[0] - 1
+    zmax = np.inf
+    if top >= _BASE:
+        zmax = pyr[offs[top] : offs[top] + dims[top, 0] * dims[top, 1]].max()
+    scatter = _SCATTER if n_blocks % _SCATTER != 0 else 1
+    for j in prange(n_blocks):
+        b = (j * scatter) % n_blocks
+        for i in range(b * _CHUNK, min(n, (b + 1) * _CHUNK)):
+            o = origins[i]
+            d = dirs[i]
+            t = _cast_one(dem, pyr, offs, dims, zmax, o, d, max_range, c, a, f, e, obs_x, obs_y,
+                          inv2r)  # fmt: skip
+            if t == t:
+                ranges[i] = t
+                for k in range(3):
+                    hits[i, k] = o[k] + t * d[k]
     return hits, ranges
 
 
@@ -208,6 +291,7 @@ def cast_rays(
     observer_xy: tuple[float, float] | None = None,
     planet_radius: float = MARS_RADIUS_M,
     transform: Any = None,
+    pyramid: MaxPyramid | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """First terrain hit of each ray over a DEM window.
 
@@ -215,9 +299,10 @@ def cast_rays(
     (x, y map units, z metres, z up). ``window``: a ``DemWindow``, (array, transform) pair, or
     array with ``transform=``. ``max_range``: metres along the ray. The terrain at horizontal
     distance d from ``observer_xy`` (default: the first origin's x, y) is lowered by
-    d^2 / (2 ``planet_radius``); 0 disables it. Returns (hits (N, 3), ranges (N,)), NaN where a
-    ray hits nothing: it goes to the sky, leaves the window, meets nodata, exceeds
-    ``max_range``, or starts below the surface.
+    d^2 / (2 ``planet_radius``); 0 disables it. ``pyramid``: ``max_pyramid(window)``, built
+    once and reused across calls on the same window (built here when None). Returns
+    (hits (N, 3), ranges (N,)), NaN where a ray hits nothing: it goes to the sky, leaves the
+    window, meets nodata, exceeds ``max_range``, or starts below the surface.
     """
     dem, tr = as_grid(window, transform)
     o = np.ascontiguousarray(np.asarray(origins, dtype=np.float64).reshape(-1, 3))
@@ -232,9 +317,14 @@ def cast_rays(
     if observer_xy is None:
         observer_xy = (o[0, 0], o[0, 1]) if len(o) else (0.0, 0.0)
     inv2r = 0.0 if not planet_radius or not math.isfinite(planet_radius) else 0.5 / planet_radius
-    if len(o) == 0:
-        return np.empty((0, 3)), np.empty(0)
+    if len(o) == 0 or min(dem.shape) < 2:
+        return np.full((len(o), 3), np.nan), np.full(len(o), np.nan)
+    if pyramid is None:
+        pyramid = max_pyramid(dem)
+    elif pyramid.dem.shape != dem.shape:
+        raise ValueError(f"pyramid built for a {pyramid.dem.shape} window, not {dem.shape}")
     return _cast_kernel(
-        dem, o, d, float(max_range), float(tr.c), float(tr.a), float(tr.f), float(tr.e),
-        float(observer_xy[0]), float(observer_xy[1]), inv2r,
+        dem, pyramid.data, pyramid.offsets, pyramid.dims, o, d, float(max_range), float(tr.c),
+        float(tr.a), float(tr.f), float(tr.e), float(observer_xy[0]), float(observer_xy[1]),
+        inv2r,
     )  # fmt: skip

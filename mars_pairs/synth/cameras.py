@@ -118,4 +118,4 @@ def msl_product_id(eye: str, sol: int, seq: int, cmd: int, image_id: int) -> str
 
 def zoom_focal_mm(hfov_deg: float) -> int:
     """Mastcam-Z focal length (mm) for a horizontal FOV: 110 mm ~ 6.2 deg, 26 mm ~ 25.6 deg."""
-    return int(round(110.0 * math.tan(math.radians(3.1)) / math.tan(math.radians(hfov_deg / 2))))
+    return round(110.0 * math.tan(math.radians(3.1)) / math.tan(math.radians(hfov_deg / 2)))

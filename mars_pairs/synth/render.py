@@ -98,10 +98,21 @@ def _splat_quad(
     z00: float, z01: float, z10: float, z11: float, n0: float, e0: float,
     dn_dj: float, de_dj: float, dn_di: float, de_di: float, i: int, j: int,
     s0: float, s1: float, t0: float, t1: float, nu: int, nv: int, p: np.ndarray,
-    zbuf: np.ndarray, hit_col: np.ndarray, hit_row: np.ndarray,
+    tol: float, reach: float, gate: np.ndarray, zbuf: np.ndarray, off2: np.ndarray,
+    tolbuf: np.ndarray, hit_col: np.ndarray, hit_row: np.ndarray,
 ) -> None:  # fmt: skip
-    """Sample a (sub-)cell on an nu x nv parametric grid and splat the samples."""
+    """Sample a (sub-)cell on an nu x nv parametric grid and splat the samples.
+
+    Depth test with a tolerance ``tol`` (metres, about the range span of one pixel on this
+    surface): a sample clearly nearer than the stored one replaces it; one on the same surface
+    (within ``tol``) replaces it when it lies closer to the pixel centre, so each pixel shows
+    the surface point under its centre rather than the nearest edge of its footprint.
+    A sample only counts for a pixel whose centre lies within ``reach`` pixels of it (about
+    the covering radius of the sample lattice), so silhouettes fall where the pixel-centre
+    rays put them. Samples not farther than ``gate`` (per pixel, metres) are ignored.
+    """
     h, w = zbuf.shape
+    reach2 = reach * reach
     for kv in range(nv):
         t = t0 + (t1 - t0) * kv / nv
         for ku in range(nu):
@@ -112,20 +123,31 @@ def _splat_quad(
             x, y, rng, cos_t = _point(n, e, zz, p)
             if cos_t <= 0.0 or rng < _MIN_RANGE_M:
                 continue
-            px = int(math.floor(x + 0.5))
-            py = int(math.floor(y + 0.5))
-            if 0 <= px < w and 0 <= py < h and rng < zbuf[py, px]:
+            px = int(np.floor(x + 0.5))
+            py = int(np.floor(y + 0.5))
+            if not (0 <= px < w and 0 <= py < h):
+                continue
+            d2 = (x - px) * (x - px) + (y - py) * (y - py)
+            if d2 > reach2:
+                continue  # the surface does not reach this pixel's centre through this sample
+            if rng <= gate[py, px]:
+                continue
+            stored = zbuf[py, px]
+            if rng < stored - tol or (rng <= stored + tol and d2 < off2[py, px]):
                 zbuf[py, px] = rng
+                off2[py, px] = d2
+                tolbuf[py, px] = tol
                 hit_col[py, px] = j + s
                 hit_row[py, px] = i + t
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def render_depth(
     dem: np.ndarray, block_zmin: np.ndarray, block_zmax: np.ndarray, res: float,
     n0: float, e0: float, dn_dj: float, de_dj: float, dn_di: float, de_di: float,
-    p: np.ndarray, width: int, height: int, cos_lim: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    p: np.ndarray, width: int, height: int, cos_lim: float, gate: np.ndarray,
+    gate_sat: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """Depth buffer (range m, inf = sky) and DEM (col, row) of the nearest terrain per pixel.
 
     ``n0, e0`` and the four slopes give the local (north, east) metres of DEM node (i, j):
@@ -133,6 +155,8 @@ def render_depth(
     the whole image with margin; terrain outside it is culled.
     """
     zbuf = np.full((height, width), np.inf)
+    tolbuf = np.zeros((height, width))
+    off2 = np.full((height, width), np.inf)
     hit_col = np.full((height, width), np.nan)
     hit_row = np.full((height, width), np.nan)
     rows, cols = dem.shape
@@ -167,7 +191,7 @@ def render_depth(
             ic, jc = 0.5 * (i0 + i1), 0.5 * (j0 + j1)
             nc = n0 + jc * dn_dj + ic * dn_di
             ec = e0 + jc * de_dj + ic * de_di
-            x, y, rng, cos_t = _point(nc, ec, 0.5 * (zlo + zhi), p)
+            _x, _y, rng, cos_t = _point(nc, ec, 0.5 * (zlo + zhi), p)
             half = 0.5 * res * math.sqrt((i1 - i0) ** 2 + (j1 - j0) ** 2) * 1.01
             radius = math.sqrt(half * half + (0.5 * (zhi - zlo) + 0.05) ** 2)
             if rng > radius:
@@ -224,16 +248,32 @@ def render_depth(
                             if (xmax < lo_x - margin or xmin > hi_x + margin
                                     or ymax < lo_y - margin or ymin > hi_y + margin):  # fmt: skip
                                 continue
+                            if gate_sat.shape[0] > 1:
+                                # second pass: only quads over pixels still to be resolved
+                                bx0 = min(max(int(xmin - margin + 0.5), 0), width)
+                                bx1 = min(max(int(xmax + margin + 1.5), 0), width)
+                                by0 = min(max(int(ymin - margin + 0.5), 0), height)
+                                by1 = min(max(int(ymax + margin + 1.5), 0), height)
+                                if (gate_sat[by1, bx1] - gate_sat[by0, bx1] - gate_sat[by1, bx0]
+                                        + gate_sat[by0, bx0]) == 0:  # fmt: skip
+                                    continue
                             if size <= _LEAF_PX or d >= _MAX_DEPTH:
                                 lu = max(math.hypot(qx[1] - qx[0], qy[1] - qy[0]),
                                          math.hypot(qx[3] - qx[2], qy[3] - qy[2]))  # fmt: skip
                                 lv = max(math.hypot(qx[2] - qx[0], qy[2] - qy[0]),
                                          math.hypot(qx[3] - qx[1], qy[3] - qy[1]))  # fmt: skip
-                                nu = max(1, int(math.ceil(lu / _STEP_PX)))
-                                nv = max(1, int(math.ceil(lv / _STEP_PX)))
+                                nu = max(1, int(np.ceil(lu / _STEP_PX)))
+                                nv = max(1, int(np.ceil(lv / _STEP_PX)))
+                                tol = 1.5 * (qr.max() - qr.min()) / max(size, 1e-3)
+                                tol += 1e-4 * qr.min()
+                                if gate_sat.shape[0] > 1:
+                                    tol = np.inf  # second pass: nearest to the centre wins
+                                su, sv = lu / nu, lv / nv
+                                reach = min(0.75, 0.6 * math.sqrt(su * su + sv * sv) + 0.03)
                                 _splat_quad(z00, z01, z10, z11, n0, e0, dn_dj, de_dj, dn_di,
-                                            de_di, i, j, s0, s1, t0, t1, nu, nv, p, zbuf,
-                                            hit_col, hit_row)  # fmt: skip
+                                            de_di, i, j, s0, s1, t0, t1, nu, nv, p, tol,
+                                            reach, gate, zbuf, off2, tolbuf, hit_col,
+                                            hit_row)  # fmt: skip
                                 continue
                         else:
                             if d >= _MAX_DEPTH:
@@ -255,10 +295,89 @@ def render_depth(
                             st_t0[top] = tm if (k & 2) else t0
                             st_t1[top] = t1 if (k & 2) else tm
                             st_d[top] = d + 1
-    return zbuf, hit_col, hit_row
+    return zbuf, tolbuf, hit_col, hit_row
 
 
 @njit(cache=True)
+def _at(
+    dem: np.ndarray,
+    col: float,
+    row: float,
+    n0: float,
+    e0: float,
+    dn_dj: float,
+    de_dj: float,
+    dn_di: float,
+    de_di: float,
+    p: np.ndarray,
+) -> tuple[float, float, float]:
+    """Pixel (x, y) and range of the bilinear DEM surface at fractional node (col, row)."""
+    rows, cols = dem.shape
+    j = min(max(int(np.floor(col)), 0), cols - 2)
+    i = min(max(int(np.floor(row)), 0), rows - 2)
+    s, t = col - j, row - i
+    zz = (dem[i, j] * (1 - s) + dem[i, j + 1] * s) * (1 - t) + (
+        dem[i + 1, j] * (1 - s) + dem[i + 1, j + 1] * s
+    ) * t
+    n = n0 + col * dn_dj + row * dn_di
+    e = e0 + col * de_dj + row * de_di
+    x, y, rng, _ = _point(n, e, zz, p)
+    return x, y, rng
+
+
+@njit(cache=True, nogil=True)
+def refine_hits(
+    dem: np.ndarray, hit_col: np.ndarray, hit_row: np.ndarray, n0: float, e0: float,
+    dn_dj: float, de_dj: float, dn_di: float, de_di: float, p: np.ndarray,
+) -> np.ndarray:  # fmt: skip
+    """Move each pixel's surface point (DEM col, row) to where it projects onto the pixel
+    centre: Newton steps on the forward projection, from the splatted sample (which lies
+    within half a pixel). A point is moved only when the steps converge (1e-3 pixel) within
+    two pixel footprints of the start (far off, at a silhouette, the centre ray may meet
+    other terrain); far away one pixel spans many DEM cells, so the limit scales with it.
+    Returns the pixels left unresolved: their surface does not reach the centre ray."""
+    h, w = hit_col.shape
+    eps = 1e-4
+    failed = np.zeros((h, w), dtype=np.bool_)
+    for py in range(h):
+        for px in range(w):
+            c, r = hit_col[py, px], hit_row[py, px]
+            if not math.isfinite(c):
+                continue
+            c_start, r_start = c, r
+            foot = -1.0  # DEM cells per image pixel at the start
+            ok = False
+            for _ in range(6):
+                x, y, _r = _at(dem, c, r, n0, e0, dn_dj, de_dj, dn_di, de_di, p)
+                ex, ey = px - x, py - y
+                if not (ex * ex + ey * ey < 1e30):
+                    break  # nodata under the point
+                if ex * ex + ey * ey < 1e-6:
+                    ok = True
+                    break
+                xc, yc, _r = _at(dem, c + eps, r, n0, e0, dn_dj, de_dj, dn_di, de_di, p)
+                xr, yr, _r = _at(dem, c, r + eps, n0, e0, dn_dj, de_dj, dn_di, de_di, p)
+                a11, a21 = (xc - x) / eps, (yc - y) / eps
+                a12, a22 = (xr - x) / eps, (yr - y) / eps
+                det = a11 * a22 - a12 * a21
+                if not (abs(det) > 1e-12):
+                    break
+                if foot < 0.0:
+                    foot = math.sqrt(a11 * a11 + a12 * a12 + a21 * a21 + a22 * a22) / abs(det)
+                dc = (a22 * ex - a12 * ey) / det
+                dr = (-a21 * ex + a11 * ey) / det
+                step = math.hypot(dc, dr)
+                if step > 1.0:  # at most one cell per step: stay near the local patch
+                    dc, dr = dc / step, dr / step
+                c, r = c + dc, r + dr
+            if ok and math.hypot(c - c_start, r - r_start) <= 2.0 * max(foot, 0.0) + 1e-9:
+                hit_col[py, px], hit_row[py, px] = c, r
+            else:
+                failed[py, px] = True
+    return failed
+
+
+@njit(cache=True, nogil=True)
 def shade(
     hit_col: np.ndarray, hit_row: np.ndarray, ortho: np.ndarray, factor: int,
     sky: np.ndarray, tint: np.ndarray,
@@ -282,7 +401,8 @@ def shade(
             i = min(int(fy), oh - 2)
             tx, ty = fx - j, fy - i
             g = (ortho[i, j] * (1 - tx) + ortho[i, j + 1] * tx) * (1 - ty) + (
-                ortho[i + 1, j] * (1 - tx) + ortho[i + 1, j + 1] * tx) * ty
+                ortho[i + 1, j] * (1 - tx) + ortho[i + 1, j + 1] * tx
+            ) * ty
             for k in range(3):
                 out[y, x, k] = min(255, max(0, int(g * tint[k] + 0.5)))
     return out
@@ -339,10 +459,38 @@ def render_view(
     n0, e0 = jinv @ np.array([x00, y00])
     dn_dj, de_dj = jinv @ np.array([t.a, 0.0])
     dn_di, de_di = jinv @ np.array([0.0, t.e])
-    zbuf, hc, hr = render_depth(
-        dem.z, blocks[0], blocks[1], dem.res, float(n0), float(e0), float(dn_dj), float(de_dj),
-        float(dn_di), float(de_di), p, mc.width, mc.height, image_cone_cos(mc),
-    )  # fmt: skip
+    geo = (float(n0), float(e0), float(dn_dj), float(de_dj), float(dn_di), float(de_di))
+    cos_lim = image_cone_cos(mc)
+    open_gate = np.full((mc.height, mc.width), -np.inf)
+    zbuf, _tolbuf, hc, hr = render_depth(
+        dem.z,
+        blocks[0],
+        blocks[1],
+        dem.res,
+        *geo,
+        p,
+        mc.width,
+        mc.height,
+        cos_lim,
+        open_gate,
+        np.zeros((1, 1)),
+    )
+    failed = refine_hits(dem.z, hc, hr, *geo, p)
+    if failed.any():
+        # silhouette pixels: the nearest surface grazes the pixel but misses its centre ray;
+        # splat again keeping only what lies behind it (the sample nearest the pixel centre),
+        # and take that where it reaches the centre
+        gate = np.where(failed, zbuf * (1.0 + 1e-4) + 0.01, np.inf)
+        sat = np.zeros((mc.height + 1, mc.width + 1))
+        sat[1:, 1:] = np.cumsum(np.cumsum(failed, axis=0), axis=1)
+        zb2, _, hc2, hr2 = render_depth(
+            dem.z, blocks[0], blocks[1], dem.res, *geo, p, mc.width, mc.height, cos_lim, gate, sat
+        )
+        failed2 = refine_hits(dem.z, hc2, hr2, *geo, p)
+        use = failed & ~(failed2 & np.isfinite(hc2))
+        hc = np.where(use, hc2, hc)
+        hr = np.where(use, hr2, hr)
+        zbuf = np.where(use, zb2, zbuf)
     rgb = shade(hc, hr, ortho.astype(np.float32), factor,
                 np.array(SKY_RGB, dtype=np.uint8), np.array(TERRAIN_TINT))  # fmt: skip
     return rgb, zbuf

@@ -25,9 +25,7 @@ class Boulders:
     height_m: F64
 
 
-def spectral_noise(
-    rng: np.random.Generator, n: int, beta: float, cutoff_px: float = 0.0
-) -> F64:
+def spectral_noise(rng: np.random.Generator, n: int, beta: float, cutoff_px: float = 0.0) -> F64:
     """Isotropic 1/f^beta noise on an n x n grid, zero mean, unit standard deviation.
 
     ``cutoff_px``: wavelengths shorter than about this many cells are rolled off (Gaussian).
@@ -126,11 +124,11 @@ def make_dem(
 ) -> tuple[F64, Boulders]:
     """An n x n DEM (metres above the areoid, row 0 north) and the boulders put on it.
 
-    Relief: about 6 m RMS of rolling fractal terrain (wavelengths below ~4 m rolled off like a
+    Relief: about 4.5 m RMS of rolling fractal terrain (wavelengths below ~4 m rolled off like a
     HiRISE stereo DTM), craters 6..350 m wide, a few ridges, and boulders 1.5..4 m wide.
     """
     area_km2 = (n * res_m / 1000.0) ** 2
-    z = 6.0 * spectral_noise(rng, n, beta=3.8, cutoff_px=4.0 / res_m)
+    z = 4.5 * spectral_noise(rng, n, beta=4.2, cutoff_px=4.0 / res_m)
     z += 0.12 * spectral_noise(rng, n, beta=2.4, cutoff_px=3.0 / res_m)
     _add_craters(rng, z, res_m, int(150 * area_km2))
     _add_ridges(rng, z, res_m, max(2, int(3 * area_km2)))
