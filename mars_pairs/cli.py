@@ -119,8 +119,8 @@ def _cmd_viewshed(args: argparse.Namespace) -> int:
         else:
             if args.x is None or args.y is None or args.height is None:
                 raise UsageError("without --label, give --x, --y and --height")
-            az = None if args.az_min is None else (args.az_min, args.az_max)
-            el = None if args.el_min is None else (args.el_min, args.el_max)
+            az = _band(args.az_min, args.az_max, "--az-min/--az-max")
+            el = _band(args.el_min, args.el_max, "--el-min/--el-max")
             terrain._require_inside(args.x, args.y, "observer")
             req = ViewshedRequest(
                 args.x, args.y, args.height, args.radius, az, el, height_is_absolute=args.absolute
@@ -138,6 +138,15 @@ def _cmd_viewshed(args: argparse.Namespace) -> int:
 
 class UsageError(Exception):
     """A command-line misuse: reported in one line, exit status 2."""
+
+
+def _band(low: float | None, high: float | None, names: str) -> tuple[float, float] | None:
+    """A (low, high) band from two options given together, or None when both are absent."""
+    if low is None and high is None:
+        return None
+    if low is None or high is None:
+        raise UsageError(f"{names}: give both bounds of the band, in degrees")
+    return (low, high)
 
 
 def _cmd_show(args: argparse.Namespace) -> int:

@@ -224,7 +224,8 @@ def test_rendering_agrees_with_ray_casting(both: Path, mission: str) -> None:
 
 # -- more checks: seeds, CRS identity, camera models, ortho texture, timing -----------------------
 def test_other_seed_other_bytes_and_msl_reproducible(both: Path, tmp_path: Path) -> None:
-    """msl alone with the same seed repeats the "both" run's msl bytes; another seed differs."""
+    """msl alone with the same seed repeats the "both" run's msl bytes; another seed gives
+    other rasters, PLACES, truth and images (m2020)."""
     import time
 
     start = time.perf_counter()
@@ -234,9 +235,9 @@ def test_other_seed_other_bytes_and_msl_reproducible(both: Path, tmp_path: Path)
     same, ref = _files(tmp_path / "same"), _files(both / "msl")
     assert sorted(same) == sorted(ref)
     assert [k for k in ref if ref[k] != same[k]] == []
-    generate_mission(tmp_path / "other", mission="msl", **{**RUN, "seed": RUN["seed"] + 1})
-    other = _files(tmp_path / "other")
-    for name in ("orbital/dem.tif", "orbital/ortho.tif", "places/localized_interp.csv",
+    generate_mission(tmp_path / "other", mission="m2020", **{**RUN, "seed": RUN["seed"] + 1})
+    other, ref = _files(tmp_path / "other"), _files(both / "m2020")
+    for name in ("orbital/dem.tif", "orbital/ortho.tif", "places/best_interp.csv",
                  "truth.parquet"):  # fmt: skip
         assert other[name] != ref[name], name
     ref_jpgs = {v for k, v in ref.items() if k.endswith(".jpg")}

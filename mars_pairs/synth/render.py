@@ -174,6 +174,7 @@ def render_depth(
     vc = np.empty((BLOCK + 1, BLOCK + 1))
     vr = np.empty((BLOCK + 1, BLOCK + 1))
     qx, qy, qc, qr = np.empty(4), np.empty(4), np.empty(4), np.empty(4)
+    qz = np.empty(4)
     st_s0 = np.empty(4 * _MAX_DEPTH + 8)
     st_s1 = np.empty(4 * _MAX_DEPTH + 8)
     st_t0 = np.empty(4 * _MAX_DEPTH + 8)
@@ -219,7 +220,6 @@ def render_depth(
                     i, j = i0 + a, j0 + b
                     z00, z01 = dem[i, j], dem[i, j + 1]
                     z10, z11 = dem[i + 1, j], dem[i + 1, j + 1]
-                    dz = max(max(z00, z01), max(z10, z11)) - min(min(z00, z01), min(z10, z11))
                     top = 0
                     st_s0[0], st_s1[0], st_t0[0], st_t1[0], st_d[0] = 0.0, 1.0, 0.0, 1.0, 0
                     while top >= 0:
@@ -233,10 +233,12 @@ def render_depth(
                             if d == 0:
                                 qx[k], qy[k] = vx[a + kt, b + ks], vy[a + kt, b + ks]
                                 qr[k], qc[k] = vr[a + kt, b + ks], vc[a + kt, b + ks]
+                                qz[k] = dem[i + kt, j + ks]
                                 continue
                             s = s1 if ks else s0
                             t = t1 if kt else t0
                             zz = (z00 * (1 - s) + z01 * s) * (1 - t) + (z10 * (1 - s) + z11 * s) * t
+                            qz[k] = zz
                             n = n0 + (j + s) * dn_dj + (i + t) * dn_di
                             e = e0 + (j + s) * de_dj + (i + t) * de_di
                             qx[k], qy[k], qr[k], qc[k] = _point(n, e, zz, p)
@@ -280,6 +282,8 @@ def render_depth(
                                 continue
                             # cull a quad that lies wholly outside the cone (or behind)
                             qmin = qr.min()
+                            # a bilinear patch takes its extreme heights at its corners
+                            dz = qz.max() - qz.min()
                             diag = 1.01 * res * math.hypot(s1 - s0, t1 - t0) + dz
                             if qmin > diag:
                                 beta = math.asin(min(1.0, diag / qmin))
