@@ -282,8 +282,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("out", help="output folder")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--mission", choices=("m2020", "msl", "both"), default="m2020")
-    p.add_argument("--stops", type=int, default=6, help="rover stops on the traverse")
-    p.add_argument("--images-per-stop", type=int, default=4)
+    p.add_argument("--stops", type=int, help="rover stops (default: the size's, 3 or 8)")
+    p.add_argument("--images-per-stop", type=int, help="default: the size's (4)")
     p.add_argument("--size", choices=("small", "default"), default="small")
     p.set_defaults(func=_cmd_synth)
     return parser
