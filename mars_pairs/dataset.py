@@ -25,33 +25,12 @@ import torch
 from PIL import Image
 from torch.utils.data import Dataset, IterableDataset, default_collate, get_worker_info
 
-from mars_pairs.manifest import Manifest
+from mars_pairs.manifest import SUMMARY_COLUMNS, Manifest
 
 DEFAULT_FIELDS = ("ground", "ortho", "dem", "viewshed")
 ALL_FIELDS = ("ground", "ortho", "dem", "viewshed", "corr")
 IMAGE_FIELDS = ("ground", "ortho", "viewshed")  # uint8 with image_dtype=torch.uint8
-META_COLUMNS = (
-    "key",
-    "mission",
-    "instrument",
-    "product_id",
-    "sol",
-    "site",
-    "drive",
-    "split",
-    "latitude",
-    "longitude",
-    "easting",
-    "northing",
-    "elevation",
-    "azimuth_deg",
-    "elevation_deg",
-    "hfov_deg",
-    "vfov_deg",
-    "localization",
-    "viewshed_area_m2",
-    "max_visible_range_m",
-)
+META_COLUMNS = SUMMARY_COLUMNS
 
 FILTER_KEYS = (
     "bbox_lonlat",

@@ -13,6 +13,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from pyproj import CRS
 
+from mars_pairs.frames import MARS_RADIUS_M
+
 MEMBERS = ("ground", "ortho", "dem", "viewshed", "corr", "meta")
 
 _FIELDS: list[tuple[str, pa.DataType]] = [
@@ -61,6 +63,13 @@ for _m in MEMBERS:
 
 MANIFEST_SCHEMA = pa.schema(_FIELDS)
 
+#: The plain per-sample attributes that readers pass on (dataset meta, GeoPackage attributes).
+SUMMARY_COLUMNS = (
+    "key", "mission", "instrument", "product_id", "sol", "site", "drive", "split", "latitude",
+    "longitude", "easting", "northing", "elevation", "azimuth_deg", "elevation_deg", "hfov_deg",
+    "vfov_deg", "localization", "viewshed_area_m2", "visible_cells", "max_visible_range_m",
+)  # fmt: skip
+
 FAILURE_SCHEMA = pa.schema(
     [
         ("product_id", pa.string()),
@@ -105,7 +114,6 @@ def rows_to_table(rows: list[dict[str, Any]], schema: pa.Schema) -> pa.Table:
 
 
 # -- reading and filtering ----------------------------------------------------------------------
-MARS_RADIUS_M = 3396190.0
 
 
 class Manifest:

@@ -14,32 +14,10 @@ import shapely
 from PIL import Image
 
 from mars_pairs.errors import MarsPairsError
-from mars_pairs.manifest import Manifest
+from mars_pairs.manifest import SUMMARY_COLUMNS, Manifest
 from mars_pairs.shards import MemberLocation, read_member
 
-ATTRIBUTES = (
-    "key",
-    "mission",
-    "instrument",
-    "product_id",
-    "sol",
-    "site",
-    "drive",
-    "split",
-    "latitude",
-    "longitude",
-    "easting",
-    "northing",
-    "elevation",
-    "azimuth_deg",
-    "elevation_deg",
-    "hfov_deg",
-    "vfov_deg",
-    "localization",
-    "viewshed_area_m2",
-    "visible_cells",
-    "max_visible_range_m",
-)
+ATTRIBUTES = SUMMARY_COLUMNS
 
 
 def camera_wedge(row: dict[str, Any], segments: int = 24) -> shapely.Polygon:

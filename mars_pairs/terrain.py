@@ -31,9 +31,7 @@ from rasterio.warp import reproject, transform_bounds
 from rasterio.windows import Window, from_bounds
 
 from mars_pairs.errors import TerrainError
-
-MARS_RADIUS_M = 3396190.0
-MARS_LONLAT = "+proj=longlat +R=3396190 +no_defs"
+from mars_pairs.frames import MARS_LONLAT
 
 Bounds = tuple[float, float, float, float]
 

@@ -1,8 +1,8 @@
 #!/usr/bin/env python
 """Build a mars-pairs dataset: the same arguments as ``mars-pairs build``.
 
-    python scripts/build_dataset.py --config configs/demo.yaml [--out DIR] [--workers N]
-        [--resume] [--limit N] [--strict]
+python scripts/build_dataset.py --config configs/demo.yaml [--out DIR] [--workers N]
+    [--resume] [--limit N] [--strict]
 """
 
 from __future__ import annotations

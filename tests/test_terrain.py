@@ -11,7 +11,8 @@ import rasterio
 from affine import Affine
 
 from mars_pairs.errors import TerrainError
-from mars_pairs.terrain import MARS_RADIUS_M, Terrain
+from mars_pairs.frames import MARS_RADIUS_M
+from mars_pairs.terrain import Terrain
 
 EQC0 = "+proj=eqc +lat_ts=0 +lon_0=0 +R=3396190 +units=m +no_defs"
 EQC18 = "+proj=eqc +lat_ts=18.4663 +lon_0=0 +R=3396190 +units=m +no_defs"
