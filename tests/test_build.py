@@ -280,3 +280,54 @@ def test_inspect_counts(built: Path, capsys: pytest.CaptureFixture[str]) -> None
     out = capsys.readouterr().out
     assert f"samples: {len(read_rows(built))}" in out and "m2020" in out
     assert main(["inspect", str(built / "nope")]) == 2
+
+
+def test_query_cli_formats(built: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    rows = read_rows(built)
+    lat = sum(r["latitude"] for r in rows) / len(rows)
+    lon = sum(r["longitude"] for r in rows) / len(rows)
+    assert main(["query", str(built), "--near", str(lat), str(lon), "5000", "--format", "csv"]) == 0
+    csv_lines = capsys.readouterr().out.strip().splitlines()
+    assert len(csv_lines) == len(rows) + 1 and csv_lines[0].startswith('"key"')
+    assert main(["query", str(built), "--bbox", "0", "0", "1", "1"]) == 0
+    assert "(0 rows)" in capsys.readouterr().out
+    out = tmp_path / "q.geojson"
+    assert (
+        main(
+            [
+                "query",
+                str(built),
+                "--bbox",
+                "-180",
+                "-90",
+                "180",
+                "90",
+                "--format",
+                "geojson",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    features = json.loads(out.read_text())["features"]
+    assert {f["properties"]["key"] for f in features} == {r["key"] for r in rows}
+    assert all(f["geometry"]["type"] == "Polygon" for f in features)
+    parquet = tmp_path / "q.parquet"
+    assert (
+        main(
+            [
+                "query",
+                str(built),
+                "--polygon",
+                "POLYGON((0 0, 1 0, 1 1, 0 0))",
+                "--format",
+                "parquet",
+                "--out",
+                str(parquet),
+            ]
+        )
+        == 0
+    )
+    assert pq.read_table(parquet).num_rows == 0
+    assert main(["query", str(built), "--polygon", "not wkt"]) == 2
