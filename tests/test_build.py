@@ -331,3 +331,24 @@ def test_query_cli_formats(built: Path, tmp_path: Path, capsys: pytest.CaptureFi
     )
     assert pq.read_table(parquet).num_rows == 0
     assert main(["query", str(built), "--polygon", "not wkt"]) == 2
+
+
+def test_heading_up_chips_put_the_view_above_the_rover(mission: Path, tmp_path: Path) -> None:
+    import io
+
+    from PIL import Image
+
+    path = write_config(tmp_path / "c.yaml", mission, tmp_path / "ds")
+    doc = yaml.safe_load(path.read_text())
+    doc["chips"]["orientation"] = "heading-up"
+    path.write_text(yaml.safe_dump(doc))
+    run_build(load_config(path), progress=False)
+    members = member_bytes(tmp_path / "ds")
+    above = total = 0
+    for row in read_rows(tmp_path / "ds"):
+        assert row["chip_rotation_deg"] != 0.0
+        vis = np.asarray(Image.open(io.BytesIO(members[f"{row['key']}.viewshed.png"]))) > 0
+        rows_visible = np.nonzero(vis)[0]
+        above += int((rows_visible < vis.shape[0] / 2).sum())
+        total += len(rows_visible)
+    assert total > 0 and above / total > 0.95  # the camera looks up the chip
