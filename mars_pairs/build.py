@@ -71,6 +71,26 @@ class BuildError(Exception):
     """A strict build stopped at its first failure."""
 
 
+def check_inputs(config: BuildConfig) -> list[Path]:
+    """The labels to build, after checking every input opens; ConfigError names the key."""
+    import rasterio
+
+    labels = config.inputs.label_paths()
+    if not labels:
+        raise ConfigError(f"inputs.labels: no file matches {list(config.inputs.labels)}")
+    if not config.inputs.places.is_file():
+        raise ConfigError(f"inputs.places: no such file {config.inputs.places}")
+    for key in ("dem", "ortho"):
+        path = getattr(config.inputs, key)
+        try:
+            with rasterio.open(path) as src:
+                if src.crs is None:
+                    raise ConfigError(f"inputs.{key}: {path} has no CRS")
+        except rasterio.errors.RasterioIOError as exc:
+            raise ConfigError(f"inputs.{key}: cannot open {path}: {exc}") from None
+    return labels
+
+
 def _init_worker(config: BuildConfig) -> None:
     global _CONTEXT
     _CONTEXT = SampleContext.open(config)
@@ -169,8 +189,8 @@ def run_build(
     """Build the dataset described by ``config`` into ``config.output.dir``."""
     start = time.perf_counter()
     out = config.output.dir
+    labels = check_inputs(config)[: limit if limit else None]
     out.mkdir(parents=True, exist_ok=True)
-    labels = config.inputs.label_paths()[: limit if limit else None]
     chunks = _chunks(labels, config.output.shard_size)
     for leftover in out.rglob(".*.tmp-*"):  # temporary files of a killed build
         leftover.unlink()

@@ -352,3 +352,17 @@ def test_heading_up_chips_put_the_view_above_the_rover(mission: Path, tmp_path: 
         above += int((rows_visible < vis.shape[0] / 2).sum())
         total += len(rows_visible)
     assert total > 0 and above / total > 0.95  # the camera looks up the chip
+
+
+@pytest.mark.parametrize("key", ["dem", "ortho", "places", "labels"])
+def test_missing_inputs_exit_2_naming_the_key(
+    mission: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], key: str
+) -> None:
+    path = write_config(tmp_path / "c.yaml", mission, tmp_path / "ds")
+    doc = yaml.safe_load(path.read_text())
+    doc["inputs"][key] = str(tmp_path / "absent" / "x.tif")
+    path.write_text(yaml.safe_dump(doc))
+    assert main(["build", "--config", str(path), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"inputs.{key}" in err[0]
+    assert not (tmp_path / "ds").exists()  # nothing written
