@@ -11,6 +11,7 @@ import math
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import rasterio
@@ -94,13 +95,15 @@ def _same_crs(a: object, b: object) -> bool:
     return _same_crs_text(crs_string(a), crs_string(b))
 
 
-def _sample_grid(values: NDArray[np.float32], src_transform: Affine, grid: ChipGrid,
-                 nearest: bool) -> NDArray[np.float32]:  # fmt: skip
+def _sample_grid(
+    values: NDArray[np.float32], src_transform: Affine, grid: ChipGrid, nearest: bool
+) -> NDArray[np.float32]:
     """Resample an array on ``src_transform`` onto ``grid`` (same CRS) with the numba kernel."""
     m = ~src_transform * grid.transform  # chip pixel -> source pixel
     n = grid.size_px
-    return sample_affine(np.ascontiguousarray(values, dtype=np.float32), m.a, m.b, m.c, m.d,
-                         m.e, m.f, n, n, nearest)  # fmt: skip
+    return sample_affine(
+        np.ascontiguousarray(values, dtype=np.float32), m.a, m.b, m.c, m.d, m.e, m.f, n, n, nearest
+    )
 
 
 class ChipReader:
@@ -135,18 +138,9 @@ class ChipReader:
         return _sample_grid(values, src.window_transform(win), grid, nearest)
 
     def _warp(self, grid: ChipGrid, nearest: bool, band: int) -> NDArray[np.float32]:
-        out = np.full((grid.size_px, grid.size_px), np.nan, dtype=np.float32)
-        reproject(
-            source=rasterio.band(self.dataset, band),
-            destination=out,
-            src_nodata=self.dataset.nodata,
-            dst_transform=grid.transform,
-            dst_crs=grid.crs,
-            dst_nodata=np.nan,
-            resampling=Resampling.nearest if nearest else Resampling.bilinear,
-            tolerance=0.0,
+        return _reproject(
+            rasterio.band(self.dataset, band), grid, nearest, src_nodata=self.dataset.nodata
         )
-        return out
 
     def close(self) -> None:
         """Close the raster."""
@@ -159,28 +153,40 @@ class ChipReader:
         self.close()
 
 
-def read_chip(path: str, grid: ChipGrid, *, nearest: bool = False,
-              band: int = 1) -> NDArray[np.float32]:  # fmt: skip
+def read_chip(
+    path: str, grid: ChipGrid, *, nearest: bool = False, band: int = 1
+) -> NDArray[np.float32]:
     """One chip of a raster file (opens and closes it; use ChipReader for many chips)."""
     with ChipReader(path) as reader:
         return reader.read(grid, nearest=nearest, band=band)
 
 
-def resample_array(values: NDArray[np.generic], transform: Affine, crs: object, grid: ChipGrid,
-                   nearest: bool = True) -> NDArray[np.float32]:  # fmt: skip
+def resample_array(
+    values: NDArray[np.generic],
+    transform: Affine,
+    crs: object,
+    grid: ChipGrid,
+    nearest: bool = True,
+) -> NDArray[np.float32]:
     """Resample an in-memory grid (e.g. a viewshed on the DEM window) onto a chip grid."""
     if _same_crs(crs, grid.crs):
         return _sample_grid(np.asarray(values, dtype=np.float32), transform, grid, nearest)
+    source = np.asarray(values, dtype=np.float32)
+    return _reproject(source, grid, nearest, src_transform=transform, src_crs=crs_string(crs))
+
+
+def _reproject(source: Any, grid: ChipGrid, nearest: bool, **src: Any) -> NDArray[np.float32]:
+    """GDAL-warp ``source`` (a rasterio band or an array with ``src`` georeferencing) onto a
+    chip grid in another CRS; NaN where nothing maps."""
     out = np.full((grid.size_px, grid.size_px), np.nan, dtype=np.float32)
     reproject(
-        source=np.asarray(values, dtype=np.float32),
+        source=source,
         destination=out,
-        src_transform=transform,
-        src_crs=crs_string(crs),
         dst_transform=grid.transform,
         dst_crs=grid.crs,
         dst_nodata=np.nan,
         resampling=Resampling.nearest if nearest else Resampling.bilinear,
         tolerance=0.0,
+        **src,
     )
     return out

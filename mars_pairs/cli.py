@@ -121,7 +121,7 @@ def _cmd_viewshed(args: argparse.Namespace) -> int:
                 raise UsageError("without --label, give --x, --y and --height")
             az = _band(args.az_min, args.az_max, "--az-min/--az-max")
             el = _band(args.el_min, args.el_max, "--el-min/--el-max")
-            terrain._require_inside(args.x, args.y, "observer")
+            terrain.require_inside(args.x, args.y, "observer")
             req = ViewshedRequest(
                 args.x, args.y, args.height, args.radius, az, el, height_is_absolute=args.absolute
             )

@@ -135,13 +135,13 @@ def _transformer(src: str, dst: str) -> Transformer:
 
 
 def crs_string(crs: object) -> str:
-    """A hashable text form (WKT or PROJ string) of a CRS given as text, pyproj or rasterio CRS."""
+    """A hashable text form (WKT or PROJ string) of a CRS: text, pyproj or rasterio CRS, EPSG."""
     if isinstance(crs, str):
         return crs
     to_wkt = getattr(crs, "to_wkt", None)
-    if to_wkt is None:
-        raise TypeError(f"not a CRS: {crs!r}")
-    return str(to_wkt())
+    if to_wkt is not None:
+        return str(to_wkt())
+    return CRS.from_user_input(crs).to_wkt()
 
 
 def lonlat_to_map(

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -25,13 +24,13 @@ import numpy as np
 import rasterio
 from affine import Affine
 from numpy.typing import ArrayLike, NDArray
-from pyproj import CRS, Transformer
+from pyproj import CRS
 from rasterio.enums import Resampling
 from rasterio.warp import reproject, transform_bounds
 from rasterio.windows import Window, from_bounds
 
 from mars_pairs.errors import TerrainError
-from mars_pairs.frames import MARS_LONLAT
+from mars_pairs.frames import MARS_LONLAT, crs_string, map_to_map
 
 Bounds = tuple[float, float, float, float]
 
@@ -100,19 +99,6 @@ def _bounds_of(transform: Affine, shape: tuple[int, ...]) -> Bounds:
     x0, y0 = transform @ (0, 0)
     x1, y1 = transform @ (shape[1], shape[0])
     return min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1)
-
-
-@lru_cache(maxsize=64)
-def _transformer(src_wkt: str, dst_wkt: str) -> Transformer:
-    """Cached always-xy pyproj transformer between two CRSs given as WKT."""
-    return Transformer.from_crs(CRS.from_wkt(src_wkt), CRS.from_wkt(dst_wkt), always_xy=True)
-
-
-def _as_wkt(crs: Any) -> str:
-    """WKT of anything pyproj or rasterio understands (proj string, EPSG, WKT, CRS objects)."""
-    if hasattr(crs, "to_wkt"):
-        return str(crs.to_wkt())
-    return CRS.from_user_input(crs).to_wkt()
 
 
 def _out(a: np.ndarray, like: Any) -> Any:
@@ -210,14 +196,12 @@ class Terrain:
     # -- coordinates -------------------------------------------------------------------------
     def to_raster_crs(self, xs: ArrayLike, ys: ArrayLike, src_crs: Any) -> tuple[Any, Any]:
         """Points x, y in ``src_crs`` (proj string, EPSG, WKT or CRS) -> raster-CRS x, y."""
-        tr = _transformer(_as_wkt(src_crs), self.crs_wkt)
-        x, y = tr.transform(np.asarray(xs, float), np.asarray(ys, float))
+        x, y = map_to_map(xs, ys, src_crs, self.crs_wkt)
         return _out(x, xs), _out(y, ys)
 
     def from_raster_crs(self, xs: ArrayLike, ys: ArrayLike, dst_crs: Any) -> tuple[Any, Any]:
         """Raster-CRS x, y -> x, y in ``dst_crs``."""
-        tr = _transformer(self.crs_wkt, _as_wkt(dst_crs))
-        x, y = tr.transform(np.asarray(xs, float), np.asarray(ys, float))
+        x, y = map_to_map(xs, ys, self.crs_wkt, dst_crs)
         return _out(x, xs), _out(y, ys)
 
     def from_lonlat(self, lon: ArrayLike, lat: ArrayLike) -> tuple[Any, Any]:
@@ -229,8 +213,11 @@ class Terrain:
         return self.from_raster_crs(x, y, MARS_LONLAT)
 
     # -- DEM -------------------------------------------------------------------------------
-    def _require_inside(self, x: float, y: float, what: str) -> None:
-        """Raise TerrainError naming the file when (x, y) is off the DEM."""
+    def require_inside(self, x: float, y: float, what: str) -> None:
+        """Raise TerrainError naming the file when raster-CRS point (x, y) is off the DEM.
+
+        ``what`` names the point in the message ("observer", "camera").
+        """
         if not (math.isfinite(x) and math.isfinite(y)) or not self.contains(x, y):
             left, bottom, right, top = self.bounds
             raise TerrainError(
@@ -270,7 +257,7 @@ class Terrain:
         """
         x, y = float(x), float(y)
         if check_observer:
-            self._require_inside(x, y, "observer")
+            self.require_inside(x, y, "observer")
         pad = float(radius) + max(self.res)
         win = self._pixel_window(x - pad, y - pad, x + pad, y + pad)
         if win.width == 0 or win.height == 0:
@@ -298,7 +285,7 @@ class Terrain:
         cells are used.
         """
         x, y = float(x), float(y)
-        self._require_inside(x, y, "point")
+        self.require_inside(x, y, "point")
         col, row = ~self.transform @ (x, y)
         col, row = col - 0.5, row - 0.5
         c0 = min(max(math.floor(col), 0), max(self._dem.width - 2, 0))
@@ -333,7 +320,7 @@ class Terrain:
         dst_transform = Affine(
             (right - left) / shape[1], 0.0, left, 0.0, -(top - bottom) / shape[0], top
         )
-        if _as_wkt(self._ortho.crs) == self.crs_wkt or self._ortho.crs == self.crs:
+        if crs_string(self._ortho.crs) == self.crs_wkt or self._ortho.crs == self.crs:
             data, valid = self._ortho_same_crs((left, bottom, right, top), shape)
         else:
             data, valid = self._ortho_reprojected(dst_transform, shape)

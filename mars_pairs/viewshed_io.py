@@ -52,7 +52,7 @@ def request_from_label(
     pose = Places.from_csv(places).locate(obs)
     cam = MapCamera.from_observation(obs, pose, terrain.crs)
     centre = cam.center_map
-    terrain._require_inside(float(centre[0]), float(centre[1]), "camera")
+    terrain.require_inside(float(centre[0]), float(centre[1]), "camera")
     az_band, el_band = cam.view_band_deg()
     h = float(centre[2] - pose.elevation_m) if height is None else float(height)
     return ViewshedRequest(float(centre[0]), float(centre[1]), h, radius, az_band, el_band)
