@@ -104,10 +104,6 @@ class CameraModel:
         origin = np.broadcast_to(self.c, u.shape).copy()
         return origin, u
 
-    def pointing(self) -> FloatArray:
-        """Unit direction of the ray through the image centre (model frame)."""
-        return self.a.copy()
-
     def fov_deg(self, width: int, height: int) -> tuple[float, float]:
         """Horizontal and vertical field of view (degrees) across the image edges.
 

@@ -294,7 +294,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args))
-    except (MarsPairsError, UsageError) as exc:
+    except (MarsPairsError, UsageError, OSError) as exc:  # a missing or unwritable path too
         print(f"mars-pairs {args.command}: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
