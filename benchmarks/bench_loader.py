@@ -90,7 +90,7 @@ def decode_only(root: Path, fields: tuple[str, ...]) -> Callable[[], int]:
                         np.load(io.BytesIO(data))
                     else:
                         with Image.open(io.BytesIO(data)) as im:
-                            np.asarray(im.convert(modes[f]))
+                            np.asarray(im if im.mode == modes[f] else im.convert(modes[f]))
         finally:
             for fh in files.values():
                 fh.close()

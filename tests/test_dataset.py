@@ -9,6 +9,7 @@ import re
 import subprocess
 import sys
 import tarfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -280,8 +281,44 @@ def test_dataloader_with_two_workers(dataset_dir: Path, context: str) -> None:
         collate_fn=collate_samples,
         generator=torch.Generator().manual_seed(0),
     )
-    keys = [k for batch in loader for k in batch["meta"]["key"]]
+    keys = []
+    for batch in loader:
+        # image fields cross as uint8 and arrive as float32, bit for bit the single items'
+        for j, key in enumerate(batch["meta"]["key"]):
+            single = ds[dataset_keys(ds).index(key)]
+            for name in mpd.DEFAULT_FIELDS:
+                assert type(batch[name]) is torch.Tensor and batch[name].dtype == torch.float32
+                assert torch.equal(batch[name][j], single[name]), (name, key)
+        keys += batch["meta"]["key"]
     assert sorted(keys) == sorted(all_keys(dataset_dir))
+
+
+def stack_ground(batch: Sequence[dict[str, Any]]) -> tuple[torch.Tensor, list[str]]:
+    """A collate function of the user's that indexes the samples itself."""
+    return torch.stack([s["ground"] for s in batch]), [s["meta"]["key"] for s in batch]
+
+
+def scale_after_collate(batch: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """A collate function of the user's that post-processes collate_samples in the worker."""
+    out = collate_samples(batch)
+    out["ground"] = out["ground"] * 2
+    out["ortho_mean"] = torch.mean(out["ortho"], dim=(1, 2, 3))
+    out["dem_shape"] = tuple(out["dem"].shape)
+    return out
+
+
+def test_worker_batches_with_other_collate_functions(dataset_dir: Path) -> None:
+    ds = MarsPairsDataset(dataset_dir, ground_size=32)
+    reference = collate_samples([ds[i] for i in range(4)])
+    kwargs: dict[str, Any] = dict(batch_size=4, num_workers=1, multiprocessing_context="fork")
+    ground, keys = next(iter(DataLoader(ds, collate_fn=stack_ground, **kwargs)))
+    assert ground.dtype == torch.float32 and torch.equal(ground, reference["ground"])
+    assert keys == reference["meta"]["key"]
+    out = next(iter(DataLoader(ds, collate_fn=scale_after_collate, **kwargs)))
+    assert torch.equal(out["ground"], reference["ground"] * 2)
+    assert torch.equal(out["ortho_mean"], reference["ortho"].mean(dim=(1, 2, 3)))
+    assert out["dem_shape"] == (4, 1, 128, 128)
+    assert torch.equal(out["viewshed"], reference["viewshed"])
 
 
 # -- streaming -----------------------------------------------------------------------------------
