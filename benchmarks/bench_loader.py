@@ -8,13 +8,17 @@ Prints a markdown table of samples/s (best of --repeats rounds in which the loop
 after a warm-up epoch each) for the
 default fields (ground, ortho, dem, viewshed):
 
-- decode only: one process reads each member by its manifest offset and decodes it to a
-  numpy array (PIL for images, ``np.load`` for the DEM), nothing else;
+- decode only (the anchor): one process reads each member by its manifest offset and
+  decodes it to a numpy array (``np.asarray`` of the PIL image, converted only where its mode
+  differs; ``np.load`` for the DEM), nothing else;
 - ``MarsPairsDataset`` indexed in a loop (one process, tensors in [0, 1] / metres);
 - ``DataLoader(num_workers=0, batch_size=8, collate_fn=collate_samples)`` (one process, the
   batched ``__getitems__`` path);
 - ``DataLoader(num_workers=2, batch_size=8, collate_fn=collate_samples)``, persistent
-  workers (steady state), and a fresh loader per epoch (includes starting the workers);
+  workers (steady state), and a fresh loader per epoch (includes starting the workers).
+  Float32 image batches cross from the workers as uint8 in reused shared memory and are
+  divided into float32 on arrival in this process (``mars_pairs.lazy_float``), so that
+  work is in the timing;
 - the same with ``image_dtype=torch.uint8`` (images stay uint8, a quarter of the bytes
   through shared memory; the decode-only loop's arrays are uint8 too).
 

@@ -25,7 +25,7 @@ import torch
 from PIL import Image
 from torch.utils.data import Dataset, IterableDataset, default_collate, get_worker_info
 
-from mars_pairs.lazy_float import Uint8AsFloat32
+from mars_pairs.lazy_float import TransportBuffers, Uint8AsFloat32
 from mars_pairs.manifest import SUMMARY_COLUMNS, Manifest
 
 DEFAULT_FIELDS = ("ground", "ortho", "dem", "viewshed")
@@ -191,15 +191,14 @@ def _stacked_base(tensors: Sequence[torch.Tensor]) -> torch.Tensor | None:
     for j, t in enumerate(tensors):
         if (
             t.untyped_storage().data_ptr() != storage.data_ptr()
-            or t.storage_offset() != j * n
+            or t.storage_offset() != first.storage_offset() + j * n
             or t.shape != first.shape
             or t.dtype != first.dtype
             or not t.is_contiguous()
         ):
             return None
-    if storage.nbytes() != len(tensors) * n * first.element_size():
-        return None
-    return torch.empty(0, dtype=first.dtype).set_(storage, 0, (len(tensors), *first.shape))
+    start = first.storage_offset()
+    return torch.empty(0, dtype=first.dtype).set_(storage, start, (len(tensors), *first.shape))
 
 
 def _ground_size(value: int | Sequence[int] | None) -> tuple[int, int] | None:
@@ -318,6 +317,7 @@ class MarsPairsDataset(Dataset):
         table = manifest.to_table(columns=list(dict.fromkeys(columns)))
         self._rows = table.to_pylist()
         self._files = _ShardFiles(self.root)
+        self._transport = TransportBuffers()
 
     def __len__(self) -> int:
         return len(self._rows)
@@ -369,15 +369,18 @@ class MarsPairsDataset(Dataset):
             lazy = lazy and dtype == np.float32 and len(shapes) == 1
             if len(shapes) == 1:
                 shape = (len(raws), *shapes.pop())
-                stored = np.dtype(np.uint8) if lazy else dtype
-                if in_worker:
-                    batch = _shared_empty(shape, _TORCH_DTYPES[stored])
+                if lazy:  # a reused buffer: no fresh shared memory in the steady state
+                    batch = self._transport.empty(shape)
+                elif in_worker:
+                    batch = _shared_empty(shape, _TORCH_DTYPES[dtype])
                 else:  # numpy reuses freed memory; torch.empty page-faults it in anew
-                    batch = torch.from_numpy(np.empty(shape, dtype=stored))
+                    batch = torch.from_numpy(np.empty(shape, dtype=dtype))
                 for j, r in enumerate(raws):
                     _finish(name, r[name], batch[j].numpy())  # uint8: viewshed {0, 1}
                     tensors[j][name] = (
-                        Uint8AsFloat32(batch[j], _UINT8_DIVISORS[name]) if lazy else batch[j]
+                        Uint8AsFloat32(batch[j], _UINT8_DIVISORS[name], pooled=True)
+                        if lazy
+                        else batch[j]
                     )
             else:
                 for j, r in enumerate(raws):
@@ -493,9 +496,11 @@ def _collate_tensors(tensors: list[torch.Tensor]) -> torch.Tensor:
     """One field's [B, ...] batch: the buffer the rows view (no copy; unused lazy rows of
     one uint8 buffer stay lazy), else a ``default_collate`` stack."""
     if all(isinstance(t, Uint8AsFloat32) and not t.materialized for t in tensors):
-        divisors = {t.divisor for t in tensors}
-        base = _stacked_base([t.uint8 for t in tensors])
+        lazy: list[Uint8AsFloat32] = tensors  # type: ignore[assignment]
+        divisors = {t.divisor for t in lazy}
+        base = _stacked_base([t.uint8 for t in lazy])
         if base is not None and len(divisors) == 1:
-            return Uint8AsFloat32(base, divisors.pop())
+            pooled = all(t.pooled for t in lazy)
+            return Uint8AsFloat32(base, divisors.pop(), pooled=pooled).stacked_from(lazy)
     base = _stacked_base(tensors)
     return base if base is not None else default_collate(tensors)

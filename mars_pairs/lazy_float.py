@@ -8,10 +8,16 @@ operation, ``.numpy()``, pickling, ``torch.save``) whose values are made from th
 first use. Between processes (``multiprocessing``'s ForkingPickler, which DataLoader queues
 use) an unused one travels as its uint8 twin, a quarter of the bytes, and arrives as a plain
 float32 tensor; once used, it travels as its float32 values.
+
+The twin's shared memory can come from :class:`TransportBuffers`, which reuses a buffer once
+the receiving process has marked it copied out, so a worker's steady state touches no fresh
+shared memory at all.
 """
 
 from __future__ import annotations
 
+import os
+from collections import OrderedDict
 from multiprocessing.reduction import ForkingPickler
 from typing import Any
 
@@ -33,6 +39,53 @@ def _same(tensor: torch.Tensor) -> torch.Tensor:
     return tensor
 
 
+def _arrive(uint8: torch.Tensor, divisor: float) -> torch.Tensor:
+    """Unpickling an unused :class:`Uint8AsFloat32` from a :class:`TransportBuffers` buffer:
+    the float32 values, then the buffer's flag byte set so the sender may reuse it."""
+    out = divided(uint8, divisor)
+    storage = uint8.untyped_storage()
+    flag = torch.empty(0, dtype=torch.uint8).set_(storage, storage.nbytes() - 1, (1,))
+    flag.fill_(1)
+    return out
+
+
+class TransportBuffers:
+    """Shared-memory uint8 buffers one process reuses for outgoing :class:`Uint8AsFloat32`.
+
+    Each buffer is a shared storage with one trailing flag byte, which the receiving process
+    sets once it has copied the values out (``_arrive``); only flagged buffers are handed out
+    again. Per process (a forked child starts empty: the parent's buffers are not its own).
+    At most ``max_per_size`` buffers of one size are kept; past that the oldest unflagged one
+    is forgotten (a batch never received costs memory, never correctness).
+    """
+
+    def __init__(self, max_per_size: int = 8) -> None:
+        self.max_per_size = max_per_size
+        self._pid = -1
+        self._buffers: dict[int, OrderedDict[int, torch.Tensor]] = {}
+
+    def empty(self, shape: tuple[int, ...]) -> torch.Tensor:
+        """A uint8 tensor of ``shape`` in a free (or new) shared buffer, contents undefined."""
+        if self._pid != os.getpid():
+            self._buffers, self._pid = {}, os.getpid()
+        nbytes = int(np.prod(shape))
+        ring = self._buffers.setdefault(nbytes, OrderedDict())
+        for key, buffer in ring.items():
+            if int(buffer[nbytes]) == 1:
+                ring.move_to_end(key)
+                break
+        else:
+            buffer = torch.empty(nbytes + 1, dtype=torch.uint8).share_memory_()
+            if len(ring) >= self.max_per_size:
+                ring.popitem(last=False)
+            ring[id(buffer)] = buffer
+        buffer[nbytes] = 0
+        return buffer[:nbytes].view(shape)
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {"max_per_size": self.max_per_size, "_pid": -1, "_buffers": {}}
+
+
 class Uint8AsFloat32(torch.Tensor):
     """The float32 tensor ``uint8 / divisor``, computed on first use (CPU only)."""
 
@@ -40,20 +93,32 @@ class Uint8AsFloat32(torch.Tensor):
 
     uint8: torch.Tensor
     divisor: float
+    pooled: bool
     _values: torch.Tensor | None
+    _sent: bool
 
     @staticmethod
-    def __new__(cls, uint8: torch.Tensor, divisor: float) -> Uint8AsFloat32:
+    def __new__(
+        cls, uint8: torch.Tensor, divisor: float, *, pooled: bool = False
+    ) -> Uint8AsFloat32:
         if uint8.dtype != torch.uint8 or uint8.device.type != "cpu":
             raise ValueError(f"expected a CPU uint8 tensor, got {uint8.dtype} on {uint8.device}")
         self = torch.Tensor._make_wrapper_subclass(
             cls, uint8.shape, dtype=torch.float32, device=uint8.device
         )
-        self.uint8, self.divisor, self._values = uint8, float(divisor), None
+        self.uint8, self.divisor, self.pooled = uint8, float(divisor), pooled
+        self._values, self._sent = None, False
+        self._members: list[Uint8AsFloat32] = []
         return self
 
-    def __init__(self, uint8: torch.Tensor, divisor: float) -> None:  # fields set in __new__
-        pass
+    def stacked_from(self, rows: list[Uint8AsFloat32]) -> Uint8AsFloat32:
+        """Record that this tensor stacks ``rows`` (views of its buffer): sending it spends
+        them too. Returns self."""
+        self._members = list(rows)
+        return self
+
+    def __init__(self, uint8: torch.Tensor, divisor: float, *, pooled: bool = False) -> None:
+        pass  # fields set in __new__
 
     @property
     def materialized(self) -> bool:
@@ -63,6 +128,11 @@ class Uint8AsFloat32(torch.Tensor):
     def values(self) -> torch.Tensor:
         """The float32 values, as a plain tensor (made once, then shared by every use)."""
         if self._values is None:
+            if self._sent:
+                raise RuntimeError(
+                    "this tensor was sent to another process unused, and its shared buffer "
+                    "(TransportBuffers) may hold another batch by now: use it before sending"
+                )
             self._values = divided(self.uint8, self.divisor)
         return self._values
 
@@ -103,10 +173,15 @@ class Uint8AsFloat32(torch.Tensor):
 
 def _reduce_between_processes(tensor: Uint8AsFloat32) -> tuple[Any, ...]:
     """ForkingPickler's reduction: the uint8 twin while unused, else the float32 values
-    (each then shared as torch shares any tensor)."""
+    (each then shared as torch shares any tensor). A pooled twin is handed over: the tensor
+    is spent in this process (its buffer returns to the pool once the receiver has it)."""
     if tensor.materialized:
         return (_same, (tensor.values(),))
-    return (divided, (tensor.uint8, tensor.divisor))
+    if not tensor.pooled:
+        return (divided, (tensor.uint8, tensor.divisor))
+    for spent in (tensor, *tensor._members):
+        spent._sent = True
+    return (_arrive, (tensor.uint8, tensor.divisor))
 
 
 ForkingPickler.register(Uint8AsFloat32, _reduce_between_processes)
