@@ -342,11 +342,20 @@ class MarsPairsDataset(Dataset):
         return self.transform(sample) if self.transform is not None else sample
 
     def __getitem__(self, index: int) -> dict[str, Any]:
-        tensors = {}
+        """Sample ``index``. Inside a DataLoader worker (without ``transform``) float32 image
+        fields are :class:`~mars_pairs.lazy_float.Uint8AsFloat32`, so they cross to the main
+        process as uint8."""
+        lazy_images = get_worker_info() is not None and self.transform is None
+        tensors: dict[str, torch.Tensor] = {}
         for name, raw in self._raw(index).items():
-            out = np.empty(_chw_shape(raw), dtype=self._dtypes[name])
+            lazy = lazy_images and name in IMAGE_FIELDS and self._dtypes[name] == np.float32
+            out = np.empty(_chw_shape(raw), dtype=np.uint8 if lazy else self._dtypes[name])
             _finish(name, raw, out)
-            tensors[name] = torch.from_numpy(out)
+            tensors[name] = (
+                Uint8AsFloat32(torch.from_numpy(out), _UINT8_DIVISORS[name])
+                if lazy
+                else torch.from_numpy(out)
+            )
         return self._finish_sample(tensors, self._meta(index))
 
     def __getitems__(self, indices: Sequence[int]) -> list[dict[str, Any]]:
@@ -493,14 +502,15 @@ def collate_samples(batch: Sequence[dict[str, Any]]) -> dict[str, Any]:
 
 
 def _collate_tensors(tensors: list[torch.Tensor]) -> torch.Tensor:
-    """One field's [B, ...] batch: the buffer the rows view (no copy; unused lazy rows of
-    one uint8 buffer stay lazy), else a ``default_collate`` stack."""
-    if all(isinstance(t, Uint8AsFloat32) and not t.materialized for t in tensors):
-        lazy: list[Uint8AsFloat32] = tensors  # type: ignore[assignment]
-        divisors = {t.divisor for t in lazy}
+    """One field's [B, ...] batch: the buffer the rows view (no copy), else a stack (into
+    shared memory inside a worker). Unused lazy rows stay lazy: the batch is their uint8
+    buffer, or their uint8 rows stacked."""
+    lazy = [t for t in tensors if isinstance(t, Uint8AsFloat32) and not t.materialized]
+    if len(lazy) == len(tensors) and len({(t.divisor, t.shape) for t in lazy}) == 1:
         base = _stacked_base([t.uint8 for t in lazy])
-        if base is not None and len(divisors) == 1:
-            pooled = all(t.pooled for t in lazy)
-            return Uint8AsFloat32(base, divisors.pop(), pooled=pooled).stacked_from(lazy)
+        pooled = base is not None and all(t.pooled for t in lazy)
+        if base is None:
+            base = default_collate([t.uint8 for t in lazy])
+        return Uint8AsFloat32(base, lazy[0].divisor, pooled=pooled).stacked_from(lazy)
     base = _stacked_base(tensors)
     return base if base is not None else default_collate(tensors)

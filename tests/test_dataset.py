@@ -344,6 +344,28 @@ def test_iterable_yields_every_sample_once_across_workers(dataset_dir: Path) -> 
     assert sorted(stream_keys(ds)) == sorted(single)
 
 
+def test_iterable_through_workers_gives_the_single_items(dataset_dir: Path) -> None:
+    ds = MarsPairsIterableDataset(dataset_dir, ground_size=32, shuffle_buffer=3)
+    single = MarsPairsDataset(dataset_dir, ground_size=32)
+    by_key = {key: i for i, key in enumerate(dataset_keys(single))}
+    kwargs: dict[str, Any] = dict(num_workers=2, multiprocessing_context="fork")
+    unbatched = list(DataLoader(ds, batch_size=None, **kwargs))
+    batched = list(DataLoader(ds, batch_size=4, collate_fn=collate_samples, **kwargs))
+    rows = [(s, None) for s in unbatched] + [(b, j) for b in batched for j in range(4)]
+    seen = 0
+    for item, j in rows:
+        keys = item["meta"]["key"]
+        if j is not None and j >= len(keys):
+            continue
+        reference = single[by_key[keys if j is None else keys[j]]]
+        for name in mpd.DEFAULT_FIELDS:
+            value = item[name] if j is None else item[name][j]
+            assert type(item[name]) is torch.Tensor and value.dtype == torch.float32
+            assert torch.equal(value, reference[name]), name
+        seen += 1
+    assert seen == 2 * len(single)
+
+
 def test_iterable_splits_shards_across_ranks(
     dataset_dir: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
