@@ -175,8 +175,8 @@ def rates(
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--dataset", type=Path, default=None)
-    p.add_argument("--epochs", type=int, default=5, help="epochs per timed run")
-    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--epochs", type=int, default=8, help="epochs per timed run")
+    p.add_argument("--repeats", type=int, default=4)
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--batch-size", type=int, default=8)
     args = p.parse_args()
