@@ -126,11 +126,15 @@ class Manifest:
     >>> len(m), m.to_pandas()
     """
 
-    def __init__(self, root: Path, expression: Any = None, exact: tuple[Any, ...] = ()) -> None:
+    def __init__(
+        self, root: Path, expression: Any = None, exact: tuple[Any, ...] = (), dataset: Any = None
+    ) -> None:
         import pyarrow.dataset as ds
 
         self.root = Path(root)
-        self._dataset = ds.dataset(self.root / "manifest.parquet", format="parquet")
+        if dataset is None:  # filtered Manifests share their parent's (footer read once)
+            dataset = ds.dataset(self.root / "manifest.parquet", format="parquet")
+        self._dataset = dataset
         self._expression = expression
         self._exact = exact  # callables table -> boolean mask, applied after the scan
 
@@ -225,7 +229,7 @@ class Manifest:
         expression = self._expression
         for term in terms:
             expression = term if expression is None else expression & term
-        return Manifest(self.root, expression, tuple(exact))
+        return Manifest(self.root, expression, tuple(exact), self._dataset)
 
     def to_table(self, columns: list[str] | None = None) -> pa.Table:
         """The filtered rows (all columns, or ``columns``)."""
