@@ -32,6 +32,7 @@ sys.path.insert(0, str(ROOT))
 
 from mars_pairs.kernels import cast_rays, compute_viewshed  # noqa: E402
 from mars_pairs.kernels.raycast import max_pyramid  # noqa: E402
+from mars_pairs.synth.terrain import spectral_noise  # noqa: E402
 from mars_pairs.terrain import Terrain  # noqa: E402
 
 EQC = "+proj=eqc +lat_ts=0 +lon_0=0 +R=3396190 +units=m +no_defs"
@@ -41,14 +42,8 @@ CAM_EL = -3.0  # camera looks slightly down (degrees); azimuth: the most open di
 
 
 def fractal_dem(n: int, seed: int = 42, std: float = 25.0, beta: float = 2.0) -> np.ndarray:
-    """Seeded spectral-synthesis fractal (n x n float32 metres)."""
-    rng = np.random.default_rng(seed)
-    k = np.hypot(np.fft.fftfreq(n)[:, None], np.fft.rfftfreq(n)[None, :])
-    k[0, 0] = 1.0
-    spec = (rng.normal(size=k.shape) + 1j * rng.normal(size=k.shape)) / k**beta
-    spec[0, 0] = 0.0
-    z = np.fft.irfft2(spec, s=(n, n))
-    return (z * std / z.std()).astype(np.float32)
+    """Seeded spectral-synthesis fractal (n x n float32 metres): amplitude ~ 1/f^beta."""
+    return (spectral_noise(np.random.default_rng(seed), n, 2.0 * beta) * std).astype(np.float32)
 
 
 def write_dem(path: Path, dem: np.ndarray, cell: float) -> None:

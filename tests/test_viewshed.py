@@ -10,6 +10,7 @@ import pytest
 from affine import Affine
 
 from mars_pairs.kernels import compute_viewshed
+from mars_pairs.synth.terrain import spectral_noise
 from mars_pairs.terrain import DemWindow
 
 X0, Y0 = 4351200.0, 1095210.0  # a Jezero-like map origin (upper-left corner)
@@ -19,14 +20,8 @@ X0, Y0 = 4351200.0, 1095210.0  # a Jezero-like map origin (upper-left corner)
 # helpers (also imported by test_raycast)
 # --------------------------------------------------------------------------------------------
 def fractal_dem(n: int, seed: int, std: float = 4.0, beta: float = 1.6) -> np.ndarray:
-    """Spectral-synthesis fractal surface (n x n, float32 metres) with a fixed seed."""
-    rng = np.random.default_rng(seed)
-    k = np.hypot(np.fft.fftfreq(n)[:, None], np.fft.rfftfreq(n)[None, :])
-    k[0, 0] = 1.0
-    spec = (rng.normal(size=k.shape) + 1j * rng.normal(size=k.shape)) / k**beta
-    spec[0, 0] = 0.0
-    z = np.fft.irfft2(spec, s=(n, n))
-    return (z * std / z.std()).astype(np.float32)
+    """Seeded spectral-synthesis fractal (n x n float32 metres): amplitude ~ 1/f^beta."""
+    return (spectral_noise(np.random.default_rng(seed), n, 2.0 * beta) * std).astype(np.float32)
 
 
 def grid(n: int, cell: float = 1.0) -> Affine:
