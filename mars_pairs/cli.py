@@ -126,7 +126,7 @@ def _cmd_viewshed(args: argparse.Namespace) -> int:
                 args.x, args.y, args.height, args.radius, az, el, height_is_absolute=args.absolute
             )
         codes, window = compute_request(terrain, req)
-    write_viewshed_geotiff(args.out, codes, window)
+    write_viewshed_geotiff(args.out, codes, window.transform, window.crs)
     visible = int((codes == 1).sum())
     print(
         f"{args.out}: {visible} visible cells of {codes.size}; observer x={req.x:.3f} "

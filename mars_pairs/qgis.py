@@ -98,8 +98,9 @@ def viewsheds_folder(out: str | Path) -> Path:
 
 
 def _write_viewsheds(root: Path, rows: list[dict[str, Any]], folder: Path, crs: str) -> None:
-    import rasterio
     from affine import Affine
+
+    from mars_pairs.viewshed_io import write_viewshed_geotiff
 
     folder.mkdir(parents=True, exist_ok=True)
     for row in rows:
@@ -112,19 +113,6 @@ def _write_viewsheds(root: Path, rows: list[dict[str, Any]], folder: Path, crs: 
             root,
             MemberLocation(row["viewshed_shard"], row["viewshed_offset"], row["viewshed_size"]),
         )
-        vis = (np.asarray(Image.open(io.BytesIO(png))) > 0).astype(np.uint8)
-        with rasterio.open(
-            folder / f"{row['key']}_viewshed.tif",
-            "w",
-            driver="GTiff",
-            width=vis.shape[1],
-            height=vis.shape[0],
-            count=1,
-            dtype="uint8",
-            crs=crs,
-            transform=Affine(*meta["chip_transform"]),
-            nodata=0,
-            compress="deflate",
-        ) as dst:
-            dst.write(vis, 1)
-            dst.write_colormap(1, {0: (0, 0, 0, 0), 1: (40, 220, 90, 255)})
+        visible = (np.asarray(Image.open(io.BytesIO(png))) > 0).astype(np.uint8)
+        path = folder / f"{row['key']}_viewshed.tif"
+        write_viewshed_geotiff(path, visible, Affine(*meta["chip_transform"]), crs)

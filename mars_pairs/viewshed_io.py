@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import rasterio
@@ -82,8 +83,10 @@ def compute_request(terrain: Terrain, req: ViewshedRequest) -> tuple[np.ndarray,
     return codes, window
 
 
-def write_viewshed_geotiff(path: str | Path, codes: np.ndarray, window: DemWindow) -> None:
-    """A compressed, tiled GeoTIFF on the DEM grid and CRS with nodata and a colour table."""
+def write_viewshed_geotiff(path: str | Path, codes: np.ndarray, transform: Any, crs: Any) -> None:
+    """A compressed, tiled GeoTIFF of viewshed ``codes`` (1 visible, 0 hidden, 255 nodata) on
+    the grid ``transform`` (affine, pixel corners -> CRS x, y) in ``crs``, with a colour
+    table; written atomically."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
@@ -93,8 +96,8 @@ def write_viewshed_geotiff(path: str | Path, codes: np.ndarray, window: DemWindo
         "height": codes.shape[0],
         "count": 1,
         "dtype": "uint8",
-        "crs": window.crs,
-        "transform": window.transform,
+        "crs": crs,
+        "transform": transform,
         "nodata": NODATA,
         "compress": "deflate",
         "tiled": True,

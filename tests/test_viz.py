@@ -144,6 +144,8 @@ def test_export_qgis_viewsheds_are_geotiffs_in_the_dataset_crs(
             )
             expected = np.asarray(Image.open(io.BytesIO(png))) > 0
             assert np.array_equal(band == 1, expected)
+            # hidden cells are 0, not nodata: the codes of `mars-pairs viewshed` (255 nodata)
+            assert src.nodata == 255 and set(np.unique(band)) <= {0, 1}
             visible += int(expected.sum())
             left, bottom, right, top = src.bounds
             assert left <= row["easting"] <= right and bottom <= row["northing"] <= top
