@@ -72,7 +72,7 @@ def _load(data: bytes, path: Path) -> Mapping[str, Any]:
     if "\x00" in text:
         raise LabelError(path, None, "not a text label (NUL bytes)")
     try:
-        label = _pvl().loads(text)
+        label = _parse_pvl(text)
     except Exception as exc:  # pvl raises many types (LexerError, ValueError, ...) on bad input
         raise LabelError(path, None, f"not a readable PDS3 label: {_brief(exc)}") from exc
     if not isinstance(label, Mapping) or len(label) == 0:
@@ -85,7 +85,25 @@ def _pvl() -> ModuleType:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", PendingDeprecationWarning)
         import pvl
+        import pvl.decoder
+        import pvl.grammar
     return pvl
+
+
+def _parse_pvl(text: str) -> Any:
+    """``pvl.loads(text)`` with pvl's default (Omni) grammar and decoder, but the decoder
+    tries date/time formats only on tokens that could be one (a digit first, then a '-' or a
+    ':'): pvl otherwise runs ~10 ``strptime`` formats on every unquoted word and number,
+    half of its time on a Mastcam label. The result is identical."""
+    pvl = _pvl()
+
+    class _Decoder(pvl.decoder.OmniDecoder):  # type: ignore[name-defined,misc]
+        def decode_datetime(self, value: str) -> Any:
+            if not (value[:1].isdigit() and ("-" in value or ":" in value)):
+                raise ValueError(f"{value!r} is not a date or time")
+            return super().decode_datetime(value)
+
+    return pvl.loads(text, decoder=_Decoder(grammar=pvl.grammar.OmniGrammar()))
 
 
 def _brief(exc: BaseException) -> str:
