@@ -27,6 +27,7 @@ from torch.utils.data import Dataset, IterableDataset, default_collate, get_work
 
 from mars_pairs.lazy_float import TransportBuffers, Uint8AsFloat32
 from mars_pairs.manifest import SUMMARY_COLUMNS, Manifest
+from mars_pairs.member_index import MemberIndex
 
 DEFAULT_FIELDS = ("ground", "ortho", "dem", "viewshed")
 ALL_FIELDS = ("ground", "ortho", "dem", "viewshed", "corr")
@@ -311,30 +312,23 @@ class MarsPairsDataset(Dataset):
         self._dtypes = {f: _out_dtype(f, image_dtype) for f in self.fields}
         self.image_dtype = image_dtype
         manifest = Manifest.open(self.root).filter(**filters)
-        columns = [*list(META_COLUMNS), "ground_member"]
+        columns = list(META_COLUMNS)
         for name in self.fields:
             columns += [f"{name}_shard", f"{name}_offset", f"{name}_size"]
         table = manifest.to_table(columns=list(dict.fromkeys(columns)))
-        self._rows = table.to_pylist()
+        self._index = MemberIndex(table, self.fields, META_COLUMNS)
         self._files = _ShardFiles(self.root)
         self._transport = TransportBuffers()
 
     def __len__(self) -> int:
-        return len(self._rows)
+        return len(self._index)
 
     def _raw(self, index: int) -> dict[str, np.ndarray]:
-        row = self._rows[index]
         raw = {}
         for name in self.fields:
-            data = self._files.read(
-                row[f"{name}_shard"], row[f"{name}_offset"], row[f"{name}_size"]
-            )
+            data = self._files.read(*self._index.location(index, name))
             raw[name] = _decode_raw(name, data, self.ground_size, self.normalize_dem)
         return raw
-
-    def _meta(self, index: int) -> dict[str, Any]:
-        row = self._rows[index]
-        return {k: row[k] for k in META_COLUMNS}
 
     def _finish_sample(self, tensors: dict[str, torch.Tensor], meta: dict) -> dict[str, Any]:
         sample: dict[str, Any] = dict(tensors)
@@ -356,7 +350,7 @@ class MarsPairsDataset(Dataset):
                 if lazy
                 else torch.from_numpy(out)
             )
-        return self._finish_sample(tensors, self._meta(index))
+        return self._finish_sample(tensors, self._index.meta(index))
 
     def __getitems__(self, indices: Sequence[int]) -> list[dict[str, Any]]:
         """A batch of samples (the DataLoader's batched fetch).
@@ -396,10 +390,8 @@ class MarsPairsDataset(Dataset):
                     out = np.empty(_chw_shape(r[name]), dtype=dtype)
                     _finish(name, r[name], out)
                     tensors[j][name] = torch.from_numpy(out)
-        return [
-            self._finish_sample(t, self._meta(int(i)))
-            for i, t in zip(indices, tensors, strict=True)
-        ]
+        metas = self._index.metas([int(i) for i in indices])
+        return [self._finish_sample(t, m) for t, m in zip(tensors, metas, strict=True)]
 
 
 # -- streaming -----------------------------------------------------------------------------------
@@ -442,14 +434,8 @@ class MarsPairsIterableDataset(IterableDataset):
         self.shuffle_buffer = shuffle_buffer
         self.seed = seed
         self.epoch = 0
-        by_shard: dict[str, list[int]] = {}
-        first = self._inner.fields[0]
-        for i, row in enumerate(self._inner._rows):
-            by_shard.setdefault(row[f"{first}_shard"], []).append(i)
-        for indices in by_shard.values():
-            indices.sort(key=lambda i: self._inner._rows[i][f"{first}_offset"])
-        self.shards = sorted(by_shard)
-        self._by_shard = by_shard
+        self._by_shard = self._inner._index.shard_order(self._inner.fields[0])
+        self.shards = sorted(self._by_shard)
 
     def set_epoch(self, epoch: int) -> None:
         """Reseed the shard order and shuffle buffer."""
