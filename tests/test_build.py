@@ -137,7 +137,9 @@ def test_geoparquet_metadata_and_dataset_json(built: Path) -> None:
     geo = json.loads(meta[b"geo"])
     assert geo["primary_column"] == "footprint"
     crs = CRS.from_json_dict(geo["columns"]["footprint"]["crs"])
-    assert "18.4663" in crs.to_proj4()
+    params = {p.name: p.value for p in crs.coordinate_operation.params}
+    assert params["Latitude of 1st standard parallel"] == 18.4663  # M2020 PLACES eqc
+    assert crs.ellipsoid.semi_major_metre == 3396190.0
     doc = json.loads((built / "dataset.json").read_text())
     assert doc["counts"]["samples"] == len(read_rows(built))
     assert doc["chip"]["size_px"] == 128
