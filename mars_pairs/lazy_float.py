@@ -12,6 +12,11 @@ float32 tensor; once used, it travels as its float32 values.
 The twin's shared memory can come from :class:`TransportBuffers`, which reuses a buffer once
 the receiving process has marked it copied out, so a worker's steady state touches no fresh
 shared memory at all.
+
+Built on torch's tensor-subclass machinery (``Tensor._make_wrapper_subclass``,
+``__torch_dispatch__``, ``torch.utils._pytree``), underscored but the documented way to write
+such subclasses since torch 1.13; ``tests/test_lazy_float.py`` checks every behaviour above
+on the installed torch.
 """
 
 from __future__ import annotations
