@@ -19,6 +19,7 @@ default fields (ground, ortho, dem, viewshed):
   Float32 image batches cross from the workers as uint8 in reused shared memory and are
   divided into float32 on arrival in this process (``mars_pairs.lazy_float``), so that
   work is in the timing;
+- the persistent loader with spawned workers (macOS and Windows start workers so);
 - the same with ``image_dtype=torch.uint8`` (images stay uint8, a quarter of the bytes
   through shared memory; the decode-only loop's arrays are uint8 too).
 
@@ -114,11 +115,13 @@ def dataset_loop(ds: MarsPairsDataset) -> Callable[[], int]:
     return run
 
 
-def loader_loop(ds: MarsPairsDataset, workers: int, batch: int, persistent: bool) -> Callable:
+def loader_loop(
+    ds: MarsPairsDataset, workers: int, batch: int, persistent: bool, context: str = "fork"
+) -> Callable:
     """Iterate a DataLoader (one loader reused when ``persistent``, else a fresh one)."""
     kwargs = dict(batch_size=batch, num_workers=workers, collate_fn=collate_samples)
     if workers:
-        kwargs.update(multiprocessing_context="fork", persistent_workers=persistent)
+        kwargs.update(multiprocessing_context=context, persistent_workers=persistent)
     shared = DataLoader(ds, **kwargs) if persistent else None
 
     def run() -> int:
@@ -195,6 +198,8 @@ def main() -> int:
         for persistent, label in ((True, "persistent workers"), (False, "fresh loader/epoch")):
             name = f"DataLoader workers={args.workers} batch={args.batch_size}, {label}"
             loops[name] = loader_loop(ds, args.workers, args.batch_size, persistent)
+        name = f"DataLoader workers={args.workers} batch={args.batch_size}, persistent, spawn"
+        loops[name] = loader_loop(ds, args.workers, args.batch_size, True, "spawn")
         ds8 = MarsPairsDataset(root, image_dtype=torch.uint8)
         name = f"DataLoader workers={args.workers} batch={args.batch_size}, persistent, uint8"
         loops[name] = loader_loop(ds8, args.workers, args.batch_size, True)
