@@ -339,18 +339,28 @@ class MarsPairsDataset(Dataset):
         """Sample ``index``. Inside a DataLoader worker (without ``transform``) float32 image
         fields are :class:`~mars_pairs.lazy_float.Uint8AsFloat32`, so they cross to the main
         process as uint8."""
-        lazy_images = get_worker_info() is not None and self.transform is None
-        tensors: dict[str, torch.Tensor] = {}
-        for name, raw in self._raw(index).items():
-            lazy = lazy_images and name in IMAGE_FIELDS and self._dtypes[name] == np.float32
-            out = np.empty(_chw_shape(raw), dtype=np.uint8 if lazy else self._dtypes[name])
-            _finish(name, raw, out)
-            tensors[name] = (
-                Uint8AsFloat32(torch.from_numpy(out), _UINT8_DIVISORS[name])
-                if lazy
-                else torch.from_numpy(out)
-            )
+        in_worker = get_worker_info() is not None
+        tensors = {
+            name: self._tensor(name, raw, self._lazy(name, in_worker))
+            for name, raw in self._raw(index).items()
+        }
         return self._finish_sample(tensors, self._index.meta(index))
+
+    def _lazy(self, field: str, in_worker: bool) -> bool:
+        """Whether ``field`` is handed out as Uint8AsFloat32 (float32 images in a worker)."""
+        return (
+            in_worker
+            and self.transform is None
+            and field in IMAGE_FIELDS
+            and self._dtypes[field] == np.float32
+        )
+
+    def _tensor(self, field: str, raw: np.ndarray, lazy: bool) -> torch.Tensor:
+        """One sample's [C, H, W] tensor of a stage-1 array (its own memory)."""
+        out = np.empty(_chw_shape(raw), dtype=np.uint8 if lazy else self._dtypes[field])
+        _finish(field, raw, out)
+        tensor = torch.from_numpy(out)
+        return Uint8AsFloat32(tensor, _UINT8_DIVISORS[field]) if lazy else tensor
 
     def __getitems__(self, indices: Sequence[int]) -> list[dict[str, Any]]:
         """A batch of samples (the DataLoader's batched fetch).
@@ -368,8 +378,7 @@ class MarsPairsDataset(Dataset):
         for name in self.fields:
             shapes = {_chw_shape(r[name]) for r in raws}
             dtype = self._dtypes[name]
-            lazy = in_worker and self.transform is None and name in IMAGE_FIELDS
-            lazy = lazy and dtype == np.float32 and len(shapes) == 1
+            lazy = self._lazy(name, in_worker)
             if len(shapes) == 1:
                 shape = (len(raws), *shapes.pop())
                 if lazy:  # a reused buffer: no fresh shared memory in the steady state
@@ -385,11 +394,9 @@ class MarsPairsDataset(Dataset):
                         if lazy
                         else batch[j]
                     )
-            else:
+            else:  # sizes differ (no ground_size): a tensor each
                 for j, r in enumerate(raws):
-                    out = np.empty(_chw_shape(r[name]), dtype=dtype)
-                    _finish(name, r[name], out)
-                    tensors[j][name] = torch.from_numpy(out)
+                    tensors[j][name] = self._tensor(name, r[name], lazy)
         metas = self._index.metas([int(i) for i in indices])
         return [self._finish_sample(t, m) for t, m in zip(tensors, metas, strict=True)]
 
