@@ -7,11 +7,13 @@ import json
 import sys
 from typing import Any
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv
 import shapely
 
 from mars_pairs.errors import MarsPairsError
+from mars_pairs.frames import map_to_lonlat
 from mars_pairs.manifest import Manifest, write_parquet_atomic
 
 SHOWN = (
@@ -51,7 +53,18 @@ def filter_arguments(args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
-def _geojson(table: pa.Table) -> str:
+#: GeoJSON's CRS member for the Mars sphere, planetocentric, east longitude (R = 3396190 m).
+GEOJSON_CRS = {"type": "name", "properties": {"name": "IAU_2015:49900"}}
+
+
+def _geojson(table: pa.Table, crs: str | None) -> str:
+    """A FeatureCollection in longitude/latitude degrees on the Mars sphere.
+
+    GeoJSON coordinates are longitude, latitude (RFC 7946 fixes the Earth's WGS 84; for Mars
+    the sphere is named in the legacy ``crs`` member, which GDAL and QGIS read). Footprints
+    are transformed from the dataset CRS ``crs`` (map units); a row without one is its rover
+    point.
+    """
     features = []
     for row in table.to_pylist():
         wkb = row.pop("footprint", None)
@@ -60,12 +73,20 @@ def _geojson(table: pa.Table) -> str:
             for k, v in row.items()
             if not k.endswith(("_shard", "_offset", "_size"))
         }
-        geom = shapely.from_wkb(wkb) if wkb else shapely.Point(row["easting"], row["northing"])
+        if wkb and crs is not None:
+            geom = shapely.transform(shapely.from_wkb(wkb), lambda xy: _lonlat(xy, crs))
+        else:
+            geom = shapely.Point(row["longitude"], row["latitude"])
         features.append(
             {"type": "Feature", "geometry": shapely.geometry.mapping(geom), "properties": props}
         )
-    # coordinates are in the dataset CRS (map units), not longitude/latitude
-    return json.dumps({"type": "FeatureCollection", "features": features})
+    return json.dumps({"type": "FeatureCollection", "crs": GEOJSON_CRS, "features": features})
+
+
+def _lonlat(xy: np.ndarray, crs: str) -> np.ndarray:
+    """(N, 2) map x, y in ``crs`` -> (N, 2) longitude, latitude degrees (Mars sphere)."""
+    lon, lat = map_to_lonlat(xy[:, 0], xy[:, 1], crs)
+    return np.column_stack([lon, lat])
 
 
 def run_query(args: argparse.Namespace) -> int:
@@ -80,7 +101,7 @@ def run_query(args: argparse.Namespace) -> int:
     if args.format == "csv":
         text = _csv(table.drop_columns(["footprint"]))
     elif args.format == "geojson":
-        text = _geojson(table)
+        text = _geojson(table, Manifest.open(args.dataset).crs)
     else:
         text = _table(table)
     if args.out:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import signal
@@ -16,7 +17,10 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+import shapely
+import shapely.geometry
 import yaml
+from pyproj import CRS
 
 from mars_pairs.build import run_build
 from mars_pairs.cli import main
@@ -131,8 +135,6 @@ def test_ground_member_is_the_original_image(mission: Path, built: Path) -> None
 
 
 def test_geoparquet_metadata_and_dataset_json(built: Path) -> None:
-    from pyproj import CRS
-
     meta = pq.read_schema(built / "manifest.parquet").metadata
     geo = json.loads(meta[b"geo"])
     assert geo["primary_column"] == "footprint"
@@ -312,9 +314,20 @@ def test_query_cli_formats(built: Path, tmp_path: Path, capsys: pytest.CaptureFi
         )
         == 0
     )
-    features = json.loads(out.read_text())["features"]
+    doc = json.loads(out.read_text())
+    features = doc["features"]
     assert {f["properties"]["key"] for f in features} == {r["key"] for r in rows}
     assert all(f["geometry"]["type"] == "Polygon" for f in features)
+    # longitude/latitude degrees on the Mars sphere: each footprint (the visible cells' hull
+    # and the camera centre) reaches its rover position, within the ~1 m mast offset
+    assert doc["crs"]["properties"]["name"] == "IAU_2015:49900"
+    for f in features:
+        footprint = shapely.geometry.shape(f["geometry"])
+        rover = shapely.Point(f["properties"]["longitude"], f["properties"]["latitude"])
+        assert footprint.distance(rover) < 2.0 / 3396190 * 180 / math.pi / 0.95  # < 2 m
+    pyogrio = pytest.importorskip("pyogrio")
+    crs = CRS.from_user_input(pyogrio.read_info(out)["crs"])
+    assert crs.is_geographic and crs.ellipsoid.semi_major_metre == 3396190.0
     parquet = tmp_path / "q.parquet"
     assert (
         main(
