@@ -279,21 +279,27 @@ def _footprint(view: View) -> shapely.Polygon | None:
 
 def _view_statistics(view: View) -> dict[str, Any]:
     """Visible cell count, area (true m2) and farthest visible range (m), ray hit fraction."""
-    rows, cols = np.nonzero(view.mask)
-    x, y = view.window.colrow_to_xy(cols, rows)
+    visible = int(np.count_nonzero(view.mask))
     cam = view.camera
     # map units -> true metres through the local Jacobian (scale factors, R / (R + h))
     area_scale = 1.0 / abs(float(np.linalg.det(cam.jacobian[:2, :2])))
     cell_area = abs(view.window.transform.a * view.window.transform.e)
     max_range = 0.0
-    if len(x):
+    if visible:
+        # the farthest visible cell ends a row's visible span: distance from the camera is
+        # convex along a row (to ~(d/R)^2 in the local frame), so only the ends are measured
+        rows = np.flatnonzero(view.mask.any(axis=1))
+        sub = view.mask[rows]
+        first = np.argmax(sub, axis=1)
+        last = sub.shape[1] - 1 - np.argmax(sub[:, ::-1], axis=1)
+        x, y = view.window.colrow_to_xy(np.concatenate([first, last]), np.tile(rows, 2))
         local = cam.map_to_local(np.column_stack([x, y, np.full_like(x, cam.center_map[2])]))
         centre = cam.map_to_local(cam.center_map)
         max_range = float(np.hypot(local[:, 0] - centre[0], local[:, 1] - centre[1]).max())
     hit_fraction = None
     if view.hits is not None:
         hit_fraction = float(np.isfinite(view.hits[:, 0]).mean())
-    return {"visible_cells": len(x), "viewshed_area_m2": float(len(x) * cell_area * area_scale),
+    return {"visible_cells": visible, "viewshed_area_m2": float(visible * cell_area * area_scale),
             "max_visible_range_m": max_range, "ray_hit_fraction": hit_fraction}  # fmt: skip
 
 
