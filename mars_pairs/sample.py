@@ -286,8 +286,8 @@ def _view_statistics(view: View) -> dict[str, Any]:
     cell_area = abs(view.window.transform.a * view.window.transform.e)
     max_range = 0.0
     if visible:
-        # the farthest visible cell ends a row's visible span: distance from the camera is
-        # convex along a row (to ~(d/R)^2 in the local frame), so only the ends are measured
+        # map_to_local is affine, so distance from the camera is convex along a row and the
+        # farthest visible cell of a row is one of its visible span's two ends: exact
         rows = np.flatnonzero(view.mask.any(axis=1))
         sub = view.mask[rows]
         first = np.argmax(sub, axis=1)
