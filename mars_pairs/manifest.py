@@ -182,12 +182,10 @@ class Manifest:
         exact = list(self._exact)
         if bbox_lonlat is not None:
             w, s, e, n = bbox_lonlat
-            terms.append(
-                (f("longitude") >= w)
-                & (f("longitude") <= e)
-                & (f("latitude") >= s)
-                & (f("latitude") <= n)
-            )
+            terms.append((f("latitude") >= s) & (f("latitude") <= n))
+            lon_term = _longitude_range(f("longitude"), w, e)
+            if lon_term is not None:
+                terms.append(lon_term)
         if bbox_map is not None:
             x0, y0, x1, y1 = bbox_map
             terms.append(
@@ -200,13 +198,12 @@ class Manifest:
             lat, lon, radius = near
             dlat = math.degrees(radius / MARS_RADIUS_M)
             coslat = max(math.cos(math.radians(min(abs(lat) + dlat, 90.0))), 1e-9)
-            dlon = min(180.0, dlat / coslat)
-            terms.append(
-                (f("latitude") >= lat - dlat)
-                & (f("latitude") <= lat + dlat)
-                & (f("longitude") >= lon - dlon)
-                & (f("longitude") <= lon + dlon)
-            )
+            dlon = dlat / coslat
+            terms.append((f("latitude") >= lat - dlat) & (f("latitude") <= lat + dlat))
+            if dlon < 180.0:
+                lon_term = _longitude_range(f("longitude"), lon - dlon, lon + dlon)
+                if lon_term is not None:
+                    terms.append(lon_term)
             exact.append(_NearPredicate(lat, lon, radius))
         if polygon is not None:
             import shapely
@@ -250,6 +247,24 @@ class Manifest:
         if not self._exact:
             return self._dataset.count_rows(filter=self._expression)
         return self.to_table(columns=["key"]).num_rows
+
+
+def _longitude_range(field: Any, west: float, east: float) -> Any:
+    """Longitudes from ``west`` eastward to ``east`` (degrees east), modulo 360: ``west >
+    east`` crosses the 180th meridian (or 0 for 0..360 data). An expression of plain ranges
+    (row-group statistics still prune), matching values stored as -180..180 or 0..360;
+    None when the range covers every longitude."""
+    span = east - west if east >= west else east - west + 360.0
+    if span >= 360.0:
+        return None
+    west -= 360.0 * math.floor((west + 180.0) / 360.0)  # into [-180, 180); exact if there
+    # the range's copies that can meet stored values in [-180, 360)
+    shifts = [0.0] + [-360.0] * (west + span >= 180.0) + [360.0] * (west < 0.0)
+    expression = None
+    for k in shifts:
+        term = (field >= west + k) & (field <= west + span + k)
+        expression = term if expression is None else expression | term
+    return expression
 
 
 def great_circle_m(lat1: Any, lon1: Any, lat2: Any, lon2: Any) -> Any:

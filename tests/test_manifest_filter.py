@@ -161,3 +161,57 @@ def test_crs_from_geoparquet_metadata(dataset: tuple[Path, pa.Table]) -> None:
     crs = Manifest.open(dataset[0]).crs
     assert crs is not None
     assert CRS.from_json(crs).equals(CRS.from_user_input(M2020_PLACES_CRS))
+
+
+@pytest.fixture(scope="module")
+def antimeridian(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, pa.Table]:
+    """Rover positions straddling 180 degrees, stored in -180..180 (as PLACES gives them)."""
+    rng = np.random.default_rng(11)
+    lon = (180.0 + rng.uniform(-0.05, 0.05, 800) + 180.0) % 360.0 - 180.0
+    lat = rng.uniform(-0.05, 0.05, 800)
+    rows = [
+        {"key": f"a{i:04d}", "latitude": float(lat[i]), "longitude": float(lon[i])}
+        for i in np.argsort(lon)
+    ]
+    table = rows_to_table(rows, MANIFEST_SCHEMA)
+    root = tmp_path_factory.mktemp("antimeridian")
+    write_parquet_atomic(table, root / "manifest.parquet", row_group_size=100)
+    return root, table
+
+
+@settings(max_examples=60, deadline=None)
+@given(a=st.floats(-0.06, 0.06), b=st.floats(-0.06, 0.06), shift=st.sampled_from([0, 360, -360]))
+def test_bbox_lonlat_across_the_180th_meridian(
+    antimeridian: tuple[Path, pa.Table], a: float, b: float, shift: float
+) -> None:
+    root, table = antimeridian
+    # from west eastward to east; west > east once normalised means crossing 180
+    west, east = 180.0 + min(a, b) + shift, 180.0 + max(a, b) + shift
+    west = (west + 180.0) % 360.0 - 180.0
+    east = (east + 180.0) % 360.0 - 180.0
+    lon = table["longitude"].to_numpy()
+    keep = (lon - west) % 360.0 <= (east - west) % 360.0
+    got = _keys(Manifest.open(root).filter(bbox_lonlat=(west, -1.0, east, 1.0)))
+    assert got == _brute(table, keep)
+
+
+@settings(max_examples=40, deadline=None)
+@given(lon=st.floats(179.9, 180.1), radius=st.floats(1.0, 4000.0))
+def test_near_across_the_180th_meridian(
+    antimeridian: tuple[Path, pa.Table], lon: float, radius: float
+) -> None:
+    root, table = antimeridian
+    lats, lons = table["latitude"].to_numpy(), table["longitude"].to_numpy()
+    keep = great_circle_m(0.0, lon, lats, lons) <= radius
+    assert _keys(Manifest.open(root).filter(near=(0.0, lon, radius))) == _brute(table, keep)
+
+
+def test_queries_at_180_reach_both_sides(antimeridian: tuple[Path, pa.Table]) -> None:
+    root, _ = antimeridian
+    for m in (
+        Manifest.open(root).filter(near=(0.0, 180.0, 2000.0)),
+        Manifest.open(root).filter(bbox_lonlat=(179.98, -1.0, -179.98, 1.0)),
+        Manifest.open(root).filter(bbox_lonlat=(179.98, -1.0, 180.02, 1.0)),  # 0..360 style
+    ):
+        lon = m.to_table(columns=["longitude"])["longitude"].to_numpy()
+        assert (lon > 179.0).any() and (lon < -179.0).any()
