@@ -40,7 +40,7 @@ def _labels(samples: Path) -> list[Path]:
 
 @functools.cache
 def _read(path: Path) -> Observation:
-    """read_observation, cached: the real PDS3 labels take ~0.1 s each to parse."""
+    """read_observation, cached (a real PDS3 label takes ~20 ms to parse)."""
     return read_observation(path)
 
 

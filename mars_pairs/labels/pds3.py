@@ -22,6 +22,7 @@ import numpy as np
 from mars_pairs.camera import CameraModel
 from mars_pairs.errors import LabelError
 from mars_pairs.labels._common import Fields, PathLike, image_beside, is_null, read_bytes
+from mars_pairs.labels.pvl_lexer import lexer as regex_lexer
 from mars_pairs.observation import MotionCounter, Observation
 
 MISSION = "msl"
@@ -87,14 +88,21 @@ def _pvl() -> ModuleType:
         import pvl
         import pvl.decoder
         import pvl.grammar
+        import pvl.parser
     return pvl
 
 
 def _parse_pvl(text: str) -> Any:
-    """``pvl.loads(text)`` with pvl's default (Omni) grammar and decoder, but the decoder
-    tries date/time formats only on tokens that could be one (a digit first, then a '-' or a
-    ':'): pvl otherwise runs ~10 ``strptime`` formats on every unquoted word and number,
-    half of its time on a Mastcam label. The result is identical."""
+    """``pvl.loads(text)``: the same grammar, decoder and parser, made faster in two ways
+    that leave the result identical.
+
+    - Tokens come from :mod:`mars_pairs.labels.pvl_lexer` (a regular expression) instead of
+      pvl's character-by-character lexer, unless the text leaves the subset it handles.
+    - The decoder tries date/time formats only on tokens that could be one (a digit first,
+      then a '-' or a ':'): pvl otherwise runs ~10 ``strptime`` formats on every word.
+
+    A Mastcam label takes ~20 ms instead of pvl's ~260 ms.
+    """
     pvl = _pvl()
 
     class _Decoder(pvl.decoder.OmniDecoder):  # type: ignore[name-defined,misc]
@@ -103,12 +111,20 @@ def _parse_pvl(text: str) -> Any:
                 raise ValueError(f"{value!r} is not a date or time")
             return super().decode_datetime(value)
 
-    return pvl.loads(text, decoder=_Decoder(grammar=pvl.grammar.OmniGrammar()))
+    decoder = _Decoder(grammar=pvl.grammar.OmniGrammar())
+    return pvl.parser.OmniParser(decoder=decoder, lexer_fn=regex_lexer).parse(text)
 
 
 def _brief(exc: BaseException) -> str:
-    """The first line of an exception message, shortened."""
-    lines = str(exc).splitlines() or [type(exc).__name__]
+    """The first line of an exception message, shortened (pvl's LexerError: its message and
+    line/column; a parser that ran out of tokens: says so)."""
+    if isinstance(exc, StopIteration):
+        return "the label ends inside a statement"
+    if hasattr(exc, "msg") and hasattr(exc, "lineno") and hasattr(exc, "colno"):
+        text = f"{exc.msg} (line {exc.lineno}, column {exc.colno})"
+    else:
+        text = str(exc)
+    lines = text.splitlines() or [type(exc).__name__]
     return lines[0][:200]
 
 
