@@ -111,7 +111,7 @@ _PIECES = st.sampled_from(
 )  # fmt: skip
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=300, deadline=None)
 @given(
     edits=st.lists(
         st.tuples(st.floats(0, 1), st.integers(0, 12), st.lists(_PIECES, max_size=4)),
@@ -126,10 +126,12 @@ def test_damaged_labels_lex_as_pvl_or_fall_back(
     for where, cut, pieces in edits:
         at = int(where * len(text))
         text = text[:at] + "".join(pieces) + text[at + cut :]
+    # the same tokens into the same parser: the same result (pvl's parse itself is not
+    # compared here: on some damaged labels it loops, and not always the same way)
     ours = pvl_tokens(text)
     if ours is not None:
         assert ours == pvl_lexer_tokens(text)
-    same_outcome(text)
+    assert parsed(text, _parse_pvl) is not Hung
 
 
 def test_a_label_that_hangs_pvl_fails_instead(tmp_path: Path) -> None:

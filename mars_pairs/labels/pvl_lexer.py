@@ -50,10 +50,14 @@ def pvl_tokens(text: str) -> list[tuple[str, int]] | None:
         else:
             if kind in ("quoted", "units") and "/*" in token:
                 return None
+            if kind == "comment" and ("/" in token[2:-2] or "*" in token[2:-2]):
+                return None  # pvl's comment ends are subtle around extra "/" and "*"
             if kind == "word" and "*/" in token:
                 return None
             if touching and not _may_touch(kinds[-1], kind):
                 return None
+            if touching and kind == "comment" and tokens[-1][0].endswith("*"):
+                return None  # pvl reads the "*/" of "x*/*...": a word ending in "*/"
             # pvl reports a comment one character before where it starts
             tokens.append((token, pos - 1 if kind == "comment" else pos))
             kinds.append(kind)
