@@ -130,7 +130,7 @@ class Uint8AsFloat32(torch.Tensor):
         """Whether the float32 values exist yet (any use makes them)."""
         return self._values is not None
 
-    def values(self) -> torch.Tensor:
+    def materialize(self) -> torch.Tensor:
         """The float32 values, as a plain tensor (made once, then shared by every use)."""
         if self._values is None:
             if self._sent:
@@ -146,34 +146,34 @@ class Uint8AsFloat32(torch.Tensor):
         cls, func: Any, types: Any, args: tuple = (), kwargs: dict | None = None
     ) -> Any:
         def real(x: Any) -> Any:
-            return x.values() if isinstance(x, cls) else x
+            return x.materialize() if isinstance(x, cls) else x
 
         return func(*pytree.tree_map(real, args), **pytree.tree_map(real, kwargs or {}))
 
     # what bypasses dispatch: storage and numpy access, printing, copying, pickling
     def numpy(self, *, force: bool = False) -> np.ndarray:
-        return self.values().numpy(force=force)
+        return self.materialize().numpy(force=force)
 
     def __array__(self, dtype: Any = None, copy: bool | None = None) -> np.ndarray:
-        return np.asarray(self.values().numpy(), dtype=dtype)
+        return np.asarray(self.materialize().numpy(), dtype=dtype)
 
     def data_ptr(self) -> int:
-        return self.values().data_ptr()
+        return self.materialize().data_ptr()
 
     def untyped_storage(self) -> torch.UntypedStorage:
-        return self.values().untyped_storage()
+        return self.materialize().untyped_storage()
 
     def _typed_storage(self) -> Any:
-        return self.values()._typed_storage()
+        return self.materialize()._typed_storage()
 
     def __repr__(self, **kwargs: Any) -> str:
-        return repr(self.values())
+        return repr(self.materialize())
 
     def __deepcopy__(self, memo: dict) -> torch.Tensor:
-        return self.values().clone()
+        return self.materialize().clone()
 
     def __reduce_ex__(self, protocol: Any) -> Any:
-        return self.values().__reduce_ex__(protocol)  # pickle, torch.save: a plain tensor
+        return self.materialize().__reduce_ex__(protocol)  # pickle, torch.save: a plain tensor
 
 
 def _reduce_between_processes(tensor: Uint8AsFloat32) -> tuple[Any, ...]:
@@ -181,7 +181,7 @@ def _reduce_between_processes(tensor: Uint8AsFloat32) -> tuple[Any, ...]:
     (each then shared as torch shares any tensor). A pooled twin is handed over: the tensor
     is spent in this process (its buffer returns to the pool once the receiver has it)."""
     if tensor.materialized:
-        return (_same, (tensor.values(),))
+        return (_same, (tensor.materialize(),))
     if not tensor.pooled:
         return (divided, (tensor.uint8, tensor.divisor))
     for spent in (tensor, *tensor._members):

@@ -172,10 +172,10 @@ class Manifest:
 
         ``bbox_lonlat``: (west, south, east, north) degrees east/north, west > east crossing
         the 180th meridian (longitudes match modulo 360, so -180..180 and 0..360 data alike);
-        ``bbox_map``: (xmin, ymin, xmax,
-        ymax) in the dataset CRS; ``near``: (lat, lon, radius_m), great circle on the Mars
-        sphere; ``polygon``: shapely geometry or WKT in the dataset CRS; ``sol``: inclusive
-        (first, last); ``mission``/``instrument``/``split``: a value or a list of values.
+        ``bbox_map``: (xmin, ymin, xmax, ymax) in the dataset CRS; ``near``: (lat, lon,
+        radius_m), great circle on the Mars sphere; ``polygon``: shapely geometry or WKT in
+        the dataset CRS; ``sol``: inclusive (first, last); ``mission``/``instrument``/``split``:
+        a value or a list of values.
         """
         import pyarrow.dataset as ds
 

@@ -91,7 +91,8 @@ def _lonlat(xy: np.ndarray, crs: str) -> np.ndarray:
 
 def run_query(args: argparse.Namespace) -> int:
     """Print (or write) the rows that match, in the requested format."""
-    table = Manifest.open(args.dataset).filter(**filter_arguments(args)).to_table()
+    manifest = Manifest.open(args.dataset)
+    table = manifest.filter(**filter_arguments(args)).to_table()
     if args.format == "parquet":
         if not args.out:
             raise MarsPairsError("--format parquet needs --out FILE")
@@ -101,7 +102,7 @@ def run_query(args: argparse.Namespace) -> int:
     if args.format == "csv":
         text = _csv(table.drop_columns(["footprint"]))
     elif args.format == "geojson":
-        text = _geojson(table, Manifest.open(args.dataset).crs)
+        text = _geojson(table, manifest.crs)
     else:
         text = _table(table)
     if args.out:

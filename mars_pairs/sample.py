@@ -258,14 +258,20 @@ def _correspondence(view: View, grid: ChipGrid) -> np.ndarray:
     return chip_px.reshape(*view.grid_shape, 2)
 
 
-def _footprint(view: View) -> shapely.Polygon | None:
-    """Convex hull of the visible cells (their corners) and the camera position, map CRS."""
-    rows = np.flatnonzero(view.mask.any(axis=1))
-    if len(rows) == 0:
-        return None
-    sub = view.mask[rows]
+def _row_spans(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rows of ``mask`` with a set cell, and each one's first and last set column."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    sub = mask[rows]
     first = np.argmax(sub, axis=1)
     last = sub.shape[1] - 1 - np.argmax(sub[:, ::-1], axis=1)
+    return rows, first, last
+
+
+def _footprint(view: View) -> shapely.Polygon | None:
+    """Convex hull of the visible cells (their corners) and the camera position, map CRS."""
+    rows, first, last = _row_spans(view.mask)
+    if len(rows) == 0:
+        return None
     cols = np.concatenate([first - 0.5, last + 0.5, first - 0.5, last + 0.5])
     rr = np.concatenate([rows - 0.5, rows - 0.5, rows + 0.5, rows + 0.5])
     x, y = view.window.colrow_to_xy(cols, rr)
@@ -288,10 +294,7 @@ def _view_statistics(view: View) -> dict[str, Any]:
     if visible:
         # map_to_local is affine, so distance from the camera is convex along a row and the
         # farthest visible cell of a row is one of its visible span's two ends: exact
-        rows = np.flatnonzero(view.mask.any(axis=1))
-        sub = view.mask[rows]
-        first = np.argmax(sub, axis=1)
-        last = sub.shape[1] - 1 - np.argmax(sub[:, ::-1], axis=1)
+        rows, first, last = _row_spans(view.mask)
         x, y = view.window.colrow_to_xy(np.concatenate([first, last]), np.tile(rows, 2))
         local = cam.map_to_local(np.column_stack([x, y, np.full_like(x, cam.center_map[2])]))
         centre = cam.map_to_local(cam.center_map)

@@ -32,6 +32,8 @@ _TOKEN = re.compile(
     re.VERBOSE | re.DOTALL,
 )
 _STANDALONE = frozenset({"reserved", "comment"})  # may touch any neighbour, as in pvl
+#: Push-backs the parser may make per token before a label counts as looping (see lexer).
+PUSHBACKS_PER_TOKEN = 50
 
 
 def pvl_tokens(text: str) -> list[tuple[str, int]] | None:
@@ -107,9 +109,6 @@ def lexer(text: str, g: Any, d: Any) -> Generator[Any, Any, None]:
             if isinstance(err, LexerError):
                 raise
             raise LexerError(err, text, token.pos + len(token) - 1, token) from None
-
-
-PUSHBACKS_PER_TOKEN = 50
 
 
 def _token_class() -> Any:
