@@ -15,8 +15,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from mars_pairs.build import run_build
-from mars_pairs.config import parse_config
+from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.config import parse_config
 from mars_pairs.synth import generate_mission
 
 STUDY_SECONDS_PER_IMAGE = 20.0  # "tens of seconds per image" (Sheppard and Skinner)

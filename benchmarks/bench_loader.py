@@ -17,7 +17,7 @@ default fields (ground, ortho, dem, viewshed):
 - ``DataLoader(num_workers=2, batch_size=8, collate_fn=collate_samples)``, persistent
   workers (steady state), and a fresh loader per epoch (includes starting the workers).
   Float32 image batches cross from the workers as uint8 in reused shared memory and are
-  divided into float32 on arrival in this process (``mars_pairs.lazy_float``), so that
+  divided into float32 on arrival in this process (``mars_pairs.torch.lazy_float``), so that
   work is in the timing;
 - the persistent loader with spawned workers (macOS and Windows start workers so);
 - the same with ``image_dtype=torch.uint8`` (images stay uint8, a quarter of the bytes
@@ -51,7 +51,7 @@ import pyarrow.parquet as pq  # noqa: E402
 import torch  # noqa: E402
 from torch.utils.data import DataLoader  # noqa: E402
 
-from mars_pairs.dataset import DEFAULT_FIELDS, MarsPairsDataset, collate_samples  # noqa: E402
+from mars_pairs.torch import DEFAULT_FIELDS, MarsPairsDataset, collate_samples  # noqa: E402
 
 
 def demo_dataset(tmp: Path) -> Path:
@@ -59,7 +59,7 @@ def demo_dataset(tmp: Path) -> Path:
     existing = ROOT / "out" / "demo" / "dataset"
     if (existing / "manifest.parquet").is_file():
         return existing
-    from mars_pairs.cli import main
+    from mars_pairs.cli.main import main
 
     doc = yaml.safe_load((ROOT / "configs" / "demo.yaml").read_text())
     base = ROOT / "configs"

@@ -30,7 +30,7 @@ from torch.utils.data import DataLoader
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from mars_pairs.dataset import MarsPairsDataset, collate_samples
+from mars_pairs.torch import MarsPairsDataset, collate_samples
 
 
 class Encoder(nn.Module):

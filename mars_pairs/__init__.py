@@ -1,9 +1,9 @@
 """mars-pairs: paired aerial/ground ML datasets from Mars rover images and orbital maps."""
 
-from mars_pairs.camera import CameraModel
 from mars_pairs.errors import ConfigError, LabelError, MarsPairsError, PlacesError, TerrainError
-from mars_pairs.manifest import Manifest
-from mars_pairs.observation import MotionCounter, Observation
+from mars_pairs.geometry.camera import CameraModel
+from mars_pairs.pds.observation import MotionCounter, Observation
+from mars_pairs.store.manifest import Manifest
 
 __version__ = "0.1.0"
 
@@ -26,7 +26,7 @@ __all__ = [
 def __getattr__(name: str) -> object:
     """Torch datasets load lazily, so that label and build code never imports torch."""
     if name in ("MarsPairsDataset", "MarsPairsIterableDataset", "collate_samples"):
-        from mars_pairs import dataset
+        import mars_pairs.torch as dataset
 
         return getattr(dataset, name)
     raise AttributeError(f"module 'mars_pairs' has no attribute {name!r}")

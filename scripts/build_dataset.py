@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import sys
 
-from mars_pairs.cli import main
+from mars_pairs.cli.main import main
 
 if __name__ == "__main__":
     sys.exit(main(["build", *sys.argv[1:]]))

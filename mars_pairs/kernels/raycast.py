@@ -24,7 +24,8 @@ from typing import Any
 import numpy as np
 from numba import njit, prange
 
-from mars_pairs.kernels.viewshed import MARS_RADIUS_M, as_grid, bilinear
+from mars_pairs.geometry.body import MARS_RADIUS_M
+from mars_pairs.kernels.grid import as_grid, bilinear
 
 _MAX_LEVEL = 9  # coarsest pyramid blocks: 512 x 512 quads
 _BASE = 2  # finest stored level (4 x 4 quads); below it rays walk the quads themselves
@@ -251,8 +252,7 @@ def _cast_one(dem, pyr, offs, dims, zmax, o, d, max_range, c, a, f, e, obs_x, ob
 
 
 @njit(cache=True, parallel=True)
-def _cast_kernel(dem, pyr, offs, dims, origins, dirs, max_range, c, a, f, e, obs_x, obs_y,
-                 inv2r):  # fmt: skip
+def _cast_kernel(dem, pyr, offs, dims, origins, dirs, max_range, c, a, f, e, obs_x, obs_y, inv2r):
     """(hits (N, 3), ranges (N,)) for every ray; NaN rows for rays without a hit.
 
     Rays go out in blocks of ``_CHUNK`` consecutive rays (coherent: neighbouring pixels), the
@@ -273,8 +273,9 @@ def _cast_kernel(dem, pyr, offs, dims, origins, dirs, max_range, c, a, f, e, obs
         for i in range(b * _CHUNK, min(n, (b + 1) * _CHUNK)):
             o = origins[i]
             d = dirs[i]
-            t = _cast_one(dem, pyr, offs, dims, zmax, o, d, max_range, c, a, f, e, obs_x, obs_y,
-                          inv2r)  # fmt: skip
+            t = _cast_one(
+                dem, pyr, offs, dims, zmax, o, d, max_range, c, a, f, e, obs_x, obs_y, inv2r
+            )
             if t == t:
                 ranges[i] = t
                 for k in range(3):

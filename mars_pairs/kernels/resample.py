@@ -10,9 +10,17 @@ from numba import njit, prange
 
 @njit(cache=True, parallel=True)
 def sample_affine(
-    src: np.ndarray, a: float, b: float, c: float, d: float, e: float, f: float,
-    rows: int, cols: int, nearest: bool,
-) -> np.ndarray:  # fmt: skip
+    src: np.ndarray,
+    a: float,
+    b: float,
+    c: float,
+    d: float,
+    e: float,
+    f: float,
+    rows: int,
+    cols: int,
+    nearest: bool,
+) -> np.ndarray:
     """Sample ``src`` (2-D float32, NaN = no data) at the positions of an output grid.
 
     Output pixel (row, col) has its centre at source pixel coordinates

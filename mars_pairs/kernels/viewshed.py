@@ -30,88 +30,21 @@ import numpy as np
 from affine import Affine
 from numba import njit, prange
 
+from mars_pairs.geometry.body import MARS_RADIUS_M
+from mars_pairs.kernels.grid import as_grid, bilinear, xy_to_uv
+
 # numba's OpenMP threading layer busy-waits at the end of every parallel loop; on a shared
 # machine (builds run next to other CPU-bound jobs) the spinning thread takes the core the
 # straggling one needs, which made 2-thread kernels ~3x slower than 1 thread (passive: same as
 # 1 thread when busy, ~2x faster when idle). Must be set before OpenMP loads; user value wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-MARS_RADIUS_M = 3396190.0
 # no 'nnan'/'ninf': NaN nodata and +-inf band limits must compare exactly
 _SAFE_FM = {"arcp", "contract"}
 _AZ_EPS = 1e-9
 _PARALLEL_MIN_STEPS = 4_000_000  # planned ray steps below which one thread is faster
 _HEAVY_STEPS = 8  # rays with at most this many steps go to the cheap second pass
 _EXACT_LINES = 4  # grid lines just before a cell checked on its exact line of sight
-
-
-# ---------------------------------------------------------------------------------------------
-# shared grid helpers (also used by the ray caster)
-# ---------------------------------------------------------------------------------------------
-def as_grid(window: Any, transform: Any = None) -> tuple[np.ndarray, Affine]:
-    """(float32 C-contiguous DEM array, Affine) from a DemWindow, (array, transform) or array.
-
-    ``transform`` may be a rasterio ``Affine`` or its six coefficients (a, b, c, d, e, f).
-    Raises ValueError for rotated/sheared transforms or a missing transform.
-    """
-    if hasattr(window, "data") and hasattr(window, "transform"):
-        data, tr = window.data, window.transform
-    elif isinstance(window, tuple) and len(window) == 2:
-        data, tr = window
-    else:
-        data, tr = window, transform
-    if tr is None:
-        raise ValueError("a DEM array needs its affine transform (transform=...)")
-    tr = _as_affine(tr)
-    if tr.b != 0.0 or tr.d != 0.0:
-        raise ValueError(f"rotated or sheared transforms are not supported: {tuple(tr)[:6]}")
-    if tr.a == 0.0 or tr.e == 0.0:
-        raise ValueError(f"degenerate transform (zero pixel size): {tuple(tr)[:6]}")
-    arr = np.ascontiguousarray(data, dtype=np.float32)
-    if arr.ndim != 2:
-        raise ValueError(f"DEM window must be 2-D, got shape {arr.shape}")
-    return arr, tr
-
-
-def _as_affine(tr: Any) -> Affine:
-    """Affine from an Affine or a sequence of 6 (or 9) coefficients a, b, c, d, e, f."""
-    if isinstance(tr, Affine):
-        return tr
-    coeffs = [float(v) for v in tr]  # type: ignore[union-attr]
-    if len(coeffs) not in (6, 9):
-        raise ValueError(f"transform needs 6 coefficients (a, b, c, d, e, f), got {len(coeffs)}")
-    return Affine(*coeffs[:6])
-
-
-def xy_to_uv(tr: Affine, x: Any, y: Any) -> tuple[Any, Any]:
-    """Map x, y -> grid (u, v) = fractional (col, row), cell centres at integers."""
-    return (np.asarray(x) - tr.c) / tr.a - 0.5, (np.asarray(y) - tr.f) / tr.e - 0.5
-
-
-@njit(cache=True)
-def bilinear(dem: np.ndarray, u: float, v: float) -> float:
-    """Bilinear DEM value (metres) at grid (u, v); NaN off the centre grid or next to nodata.
-
-    Cells with zero weight are skipped, so points on grid lines/centres by nodata still work.
-    """
-    h, w = dem.shape
-    if not (u >= 0.0 and v >= 0.0 and u <= w - 1 and v <= h - 1):
-        return np.nan
-    c0 = min(int(u), w - 2) if w > 1 else 0
-    r0 = min(int(v), h - 2) if h > 1 else 0
-    fu = u - c0
-    fv = v - r0
-    acc = 0.0
-    for i in range(2):
-        wv = fv if i == 1 else 1.0 - fv
-        if wv == 0.0:
-            continue
-        for j in range(2):
-            wu = fu if j == 1 else 1.0 - fu
-            if wu == 0.0:
-                continue
-            acc += wv * wu * dem[r0 + i, c0 + j]
-    return acc
 
 
 # ---------------------------------------------------------------------------------------------
@@ -163,8 +96,9 @@ def _line_z(flat, major, st_maj, st_min, n_min, mn):
 
 
 @njit(cache=True, fastmath=_SAFE_FM)
-def _clears_last_lines(flat, major, sgn, s, cm, o_maj, o_min, st_maj, st_min, n_min, dc, sl,
-                       inv2r, eye):  # fmt: skip
+def _clears_last_lines(
+    flat, major, sgn, s, cm, o_maj, o_min, st_maj, st_min, n_min, dc, sl, inv2r, eye
+):
     """Does the exact sight line (slope ``sl``) to cell (major, cm) clear the ``_EXACT_LINES``
     grid lines just before it? (NaN terrain never blocks.)"""
     inv = 1.0 / (major - o_maj)
@@ -182,9 +116,29 @@ def _clears_last_lines(flat, major, sgn, s, cm, o_maj, o_min, st_maj, st_min, n_
 
 @njit(cache=True, fastmath=_SAFE_FM)
 def _sweep_ray(
-    flat, out, h, w, r, big_p, s_max, ic, ir, u0, v0, a, e, eye, radius, inv2r, th,
-    tmin, tmax, az_on, az_min, az_w,
-):  # fmt: skip
+    flat,
+    out,
+    h,
+    w,
+    r,
+    big_p,
+    s_max,
+    ic,
+    ir,
+    u0,
+    v0,
+    a,
+    e,
+    eye,
+    radius,
+    inv2r,
+    th,
+    tmin,
+    tmax,
+    az_on,
+    az_min,
+    az_w,
+):
     """March ray ``r`` for up to ``s_max`` steps, judging every cell it owns.
 
     ``flat``/``out``: the DEM and mask raveled (row-major, ``h`` x ``w``). The horizon of a
@@ -249,11 +203,26 @@ def _sweep_ray(
                 sl = zc / dc
                 vis = (sl >= tmin) & (sl <= tmax)
                 if vis:
-                    vis = _clears_last_lines(flat, major, sgn, s, cm, o_maj, o_min, st_maj,
-                                             st_min, n_min, dc, sl, inv2r, eye)  # fmt: skip
+                    vis = _clears_last_lines(
+                        flat,
+                        major,
+                        sgn,
+                        s,
+                        cm,
+                        o_maj,
+                        o_min,
+                        st_maj,
+                        st_min,
+                        n_min,
+                        dc,
+                        sl,
+                        inv2r,
+                        eye,
+                    )
                 if vis and az_on:
-                    vis = (_in_az(dmaj, dcm, az_min, az_w) if umaj
-                           else _in_az(dcm, dmaj, az_min, az_w))  # fmt: skip
+                    vis = (
+                        _in_az(dmaj, dcm, az_min, az_w) if umaj else _in_az(dcm, dmaj, az_min, az_w)
+                    )
             out[major * st_maj + cm * st_min] = vis
         lag = max(lag, prev4)
         if lag > tmax:  # the horizon rose above the elevation band: nothing further is seen
@@ -294,34 +263,134 @@ def _ray_steps(big_d, big_p, a, e, az_on, az_min, az_w, ratio):
 
 
 @njit(cache=True, parallel=True)
-def _sweep_parallel(flat, oflat, h, w, rays, steps, big_p, ic, ir, u0, v0, a, e, eye, radius,
-                    inv2r, th, tmin, tmax, az_on, az_min, az_w):  # fmt: skip
+def _sweep_parallel(
+    flat,
+    oflat,
+    h,
+    w,
+    rays,
+    steps,
+    big_p,
+    ic,
+    ir,
+    u0,
+    v0,
+    a,
+    e,
+    eye,
+    radius,
+    inv2r,
+    th,
+    tmin,
+    tmax,
+    az_on,
+    az_min,
+    az_w,
+):
     """Sweep ``rays`` over the threads (each cell has one owner ray: no write conflicts)."""
     for i in prange(rays.size):
         r = rays[i]
         _sweep_ray(
-            flat, oflat, h, w, r, big_p, steps[r], ic, ir, u0, v0, a, e, eye, radius, inv2r, th,
-            tmin, tmax, az_on, az_min, az_w,
-        )  # fmt: skip
+            flat,
+            oflat,
+            h,
+            w,
+            r,
+            big_p,
+            steps[r],
+            ic,
+            ir,
+            u0,
+            v0,
+            a,
+            e,
+            eye,
+            radius,
+            inv2r,
+            th,
+            tmin,
+            tmax,
+            az_on,
+            az_min,
+            az_w,
+        )
 
 
 @njit(cache=True)
-def _sweep_serial(flat, oflat, h, w, rays, steps, big_p, ic, ir, u0, v0, a, e, eye, radius,
-                  inv2r, th, tmin, tmax, az_on, az_min, az_w):  # fmt: skip
+def _sweep_serial(
+    flat,
+    oflat,
+    h,
+    w,
+    rays,
+    steps,
+    big_p,
+    ic,
+    ir,
+    u0,
+    v0,
+    a,
+    e,
+    eye,
+    radius,
+    inv2r,
+    th,
+    tmin,
+    tmax,
+    az_on,
+    az_min,
+    az_w,
+):
     """Sweep ``rays`` on the calling thread (small jobs: wedges, the short rays)."""
     for i in range(rays.size):
         r = rays[i]
         _sweep_ray(
-            flat, oflat, h, w, r, big_p, steps[r], ic, ir, u0, v0, a, e, eye, radius, inv2r, th,
-            tmin, tmax, az_on, az_min, az_w,
-        )  # fmt: skip
+            flat,
+            oflat,
+            h,
+            w,
+            r,
+            big_p,
+            steps[r],
+            ic,
+            ir,
+            u0,
+            v0,
+            a,
+            e,
+            eye,
+            radius,
+            inv2r,
+            th,
+            tmin,
+            tmax,
+            az_on,
+            az_min,
+            az_w,
+        )
 
 
 @njit(cache=True)
 def _viewshed_kernel(
-    dem, u0, v0, a, e, eye, radius, inv2r, th, tmin, tmax, el_min_deg, el_max_deg,
-    az_on, az_min, az_w, big_d, big_p,
-):  # fmt: skip
+    dem,
+    u0,
+    v0,
+    a,
+    e,
+    eye,
+    radius,
+    inv2r,
+    th,
+    tmin,
+    tmax,
+    el_min_deg,
+    el_max_deg,
+    az_on,
+    az_min,
+    az_w,
+    big_d,
+    big_p,
+):
     """uint8 visibility mask of ``dem`` seen from grid point (u0, v0) at elevation ``eye``.
 
     ``big_d``: steps per ray (radius in cells + 1); ``big_p``: perimeter resolution, i.e.
@@ -339,15 +408,82 @@ def _viewshed_kernel(
     heavy = np.nonzero(steps > _HEAVY_STEPS)[0]
     light = np.nonzero(steps <= _HEAVY_STEPS)[0]
     if steps[heavy].sum() >= _PARALLEL_MIN_STEPS:
-        _sweep_parallel(flat, oflat, h, w, heavy, steps, big_p, ic, ir, u0, v0, a, e, eye, radius,
-                        inv2r, th, tmin, tmax, az_on, az_min, az_w)  # fmt: skip
+        _sweep_parallel(
+            flat,
+            oflat,
+            h,
+            w,
+            heavy,
+            steps,
+            big_p,
+            ic,
+            ir,
+            u0,
+            v0,
+            a,
+            e,
+            eye,
+            radius,
+            inv2r,
+            th,
+            tmin,
+            tmax,
+            az_on,
+            az_min,
+            az_w,
+        )
     else:
-        _sweep_serial(flat, oflat, h, w, heavy, steps, big_p, ic, ir, u0, v0, a, e, eye, radius,
-                      inv2r, th, tmin, tmax, az_on, az_min, az_w)  # fmt: skip
-    _sweep_serial(flat, oflat, h, w, light, steps, big_p, ic, ir, u0, v0, a, e, eye, radius,
-                  inv2r, th, tmin, tmax, az_on, az_min, az_w)  # fmt: skip
-    _judge_origin(dem, out, ic, ir, u0, v0, a, e, eye, th, el_min_deg, el_max_deg, az_on, az_min,
-                  az_w)  # fmt: skip
+        _sweep_serial(
+            flat,
+            oflat,
+            h,
+            w,
+            heavy,
+            steps,
+            big_p,
+            ic,
+            ir,
+            u0,
+            v0,
+            a,
+            e,
+            eye,
+            radius,
+            inv2r,
+            th,
+            tmin,
+            tmax,
+            az_on,
+            az_min,
+            az_w,
+        )
+    _sweep_serial(
+        flat,
+        oflat,
+        h,
+        w,
+        light,
+        steps,
+        big_p,
+        ic,
+        ir,
+        u0,
+        v0,
+        a,
+        e,
+        eye,
+        radius,
+        inv2r,
+        th,
+        tmin,
+        tmax,
+        az_on,
+        az_min,
+        az_w,
+    )
+    _judge_origin(
+        dem, out, ic, ir, u0, v0, a, e, eye, th, el_min_deg, el_max_deg, az_on, az_min, az_w
+    )
     return out
 
 

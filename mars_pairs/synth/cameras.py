@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from mars_pairs.camera import CameraModel
-from mars_pairs.frames import azimuth_elevation_deg, direction_from_az_el
+from mars_pairs.geometry.camera import CameraModel
+from mars_pairs.geometry.frames import azimuth_elevation_deg, direction_from_az_el
 
 F64 = NDArray[np.float64]
 

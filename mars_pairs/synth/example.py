@@ -18,10 +18,10 @@ import pyarrow.parquet as pq
 import rasterio
 from PIL import Image
 
+from mars_pairs.geometry.mapcam import MapCamera
+from mars_pairs.geometry.places import Places
 from mars_pairs.kernels.raycast import cast_rays
-from mars_pairs.labels import read_observation
-from mars_pairs.mapcam import MapCamera
-from mars_pairs.places import Places
+from mars_pairs.pds import read_observation
 from mars_pairs.synth.mission import SPECS, generate_mission
 from mars_pairs.synth.render import SKY_RGB, TERRAIN_TINT
 

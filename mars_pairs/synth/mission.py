@@ -9,7 +9,8 @@ Layout written for one mission (``OUT`` directly, or ``OUT/m2020`` and ``OUT/msl
     labels/<product>.xml|.LBL and labels/<product>.jpg     labels, each with its image
     truth.parquet       one row per image: pose, camera, pointing (the exact truth)
 
-Frames and units follow ``mars_pairs.frames`` (map CRS metres, SITE_FRAME NED, ROVER_NAV_FRAME).
+Frames and units follow ``mars_pairs.geometry.frames`` (map CRS metres, SITE_FRAME NED,
+ROVER_NAV_FRAME).
 The same seed gives the same bytes in every file.
 """
 
@@ -29,10 +30,10 @@ from affine import Affine
 from PIL import Image
 from rasterio.crs import CRS as RioCRS
 
-from mars_pairs.frames import M2020_PLACES_CRS, MSL_PLACES_CRS, quaternion_to_matrix
-from mars_pairs.mapcam import MapCamera
-from mars_pairs.observation import MotionCounter, Observation
-from mars_pairs.places import Pose
+from mars_pairs.geometry.frames import M2020_PLACES_CRS, MSL_PLACES_CRS, quaternion_to_matrix
+from mars_pairs.geometry.mapcam import MapCamera
+from mars_pairs.geometry.places import Pose
+from mars_pairs.pds.observation import MotionCounter, Observation
 from mars_pairs.synth.cameras import (
     build_camera,
     centre_pointing_site,
@@ -235,7 +236,7 @@ def _product_id(mission: str, eye: str, stop: RoverState, sclk: int, k: int, j: 
 
 
 def _write_label(obs: Observation) -> None:
-    from mars_pairs.labels.write import write_pds3_label, write_pds4_label
+    from mars_pairs.synth.labels import write_pds3_label, write_pds4_label
 
     if obs.mission == "m2020":
         write_pds4_label(obs, obs.label_path)

@@ -22,8 +22,8 @@ from affine import Affine
 from numba import njit
 from numpy.typing import NDArray
 
-from mars_pairs.frames import MARS_RADIUS_M
-from mars_pairs.mapcam import MapCamera
+from mars_pairs.geometry.frames import MARS_RADIUS_M
+from mars_pairs.geometry.mapcam import MapCamera
 
 F64 = NDArray[np.float64]
 

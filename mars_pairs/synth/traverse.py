@@ -3,7 +3,7 @@
 Frames and units:
 - map: the mission's equirectangular CRS (x easting, y northing, metres; z elevation above
   the areoid, metres, up). Easting/northing <-> lon/lat use the exact eqc relations
-  (x = R lon cos(lat_ts), y = R lat) through ``mars_pairs.frames``.
+  (x = R lon cos(lat_ts), y = R lat) through ``mars_pairs.geometry.frames``.
 - SITE_FRAME: NED tangent frame at the site origin (``TangentFrame``); ``landing_x/y/z`` of a
   ROVER row are the rover's NED offset from its site origin, metres.
 - Attitude: rotation ROVER_NAV_FRAME (x forward, y right, z down) -> local NED at the rover,
@@ -21,7 +21,8 @@ import numpy as np
 from affine import Affine
 from numpy.typing import NDArray
 
-from mars_pairs.frames import (
+from mars_pairs.geometry.body import MARS_EQUATORIAL_RADIUS_M, MARS_POLAR_RADIUS_M
+from mars_pairs.geometry.frames import (
     MARS_RADIUS_M,
     TangentFrame,
     local_map_jacobian,
@@ -38,8 +39,6 @@ PLACES_COLUMNS = (
     "pitch", "yaw", "quat_s", "quat_v1", "quat_v2", "quat_v3", "areoid", "radius", "sclk",
     "sol",
 )  # fmt: skip
-#: Mars IAU ellipsoid radii (metres), for the planetodetic latitude column only.
-_MARS_A, _MARS_B = 3396190.0, 3376200.0
 SOL_SECONDS = 88775.244
 
 
@@ -245,9 +244,17 @@ def make_traverse(
 
 
 def _rover(
-    sampler: DemSampler, crs: str, site: int, drive: int, sol: int, sclk: int,
-    x: float, y: float, heading: float, stop: int,
-) -> RoverState:  # fmt: skip
+    sampler: DemSampler,
+    crs: str,
+    site: int,
+    drive: int,
+    sol: int,
+    sclk: int,
+    x: float,
+    y: float,
+    heading: float,
+    stop: int,
+) -> RoverState:
     z = float(sampler(np.array(x), np.array(y)))
     rot, lon, lat = rover_attitude(sampler, x, y, heading, crs)
     q = matrix_to_quaternion(rot)
@@ -255,7 +262,11 @@ def _rover(
 
 
 def _planetodetic(lat_deg: float) -> float:
-    return math.degrees(math.atan(math.tan(math.radians(lat_deg)) * (_MARS_A / _MARS_B) ** 2))
+    return math.degrees(
+        math.atan(
+            math.tan(math.radians(lat_deg)) * (MARS_EQUATORIAL_RADIUS_M / MARS_POLAR_RADIUS_M) ** 2
+        )
+    )
 
 
 def write_places_csv(

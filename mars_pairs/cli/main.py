@@ -1,0 +1,315 @@
+"""The ``mars-pairs`` command line. Bad input exits with status 2 and one line on stderr."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+
+from mars_pairs.errors import MarsPairsError
+
+
+def _cmd_locate(args: argparse.Namespace) -> int:
+    from mars_pairs.geometry.locate import describe
+    from mars_pairs.geometry.places import Places
+    from mars_pairs.pds import read_observation
+
+    places = Places.from_csv(args.places) if args.places else None
+    status = 0
+    for label in args.labels:
+        try:
+            obs = read_observation(label)
+            pose = places.locate(obs) if places is not None else None
+        except MarsPairsError as exc:
+            print(f"mars-pairs locate: {exc}", file=sys.stderr)
+            status = 2
+            continue
+        summary = describe(obs, pose)
+        if args.json:
+            print(json.dumps(summary), flush=True)
+        else:
+            width = max(len(k) for k in summary)
+            print("\n".join(f"{k:<{width}}  {v}" for k, v in summary.items()), end="\n\n")
+    return status
+
+
+def _cmd_build(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+    from pathlib import Path
+
+    from mars_pairs.pipeline.build import BuildError, run_build
+    from mars_pairs.pipeline.config import load_config
+
+    config = load_config(args.config)
+    if args.out:
+        config = replace(config, output=replace(config.output, dir=Path(args.out).resolve()))
+    _ensure_synthetic(config)
+    try:
+        summary = run_build(
+            config,
+            workers=args.workers,
+            resume=args.resume,
+            limit=args.limit,
+            strict=args.strict,
+            progress=not args.quiet,
+        )
+    except BuildError as exc:
+        print(f"mars-pairs build: --strict: {exc}", file=sys.stderr)
+        return 2
+    print(summary.format())
+    return 0
+
+
+def _ensure_synthetic(config: object) -> None:
+    """Generate the config's synthetic mission when its files are absent (the demo)."""
+    spec = config.inputs.synthetic  # type: ignore[attr-defined]
+    inputs = config.inputs  # type: ignore[attr-defined]
+    if spec is None or (inputs.dem.exists() and inputs.places.exists() and inputs.label_paths()):
+        return
+    from mars_pairs.synth import generate_mission
+
+    print(f"generating the synthetic {spec.mission} mission in {spec.root} ...", flush=True)
+    generate_mission(
+        spec.root,
+        seed=spec.seed,
+        mission=spec.mission,
+        stops=spec.stops,
+        images_per_stop=spec.images_per_stop,
+        size=spec.size,
+    )
+
+
+def _cmd_inspect(args: argparse.Namespace) -> int:
+    from mars_pairs.cli.summary import inspect_dataset
+
+    print(inspect_dataset(args.dataset))
+    return 0
+
+
+def _cmd_synth(args: argparse.Namespace) -> int:
+    from mars_pairs.synth import generate_mission
+
+    result = generate_mission(
+        args.out,
+        seed=args.seed,
+        mission=args.mission,
+        stops=args.stops,
+        images_per_stop=args.images_per_stop,
+        size=args.size,
+    )
+    print(json.dumps(result, indent=2, default=str))
+    return 0
+
+
+def _cmd_viewshed(args: argparse.Namespace) -> int:
+    from mars_pairs.raster.terrain import Terrain
+    from mars_pairs.raster.viewshed_tiff import (
+        ViewshedRequest,
+        compute_request,
+        request_from_label,
+        write_viewshed_geotiff,
+    )
+
+    with Terrain.open(args.dem) as terrain:
+        if args.label:
+            if not args.places:
+                raise UsageError("--label needs --places")
+            req = request_from_label(args.label, args.places, terrain, args.radius, args.height)
+        else:
+            if args.x is None or args.y is None or args.height is None:
+                raise UsageError("without --label, give --x, --y and --height")
+            az = _band(args.az_min, args.az_max, "--az-min/--az-max")
+            el = _band(args.el_min, args.el_max, "--el-min/--el-max")
+            terrain.require_inside(args.x, args.y, "observer")
+            req = ViewshedRequest(
+                args.x, args.y, args.height, args.radius, az, el, height_is_absolute=args.absolute
+            )
+        codes, window = compute_request(terrain, req)
+    write_viewshed_geotiff(args.out, codes, window.transform, window.crs)
+    visible = int((codes == 1).sum())
+    print(
+        f"{args.out}: {visible} visible cells of {codes.size}; observer x={req.x:.3f} "
+        f"y={req.y:.3f} height={req.height:.3f} m; az band {req.az_band}; "
+        f"el band {req.el_band}"
+    )
+    return 0
+
+
+class UsageError(Exception):
+    """A command-line misuse: reported in one line, exit status 2."""
+
+
+def _band(low: float | None, high: float | None, names: str) -> tuple[float, float] | None:
+    """A (low, high) band from two options given together, or None when both are absent."""
+    if low is None and high is None:
+        return None
+    if low is None or high is None:
+        raise UsageError(f"{names}: give both bounds of the band, in degrees")
+    return (low, high)
+
+
+def _cmd_show(args: argparse.Namespace) -> int:
+    from mars_pairs.viz import show_sample
+
+    out = args.out or f"{args.key}.png"
+    print(show_sample(args.dataset, args.key, out))
+    return 0
+
+
+def _cmd_overview(args: argparse.Namespace) -> int:
+    from mars_pairs.viz import overview
+
+    print(overview(args.dataset, args.out, colour_by=args.colour_by))
+    return 0
+
+
+def _cmd_export_qgis(args: argparse.Namespace) -> int:
+    from mars_pairs.cli.qgis import export_geopackage
+
+    print(export_geopackage(args.dataset, args.out, with_viewsheds=args.viewsheds))
+    return 0
+
+
+def _cmd_query(args: argparse.Namespace) -> int:
+    from mars_pairs.cli.query import filter_arguments, run_query
+
+    filters = filter_arguments(
+        bbox=args.bbox,
+        bbox_map=args.bbox_map,
+        near=args.near,
+        polygon=args.polygon,
+        mission=args.mission,
+        instrument=args.instrument,
+        split=args.split,
+        sol=args.sol,
+    )
+    return run_query(args.dataset, filters, args.format, args.out)
+
+
+def _add_build_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", required=True, help="build configuration (YAML)")
+    p.add_argument("--out", help="dataset folder (overrides output.dir)")
+    p.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    p.add_argument("--resume", action="store_true", help="keep finished shards of a killed build")
+    p.add_argument("--limit", type=int, help="build at most N observations")
+    p.add_argument("--strict", action="store_true", help="stop at the first failure")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with every sub-command."""
+    parser = argparse.ArgumentParser(
+        prog="mars-pairs",
+        description="Paired aerial/ground ML datasets from Mars rover images and orbital maps.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("locate", help="read labels and place each image on the map")
+    p.add_argument("labels", nargs="+", help="PDS3 .LBL or PDS4 .xml label(s)")
+    p.add_argument("--places", help="PLACES table (best_interp.csv / localized_interp.csv)")
+    p.add_argument("--json", action="store_true", help="one JSON object per line")
+    p.set_defaults(func=_cmd_locate)
+
+    p = sub.add_parser("viewshed", help="one image's (or a raw observer's) viewshed GeoTIFF")
+    p.add_argument("--dem", required=True, help="DEM raster (any GDAL path, projected CRS)")
+    p.add_argument("--out", required=True, help="output GeoTIFF")
+    p.add_argument("--label", help="PDS label of the image (with --places)")
+    p.add_argument("--places", help="PLACES table")
+    p.add_argument("--radius", type=float, default=5000.0, help="metres (default 5000)")
+    p.add_argument(
+        "--height",
+        type=float,
+        help="observer height above the terrain, metres (label default: camera's)",
+    )
+    p.add_argument("--absolute", action="store_true", help="--height is an absolute elevation")
+    p.add_argument("--x", type=float, help="observer x, DEM CRS map units")
+    p.add_argument("--y", type=float, help="observer y, DEM CRS map units")
+    for name in ("az-min", "az-max", "el-min", "el-max"):
+        p.add_argument(f"--{name}", type=float, help="degrees (azimuth clockwise from north)")
+    p.set_defaults(func=_cmd_viewshed)
+
+    p = sub.add_parser("build", help="build a dataset from a config")
+    _add_build_arguments(p)
+    p.set_defaults(func=_cmd_build)
+
+    p = sub.add_parser("inspect", help="counts, failures and size of a built dataset")
+    p.add_argument("dataset", help="dataset folder")
+    p.set_defaults(func=_cmd_inspect)
+
+    p = sub.add_parser("query", help="filter a dataset's manifest by place and attributes")
+    p.add_argument("dataset", help="dataset folder")
+    where = p.add_mutually_exclusive_group(required=True)
+    where.add_argument(
+        "--bbox",
+        nargs=4,
+        type=float,
+        metavar=("W", "S", "E", "N"),
+        help="longitude/latitude box, degrees",
+    )
+    where.add_argument(
+        "--bbox-map",
+        nargs=4,
+        type=float,
+        metavar=("XMIN", "YMIN", "XMAX", "YMAX"),
+        help="box in the dataset CRS, map units",
+    )
+    where.add_argument(
+        "--near",
+        nargs=3,
+        type=float,
+        metavar=("LAT", "LON", "RADIUS_M"),
+        help="within a great-circle radius (metres) of a point",
+    )
+    where.add_argument("--polygon", help="WKT polygon in the dataset CRS")
+    p.add_argument("--mission")
+    p.add_argument("--instrument")
+    p.add_argument("--split")
+    p.add_argument("--sol", nargs=2, type=int, metavar=("FIRST", "LAST"))
+    p.add_argument("--format", choices=("table", "csv", "parquet", "geojson"), default="table")
+    p.add_argument("--out", help="output file (parquet needs one; others default to stdout)")
+    p.set_defaults(func=_cmd_query)
+
+    p = sub.add_parser("show", help="a figure of one sample (needs the viz extra)")
+    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("key", help="sample key (see mars-pairs query)")
+    p.add_argument("--out", help="PNG path (default KEY.png)")
+    p.set_defaults(func=_cmd_show)
+
+    p = sub.add_parser("overview", help="all footprints over the orthoimage (needs the viz extra)")
+    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("--out", default="overview.png", help="PNG path")
+    p.add_argument("--colour-by", choices=("sol", "split"), default="sol")
+    p.set_defaults(func=_cmd_overview)
+
+    p = sub.add_parser("export-qgis", help="a GeoPackage of positions, footprints and wedges")
+    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("out", help="output .gpkg")
+    p.add_argument("--viewsheds", action="store_true", help="also write viewshed GeoTIFFs")
+    p.set_defaults(func=_cmd_export_qgis)
+
+    p = sub.add_parser("synth", help="generate the synthetic mission (terrain, labels, images)")
+    p.add_argument("out", help="output folder")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--mission", choices=("m2020", "msl", "both"), default="m2020")
+    p.add_argument("--stops", type=int, help="rover stops (default: the size's, 3 or 8)")
+    p.add_argument("--images-per-stop", type=int, help="default: the size's (4)")
+    p.add_argument("--size", choices=("small", "default"), default="small")
+    p.set_defaults(func=_cmd_synth)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``mars-pairs`` console script."""
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args))
+    except (MarsPairsError, UsageError, OSError) as exc:  # a missing or unwritable path too
+        print(f"mars-pairs {args.command}: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

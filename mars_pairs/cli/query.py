@@ -1,0 +1,158 @@
+"""``mars-pairs query``: filter a manifest by place and print or save the rows."""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+import shapely
+
+from mars_pairs.errors import MarsPairsError
+from mars_pairs.geometry.body import MARS_LONLAT_AUTHORITY
+from mars_pairs.geometry.frames import map_to_lonlat
+from mars_pairs.store.manifest import Manifest, write_parquet_atomic
+
+SHOWN = (
+    "key",
+    "mission",
+    "instrument",
+    "sol",
+    "site",
+    "drive",
+    "split",
+    "latitude",
+    "longitude",
+    "azimuth_deg",
+    "elevation_deg",
+)
+
+
+def filter_arguments(
+    *,
+    bbox: Sequence[float] | None = None,
+    bbox_map: Sequence[float] | None = None,
+    near: Sequence[float] | None = None,
+    polygon: str | None = None,
+    mission: str | None = None,
+    instrument: str | None = None,
+    split: str | None = None,
+    sol: Sequence[int] | None = None,
+) -> dict[str, Any]:
+    """Manifest.filter keyword arguments from the query's options (unset ones left out).
+
+    ``bbox`` is (west, south, east, north) degrees, ``bbox_map`` (xmin, ymin, xmax, ymax) in
+    the dataset CRS, ``near`` (lat, lon, radius_m), ``polygon`` WKT in the dataset CRS.
+    """
+    out: dict[str, Any] = {}
+    if bbox:
+        out["bbox_lonlat"] = tuple(bbox)
+    if bbox_map:
+        out["bbox_map"] = tuple(bbox_map)
+    if near:
+        out["near"] = tuple(near)
+    if polygon:
+        try:
+            out["polygon"] = shapely.from_wkt(polygon)
+        except shapely.errors.GEOSException as exc:
+            raise MarsPairsError(f"--polygon: not valid WKT: {exc}") from None
+    for name, value in (("mission", mission), ("instrument", instrument), ("split", split)):
+        if value:
+            out[name] = value
+    if sol:
+        out["sol"] = tuple(sol)
+    return out
+
+
+#: GeoJSON's CRS member for the Mars sphere, planetocentric, east longitude (R = 3396190 m).
+GEOJSON_CRS = {"type": "name", "properties": {"name": MARS_LONLAT_AUTHORITY}}
+
+
+def _geojson(table: pa.Table, crs: str | None) -> str:
+    """A FeatureCollection in longitude/latitude degrees on the Mars sphere.
+
+    GeoJSON coordinates are longitude, latitude (RFC 7946 fixes the Earth's WGS 84; for Mars
+    the sphere is named in the legacy ``crs`` member, which GDAL and QGIS read). Footprints
+    are transformed from the dataset CRS ``crs`` (map units); a row without one is its rover
+    point.
+    """
+    features = []
+    for row in table.to_pylist():
+        wkb = row.pop("footprint", None)
+        props = {
+            k: (v.isoformat() if hasattr(v, "isoformat") else v)
+            for k, v in row.items()
+            if not k.endswith(("_shard", "_offset", "_size"))
+        }
+        if wkb and crs is not None:
+            geom = shapely.transform(shapely.from_wkb(wkb), lambda xy: _lonlat(xy, crs))
+        else:
+            geom = shapely.Point(row["longitude"], row["latitude"])
+        features.append(
+            {"type": "Feature", "geometry": shapely.geometry.mapping(geom), "properties": props}
+        )
+    return json.dumps({"type": "FeatureCollection", "crs": GEOJSON_CRS, "features": features})
+
+
+def _lonlat(xy: np.ndarray, crs: str) -> np.ndarray:
+    """(N, 2) map x, y in ``crs`` -> (N, 2) longitude, latitude degrees (Mars sphere)."""
+    lon, lat = map_to_lonlat(xy[:, 0], xy[:, 1], crs)
+    return np.column_stack([lon, lat])
+
+
+def run_query(
+    dataset: str | Path, filters: dict[str, Any], fmt: str = "table", out: str | None = None
+) -> int:
+    """Print (or write to ``out``) the rows matching ``filters``, as table/csv/parquet/geojson."""
+    manifest = Manifest.open(dataset)
+    table = manifest.filter(**filters).to_table()
+    if fmt == "parquet":
+        if not out:
+            raise MarsPairsError("--format parquet needs --out FILE")
+        write_parquet_atomic(table, Path(out))
+        print(f"{out}: {table.num_rows} rows")
+        return 0
+    if fmt == "csv":
+        text = _csv(table.drop_columns(["footprint"]))
+    elif fmt == "geojson":
+        text = _geojson(table, manifest.crs)
+    else:
+        text = _table(table)
+    if out:
+        with open(out, "w") as fh:
+            fh.write(text)
+    else:
+        sys.stdout.write(text if text.endswith("\n") else text + "\n")
+    return 0
+
+
+def _csv(table: pa.Table) -> str:
+    import io
+
+    buf = io.BytesIO()
+    pacsv.write_csv(table, buf)
+    return buf.getvalue().decode()
+
+
+def _table(table: pa.Table) -> str:
+    rows = table.select(list(SHOWN)).to_pylist()
+    fmt = {k: ("{:.6f}" if k in ("latitude", "longitude") else "{}") for k in SHOWN}
+    cells = [
+        [
+            fmt[k].format(r[k])
+            if isinstance(r[k], float) and k in ("latitude", "longitude")
+            else (f"{r[k]:.2f}" if isinstance(r[k], float) else str(r[k]))
+            for k in SHOWN
+        ]
+        for r in rows
+    ]
+    widths = [max([len(k)] + [len(c[i]) for c in cells]) for i, k in enumerate(SHOWN)]
+    lines = ["  ".join(k.ljust(w) for k, w in zip(SHOWN, widths, strict=True))]
+    lines += ["  ".join(c.ljust(w) for c, w in zip(cell, widths, strict=True)) for cell in cells]
+    lines.append(f"({len(rows)} rows)")
+    return "\n".join(lines)

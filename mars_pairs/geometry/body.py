@@ -1,0 +1,18 @@
+"""The Mars body: radii and the CRS strings of the Mars sphere and the PLACES maps.
+
+One definition of each constant; every other module imports them from here.
+"""
+
+#: Mars sphere radius (metres), IAU 2015 (the radius of every Mars map CRS used here).
+MARS_RADIUS_M = 3396190.0
+#: Mars IAU ellipsoid radii (metres): equatorial, polar.
+MARS_EQUATORIAL_RADIUS_M, MARS_POLAR_RADIUS_M = 3396190.0, 3376200.0
+#: Planetocentric longitude/latitude on the Mars sphere, east-positive.
+MARS_LONLAT = "+proj=longlat +R=3396190 +no_defs +type=crs"
+_EQC = "+proj=eqc +lat_0=0 +lon_0=0 +x_0=0 +y_0=0 +R=3396190 +units=m +no_defs +type=crs"
+#: Perseverance PLACES and Jezero maps: equirectangular, true scale at 18.4663 N.
+M2020_PLACES_CRS = _EQC.replace("+proj=eqc", "+proj=eqc +lat_ts=18.4663")
+#: Curiosity PLACES and Gale maps: equirectangular, true scale at the equator.
+MSL_PLACES_CRS = _EQC.replace("+proj=eqc", "+proj=eqc +lat_ts=0")
+#: GeoJSON's CRS name for the Mars sphere, planetocentric, east longitude.
+MARS_LONLAT_AUTHORITY = "IAU_2015:49900"

@@ -1,0 +1,83 @@
+"""Locate one observation: label -> Observation -> Pose, and a plain-value summary of both."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from mars_pairs.geometry.frames import azimuth_elevation_deg, quaternion_to_matrix
+from mars_pairs.geometry.places import Pose
+from mars_pairs.pds.observation import Observation
+
+
+def model_pointing_deg(
+    obs: Observation, quaternion: np.ndarray | None = None, *, convention: str | None = None
+) -> tuple[float, float] | None:
+    """Azimuth/elevation (degrees, SITE_FRAME) of the camera's pointing, from the camera model.
+
+    ``convention`` says which ray the label's derived pointing describes, checked on the real
+    labels: "centre" (Perseverance: the ray through the image centre) or "axis" (Curiosity:
+    the camera axis A, which for a subframe such as 2663ML's 1152 x 432 lies 50 px off the
+    image centre). The default is the mission's. The ray is turned from the model frame
+    (ROVER_NAV_FRAME) into SITE_FRAME by ``quaternion`` (default: the label's); None without.
+    """
+    q = obs.rover_quaternion if quaternion is None else quaternion
+    if q is None:
+        return None
+    kind = convention or ("axis" if obs.mission == "msl" else "centre")
+    if kind == "axis":
+        ray = obs.camera.a
+    else:
+        centre = np.array([[(obs.width - 1) / 2.0, (obs.height - 1) / 2.0]])
+        ray = obs.camera.unproject(centre)[1][0]
+    az, el = azimuth_elevation_deg(quaternion_to_matrix(q) @ ray)
+    return float(az), float(el)
+
+
+def _round(value: float | None, digits: int) -> float | None:
+    return None if value is None else round(float(value), digits)
+
+
+def describe(obs: Observation, pose: Pose | None = None) -> dict[str, Any]:
+    """A JSON-ready summary of an observation (and its pose, when located)."""
+    hfov, vfov = obs.camera.fov_deg(obs.width, obs.height)
+    pointing = model_pointing_deg(obs, None if pose is None else pose.quaternion)
+    az = obs.azimuth_deg if obs.azimuth_deg is not None else (pointing[0] if pointing else None)
+    el = obs.elevation_deg if obs.elevation_deg is not None else (pointing[1] if pointing else None)
+    out: dict[str, Any] = {
+        "product_id": obs.product_id,
+        "mission": obs.mission,
+        "instrument": obs.instrument,
+        "sol": obs.sol,
+        "site": obs.rmc.site,
+        "drive": obs.rmc.drive,
+        "pose": obs.rmc.pose,
+        "time": obs.start_time.isoformat() if obs.start_time else None,
+        "azimuth_deg": _round(az, 4),
+        "elevation_deg": _round(el, 4),
+        "hfov_deg": _round(obs.hfov_deg if obs.hfov_deg is not None else hfov, 4),
+        "vfov_deg": _round(obs.vfov_deg if obs.vfov_deg is not None else vfov, 4),
+        "model_azimuth_deg": _round(pointing[0], 4) if pointing else None,
+        "model_elevation_deg": _round(pointing[1], 4) if pointing else None,
+        "model_hfov_deg": round(hfov, 4),
+        "model_vfov_deg": round(vfov, 4),
+        "width": obs.width,
+        "height": obs.height,
+        "camera_model_type": obs.camera.model_type,
+        "camera_height_m": round(-float(obs.camera.c[2]), 4),
+        "label_path": str(obs.label_path),
+        "image_path": str(obs.image_path) if obs.image_path else None,
+    }
+    if pose is not None:
+        out.update(
+            easting=round(pose.easting, 3),
+            northing=round(pose.northing, 3),
+            latitude=round(pose.latitude, 9),
+            longitude=round(pose.longitude, 9),
+            elevation_m=round(pose.elevation_m, 3),
+            localization=pose.source,
+            attitude_source=pose.attitude_source,
+            crs=pose.crs,
+        )
+    return out

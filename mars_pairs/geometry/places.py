@@ -1,0 +1,211 @@
+"""PLACES localization tables (best_interp.csv, localized_interp.csv) and the rover Pose."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+
+from mars_pairs.errors import PlacesError
+from mars_pairs.geometry.frames import (
+    M2020_PLACES_CRS,
+    MARS_RADIUS_M,
+    MSL_PLACES_CRS,
+    TangentFrame,
+    lonlat_to_map,
+)
+from mars_pairs.pds.observation import Observation
+
+MISSING = -9999.0
+
+REQUIRED_COLUMNS = (
+    "frame",
+    "site",
+    "drive",
+    "northing",
+    "easting",
+    "planetocentric_latitude",
+    "longitude",
+    "elevation",
+    "quat_s",
+    "quat_v1",
+    "quat_v2",
+    "quat_v3",
+)
+
+
+@dataclass(frozen=True)
+class Pose:
+    """Where the rover stood and how it was oriented when an image was taken.
+
+    ``easting``/``northing``: rover frame origin in the table's CRS (``crs``), map units.
+    ``latitude``/``longitude``: planetocentric degrees (Mars sphere). ``elevation_m``: metres
+    above the areoid. ``quaternion``: (s, v1, v2, v3), ROVER_NAV_FRAME -> SITE_FRAME
+    (site <- rover). ``source``: "places" (a localized ROVER row) or "label" (the label's
+    telemetry offset from the PLACES SITE origin); ``attitude_source`` likewise.
+    """
+
+    site: int
+    drive: int
+    easting: float
+    northing: float
+    crs: str
+    latitude: float
+    longitude: float
+    elevation_m: float
+    quaternion: np.ndarray | None
+    source: str
+    attitude_source: str | None
+
+
+def _valid(*values: float) -> bool:
+    return all(v is not None and math.isfinite(v) and v != MISSING for v in values)
+
+
+def infer_places_crs(easting: float, longitude_deg: float) -> str:
+    """The table's equirectangular CRS, recovered from one row: cos(lat_ts) = x / (R lon)."""
+    if abs(longitude_deg) < 1e-6:
+        raise PlacesError("cannot infer the PLACES CRS from a row at longitude 0")
+    ratio = easting / (MARS_RADIUS_M * math.radians(longitude_deg))
+    lat_ts = math.degrees(math.acos(max(-1.0, min(1.0, ratio))))
+    if abs(lat_ts - 18.4663) < 1e-3:
+        return M2020_PLACES_CRS
+    if abs(lat_ts) < 1e-3:
+        return MSL_PLACES_CRS
+    return M2020_PLACES_CRS.replace("+lat_ts=18.4663", f"+lat_ts={lat_ts:.4f}")
+
+
+class Places:
+    """A PLACES localization table: SITE origins and localized ROVER positions.
+
+    >>> places = Places.from_csv("best_interp.csv")
+    >>> pose = places.locate(observation)
+    """
+
+    def __init__(self, table: pa.Table, path: Path | None = None, crs: str | None = None) -> None:
+        missing = [c for c in REQUIRED_COLUMNS if c not in table.column_names]
+        if missing:
+            raise PlacesError(f"{path}: missing column(s) {', '.join(missing)}")
+        self.path = path
+        self._cols = {name: table.column(name).to_pylist() for name in table.column_names}
+        frames = [str(f).strip().upper() for f in self._cols["frame"]]
+        self._rover: dict[tuple[int, int], int] = {}
+        self._site: dict[int, int] = {}
+        for i, kind in enumerate(frames):
+            site, drive = int(self._cols["site"][i]), int(self._cols["drive"][i])
+            if kind == "ROVER":
+                self._rover[(site, drive)] = i
+            elif kind == "SITE":
+                self._site[site] = i
+        self.crs = crs or self._infer_crs()
+
+    @classmethod
+    def from_csv(cls, path: str | Path, crs: str | None = None) -> Places:
+        """Read a PLACES CSV by header name; ``crs`` overrides the inferred table CRS."""
+        path = Path(path)
+        try:
+            table = pacsv.read_csv(path)
+        except (OSError, pa.ArrowInvalid) as exc:
+            raise PlacesError(f"{path}: cannot read PLACES table: {exc}") from None
+        return cls(table, path=path, crs=crs)
+
+    def __len__(self) -> int:
+        return len(self._cols["frame"])
+
+    def _infer_crs(self) -> str:
+        for i in range(len(self)):
+            e, lon = self._cols["easting"][i], self._cols["longitude"][i]
+            if _valid(e, lon) and abs(lon) > 1e-3:
+                return infer_places_crs(float(e), float(lon))
+        raise PlacesError(f"{self.path}: no row with a valid easting and longitude")
+
+    def _value(self, column: str, row: int) -> float:
+        v = self._cols[column][row]
+        return float(v) if v is not None else math.nan
+
+    def _quaternion(self, row: int) -> np.ndarray | None:
+        q = [self._value(c, row) for c in ("quat_s", "quat_v1", "quat_v2", "quat_v3")]
+        if not _valid(*q) or abs(np.linalg.norm(q) - 1.0) > 1e-3:
+            return None
+        return np.asarray(q)
+
+    def site_origin(self, site: int) -> tuple[float, float, float] | None:
+        """(longitude deg, planetocentric latitude deg, elevation m) of a SITE origin."""
+        row = self._site.get(site)
+        if row is None:
+            return None
+        lon, lat, elev = (
+            self._value("longitude", row),
+            self._value("planetocentric_latitude", row),
+            self._value("elevation", row),
+        )
+        return (lon, lat, elev) if _valid(lon, lat, elev) else None
+
+    def rover_pose(self, site: int, drive: int) -> Pose | None:
+        """The localized ROVER row for (site, drive) as a Pose, or None when absent."""
+        row = self._rover.get((site, drive))
+        if row is None:
+            return None
+        e, n = self._value("easting", row), self._value("northing", row)
+        lat, lon = self._value("planetocentric_latitude", row), self._value("longitude", row)
+        elev = self._value("elevation", row)
+        if not _valid(e, n, lat, lon, elev):
+            return None
+        q = self._quaternion(row)
+        return Pose(
+            site=site,
+            drive=drive,
+            easting=e,
+            northing=n,
+            crs=self.crs,
+            latitude=lat,
+            longitude=lon,
+            elevation_m=elev,
+            quaternion=q,
+            source="places",
+            attitude_source="places" if q is not None else None,
+        )
+
+    def locate(self, obs: Observation) -> Pose:
+        """The rover Pose for an observation, by the fallback in DESIGN.md.
+
+        1. the ROVER row for the label's (site, drive) -> source "places";
+        2. else the label's telemetry offset (SITE_FRAME, NED metres) from the PLACES SITE
+           origin -> source "label";
+        3. else PlacesError. Attitude: the row's quaternion when known, else the label's.
+        """
+        site, drive = obs.rmc.site, obs.rmc.drive
+        pose = self.rover_pose(site, drive)
+        if pose is not None:
+            if pose.quaternion is None and obs.rover_quaternion is not None:
+                q = np.asarray(obs.rover_quaternion, dtype=np.float64)
+                pose = replace(pose, quaternion=q, attitude_source="label")
+            return pose
+        origin = self.site_origin(site)
+        if origin is None or obs.rover_offset_m is None:
+            why = "no SITE origin" if origin is None else "the label has no rover offset"
+            raise PlacesError(
+                f"{self.path}: no ROVER row for site {site} drive {drive} and {why} "
+                f"(label {obs.label_path})"
+            )
+        lon0, lat0, elev0 = origin
+        lon, lat, h = TangentFrame(lon0, lat0, elev0).ned_to_lonlat(obs.rover_offset_m)
+        x, y = lonlat_to_map(lon, lat, self.crs)
+        q = obs.rover_quaternion
+        return Pose(
+            site=site,
+            drive=drive,
+            easting=float(x),
+            northing=float(y),
+            crs=self.crs,
+            latitude=float(lat),
+            longitude=float(lon),
+            elevation_m=float(h),
+            quaternion=None if q is None else np.asarray(q, dtype=np.float64),
+            source="label",
+            attitude_source=None if q is None else "label",
+        )

@@ -1,0 +1,349 @@
+"""The dataset build: labels -> samples -> shards + manifest, parallel, atomic and resumable.
+
+Labels are sorted and cut into chunks of ``shard_size``; chunk k becomes
+``shards/shard-{k:06d}.tar`` plus ``parts/manifest-{k:06d}.parquet`` and
+``parts/failures-{k:06d}.parquet``. The manifest part is renamed into place last and marks the
+chunk done, so a killed build rerun with ``resume`` redoes only unfinished chunks, and the
+output is the same whatever the worker count.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import multiprocessing as mp
+import platform
+import time
+from collections import Counter
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+from tqdm import tqdm
+
+from mars_pairs.errors import ConfigError
+from mars_pairs.pipeline.config import BuildConfig
+from mars_pairs.pipeline.context import SampleContext
+from mars_pairs.pipeline.sample import build_sample
+from mars_pairs.pipeline.stages import StageError
+from mars_pairs.store.manifest import (
+    FAILURE_SCHEMA,
+    MANIFEST_SCHEMA,
+    geo_metadata,
+    rows_to_table,
+    write_parquet_atomic,
+)
+from mars_pairs.store.shards import ShardWriter, atomic_write_bytes
+
+_CONTEXT: SampleContext | None = None  # one per worker process, set by the pool initializer
+
+
+@dataclass(frozen=True)
+class BuildSummary:
+    """Counts and timing of one build."""
+
+    out_dir: Path
+    samples: int
+    failures: int
+    failures_by_reason: dict[str, int]
+    chunks_built: int
+    chunks_resumed: int
+    seconds: float
+    stage_seconds: dict[str, float]  # summed over the samples built in this run
+
+    def format(self) -> str:
+        """A short human-readable summary."""
+        rate = self.samples / self.seconds if self.seconds > 0 else float("nan")
+        lines = [
+            f"dataset: {self.out_dir}",
+            f"samples: {self.samples}   failures: {self.failures}   "
+            f"time: {self.seconds:.1f} s ({rate:.1f} samples/s)",
+            f"chunks: {self.chunks_built} built, {self.chunks_resumed} resumed",
+        ]
+        lines += [
+            f"  failed at {reason}: {n}" for reason, n in sorted(self.failures_by_reason.items())
+        ]
+        return "\n".join(lines)
+
+
+class BuildError(Exception):
+    """A strict build stopped at its first failure."""
+
+
+def check_inputs(config: BuildConfig) -> list[Path]:
+    """The labels to build, after checking every input opens; ConfigError names the key."""
+    import rasterio
+
+    labels = config.inputs.label_paths()
+    if not labels:
+        raise ConfigError(f"inputs.labels: no file matches {list(config.inputs.labels)}")
+    if not config.inputs.places.is_file():
+        raise ConfigError(f"inputs.places: no such file {config.inputs.places}")
+    for key in ("dem", "ortho"):
+        path = getattr(config.inputs, key)
+        try:
+            with rasterio.open(path) as src:
+                if src.crs is None:
+                    raise ConfigError(f"inputs.{key}: {path} has no CRS")
+        except rasterio.errors.RasterioIOError as exc:
+            raise ConfigError(f"inputs.{key}: cannot open {path}: {exc}") from None
+    return labels
+
+
+def _init_worker(config: BuildConfig) -> None:
+    global _CONTEXT
+    _CONTEXT = SampleContext.open(config)
+
+
+def _work(label: str) -> tuple[str, Any]:
+    """Build one sample in a worker: ("ok", Sample) or ("fail", failure row)."""
+    assert _CONTEXT is not None
+    try:
+        return "ok", build_sample(Path(label), _CONTEXT)
+    except StageError as exc:
+        return "fail", _failure_row(label, exc.stage, exc.error)
+    except Exception as exc:
+        return "fail", _failure_row(label, "internal", exc)
+
+
+def _failure_row(label: str, stage: str, error: BaseException) -> dict[str, Any]:
+    return {
+        "product_id": Path(label).stem.upper(),
+        "path": label,
+        "stage": stage,
+        "error_type": type(error).__name__,
+        "message": str(error),
+    }
+
+
+def _chunks(labels: list[Path], size: int) -> list[list[Path]]:
+    return [labels[i : i + size] for i in range(0, len(labels), size)]
+
+
+def _part_paths(out: Path, k: int) -> tuple[str, Path, Path]:
+    return (
+        f"shards/shard-{k:06d}.tar",
+        out / "parts" / f"manifest-{k:06d}.parquet",
+        out / "parts" / f"failures-{k:06d}.parquet",
+    )
+
+
+def _results(config: BuildConfig, labels: list[str], workers: int) -> Iterator[tuple[str, Any]]:
+    """Results in label order, from a process pool (or this process for one worker)."""
+    if workers <= 1:
+        _init_worker(config)
+        try:
+            yield from map(_work, labels)
+        finally:
+            if _CONTEXT is not None:
+                _CONTEXT.close()
+        return
+    # spawn, not fork: a parent that already ran numba's OpenMP threads cannot fork safely
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(workers, initializer=_init_worker, initargs=(config,)) as pool:
+        yield from pool.imap(_work, labels, chunksize=1)
+
+
+def _write_chunk(
+    out: Path, k: int, results: list[tuple[str, Any]], strict: bool, stage_seconds: Counter[str]
+) -> int:
+    shard_rel, manifest_part, failures_part = _part_paths(out, k)
+    rows, failures = [], []
+    samples = [r for status, r in results if status == "ok"]
+    for sample in samples:
+        stage_seconds.update(sample.seconds)
+    for status, r in results:
+        if status == "fail":
+            if strict:
+                raise BuildError(f"{r['path']}: {r['stage']}: {r['error_type']}: {r['message']}")
+            failures.append(r)
+    if samples:
+        with ShardWriter(out, shard_rel) as shard:
+            for sample in samples:
+                locs = shard.add(sample.key, sample.members)
+                row = dict(sample.row)
+                for name, loc in locs.items():
+                    fld = name.split(".")[0]
+                    row.update(
+                        {
+                            f"{fld}_shard": loc.shard,
+                            f"{fld}_offset": loc.offset,
+                            f"{fld}_size": loc.size,
+                        }
+                    )
+                rows.append(row)
+    write_parquet_atomic(rows_to_table(failures, FAILURE_SCHEMA), failures_part)
+    write_parquet_atomic(rows_to_table(rows, MANIFEST_SCHEMA), manifest_part)  # commit marker
+    return len(samples)
+
+
+def run_build(
+    config: BuildConfig,
+    *,
+    workers: int = 1,
+    resume: bool = False,
+    limit: int | None = None,
+    strict: bool = False,
+    progress: bool = True,
+) -> BuildSummary:
+    """Build the dataset described by ``config`` into ``config.output.dir``."""
+    start = time.perf_counter()
+    out = config.output.dir
+    labels = check_inputs(config)[: limit if limit else None]
+    out.mkdir(parents=True, exist_ok=True)
+    chunks = _chunks(labels, config.output.shard_size)
+    for leftover in out.rglob(".*.tmp-*"):  # temporary files of a killed build
+        leftover.unlink()
+    fingerprint = _fingerprint(config, labels)
+    stamp = out / "parts" / "build.json"
+    if resume and stamp.is_file() and json.loads(stamp.read_text()) != fingerprint:
+        raise ConfigError(
+            f"{out}: cannot resume: the config or the label list changed since the "
+            "interrupted build; rerun without --resume"
+        )
+    if not resume:
+        _clear_outputs(out)
+    stamp.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(stamp, json.dumps(fingerprint).encode())
+    todo = [k for k in range(len(chunks)) if not _part_paths(out, k)[1].exists()]
+    pending = [str(p) for k in todo for p in chunks[k]]
+    bar = tqdm(
+        total=len(labels),
+        initial=len(labels) - len(pending),
+        unit="img",
+        disable=not progress,
+        desc="build",
+    )
+    results = _results(config, pending, workers)
+    stage_seconds: Counter[str] = Counter()
+    try:
+        for k in todo:
+            batch = []
+            for _ in chunks[k]:
+                batch.append(next(results))
+                bar.update(1)
+            _write_chunk(out, k, batch, strict, stage_seconds)
+    finally:
+        bar.close()
+        close = getattr(results, "close", None)
+        if close:
+            close()
+    manifest, failures = _merge(config, len(chunks))
+    summary = BuildSummary(
+        out_dir=out,
+        samples=manifest.num_rows,
+        failures=failures.num_rows,
+        failures_by_reason=dict(
+            Counter(
+                f"{s} ({e})"
+                for s, e in zip(
+                    failures.column("stage").to_pylist(),
+                    failures.column("error_type").to_pylist(),
+                    strict=False,
+                )
+            )
+        ),
+        chunks_built=len(todo),
+        chunks_resumed=len(chunks) - len(todo),
+        seconds=time.perf_counter() - start,
+        stage_seconds=dict(stage_seconds),
+    )
+    _write_dataset_json(config, summary, manifest)
+    return summary
+
+
+def _fingerprint(config: BuildConfig, labels: list[Path]) -> dict[str, Any]:
+    """What a resumed build must share with the interrupted one."""
+    doc = config.to_dict()
+    doc.pop("source", None)
+    doc["output"].pop("dir", None)
+    names = "\n".join(str(p) for p in labels).encode()
+    return {"config": doc, "labels": hashlib.sha256(names).hexdigest(), "count": len(labels)}
+
+
+def _clear_outputs(out: Path) -> None:
+    """Remove what an earlier build left: parts, shards, manifest, failures."""
+    for pattern in (
+        "parts/*.parquet",
+        "shards/*.tar",
+        "manifest.parquet",
+        "failures.parquet",
+        "dataset.json",
+    ):
+        for stale in out.glob(pattern):
+            if stale.is_file():
+                stale.unlink()
+
+
+def _merge(config: BuildConfig, n_chunks: int) -> tuple[pa.Table, pa.Table]:
+    """Concatenate the chunk parts into manifest.parquet (Hilbert order) and failures.parquet."""
+    out = config.output.dir
+    parts = [pq.read_table(_part_paths(out, k)[1]) for k in range(n_chunks)]
+    fails = [pq.read_table(_part_paths(out, k)[2]) for k in range(n_chunks)]
+    manifest = pa.concat_tables(parts) if parts else MANIFEST_SCHEMA.empty_table()
+    manifest = manifest.sort_by([("hilbert", "ascending"), ("key", "ascending")])
+    failures = pa.concat_tables(fails) if fails else FAILURE_SCHEMA.empty_table()
+    crs = _dataset_crs(config)
+    bbox = _bbox(manifest)
+    manifest = manifest.replace_schema_metadata(geo_metadata(crs, bbox))
+    write_parquet_atomic(manifest, out / "manifest.parquet", row_group_size=1024)
+    write_parquet_atomic(failures, out / "failures.parquet")
+    return manifest, failures
+
+
+def _dataset_crs(config: BuildConfig) -> str:
+    import rasterio
+
+    with rasterio.open(config.inputs.dem) as src:
+        return src.crs.to_wkt()
+
+
+def _bbox(manifest: pa.Table) -> list[float] | None:
+    if manifest.num_rows == 0:
+        return None
+    import pyarrow.compute as pc
+
+    return [
+        pc.min(manifest["chip_xmin"]).as_py(),
+        pc.min(manifest["chip_ymin"]).as_py(),
+        pc.max(manifest["chip_xmax"]).as_py(),
+        pc.max(manifest["chip_ymax"]).as_py(),
+    ]
+
+
+def _write_dataset_json(config: BuildConfig, summary: BuildSummary, manifest: pa.Table) -> None:
+    import numba
+    import numpy
+    import pyarrow
+    import rasterio
+
+    from mars_pairs import __version__
+
+    counts: dict[str, Any] = {"samples": summary.samples, "failures": summary.failures}
+    if manifest.num_rows:
+        counts["by_split"] = dict(Counter(manifest.column("split").to_pylist()))
+        counts["by_mission"] = dict(Counter(manifest.column("mission").to_pylist()))
+    doc = {
+        "config": config.to_dict(),
+        "versions": {
+            "mars_pairs": __version__,
+            "numpy": numpy.__version__,
+            "rasterio": rasterio.__version__,
+            "pyarrow": pyarrow.__version__,
+            "numba": numba.__version__,
+            "python": platform.python_version(),
+        },
+        "crs": _dataset_crs(config),
+        "chip": {
+            "size_m": config.chips.size_m,
+            "size_px": config.chips.size_px,
+            "orientation": config.chips.orientation,
+        },
+        "counts": counts,
+        "failures_by_reason": summary.failures_by_reason,
+        "build_seconds": round(summary.seconds, 3),
+    }
+    atomic_write_bytes(config.output.dir / "dataset.json", json.dumps(doc, indent=2).encode())

@@ -1,0 +1,45 @@
+"""Stage chips: ortho, DEM and viewshed chips around the rover, and the correspondence."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from mars_pairs.pds.observation import Observation
+from mars_pairs.pipeline.context import SampleContext
+from mars_pairs.pipeline.view import View
+from mars_pairs.raster.chips import ChipGrid, resample_array
+
+
+def cut_chips(view: View, ctx: SampleContext, obs: Observation) -> tuple[ChipGrid, dict[str, Any]]:
+    """Ortho, DEM and viewshed chips around the rover (north-up or heading-up)."""
+    spec = ctx.config.chips
+    rover = view.camera.origin_map
+    rotation = 0.0
+    if spec.orientation == "heading-up":
+        rotation = view.camera.pointing_az_el()[0]
+    grid = ChipGrid.around(
+        float(rover[0]),
+        float(rover[1]),
+        spec.size_m,
+        spec.size_px,
+        ctx.crs_wkt,
+        rotation_deg=rotation,
+    )
+    ortho = ctx.ortho.read(grid)
+    dem = ctx.dem.read(grid)
+    vis = resample_array(view.mask, view.window.transform, ctx.crs_wkt, grid, nearest=True)
+    return grid, {
+        "ortho": np.nan_to_num(ortho, nan=0.0).clip(0, 255).astype(np.uint8),
+        "dem": dem.astype(np.float32),
+        "viewshed": (np.nan_to_num(vis) > 0.5).astype(np.uint8) * 255,
+    }
+
+
+def correspondence(view: View, grid: ChipGrid) -> np.ndarray:
+    """Chip pixel (column, row) of each strided ground pixel's ray hit; NaN for no hit."""
+    if view.hits is None:
+        return np.zeros((0, 0, 2), dtype=np.float32)
+    chip_px = grid.to_pixel(view.hits[:, 0], view.hits[:, 1]).astype(np.float32)
+    return chip_px.reshape(*view.grid_shape, 2)

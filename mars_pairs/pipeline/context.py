@@ -1,0 +1,58 @@
+"""What the observations of a build share, opened once per worker process."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from mars_pairs.geometry.places import Places
+from mars_pairs.pipeline.config import BuildConfig
+from mars_pairs.raster.chips import ChipReader
+from mars_pairs.raster.terrain import DemWindow, Terrain
+
+
+@dataclass
+class SampleContext:
+    """What the observations of a build share, opened once per worker process."""
+
+    config: BuildConfig
+    places: Places
+    terrain: Terrain
+    ortho: ChipReader
+    dem: ChipReader
+    crs_wkt: str = ""
+    _window: DemWindow | None = None
+    _window_key: tuple[int, int, float] | None = None
+
+    @classmethod
+    def open(cls, config: BuildConfig) -> SampleContext:
+        """Open the PLACES table and the rasters named by ``config``."""
+        places = Places.from_csv(config.inputs.places)
+        terrain = Terrain.open(config.inputs.dem)
+        return cls(
+            config,
+            places,
+            terrain,
+            ChipReader(config.inputs.ortho),
+            ChipReader(config.inputs.dem),
+            terrain.crs.to_wkt(),
+        )
+
+    def dem_window(self, x: float, y: float, radius: float, snap: float = 32.0) -> DemWindow:
+        """A DEM window holding everything within ``radius`` of map point (x, y).
+
+        The window is centred on (x, y) snapped to a ``snap``-unit grid and reaches ``snap``
+        further, so the images of one stop share one read, and a sample never depends on
+        which images a worker built before it (same window for the same position).
+        """
+        key = (round(x / snap), round(y / snap), radius)
+        if self._window is None or key != self._window_key:
+            x0, y0 = key[0] * snap, key[1] * snap
+            self._window = self.terrain.read_dem_window(x0, y0, radius + snap, check_observer=False)
+            self._window_key = key
+        return self._window
+
+    def close(self) -> None:
+        """Close the rasters."""
+        self.terrain.close()
+        self.ortho.close()
+        self.dem.close()

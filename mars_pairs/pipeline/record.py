@@ -1,0 +1,75 @@
+"""The manifest row and meta.json of a sample."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import shapely
+
+from mars_pairs.geometry.places import Pose
+from mars_pairs.pds.observation import Observation
+from mars_pairs.pipeline.context import SampleContext
+from mars_pairs.pipeline.footprint import footprint_polygon, view_statistics
+from mars_pairs.pipeline.view import View
+from mars_pairs.raster.chips import ChipGrid
+from mars_pairs.store.splits import assign_splits, hilbert_index
+
+
+def sample_key(obs: Observation) -> str:
+    """The WebDataset key of an observation: mission and product id, no dots."""
+    return f"{obs.mission}_{obs.product_id}".replace(".", "_").lower()
+
+
+def manifest_row(
+    obs: Observation, pose: Pose, view: View, grid: ChipGrid, ctx: SampleContext
+) -> dict[str, Any]:
+    """The manifest row (member locations are added when the shard is written)."""
+    cfg = ctx.config
+    rover_x, rover_y = (float(v) for v in view.camera.origin_map[:2])
+    az, el = view.camera.pointing_az_el()
+    hfov, vfov = obs.camera.fov_deg(obs.width, obs.height)
+    footprint = footprint_polygon(view)
+    xmin, ymin, xmax, ymax = grid.bounds()
+    split = assign_splits(
+        [rover_x], [rover_y], cfg.splits.block_m, cfg.splits.ratios, cfg.splits.seed
+    )[0]
+    hilbert = int(hilbert_index([rover_x], [rover_y], ctx.terrain.bounds)[0])
+    return {
+        "key": sample_key(obs), "mission": obs.mission, "instrument": obs.instrument,
+        "product_id": obs.product_id, "label_path": str(obs.label_path), "sol": obs.sol,
+        "site": obs.rmc.site, "drive": obs.rmc.drive, "pose": obs.rmc.pose,
+        "time": obs.start_time, "latitude": pose.latitude, "longitude": pose.longitude,
+        "easting": rover_x, "northing": rover_y, "elevation": pose.elevation_m,
+        "azimuth_deg": obs.azimuth_deg if obs.azimuth_deg is not None else az,
+        "elevation_deg": obs.elevation_deg if obs.elevation_deg is not None else el,
+        "hfov_deg": obs.hfov_deg if obs.hfov_deg is not None else hfov,
+        "vfov_deg": obs.vfov_deg if obs.vfov_deg is not None else vfov,
+        "width": obs.width, "height": obs.height, "localization": pose.source,
+        **view_statistics(view),
+        "footprint": None if footprint is None else shapely.to_wkb(footprint),
+        "chip_xmin": xmin, "chip_ymin": ymin, "chip_xmax": xmax, "chip_ymax": ymax,
+        "chip_rotation_deg": grid.rotation_deg, "split": split, "hilbert": hilbert,
+    }  # fmt: skip
+
+
+def sample_meta(
+    row: dict[str, Any],
+    obs: Observation,
+    view: View,
+    grid: ChipGrid,
+    ctx: SampleContext,
+    ground_size: tuple[int, int],
+) -> dict[str, Any]:
+    """meta.json: the row's plain values plus what a reader needs to use the members."""
+    meta = {k: v for k, v in row.items() if k not in ("footprint", "time")}
+    meta.update(
+        time=obs.start_time.isoformat() if obs.start_time else None,
+        crs=ctx.crs_wkt,
+        chip_transform=list(grid.transform)[:6],
+        ray_stride=ctx.config.geometry.ray_stride,
+        ground_size=list(ground_size),
+        observer_height_m=view.height,
+        camera_center_map=[float(v) for v in view.camera.center_map],
+        camera_model_type=obs.camera.model_type,
+    )
+    return meta

@@ -1,0 +1,59 @@
+"""One observation -> one dataset sample: the stages in order, each one call.
+
+Stages (named in failure rows and timed): label, image, locate, terrain, viewshed, raycast,
+chips, encode.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mars_pairs.errors import MarsPairsError
+from mars_pairs.geometry.mapcam import MapCamera
+from mars_pairs.pds import read_observation
+from mars_pairs.pipeline.chips import correspondence, cut_chips
+from mars_pairs.pipeline.context import SampleContext
+from mars_pairs.pipeline.encode import encode_members
+from mars_pairs.pipeline.ground import ground_member
+from mars_pairs.pipeline.record import manifest_row, sample_meta
+from mars_pairs.pipeline.stages import StageError, Stages
+from mars_pairs.pipeline.view import compute_view
+
+
+@dataclass
+class Sample:
+    """A built sample: its manifest row (without member locations), member bytes, timings."""
+
+    key: str
+    row: dict[str, Any]
+    members: dict[str, bytes] = field(default_factory=dict)
+    seconds: dict[str, float] = field(default_factory=dict)
+
+
+def build_sample(label: Path, ctx: SampleContext) -> Sample:
+    """Run every stage for one label; raises StageError naming the failing stage."""
+    stage = Stages()
+    try:
+        with stage("label"):
+            obs = read_observation(label)
+        with stage("image"):
+            ground_name, ground, ground_size = ground_member(obs, ctx.config.output.image_encoding)
+        with stage("locate"):
+            pose = ctx.places.locate(obs)
+            camera = MapCamera.from_observation(obs, pose, ctx.terrain.crs)
+        view = compute_view(obs, pose, camera, ctx, stage)
+        with stage("chips"):
+            grid, chips = cut_chips(view, ctx, obs)
+        with stage("encode"):
+            row = manifest_row(obs, pose, view, grid, ctx)
+            members = encode_members(
+                chips,
+                correspondence(view, grid),
+                sample_meta(row, obs, view, grid, ctx, ground_size),
+            )
+    except (MarsPairsError, ValueError, OSError) as exc:
+        raise StageError(stage.name, exc) from exc
+    row["ground_member"] = ground_name
+    return Sample(row["key"], row, {ground_name: ground, **members}, stage.seconds)

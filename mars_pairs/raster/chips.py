@@ -1,0 +1,192 @@
+"""Orbital chips: a square grid around the rover, north-up or heading-up, read by window.
+
+A chip grid is ``size_px`` x ``size_px`` pixels covering ``size_m`` x ``size_m`` map units,
+centred on a map point (x, y in the dataset CRS). Heading-up grids are rotated so that the
+camera azimuth points up the image (row 0 towards the azimuth).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rasterio
+from affine import Affine
+from numpy.typing import ArrayLike, NDArray
+from rasterio.crs import CRS
+from rasterio.enums import Resampling
+from rasterio.warp import reproject
+from rasterio.windows import Window, from_bounds
+
+from mars_pairs.geometry.frames import crs_string
+from mars_pairs.kernels.resample import sample_affine
+
+
+@dataclass(frozen=True)
+class ChipGrid:
+    """A chip's pixel grid on the map: affine transform (pixel -> map), CRS and size.
+
+    ``rotation_deg`` is the map azimuth (clockwise from grid north) of the chip's up direction.
+    """
+
+    transform: Affine
+    crs: str
+    size_px: int
+    center_x: float
+    center_y: float
+    size_m: float
+    rotation_deg: float = 0.0
+
+    @classmethod
+    def around(
+        cls, x: float, y: float, size_m: float, size_px: int, crs: object, rotation_deg: float = 0.0
+    ) -> ChipGrid:
+        """A grid centred on map point (x, y) whose up direction is ``rotation_deg``."""
+        res = size_m / size_px
+        t = math.radians(rotation_deg)
+        right = (math.cos(t), -math.sin(t))  # map direction of increasing column
+        down = (-math.sin(t), -math.cos(t))  # map direction of increasing row
+        a, b = res * right[0], res * down[0]
+        d, e = res * right[1], res * down[1]
+        half = size_px / 2.0
+        c = x - (a + b) * half
+        f = y - (d + e) * half
+        return cls(Affine(a, b, c, d, e, f), crs_string(crs), size_px, x, y, size_m, rotation_deg)
+
+    @property
+    def resolution(self) -> float:
+        """Map units per pixel."""
+        return self.size_m / self.size_px
+
+    def corners(self) -> NDArray[np.float64]:
+        """Map coordinates (4, 2) of the outer corners: top-left, top-right, bottom-right, ..."""
+        n = self.size_px
+        return np.array([self.transform @ p for p in ((0, 0), (n, 0), (n, n), (0, n))])
+
+    def bounds(self) -> tuple[float, float, float, float]:
+        """Axis-aligned map bounds (xmin, ymin, xmax, ymax) of the chip."""
+        c = self.corners()
+        return (
+            float(c[:, 0].min()),
+            float(c[:, 1].min()),
+            float(c[:, 0].max()),
+            float(c[:, 1].max()),
+        )
+
+    def to_pixel(self, x: ArrayLike, y: ArrayLike) -> NDArray[np.float64]:
+        """Map points -> chip pixel coordinates (..., 2) as (column, row), pixel-edge origin."""
+        inv = ~self.transform
+        xs, ys = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+        col = inv.a * xs + inv.b * ys + inv.c
+        row = inv.d * xs + inv.e * ys + inv.f
+        return np.stack([col, row], axis=-1)
+
+
+@lru_cache(maxsize=64)
+def _same_crs_text(a: str, b: str) -> bool:
+    return a == b or CRS.from_user_input(a) == CRS.from_user_input(b)
+
+
+def _same_crs(a: object, b: object) -> bool:
+    return _same_crs_text(crs_string(a), crs_string(b))
+
+
+def _sample_grid(
+    values: NDArray[np.float32], src_transform: Affine, grid: ChipGrid, nearest: bool
+) -> NDArray[np.float32]:
+    """Resample an array on ``src_transform`` onto ``grid`` (same CRS) with the numba kernel."""
+    m = ~src_transform * grid.transform  # chip pixel -> source pixel
+    n = grid.size_px
+    return sample_affine(
+        np.ascontiguousarray(values, dtype=np.float32), m.a, m.b, m.c, m.d, m.e, m.f, n, n, nearest
+    )
+
+
+class ChipReader:
+    """An open raster that cuts chips; use as a context manager, like a rasterio dataset.
+
+    In the raster's own CRS a chip is one windowed read of the pixels it covers plus a numba
+    resampling (any rotation); in another CRS GDAL's warper reprojects it. Either way only
+    the blocks under the chip are read, never the whole raster. Nodata becomes NaN.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = str(path)
+        self.dataset = rasterio.open(self.path)
+        self.crs_wkt = self.dataset.crs.to_wkt() if self.dataset.crs else ""
+
+    def read(self, grid: ChipGrid, *, nearest: bool = False, band: int = 1) -> NDArray[np.float32]:
+        """The chip of ``band`` on ``grid`` (bilinear, or nearest for masks and classes)."""
+        src = self.dataset
+        if not _same_crs(self.crs_wkt, grid.crs):
+            return self._warp(grid, nearest, band)
+        xs, ys = grid.corners().T
+        window = from_bounds(xs.min(), ys.min(), xs.max(), ys.max(), transform=src.transform)
+        col0 = max(math.floor(window.col_off) - 2, 0)
+        row0 = max(math.floor(window.row_off) - 2, 0)
+        col1 = min(math.ceil(window.col_off + window.width) + 2, src.width)
+        row1 = min(math.ceil(window.row_off + window.height) + 2, src.height)
+        n = grid.size_px
+        if col1 - col0 < 2 or row1 - row0 < 2:
+            return np.full((n, n), np.nan, dtype=np.float32)
+        win = Window(col0, row0, col1 - col0, row1 - row0)
+        values = src.read(band, window=win, masked=True).astype(np.float32).filled(np.nan)
+        return _sample_grid(values, src.window_transform(win), grid, nearest)
+
+    def _warp(self, grid: ChipGrid, nearest: bool, band: int) -> NDArray[np.float32]:
+        return _reproject(
+            rasterio.band(self.dataset, band), grid, nearest, src_nodata=self.dataset.nodata
+        )
+
+    def close(self) -> None:
+        """Close the raster."""
+        self.dataset.close()
+
+    def __enter__(self) -> ChipReader:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def read_chip(
+    path: str, grid: ChipGrid, *, nearest: bool = False, band: int = 1
+) -> NDArray[np.float32]:
+    """One chip of a raster file (opens and closes it; use ChipReader for many chips)."""
+    with ChipReader(path) as reader:
+        return reader.read(grid, nearest=nearest, band=band)
+
+
+def resample_array(
+    values: NDArray[np.generic],
+    transform: Affine,
+    crs: object,
+    grid: ChipGrid,
+    nearest: bool = True,
+) -> NDArray[np.float32]:
+    """Resample an in-memory grid (e.g. a viewshed on the DEM window) onto a chip grid."""
+    if _same_crs(crs, grid.crs):
+        return _sample_grid(np.asarray(values, dtype=np.float32), transform, grid, nearest)
+    source = np.asarray(values, dtype=np.float32)
+    return _reproject(source, grid, nearest, src_transform=transform, src_crs=crs_string(crs))
+
+
+def _reproject(source: Any, grid: ChipGrid, nearest: bool, **src: Any) -> NDArray[np.float32]:
+    """GDAL-warp ``source`` (a rasterio band or an array with ``src`` georeferencing) onto a
+    chip grid in another CRS; NaN where nothing maps."""
+    out = np.full((grid.size_px, grid.size_px), np.nan, dtype=np.float32)
+    reproject(
+        source=source,
+        destination=out,
+        dst_transform=grid.transform,
+        dst_crs=grid.crs,
+        dst_nodata=np.nan,
+        resampling=Resampling.nearest if nearest else Resampling.bilinear,
+        tolerance=0.0,
+        **src,
+    )
+    return out

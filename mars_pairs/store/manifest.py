@@ -1,0 +1,306 @@
+"""The dataset manifest: one Parquet row per sample, GeoParquet footprints, atomic writes."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+from pyproj import CRS
+
+from mars_pairs.geometry.frames import MARS_RADIUS_M
+
+MEMBERS = ("ground", "ortho", "dem", "viewshed", "corr", "meta")
+
+_FIELDS: list[tuple[str, pa.DataType]] = [
+    ("key", pa.string()),
+    ("mission", pa.string()),
+    ("instrument", pa.string()),
+    ("product_id", pa.string()),
+    ("label_path", pa.string()),
+    ("sol", pa.int32()),
+    ("site", pa.int32()),
+    ("drive", pa.int32()),
+    ("pose", pa.int32()),
+    ("time", pa.timestamp("ms", tz="UTC")),
+    ("latitude", pa.float64()),  # planetocentric degrees
+    ("longitude", pa.float64()),  # degrees east
+    ("easting", pa.float64()),  # dataset CRS, map units
+    ("northing", pa.float64()),
+    ("elevation", pa.float64()),  # metres above the areoid
+    ("azimuth_deg", pa.float64()),  # camera axis, clockwise from north
+    ("elevation_deg", pa.float64()),  # camera axis, up from the horizon
+    ("hfov_deg", pa.float64()),
+    ("vfov_deg", pa.float64()),
+    ("width", pa.int32()),
+    ("height", pa.int32()),
+    ("localization", pa.string()),  # places | label
+    ("viewshed_area_m2", pa.float64()),
+    ("visible_cells", pa.int64()),
+    ("max_visible_range_m", pa.float64()),
+    ("ray_hit_fraction", pa.float64()),
+    ("footprint", pa.binary()),  # WKB polygon, dataset CRS
+    ("chip_xmin", pa.float64()),
+    ("chip_ymin", pa.float64()),
+    ("chip_xmax", pa.float64()),
+    ("chip_ymax", pa.float64()),
+    ("chip_rotation_deg", pa.float64()),  # 0 north-up; heading-up: the camera azimuth
+    ("split", pa.string()),
+    ("hilbert", pa.int64()),
+    ("ground_member", pa.string()),  # e.g. "ground.jpg"
+]
+for _m in MEMBERS:
+    _FIELDS += [
+        (f"{_m}_shard", pa.string()),
+        (f"{_m}_offset", pa.int64()),
+        (f"{_m}_size", pa.int64()),
+    ]
+
+MANIFEST_SCHEMA = pa.schema(_FIELDS)
+
+#: The plain per-sample attributes that readers pass on (dataset meta, GeoPackage attributes).
+SUMMARY_COLUMNS = (
+    "key", "mission", "instrument", "product_id", "sol", "site", "drive", "split", "latitude",
+    "longitude", "easting", "northing", "elevation", "azimuth_deg", "elevation_deg", "hfov_deg",
+    "vfov_deg", "localization", "viewshed_area_m2", "visible_cells", "max_visible_range_m",
+)  # fmt: skip
+
+FAILURE_SCHEMA = pa.schema(
+    [
+        ("product_id", pa.string()),
+        ("path", pa.string()),
+        ("stage", pa.string()),
+        ("error_type", pa.string()),
+        ("message", pa.string()),
+    ]
+)
+
+
+def geo_metadata(crs: str, bbox: list[float] | None) -> dict[bytes, bytes]:
+    """GeoParquet 1.0 metadata for the ``footprint`` column, CRS as PROJJSON."""
+    column: dict[str, Any] = {
+        "encoding": "WKB",
+        "geometry_types": ["Polygon"],
+        "crs": json.loads(CRS.from_user_input(crs).to_json()),
+    }
+    if bbox is not None:
+        column["bbox"] = bbox
+    meta = {"version": "1.0.0", "primary_column": "footprint", "columns": {"footprint": column}}
+    return {b"geo": json.dumps(meta).encode()}
+
+
+def write_parquet_atomic(table: pa.Table, path: Path, row_group_size: int = 4096) -> None:
+    """Write a Parquet file through a temporary name and a rename."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    pq.write_table(
+        table, tmp, row_group_size=row_group_size, compression="zstd", write_statistics=True
+    )
+    with open(tmp, "rb") as fh:
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def rows_to_table(rows: list[dict[str, Any]], schema: pa.Schema) -> pa.Table:
+    """A table of ``schema`` from row dicts (missing keys become nulls)."""
+    return pa.Table.from_pylist(
+        [{f.name: row.get(f.name) for f in schema} for row in rows], schema=schema
+    )
+
+
+# -- reading and filtering ----------------------------------------------------------------------
+
+
+class Manifest:
+    """A dataset's manifest, filtered lazily: predicates are pushed down into pyarrow.
+
+    Location filters test the rover position of each sample (where the image was taken).
+    ``filter`` returns a new Manifest; nothing is read until ``to_table``/``len``.
+
+    >>> m = Manifest.open("out/demo/dataset").filter(near=(18.44, 77.45, 500.0), split="train")
+    >>> len(m), m.to_pandas()
+    """
+
+    def __init__(
+        self, root: Path, expression: Any = None, exact: tuple[Any, ...] = (), dataset: Any = None
+    ) -> None:
+        import pyarrow.dataset as ds
+
+        self.root = Path(root)
+        if dataset is None:  # filtered Manifests share their parent's (footer read once)
+            dataset = ds.dataset(self.root / "manifest.parquet", format="parquet")
+        self._dataset = dataset
+        self._expression = expression
+        self._exact = exact  # callables table -> boolean mask, applied after the scan
+
+    @classmethod
+    def open(cls, root: str | Path) -> Manifest:
+        """The manifest of a built dataset folder."""
+        root = Path(root)
+        if not (root / "manifest.parquet").is_file():
+            from mars_pairs.errors import MarsPairsError
+
+            raise MarsPairsError(f"{root}: no manifest.parquet (not a mars-pairs dataset)")
+        return cls(root)
+
+    @property
+    def crs(self) -> str | None:
+        """The dataset CRS (PROJJSON text) from the GeoParquet metadata."""
+        meta = self._dataset.schema.metadata or {}
+        geo = json.loads(meta.get(b"geo", b"{}") or b"{}")
+        crs = geo.get("columns", {}).get("footprint", {}).get("crs")
+        return json.dumps(crs) if crs is not None else None
+
+    def filter(
+        self,
+        *,
+        bbox_lonlat: tuple[float, float, float, float] | None = None,
+        bbox_map: tuple[float, float, float, float] | None = None,
+        near: tuple[float, float, float] | None = None,
+        polygon: Any = None,
+        mission: str | list[str] | None = None,
+        instrument: str | list[str] | None = None,
+        sol: tuple[int, int] | None = None,
+        split: str | list[str] | None = None,
+    ) -> Manifest:
+        """A new Manifest keeping rows that satisfy every given predicate.
+
+        ``bbox_lonlat``: (west, south, east, north) degrees east/north, west > east crossing
+        the 180th meridian (longitudes match modulo 360, so -180..180 and 0..360 data alike);
+        ``bbox_map``: (xmin, ymin, xmax, ymax) in the dataset CRS; ``near``: (lat, lon,
+        radius_m), great circle on the Mars sphere; ``polygon``: shapely geometry or WKT in
+        the dataset CRS; ``sol``: inclusive (first, last); ``mission``/``instrument``/``split``:
+        a value or a list of values.
+        """
+        import pyarrow.dataset as ds
+
+        f = ds.field
+        terms = []
+        exact = list(self._exact)
+        if bbox_lonlat is not None:
+            w, s, e, n = bbox_lonlat
+            terms.append((f("latitude") >= s) & (f("latitude") <= n))
+            lon_term = _longitude_range(f("longitude"), w, e)
+            if lon_term is not None:
+                terms.append(lon_term)
+        if bbox_map is not None:
+            x0, y0, x1, y1 = bbox_map
+            terms.append(
+                (f("easting") >= x0)
+                & (f("easting") <= x1)
+                & (f("northing") >= y0)
+                & (f("northing") <= y1)
+            )
+        if near is not None:
+            lat, lon, radius = near
+            dlat = math.degrees(radius / MARS_RADIUS_M)
+            coslat = max(math.cos(math.radians(min(abs(lat) + dlat, 90.0))), 1e-9)
+            dlon = dlat / coslat
+            terms.append((f("latitude") >= lat - dlat) & (f("latitude") <= lat + dlat))
+            if dlon < 180.0:
+                lon_term = _longitude_range(f("longitude"), lon - dlon, lon + dlon)
+                if lon_term is not None:
+                    terms.append(lon_term)
+            exact.append(_NearPredicate(lat, lon, radius))
+        if polygon is not None:
+            import shapely
+
+            geom = shapely.from_wkt(polygon) if isinstance(polygon, str) else polygon
+            x0, y0, x1, y1 = geom.bounds
+            terms.append(
+                (f("easting") >= x0)
+                & (f("easting") <= x1)
+                & (f("northing") >= y0)
+                & (f("northing") <= y1)
+            )
+            exact.append(_PolygonPredicate(shapely.to_wkb(geom)))
+        for name, value in (("mission", mission), ("instrument", instrument), ("split", split)):
+            if value is not None:
+                values = [value] if isinstance(value, str) else list(value)
+                terms.append(f(name).isin(values))
+        if sol is not None:
+            terms.append((f("sol") >= sol[0]) & (f("sol") <= sol[1]))
+        expression = self._expression
+        for term in terms:
+            expression = term if expression is None else expression & term
+        return Manifest(self.root, expression, tuple(exact), self._dataset)
+
+    def to_table(self, columns: list[str] | None = None) -> pa.Table:
+        """The filtered rows (all columns, or ``columns``)."""
+        needed = None
+        if columns is not None:
+            extra = {"latitude", "longitude", "easting", "northing"} if self._exact else set()
+            needed = list(dict.fromkeys([*columns, *sorted(extra)]))
+        table = self._dataset.to_table(columns=needed, filter=self._expression)
+        for predicate in self._exact:
+            table = table.filter(predicate(table))
+        return table.select(columns) if columns is not None else table
+
+    def to_pandas(self) -> Any:
+        """The filtered rows as a pandas DataFrame."""
+        return self.to_table().to_pandas()
+
+    def __len__(self) -> int:
+        if not self._exact:
+            return self._dataset.count_rows(filter=self._expression)
+        return self.to_table(columns=["key"]).num_rows
+
+
+def _longitude_range(field: Any, west: float, east: float) -> Any:
+    """Longitudes from ``west`` eastward to ``east`` (degrees east), modulo 360: ``west >
+    east`` crosses the 180th meridian (or 0 for 0..360 data). An expression of plain ranges
+    (row-group statistics still prune), matching values stored as -180..180 or 0..360;
+    None when the range covers every longitude."""
+    span = east - west if east >= west else east - west + 360.0
+    if span >= 360.0:
+        return None
+    west -= 360.0 * math.floor((west + 180.0) / 360.0)  # into [-180, 180); exact if there
+    # the range's copies that can meet stored values in [-180, 360)
+    shifts = [0.0] + [-360.0] * (west + span >= 180.0) + [360.0] * (west < 0.0)
+    expression = None
+    for k in shifts:
+        term = (field >= west + k) & (field <= west + span + k)
+        expression = term if expression is None else expression | term
+    return expression
+
+
+def great_circle_m(lat1: Any, lon1: Any, lat2: Any, lon2: Any) -> Any:
+    """Great-circle distance (metres) on the Mars sphere between planetocentric degrees."""
+    import numpy as np
+
+    p1, p2 = np.radians(lat1), np.radians(lat2)
+    dp, dl = p2 - p1, np.radians(np.asarray(lon2) - np.asarray(lon1))
+    a = np.sin(dp / 2) ** 2 + np.cos(p1) * np.cos(p2) * np.sin(dl / 2) ** 2
+    return 2 * MARS_RADIUS_M * np.arcsin(np.sqrt(np.clip(a, 0, 1)))
+
+
+@dataclass(frozen=True)
+class _NearPredicate:
+    lat: float
+    lon: float
+    radius_m: float
+
+    def __call__(self, table: pa.Table) -> pa.Array:
+        d = great_circle_m(
+            self.lat, self.lon, table["latitude"].to_numpy(), table["longitude"].to_numpy()
+        )
+        return pa.array(d <= self.radius_m)
+
+
+@dataclass(frozen=True)
+class _PolygonPredicate:
+    wkb: bytes
+
+    def __call__(self, table: pa.Table) -> pa.Array:
+        import shapely
+
+        geom = shapely.from_wkb(self.wkb)
+        inside = shapely.intersects_xy(
+            geom, table["easting"].to_numpy(), table["northing"].to_numpy()
+        )
+        return pa.array(inside)

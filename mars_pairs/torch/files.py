@@ -1,0 +1,70 @@
+"""Shard files opened lazily per process, with positioned reads."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections import OrderedDict
+from pathlib import Path
+from typing import Any
+
+
+class ShardFiles:
+    """Shard file descriptors, opened lazily and per process (safe under fork and spawn).
+
+    At most ``max_open`` stay open (least recently used closed first), so datasets with many
+    shards do not run out of descriptors. Reads are positioned (``preadv``): no seek state.
+    """
+
+    def __init__(self, root: Path, max_open: int = 64) -> None:
+        self.root = root
+        self.max_open = max_open
+        self._pid = -1
+        self._files: OrderedDict[str, int] = OrderedDict()
+
+    def _fd(self, shard: str) -> int:
+        if self._pid != os.getpid():  # inherited through fork: the parent's, leave them be
+            self._files, self._pid = OrderedDict(), os.getpid()
+        fd = self._files.get(shard)
+        if fd is None:
+            while len(self._files) >= self.max_open:
+                os.close(self._files.popitem(last=False)[1])
+            fd = self._files[shard] = os.open(self.root / shard, os.O_RDONLY)
+        else:
+            self._files.move_to_end(shard)
+        return fd
+
+    def read(self, shard: str, offset: int, size: int) -> bytearray:
+        """``size`` bytes at ``offset``, into a fresh writable buffer."""
+        fd = self._fd(shard)
+        buf = bytearray(size)
+        view, done = memoryview(buf), 0
+        while done < size:
+            if hasattr(os, "preadv"):
+                n = os.preadv(fd, [view[done:]], offset + done)
+            else:  # no positioned reads (Windows)
+                os.lseek(fd, offset + done, os.SEEK_SET)
+                chunk = os.read(fd, size - done)
+                view[done : done + len(chunk)] = chunk
+                n = len(chunk)
+            if n <= 0:
+                raise OSError(f"{self.root / shard}: short read at offset {offset}")
+            done += n
+        return buf
+
+    def close(self) -> None:
+        """Close this process's descriptors."""
+        if self._pid == os.getpid():
+            for fd in self._files.values():
+                os.close(fd)
+        self._files = OrderedDict()
+
+    def __del__(self) -> None:
+        with contextlib.suppress(Exception):
+            self.close()
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {"root": self.root, "max_open": self.max_open, "_pid": -1, "_files": {}}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state, _files=OrderedDict())
