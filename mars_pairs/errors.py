@@ -31,3 +31,14 @@ class TerrainError(MarsPairsError):
 
 class ConfigError(MarsPairsError):
     """A build configuration is invalid; the message names the key and what was expected."""
+
+
+class DatasetError(MarsPairsError):
+    """A built dataset is damaged: the message names the shard file and the member key."""
+
+    def __init__(self, shard: object, member: str | None, reason: str) -> None:
+        self.shard = str(shard)
+        self.member = member
+        self.reason = reason
+        where = f"{self.shard}: {member}" if member else self.shard
+        super().__init__(f"{where}: {reason}")

@@ -87,7 +87,7 @@ def _geojson(table: pa.Table, crs: str | None) -> str:
         props = {
             k: (v.isoformat() if hasattr(v, "isoformat") else v)
             for k, v in row.items()
-            if not k.endswith(("_shard", "_offset", "_size"))
+            if not k.endswith(("_shard", "_offset", "_size", "_crc32c"))
         }
         if wkb and crs is not None:
             geom = shapely.transform(shapely.from_wkb(wkb), lambda xy: _lonlat(xy, crs))

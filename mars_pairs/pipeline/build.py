@@ -172,6 +172,7 @@ def _write_chunk(
                             f"{fld}_shard": loc.shard,
                             f"{fld}_offset": loc.offset,
                             f"{fld}_size": loc.size,
+                            f"{fld}_crc32c": loc.crc32c,
                         }
                     )
                 rows.append(row)

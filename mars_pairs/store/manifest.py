@@ -59,6 +59,7 @@ for _m in MEMBERS:
         (f"{_m}_shard", pa.string()),
         (f"{_m}_offset", pa.int64()),
         (f"{_m}_size", pa.int64()),
+        (f"{_m}_crc32c", pa.int64()),  # CRC-32C of the member's bytes (store.shards.checksum)
     ]
 
 MANIFEST_SCHEMA = pa.schema(_FIELDS)

@@ -1,4 +1,5 @@
-"""WebDataset-style tar shards, written atomically, with each member's byte offset and size."""
+"""WebDataset-style tar shards, written atomically, with each member's byte offset, size and
+CRC-32C checksum (the ``crc32c`` package: hardware CRC, ~10 GB/s)."""
 
 from __future__ import annotations
 
@@ -9,14 +10,25 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 
+import crc32c as _crc32c
+
+from mars_pairs.errors import DatasetError
+
 
 @dataclass(frozen=True)
 class MemberLocation:
-    """Where one member's bytes sit: shard file (relative to the dataset), offset, size."""
+    """Where one member's bytes sit: shard file (relative to the dataset), offset, size, and
+    the CRC-32C of the bytes (None when unknown: a dataset built before checksums)."""
 
     shard: str
     offset: int
     size: int
+    crc32c: int | None = None
+
+
+def checksum(data: bytes) -> int:
+    """CRC-32C (Castagnoli) of ``data`` as an unsigned 32-bit int (fits the int64 column)."""
+    return int(_crc32c.crc32c(data))
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -62,7 +74,9 @@ class ShardWriter:
             self._tar.addfile(info, io.BytesIO(data))
             # the data ends the member, padded to whole 512-byte blocks
             padded = -(-len(data) // tarfile.BLOCKSIZE) * tarfile.BLOCKSIZE
-            out[fld] = MemberLocation(self.relpath, self._tar.offset - padded, len(data))
+            out[fld] = MemberLocation(
+                self.relpath, self._tar.offset - padded, len(data), checksum(data)
+            )
         self.count += 1
         return out
 
@@ -89,11 +103,31 @@ class ShardWriter:
         self.close(commit=exc_type is None)
 
 
-def read_member(root: Path, location: MemberLocation) -> bytes:
-    """One member's bytes by its manifest location: one seek, one read."""
-    with open(Path(root) / location.shard, "rb") as fh:
-        fh.seek(location.offset)
-        data = fh.read(location.size)
+def read_member(
+    root: Path, location: MemberLocation, *, name: str | None = None, verify: bool = False
+) -> bytes:
+    """One member's bytes by its manifest location: one seek, one read.
+
+    ``name`` (``<key>.<field>``) is named in errors; ``verify`` checks the bytes against the
+    location's CRC-32C. A short read, a missing shard or a checksum mismatch raise
+    DatasetError naming the shard and the member.
+    """
+    try:
+        with open(Path(root) / location.shard, "rb") as fh:
+            fh.seek(location.offset)
+            data = fh.read(location.size)
+    except OSError as exc:
+        raise DatasetError(location.shard, name, f"cannot read: {exc}") from None
     if len(data) != location.size:
-        raise OSError(f"{location.shard}: short read at offset {location.offset}")
+        raise DatasetError(
+            location.shard,
+            name,
+            f"short read: {len(data)} of {location.size} bytes at offset {location.offset}",
+        )
+    if verify and location.crc32c is not None and checksum(data) != location.crc32c:
+        raise DatasetError(
+            location.shard,
+            name,
+            f"checksum mismatch (crc32c {checksum(data):#010x}, manifest {location.crc32c:#010x})",
+        )
     return data

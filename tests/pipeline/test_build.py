@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import crc32c
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
@@ -125,6 +126,7 @@ def test_every_offset_reads_back_the_tar_member(built: Path) -> None:
                 }[name]
             )
             assert data == members[f"{row['key']}.{fld}"]
+            assert row[f"{name}_crc32c"] == crc32c.crc32c(data)  # independent of the writer
 
 
 def test_ground_member_is_the_original_image(mission: Path, built: Path) -> None:
