@@ -42,3 +42,12 @@ class DatasetError(MarsPairsError):
         self.reason = reason
         where = f"{self.shard}: {member}" if member else self.shard
         super().__init__(f"{where}: {reason}")
+
+
+class FetchError(MarsPairsError):
+    """A download or archive index failed; the message names the URL (or index file) at fault."""
+
+    def __init__(self, url: object, reason: str) -> None:
+        self.url = str(url)
+        self.reason = reason
+        super().__init__(f"{self.url}: {reason}")
