@@ -21,6 +21,7 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import pytest
 from werkzeug.exceptions import NotFound
 from werkzeug.security import safe_join
 from werkzeug.serving import WSGIRequestHandler, make_server
@@ -153,3 +154,12 @@ class ArchiveServer:
         out = self._variants / f"{fault}-{path.name}"
         out.write_bytes(bytes(data))
         return str(out)
+
+
+@pytest.fixture()
+def served(tmp_path: Path) -> Iterator[tuple[ArchiveServer, Path]]:
+    """(server, archive root): an empty archive folder served on 127.0.0.1."""
+    root = tmp_path / "archive"
+    root.mkdir()
+    with ArchiveServer(root, slow_s=1.0) as srv:
+        yield srv, root

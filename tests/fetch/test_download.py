@@ -6,6 +6,7 @@ import hashlib
 import os
 from pathlib import Path, PurePosixPath
 
+import fetch_server
 import numpy as np
 import pytest
 
@@ -13,6 +14,7 @@ from mars_pairs.errors import FetchError
 from mars_pairs.fetch.cache import Cache, archive_path
 from mars_pairs.fetch.download import Downloader, FetchPolicy, RemoteFile
 
+served = fetch_server.served  # the loopback server fixture
 FAST = FetchPolicy(retries=2, backoff_s=0.01, connect_timeout_s=2.0, read_timeout_s=0.4, workers=2)
 REL = "DATA/RDR/SURFACE/1429/PRODUCT.IMG"
 
