@@ -123,3 +123,54 @@ class MapCamera:
     def project_map(self, points_map: ArrayLike) -> FloatArray:
         """Map points (..., 3) -> pixels (..., 2) as (sample, line); NaN behind the camera."""
         return self.camera.project(self.map_to_local(points_map))
+
+    # -- the map grid against true north and true metres ----------------------------------------
+    def map_scale_range(self) -> tuple[float, float]:
+        """Smallest and largest horizontal map scale at the rover (map units per true metre).
+
+        The singular values of the Jacobian's horizontal block: 1 for a CRS true to scale at
+        the rover in every direction; eqc with lat_ts = 0 at 18.4 N gives (1.0, 1.054).
+        """
+        s = np.linalg.svd(self.jacobian[:2, :2], compute_uv=False)
+        return float(s.min()), float(s.max())
+
+    def grid_azimuth_deg(self, true_azimuth_deg: ArrayLike) -> FloatArray:
+        """Azimuths clockwise from true north (degrees) -> clockwise from grid north (+y).
+
+        Maps the direction through the local Jacobian, so grid convergence (23 deg in
+        sinusoidal at Jezero) and anisotropic scale (eqc off its lat_ts) are both applied.
+        """
+        az = np.radians(np.asarray(true_azimuth_deg, dtype=np.float64))
+        north_east = np.stack([np.cos(az), np.sin(az)], axis=-1)
+        grid = north_east @ self.jacobian[:2, :2].T  # (x east, y north) map units
+        return np.degrees(np.arctan2(grid[..., 0], grid[..., 1])) % 360.0
+
+    def local_points(self, points_map: ArrayLike, planet_radius: float) -> FloatArray:
+        """Map points (..., 3) -> local NED metres at the rover, with the planet's curvature.
+
+        Map z is elevation above the sphere; in the rover's tangent plane a point at horizontal
+        distance d lies a further d^2 / (2 R) below (``planet_radius`` R metres; 0: none), the
+        same convention as the terrain kernels.
+        """
+        local = self.map_to_local(points_map)
+        if planet_radius:
+            d2 = local[..., 0] ** 2 + local[..., 1] ** 2
+            local = local.copy()
+            local[..., 2] += d2 / (2.0 * planet_radius)
+        return local
+
+    def in_image(self, points_map: ArrayLike, planet_radius: float) -> NDArray[np.bool_]:
+        """Whether map points (..., 3) lie in front of the camera and project inside the image.
+
+        Inside means within the image's outer pixel edges: sample in [-0.5, width - 0.5] and
+        line in [-0.5, height - 0.5] (pixel centres at integers).
+        """
+        px = self.camera.project(self.local_points(points_map, planet_radius))
+        with np.errstate(invalid="ignore"):
+            return (
+                np.isfinite(px[..., 0])
+                & (px[..., 0] >= -0.5)
+                & (px[..., 0] <= self.width - 0.5)
+                & (px[..., 1] >= -0.5)
+                & (px[..., 1] <= self.height - 0.5)
+            )

@@ -16,6 +16,10 @@ import yaml
 from mars_pairs.errors import ConfigError
 
 VIEWSHED_MODES = ("wedge", "raycast", "both")
+#: View masks: "frustum" (default) = cells visible from the camera centre whose terrain point
+#: projects inside the image; "band" = the study's mask, visible cells inside the image's
+#: azimuth/elevation band (the rectangle the study used).
+VIEW_MASKS = ("frustum", "band")
 ORIENTATIONS = ("north-up", "heading-up")
 IMAGE_ENCODINGS = ("png", "jpg")
 
@@ -56,6 +60,7 @@ class GeometryConfig:
     observer_height: float | None = None  # above the terrain; None: the camera centre's height
     radius: float = 2000.0  # metres
     viewshed: str = "both"  # wedge | raycast | both
+    view_mask: str = "frustum"  # frustum (what the image saw) | band (the study's az/el band)
     ray_stride: int = 8  # pixels
 
 
@@ -234,7 +239,9 @@ def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConf
     """Validate a config mapping (relative paths against ``base``) into a BuildConfig."""
     top = _Section(data, "", {"inputs", "geometry", "chips", "output", "splits"})
     geo = _Section(
-        top.raw("geometry", {}), "geometry", {"observer_height", "radius", "viewshed", "ray_stride"}
+        top.raw("geometry", {}),
+        "geometry",
+        {"observer_height", "radius", "viewshed", "view_mask", "ray_stride"},
     )
     chips = _Section(top.raw("chips", {}), "chips", {"size_m", "size_px", "orientation"})
     out = _Section(top.raw("output"), "output", {"dir", "shard_size", "image_encoding"})
@@ -244,6 +251,7 @@ def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConf
             observer_height=geo.number("observer_height", None),
             radius=geo.number("radius", 2000.0),
             viewshed=geo.choice("viewshed", VIEWSHED_MODES, "both"),
+            view_mask=geo.choice("view_mask", VIEW_MASKS, "frustum"),
             ray_stride=geo.integer("ray_stride", 8),
         ),
         chips=ChipsConfig(

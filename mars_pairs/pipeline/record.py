@@ -45,6 +45,7 @@ def manifest_row(
         "hfov_deg": obs.hfov_deg if obs.hfov_deg is not None else hfov,
         "vfov_deg": obs.vfov_deg if obs.vfov_deg is not None else vfov,
         "width": obs.width, "height": obs.height, "localization": pose.source,
+        "dem_offset_m": view.dem_offset_m,
         **view_statistics(view),
         "footprint": None if footprint is None else shapely.to_wkb(footprint),
         "chip_xmin": xmin, "chip_ymin": ymin, "chip_xmax": xmax, "chip_ymax": ymax,

@@ -8,7 +8,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from mars_pairs.errors import MarsPairsError
-from mars_pairs.geometry.frames import MARS_RADIUS_M
+from mars_pairs.geometry.body import MARS_RADIUS_M
+from mars_pairs.geometry.frames import azimuth_elevation_deg
 from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.geometry.places import Pose
 from mars_pairs.kernels.raycast import cast_rays
@@ -18,15 +19,20 @@ from mars_pairs.pipeline.context import SampleContext
 from mars_pairs.pipeline.stages import Stages
 from mars_pairs.raster.terrain import DemWindow
 
+_AZ_MARGIN_DEG = 2.0  # the kernel's wedge is a prefilter: the exact test follows
+_EL_MARGIN_DEG = 1.0
+
 
 @dataclass
 class View:
     """An observation's view over the terrain, in the DEM's CRS.
 
-    ``camera`` is anchored so that its centre stands ``height`` metres above the DEM;
-    ``mask`` (uint8 on ``window``'s grid) marks the visible cells; ``hits`` (N, 3) are the
-    ray/terrain intersections of the strided pixels (NaN for no hit), ``grid_shape`` their
-    (rows, cols) in the image.
+    ``camera`` is anchored at the rover origin: the whole rover is shifted by
+    ``dem_offset_m`` = DEM(rover origin) - PLACES elevation (metres), so its origin stands on
+    the DEM; ``height`` is the camera centre's height above the DEM at the rover origin (m).
+    ``mask`` (uint8 on ``window``'s grid) marks the cells in view (see ``VIEW_MASKS``);
+    ``hits`` (N, 3) are the ray/terrain intersections of the strided pixels (map x, y, z; NaN
+    for no hit), ``grid_shape`` their (rows, cols) in the image.
     """
 
     camera: MapCamera
@@ -35,41 +41,118 @@ class View:
     mask: np.ndarray
     hits: np.ndarray | None
     grid_shape: tuple[int, int]
+    dem_offset_m: float = 0.0
+
+
+def anchor_camera(
+    camera: MapCamera, pose: Pose, ground_at_origin: float, observer_height: float | None
+) -> tuple[MapCamera, float, float]:
+    """The camera with the rover standing on the DEM: (camera, dem_offset_m, height_m).
+
+    ``ground_at_origin``: DEM elevation (m) at the rover origin. The rover (camera centre and
+    rays) moves up by DEM - PLACES elevation; with ``observer_height`` the camera centre is
+    put that many metres above the DEM at the rover origin instead.
+    """
+    offset = ground_at_origin - pose.elevation_m
+    lift = offset
+    if observer_height is not None:
+        lift = ground_at_origin + observer_height - float(camera.center_map[2])
+    moved = replace(camera, origin_map=camera.origin_map + np.array([0.0, 0.0, lift]))
+    return moved, float(offset), float(moved.center_map[2] - ground_at_origin)
+
+
+def kernel_bands(
+    camera: MapCamera, az_band: tuple[float, float], el_band: tuple[float, float]
+) -> tuple[tuple[float, float] | None, tuple[float, float]]:
+    """The true-north az/el band as a conservative band of the kernel's grid frame.
+
+    The kernel measures azimuth from grid north and elevation with map-unit distances; the
+    band edges go through the local Jacobian (convergence, anisotropic scale) and widen by a
+    margin. None: all azimuths.
+    """
+    k_min, k_max = camera.map_scale_range()
+    lo, hi = el_band
+    el_lo = min(math.degrees(math.atan(math.tan(math.radians(lo)) / k)) for k in (k_min, k_max))
+    el_hi = max(math.degrees(math.atan(math.tan(math.radians(hi)) / k)) for k in (k_min, k_max))
+    el = (max(el_lo - _EL_MARGIN_DEG, -90.0), min(el_hi + _EL_MARGIN_DEG, 90.0))
+    start, end = az_band
+    width = (end - start) % 360.0
+    if width == 0.0 or width + 2 * _AZ_MARGIN_DEG >= 360.0 or (start, end) == (0.0, 360.0):
+        return None, el
+    g_start, g_end = camera.grid_azimuth_deg(np.array([start, end]))
+    return ((float(g_start) - _AZ_MARGIN_DEG) % 360.0, (float(g_end) + _AZ_MARGIN_DEG) % 360.0), el
+
+
+def exact_view_mask(
+    los: np.ndarray,
+    window: DemWindow,
+    camera: MapCamera,
+    radius: float,
+    mode: str,
+    bands: tuple[tuple[float, float], tuple[float, float]],
+) -> np.ndarray:
+    """The cells of ``los`` (line-of-sight visible, uint8) that the view keeps, exactly.
+
+    Tested in true metres in the rover's local frame: horizontal range from the camera centre
+    at most ``radius`` metres, and in "frustum" mode the cell's terrain point projects inside
+    the image; in "band" mode its azimuth/elevation lies inside ``bands`` (true north, deg).
+    """
+    rows, cols = np.nonzero(los)
+    mask = np.zeros_like(los, dtype=np.uint8)
+    if len(rows) == 0:
+        return mask
+    x, y = window.colrow_to_xy(cols, rows)
+    points = np.column_stack([x, y, window.data[rows, cols].astype(np.float64)])
+    rel = camera.local_points(points, MARS_RADIUS_M) - camera.map_to_local(camera.center_map)
+    keep = np.hypot(rel[:, 0], rel[:, 1]) <= radius
+    if mode == "frustum":
+        keep &= camera.in_image(points, MARS_RADIUS_M)
+    else:
+        (az0, az1), (el0, el1) = bands
+        az, el = azimuth_elevation_deg(rel)
+        if (az0, az1) != (0.0, 360.0):
+            keep &= (az - az0) % 360.0 <= (az1 - az0) % 360.0
+        keep &= (el >= el0) & (el <= el1)
+    mask[rows[keep], cols[keep]] = 1
+    return mask
 
 
 def compute_view(
     obs: Observation, pose: Pose, camera: MapCamera, ctx: SampleContext, stage: Stages
 ) -> View:
-    """Terrain window, anchored camera, viewshed over the image's band, and ray hits."""
+    """Terrain window, the camera anchored at the rover origin, its view mask and ray hits."""
     geo = ctx.config.geometry
     with stage("terrain"):
+        ox, oy = (float(v) for v in camera.origin_map[:2])
+        ground = ctx.terrain.elevation_at(ox, oy)  # TerrainError off the DEM
+        if not math.isfinite(ground):
+            raise MarsPairsError(f"{ctx.config.inputs.dem}: no DEM data under the rover")
+        camera, offset, height = anchor_camera(camera, pose, ground, geo.observer_height)
         cx, cy, cz = (float(v) for v in camera.center_map)
-        ground_z = ctx.terrain.elevation_at(cx, cy)  # TerrainError off the DEM
-        if not math.isfinite(ground_z):
-            raise MarsPairsError(f"{ctx.config.inputs.dem}: no DEM data under the camera")
-        window = ctx.dem_window(cx, cy, geo.radius + 2.0)
-        height = geo.observer_height
-        if height is None:  # the camera centre's height above the rover origin
-            height = cz - pose.elevation_m
-        # anchor the camera to the DEM: its centre stands `height` above the terrain under it
-        lift = np.array([0.0, 0.0, ground_z + height - cz])
-        camera = replace(camera, origin_map=camera.origin_map + lift)
-        # the exact band the image covers, from its border rays
+        k_max = camera.map_scale_range()[1]
+        radius_map = geo.radius * k_max  # the window and kernel work in map units
+        window = ctx.dem_window(cx, cy, radius_map + 2.0 * max(ctx.terrain.res))
+        # the exact band the image covers, from its border rays (true north)
         az_band, el_band = camera.view_band_deg()
     mask = hits = None
     stride = geo.ray_stride
     grid_shape = (len(range(0, camera.height, stride)), len(range(0, camera.width, stride)))
     if geo.viewshed in ("wedge", "both"):
         with stage("viewshed"):
-            mask = compute_viewshed(
+            grid_az, grid_el = kernel_bands(camera, az_band, el_band)
+            los = compute_viewshed(
                 window,
                 cx,
                 cy,
-                height=height,
-                radius=geo.radius,
-                az_band=az_band,
-                el_band=el_band,
+                height=cz,
+                height_is_absolute=True,
+                radius=radius_map + max(ctx.terrain.res),
+                az_band=grid_az,
+                el_band=grid_el,
                 planet_radius=MARS_RADIUS_M,
+            )
+            mask = exact_view_mask(
+                los, window, camera, geo.radius, geo.view_mask, (az_band, el_band)
             )
     if geo.viewshed in ("raycast", "both"):
         with stage("raycast"):
@@ -78,7 +161,7 @@ def compute_view(
             if mask is None:
                 mask = mask_from_hits(hits, window)
     assert mask is not None
-    return View(camera, float(height), window, mask, hits, grid_shape)
+    return View(camera, height, window, mask, hits, grid_shape, offset)
 
 
 def mask_from_hits(hits: np.ndarray, window: DemWindow) -> np.ndarray:

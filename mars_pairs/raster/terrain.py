@@ -1,4 +1,4 @@
-"""DEM and orthoimage access through rasterio: windowed reads in any projected CRS.
+"""DEM and orthoimage access through rasterio: windowed reads in any projected Mars CRS.
 
 Frames and units:
 
@@ -31,6 +31,7 @@ from rasterio.windows import Window, from_bounds
 
 from mars_pairs.errors import TerrainError
 from mars_pairs.geometry.frames import MARS_LONLAT, crs_string, map_to_map
+from mars_pairs.raster.crs import check_map_crs
 
 Bounds = tuple[float, float, float, float]
 
@@ -137,10 +138,12 @@ class Terrain:
                 raise TerrainError(f"{self.dem_path}: DEM grid is rotated; only north-up grids")
             self.crs_wkt: str = crs.to_wkt()
             self.pyproj_crs = CRS.from_wkt(self.crs_wkt)
+            check_map_crs(self.pyproj_crs, self.dem_path, "DEM")
             if self.ortho_path is not None:
                 self._ortho = _open_raster(self.ortho_path, "orthoimage")
                 if self._ortho.crs is None or not self._ortho.crs.to_wkt():
                     raise TerrainError(f"{self.ortho_path}: orthoimage has no CRS")
+                check_map_crs(CRS.from_wkt(self._ortho.crs.to_wkt()), self.ortho_path, "ortho")
         except Exception:
             self.close()
             raise
@@ -384,10 +387,7 @@ def _open_raster(path: str, what: str) -> Any:
 
 
 def _bilinear_patch(p: np.ndarray, fc: float, fr: float) -> float:
-    """Bilinear value of a (<=2, <=2) patch at fractional (col, row) offsets in [0, 1].
-
-    Cells with zero weight are ignored, so a point on a cell centre next to nodata is valid.
-    """
+    """Bilinear value of a (<=2, <=2) patch at (col, row) offsets in [0, 1]; skips 0 weights."""
     total, acc = 0.0, 0.0
     for i, wr in enumerate((1.0 - fr, fr)):
         for j, wc in enumerate((1.0 - fc, fc)):

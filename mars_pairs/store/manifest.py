@@ -40,6 +40,7 @@ _FIELDS: list[tuple[str, pa.DataType]] = [
     ("width", pa.int32()),
     ("height", pa.int32()),
     ("localization", pa.string()),  # places | label
+    ("dem_offset_m", pa.float64()),  # DEM at the rover origin - PLACES elevation (rover moved)
     ("viewshed_area_m2", pa.float64()),
     ("visible_cells", pa.int64()),
     ("max_visible_range_m", pa.float64()),
