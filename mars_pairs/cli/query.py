@@ -118,7 +118,7 @@ def run_query(
         print(f"{out}: {table.num_rows} rows")
         return 0
     if fmt == "csv":
-        text = _csv(table.drop_columns(["footprint"]))
+        text = _csv(table.drop_columns(["footprint", "bbox"]))
     elif fmt == "geojson":
         text = _geojson(table, manifest.crs)
     else:

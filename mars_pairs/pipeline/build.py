@@ -28,16 +28,20 @@ from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.context import SampleContext
 from mars_pairs.pipeline.sample import build_sample
+from mars_pairs.pipeline.splitting import split_rule, splits_report
 from mars_pairs.pipeline.stages import StageError
 from mars_pairs.store.manifest import (
     FAILURE_SCHEMA,
     MANIFEST_SCHEMA,
+    footprints_bbox,
     geo_metadata,
     rows_to_table,
     write_parquet_atomic,
 )
 from mars_pairs.store.shards import ShardWriter, atomic_write_bytes
+from mars_pairs.store.splits import BUFFER
 
+_DROPPED_KEY = b"mars_pairs:dropped_in_buffer"
 _CONTEXT: SampleContext | None = None  # one per worker process, set by the pool initializer
 
 
@@ -90,6 +94,8 @@ def check_inputs(config: BuildConfig) -> list[Path]:
                     raise ConfigError(f"inputs.{key}: {path} has no CRS")
         except rasterio.errors.RasterioIOError as exc:
             raise ConfigError(f"inputs.{key}: cannot open {path}: {exc}") from None
+    with rasterio.open(config.inputs.dem) as src:  # a split config error stops it here
+        split_rule(config, src.crs.to_wkt(), tuple(src.bounds), src.res)
     return labels
 
 
@@ -148,11 +154,22 @@ def _results(config: BuildConfig, labels: list[str], workers: int) -> Iterator[t
 
 
 def _write_chunk(
-    out: Path, k: int, results: list[tuple[str, Any]], strict: bool, stage_seconds: Counter[str]
+    config: BuildConfig,
+    k: int,
+    results: list[tuple[str, Any]],
+    strict: bool,
+    stage_seconds: Counter[str],
 ) -> int:
+    """Write chunk k's shard and parts; samples in the split buffer are dropped when the
+    config says so (their count goes in the manifest part's metadata)."""
+    out = config.output.dir
     shard_rel, manifest_part, failures_part = _part_paths(out, k)
     rows, failures = [], []
     samples = [r for status, r in results if status == "ok"]
+    dropped = 0
+    if config.splits.buffer_policy == "drop":
+        kept = [s for s in samples if s.row["split"] != BUFFER]
+        dropped, samples = len(samples) - len(kept), kept
     for sample in samples:
         stage_seconds.update(sample.seconds)
     for status, r in results:
@@ -177,7 +194,9 @@ def _write_chunk(
                     )
                 rows.append(row)
     write_parquet_atomic(rows_to_table(failures, FAILURE_SCHEMA), failures_part)
-    write_parquet_atomic(rows_to_table(rows, MANIFEST_SCHEMA), manifest_part)  # commit marker
+    table = rows_to_table(rows, MANIFEST_SCHEMA)
+    table = table.replace_schema_metadata({_DROPPED_KEY: str(dropped).encode()})
+    write_parquet_atomic(table, manifest_part)  # commit marker
     return len(samples)
 
 
@@ -226,7 +245,7 @@ def run_build(
             for _ in chunks[k]:
                 batch.append(next(results))
                 bar.update(1)
-            _write_chunk(out, k, batch, strict, stage_seconds)
+            _write_chunk(config, k, batch, strict, stage_seconds)
     finally:
         bar.close()
         close = getattr(results, "close", None)
@@ -252,8 +271,17 @@ def run_build(
         seconds=time.perf_counter() - start,
         stage_seconds=dict(stage_seconds),
     )
-    _write_dataset_json(config, summary, manifest)
+    _write_dataset_json(config, summary, manifest, _dropped(out, len(chunks)))
     return summary
+
+
+def _dropped(out: Path, n_chunks: int) -> int:
+    """Samples dropped in the split buffer, summed over the chunk parts."""
+    total = 0
+    for k in range(n_chunks):
+        meta = pq.read_schema(_part_paths(out, k)[1]).metadata or {}
+        total += int(meta.get(_DROPPED_KEY, b"0"))
+    return total
 
 
 def _fingerprint(config: BuildConfig, labels: list[Path]) -> dict[str, Any]:
@@ -288,8 +316,7 @@ def _merge(config: BuildConfig, n_chunks: int) -> tuple[pa.Table, pa.Table]:
     manifest = manifest.sort_by([("hilbert", "ascending"), ("key", "ascending")])
     failures = pa.concat_tables(fails) if fails else FAILURE_SCHEMA.empty_table()
     crs = _dataset_crs(config)
-    bbox = _bbox(manifest)
-    manifest = manifest.replace_schema_metadata(geo_metadata(crs, bbox))
+    manifest = manifest.replace_schema_metadata(geo_metadata(crs, footprints_bbox(manifest)))
     write_parquet_atomic(manifest, out / "manifest.parquet", row_group_size=1024)
     write_parquet_atomic(failures, out / "failures.parquet")
     return manifest, failures
@@ -302,20 +329,9 @@ def _dataset_crs(config: BuildConfig) -> str:
         return src.crs.to_wkt()
 
 
-def _bbox(manifest: pa.Table) -> list[float] | None:
-    if manifest.num_rows == 0:
-        return None
-    import pyarrow.compute as pc
-
-    return [
-        pc.min(manifest["chip_xmin"]).as_py(),
-        pc.min(manifest["chip_ymin"]).as_py(),
-        pc.max(manifest["chip_xmax"]).as_py(),
-        pc.max(manifest["chip_ymax"]).as_py(),
-    ]
-
-
-def _write_dataset_json(config: BuildConfig, summary: BuildSummary, manifest: pa.Table) -> None:
+def _write_dataset_json(
+    config: BuildConfig, summary: BuildSummary, manifest: pa.Table, dropped: int
+) -> None:
     import numba
     import numpy
     import pyarrow
@@ -344,6 +360,7 @@ def _write_dataset_json(config: BuildConfig, summary: BuildSummary, manifest: pa
             "orientation": config.chips.orientation,
         },
         "counts": counts,
+        "splits": splits_report(config, manifest, dropped),
         "failures_by_reason": summary.failures_by_reason,
         "build_seconds": round(summary.seconds, 3),
     }

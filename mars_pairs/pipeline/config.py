@@ -22,6 +22,9 @@ VIEWSHED_MODES = ("wedge", "raycast", "both")
 VIEW_MASKS = ("frustum", "band")
 ORIENTATIONS = ("north-up", "heading-up")
 IMAGE_ENCODINGS = ("png", "jpg")
+SPLIT_STYLES = ("same-area", "cross-area")
+SPLIT_GUARDS = ("chip", "footprint")
+BUFFER_POLICIES = ("split", "drop")
 
 
 @dataclass(frozen=True)
@@ -84,13 +87,26 @@ class OutputConfig:
 
 @dataclass(frozen=True)
 class SplitsConfig:
-    """Spatial-block splits: blocks of ``block_m`` metres go whole into one split."""
+    """Leak-free spatial splits (map units of the dataset CRS; see ``store/splits.py``).
 
-    block_m: float = 250.0
+    ``style`` same-area: blocks of ``block_m`` go whole into a split drawn by ``ratios``;
+    cross-area: the ``areas`` (split -> map boxes xmin, ymin, xmax, ymax) are held out and
+    everything else is train. ``guard``: what must not intersect across splits, the chips
+    (``chip``) or the chips and footprints (``footprint``). ``buffer_m``: the gap kept
+    between held-out regions and other splits' extents (None: the guard's reach, at least the
+    chip size); samples in it become split ``buffer`` or are dropped (``buffer_policy``).
+    """
+
+    style: str = "same-area"
+    block_m: float = 10000.0
     ratios: dict[str, float] = field(
         default_factory=lambda: {"train": 0.8, "val": 0.1, "test": 0.1}
     )
     seed: int = 0
+    areas: dict[str, tuple[tuple[float, float, float, float], ...]] = field(default_factory=dict)
+    guard: str = "footprint"
+    buffer_m: float | None = None
+    buffer_policy: str = "split"
 
 
 @dataclass(frozen=True)
@@ -210,7 +226,13 @@ def _inputs(data: Any, base: Path) -> InputsConfig:
 
 
 def _splits(data: Any) -> SplitsConfig:
-    sec = _Section(data, "splits", {"block_m", "ratios", "seed"})
+    known = {"style", "block_m", "ratios", "seed", "areas", "guard", "buffer_m", "buffer_policy"}
+    sec = _Section(data, "splits", known)
+    style = sec.choice("style", SPLIT_STYLES, "same-area")
+    only = {"same-area": ("areas",), "cross-area": ("block_m", "ratios")}[style]
+    for key in only:
+        if sec.raw(key, None) is not None:
+            raise ConfigError(f"splits.{key}: not used with splits.style {style!r}")
     ratios = sec.raw("ratios", {"train": 0.8, "val": 0.1, "test": 0.1})
     ok = (
         isinstance(ratios, dict)
@@ -228,11 +250,66 @@ def _splits(data: Any) -> SplitsConfig:
             f"splits.ratios: expected a mapping of split name to a fraction, summing to 1, "
             f"got {ratios!r}"
         )
+    areas = _areas(sec.raw("areas", None)) if style == "cross-area" else {}
+    for name in (*ratios, *areas):
+        if name == "buffer":
+            raise ConfigError("splits: 'buffer' is reserved for the samples in the buffer")
+    buffer_m = sec.number("buffer_m", None, positive=False)
+    if buffer_m is not None and buffer_m < 0:
+        raise ConfigError(f"splits.buffer_m: expected a distance >= 0, got {buffer_m!r}")
     return SplitsConfig(
-        block_m=sec.number("block_m", 250.0),
+        style=style,
+        block_m=sec.number("block_m", 10000.0),
         ratios={str(k): float(v) for k, v in ratios.items()},
         seed=sec.integer("seed", 0, minimum=0),
+        areas=areas,
+        guard=sec.choice("guard", SPLIT_GUARDS, "footprint"),
+        buffer_m=buffer_m,
+        buffer_policy=sec.choice("buffer_policy", BUFFER_POLICIES, "split"),
     )
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _areas(data: Any) -> dict[str, tuple[tuple[float, float, float, float], ...]]:
+    """Cross-area held-out areas: split name -> list of map boxes [xmin, ymin, xmax, ymax]."""
+    if not isinstance(data, dict) or not data:
+        raise ConfigError(
+            "splits.areas: expected a mapping of held-out split name to a list of map boxes "
+            f"[xmin, ymin, xmax, ymax] (style cross-area), got {data!r}"
+        )
+    areas: dict[str, tuple[tuple[float, float, float, float], ...]] = {}
+    for name, boxes in data.items():
+        key = f"splits.areas.{name}"
+        if not isinstance(name, str) or name == "train":
+            raise ConfigError(f"{key}: expected a held-out split name (not 'train')")
+        if isinstance(boxes, list) and boxes and not isinstance(boxes[0], list):
+            boxes = [boxes]
+        good = isinstance(boxes, list) and boxes
+        out = []
+        for box in boxes if good else []:
+            nums = isinstance(box, list) and len(box) == 4
+            nums = nums and all(_is_number(v) for v in box)
+            if not nums or not (box[0] < box[2] and box[1] < box[3]):
+                good = False
+                break
+            out.append(tuple(float(v) for v in box))
+        if not good:
+            raise ConfigError(
+                f"{key}: expected a list of map boxes [xmin, ymin, xmax, ymax] with xmin < xmax "
+                f"and ymin < ymax, got {boxes!r}"
+            )
+        areas[name] = tuple(out)  # type: ignore[assignment]
+    names = list(areas)
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            for p in areas[a]:
+                for q in areas[b]:
+                    if p[0] < q[2] and q[0] < p[2] and p[1] < q[3] and q[1] < p[3]:
+                        raise ConfigError(f"splits.areas: {a} box {list(p)} overlaps {b} {list(q)}")
+    return areas
 
 
 def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConfig:

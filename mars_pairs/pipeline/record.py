@@ -10,9 +10,11 @@ from mars_pairs.geometry.places import Pose
 from mars_pairs.pds.observation import Observation
 from mars_pairs.pipeline.context import SampleContext
 from mars_pairs.pipeline.footprint import footprint_polygon, view_statistics
+from mars_pairs.pipeline.splitting import split_rule
 from mars_pairs.pipeline.view import View
 from mars_pairs.raster.chips import ChipGrid
-from mars_pairs.store.splits import assign_splits, hilbert_index
+from mars_pairs.store.manifest import footprint_bounds
+from mars_pairs.store.splits import hilbert_index
 
 
 def sample_key(obs: Observation) -> str:
@@ -30,9 +32,8 @@ def manifest_row(
     hfov, vfov = obs.camera.fov_deg(obs.width, obs.height)
     footprint = footprint_polygon(view)
     xmin, ymin, xmax, ymax = grid.bounds()
-    split = assign_splits(
-        [rover_x], [rover_y], cfg.splits.block_m, cfg.splits.ratios, cfg.splits.seed
-    )[0]
+    rule = split_rule(cfg, ctx.crs_wkt, ctx.terrain.bounds, ctx.terrain.res)
+    split = rule.assign(rover_x, rover_y)
     hilbert = int(hilbert_index([rover_x], [rover_y], ctx.terrain.bounds)[0])
     return {
         "key": sample_key(obs), "mission": obs.mission, "instrument": obs.instrument,
@@ -48,6 +49,7 @@ def manifest_row(
         "dem_offset_m": view.dem_offset_m,
         **view_statistics(view),
         "footprint": None if footprint is None else shapely.to_wkb(footprint),
+        "bbox": footprint_bounds(footprint),
         "chip_xmin": xmin, "chip_ymin": ymin, "chip_xmax": xmax, "chip_ymax": ymax,
         "chip_rotation_deg": grid.rotation_deg, "split": split, "hilbert": hilbert,
     }  # fmt: skip

@@ -23,7 +23,7 @@ SHOW_SIZE = (16.0, 10.0)  # inches: show_sample writes SHOW_SIZE * DPI pixels
 OVERVIEW_SIZE = (16.0, 8.0)  # inches: overview writes OVERVIEW_SIZE * DPI pixels
 
 
-SPLIT_COLOURS = {"train": "#1f77b4", "val": "#ff7f0e", "test": "#2ca02c"}
+SPLIT_COLOURS = {"train": "#1f77b4", "val": "#ff7f0e", "test": "#2ca02c", "buffer": "#9e9e9e"}
 
 
 def pyplot() -> Any:

@@ -104,7 +104,7 @@ def test_every_image_becomes_a_sample_with_all_members(mission: Path, built: Pat
         assert meta["product_id"] == row["product_id"]
         assert row["visible_cells"] > 0 and row["viewshed_area_m2"] > 0
         assert 0 < row["max_visible_range_m"] <= 600 * 1.01
-        assert row["split"] in ("train", "val", "test")
+        assert row["split"] in ("train", "val", "test", "buffer")
 
 
 def test_every_offset_reads_back_the_tar_member(built: Path) -> None:
@@ -147,6 +147,43 @@ def test_geoparquet_metadata_and_dataset_json(built: Path) -> None:
     doc = json.loads((built / "dataset.json").read_text())
     assert doc["counts"]["samples"] == len(read_rows(built))
     assert doc["chip"]["size_px"] == 128
+    # GeoParquet 1.1: geopandas reads it; the bbox holds every footprint (not only the chips)
+    import geopandas
+
+    gdf = geopandas.read_parquet(built / "manifest.parquet")
+    box = shapely.box(*geo["columns"]["footprint"]["bbox"])
+    assert gdf.geometry.notna().all() and all(box.covers(g) for g in gdf.geometry)
+    assert list(box.bounds) == pytest.approx(list(gdf.total_bounds))
+    # the splits: the buffer covers the footprints' reach, nothing crosses splits
+    splits = doc["splits"]
+    assert splits["guard"] == "footprint" and splits["guaranteed"]
+    assert splits["buffer_m"] >= splits["reach_m"] >= 600
+    assert set(splits["intersections_between_splits"].values()) == {0}
+    reach = [
+        shapely.Point(r["easting"], r["northing"]).hausdorff_distance(g)
+        for r, g in zip(gdf.to_dict("records"), gdf.geometry, strict=True)
+    ]
+    assert max(reach) <= splits["reach_m"]  # the footprints stay within the assumed reach
+
+
+def test_buffer_samples_can_be_dropped_and_are_counted(
+    mission: Path, built: Path, tmp_path: Path
+) -> None:
+    path = write_config(tmp_path / "c.yaml", mission, tmp_path / "ds")
+    doc = yaml.safe_load(path.read_text())
+    x, y = read_rows(built)[0]["easting"], read_rows(built)[0]["northing"]
+    test_area = [[x - 5.0, y - 5.0, x + 5.0, y + 5.0]]  # one stop; the others are in its buffer
+    doc["splits"] = {"style": "cross-area", "areas": {"test": test_area}}
+    doc["splits"].update(guard="chip", buffer_policy="drop")
+    path.write_text(yaml.safe_dump(doc))
+    summary = run_build(load_config(path), progress=False)
+    splits = json.loads((tmp_path / "ds" / "dataset.json").read_text())["splits"]
+    rows = read_rows(tmp_path / "ds")
+    n_images = len(list((mission / "labels").glob("*.xml")))
+    assert splits["dropped_in_buffer"] == splits["in_buffer"] == n_images - len(rows) > 0
+    assert summary.samples == len(rows) > 0
+    assert {r["split"] for r in rows} == {"test"}
+    assert splits["buffer_m"] == 128 and splits["intersections_between_splits"]["chip_chip"] == 0
 
 
 def test_corr_points_land_on_the_chip_where_the_viewshed_is(built: Path) -> None:

@@ -1,0 +1,45 @@
+"""The build's split rule and the splits section of dataset.json (map units of the DEM CRS)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from mars_pairs.pipeline.config import BuildConfig
+from mars_pairs.store.leakage import leak_report, rounded
+from mars_pairs.store.splits import BUFFER, SplitRule, make_rule, map_scale_bound
+
+
+def split_rule(
+    cfg: BuildConfig, crs_wkt: str, bounds: Sequence[float], res: Sequence[float]
+) -> SplitRule:
+    """The build's split rule: the config's splits, chip size and view radius, and the DEM's
+    map scale over its ``bounds`` (W, S, E, N) and cell size ``res`` (x, y), map units."""
+    box = (float(bounds[0]), float(bounds[1]), float(bounds[2]), float(bounds[3]))
+    scale = map_scale_bound(crs_wkt, box)
+    cell = math.hypot(float(res[0]), float(res[1]))
+    return make_rule(cfg.splits, cfg.chips.size_m, cfg.geometry.radius, scale, cell)
+
+
+def splits_report(config: BuildConfig, manifest: pa.Table, dropped: int) -> dict[str, Any]:
+    """The split rule's buffer and reach, the buffer's count and the measured leak check."""
+    import rasterio
+
+    with rasterio.open(config.inputs.dem) as src:
+        rule = split_rule(config, src.crs.to_wkt(), tuple(src.bounds), src.res)
+    in_buffer = int(pc.sum(pc.equal(manifest["split"], BUFFER)).as_py() or 0)
+    return {
+        "style": config.splits.style,
+        "guard": config.splits.guard,
+        "buffer_m": rule.buffer_m,
+        "reach_m": rounded(rule.reach),
+        "guaranteed": rule.guaranteed,
+        "buffer_policy": config.splits.buffer_policy,
+        "in_buffer": in_buffer + dropped,
+        "dropped_in_buffer": dropped,
+        **leak_report(manifest, config.chips.size_m),
+    }
