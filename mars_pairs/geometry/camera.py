@@ -1,6 +1,6 @@
-"""CAHV and CAHVOR camera models: projection and ray unprojection, vectorised.
+"""CAHV, CAHVOR and CAHVORE camera models: projection and ray unprojection, vectorised.
 
-Frame and units: the vectors C, A, H, V, O (and E) are expressed in the model's reference frame
+Frame and units: the vectors C, A, H, V, O are expressed in the model's reference frame
 (``CameraModel.frame``, ROVER_NAV_FRAME for the mast cameras: x forward, y right, z down, metres).
 Image coordinates are (sample, line) = (x, y) in pixels of the product's own grid, with the
 centre of the first pixel at (0, 0) as in the JPL convention.
@@ -13,9 +13,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from mars_pairs.geometry import cahvore
+
 FloatArray = NDArray[np.float64]
 
-SUPPORTED_MODELS = ("CAHV", "CAHVOR")
+SUPPORTED_MODELS = ("CAHV", "CAHVOR", "CAHVORE")
 _NEWTON_STEPS = 60
 _NEWTON_TOL = 1e-14
 
@@ -24,10 +26,13 @@ _NEWTON_TOL = 1e-14
 class CameraModel:
     """A JPL CAHV-family camera model.
 
-    ``model_type`` is "CAHV" or "CAHVOR" (the mast cameras' models). ``c`` is the camera centre
-    (metres), ``a`` the unit axis, ``h`` and ``v`` the horizontal and vertical vectors (pixels),
-    ``o`` the optical axis and ``r`` the radial terms (r0, r1, r2) of CAHVOR. ``frame`` names
-    the reference frame of the vectors.
+    ``model_type`` is "CAHV", "CAHVOR" (Mastcam, Mastcam-Z) or "CAHVORE" (Navcam, Hazcam).
+    ``c`` is the camera centre (metres), ``a`` the unit axis, ``h`` and ``v`` the horizontal
+    and vertical vectors (pixels), ``o`` the optical axis and ``r`` the radial terms (r0, r1,
+    r2) of CAHVOR and CAHVORE; CAHVORE adds the entrance-pupil terms ``e`` (e0 metres, e1, e2
+    metres per radian^2 and ^4), its model type ``mtype`` (1 perspective, 2 fish-eye, 3
+    general) and parameter ``mparm`` (the linearity of type 3). ``frame`` names the
+    reference frame of the vectors.
     """
 
     model_type: str
@@ -38,9 +43,12 @@ class CameraModel:
     o: FloatArray | None = None
     r: FloatArray | None = None
     frame: str = "ROVER_NAV_FRAME"
+    e: FloatArray | None = None
+    mtype: int | None = None
+    mparm: float | None = None
 
     def __post_init__(self) -> None:
-        for name in ("c", "a", "h", "v", "o", "r"):
+        for name in ("c", "a", "h", "v", "o", "r", "e"):
             value = getattr(self, name)
             if value is not None:
                 arr = np.asarray(value, dtype=np.float64).reshape(3)
@@ -49,8 +57,29 @@ class CameraModel:
         object.__setattr__(self, "model_type", kind)
         if kind not in SUPPORTED_MODELS:
             raise ValueError(f"unsupported camera model type {self.model_type!r}")
-        if kind == "CAHVOR" and (self.o is None or self.r is None):
-            raise ValueError("CAHVOR model needs O and R")
+        if kind in ("CAHVOR", "CAHVORE") and (self.o is None or self.r is None):
+            raise ValueError(f"{kind} model needs O and R")
+        if kind == "CAHVORE":
+            if self.e is None or self.mtype is None:
+                raise ValueError("CAHVORE model needs E and its model type")
+            mparm = 0.0 if self.mparm is None else float(self.mparm)
+            cahvore.linearity(int(self.mtype), mparm)  # checks the type
+            if not np.isfinite(mparm):
+                raise ValueError(f"CAHVORE model parameter must be finite, got {mparm}")
+            object.__setattr__(self, "mtype", int(self.mtype))
+            object.__setattr__(self, "mparm", mparm)
+        for name in ("c", "a", "h", "v", "o", "r", "e"):
+            value = getattr(self, name)
+            if value is not None and not np.all(np.isfinite(value)):
+                raise ValueError(f"{name.upper()} has non-finite components")
+
+    @property
+    def linearity(self) -> float | None:
+        """CAHVORE's linearity L (1 perspective, 0 fish-eye); None for CAHV and CAHVOR."""
+        if self.model_type != "CAHVORE":
+            return None
+        assert self.mtype is not None and self.mparm is not None
+        return cahvore.linearity(self.mtype, self.mparm)
 
     # -- intrinsic quantities (derived from the vectors) -------------------------------------
     @property
@@ -82,6 +111,9 @@ class CameraModel:
         p = np.asarray(points, dtype=np.float64) - self.c
         if self.model_type == "CAHVOR":
             p = _cahvor_distort(self, p)
+        elif self.model_type == "CAHVORE":
+            assert self.o is not None and self.r is not None and self.e is not None
+            p = cahvore.distort(p, self.o, self.r, self.e, float(self.linearity))
         denom = p @ self.a
         with np.errstate(divide="ignore", invalid="ignore"):
             x = (p @ self.h) / denom
@@ -94,11 +126,15 @@ class CameraModel:
     def unproject(self, pixels: ArrayLike) -> tuple[FloatArray, FloatArray]:
         """Rays through pixels (..., 2) as (x, y): returns (origins (..., 3), unit directions).
 
-        Origins are the camera centre (CAHV and CAHVOR have a fixed entrance pupil); both are
-        in the model frame, metres.
+        Origins are the camera centre for CAHV and CAHVOR (a fixed entrance pupil) and the
+        entrance pupil of each ray for CAHVORE; both are in the model frame, metres. Pixels
+        outside the model's domain give NaN.
         """
         xy = np.asarray(pixels, dtype=np.float64)
         u = _cahv_ray(self, xy[..., 0], xy[..., 1])
+        if self.model_type == "CAHVORE":
+            assert self.o is not None and self.r is not None and self.e is not None
+            return cahvore.undistort(u, self.c, self.o, self.r, self.e, float(self.linearity))
         if self.model_type == "CAHVOR":
             u = _cahvor_undistort(self, u)
         origin = np.broadcast_to(self.c, u.shape).copy()

@@ -1,4 +1,4 @@
-"""PDS label readers: Curiosity Mastcam PDS3 and Perseverance Mastcam-Z PDS4 -> Observation.
+"""PDS label readers: Curiosity PDS3 (detached or attached) and Perseverance PDS4 -> Observation.
 
 ``read_observation`` chooses the format by content (XML vs PDS3 ``keyword = value``), not by
 file extension. Every failure, of any kind, is a ``LabelError`` naming the file and field.
@@ -45,14 +45,18 @@ def read_observation(path: PathLike) -> Observation:
         label_path = Path(path)
     except TypeError as exc:
         raise LabelError(path, None, "not a file path") from exc
-    data = read_bytes(label_path)
+    data, longer = read_bytes(label_path)
     if not data.strip():
         raise LabelError(label_path, None, "empty file")
     kind = sniff_format(data)
     if kind is None:
         raise LabelError(label_path, None, "not a PDS label (neither XML nor PDS3 keyword = value)")
+    if kind == "pds4" and longer:
+        raise LabelError(label_path, None, f"larger than {len(data)} bytes: not a label")
     try:
-        return parse_pds4(data, label_path) if kind == "pds4" else parse_pds3(data, label_path)
+        if kind == "pds4":
+            return parse_pds4(data, label_path)
+        return parse_pds3(data, label_path, longer)
     except LabelError:
         raise
     except Exception as exc:  # safety net of the contract; the readers should not get here

@@ -8,7 +8,11 @@ from __future__ import annotations
 import math
 import os
 import re
-from collections.abc import Sequence
+import signal
+import stat
+import threading
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from datetime import date, datetime, timezone
 from pathlib import Path
 from typing import Any, NoReturn
@@ -24,17 +28,73 @@ PathLike = str | os.PathLike[str]
 NULL_TOKENS = frozenset({"", "NULL", "N/A", "UNK", "NONE"})
 BROWSE_SUFFIXES = (".jpg", ".JPG", ".jpeg", ".JPEG", ".png", ".PNG")
 
+#: Longest product id / instrument / frame name accepted (real ones are under 60).
+MAX_ID_CHARS = 80
+_ID_RE = re.compile(r"[A-Za-z0-9_.\-]+", re.ASCII)
 _INT_RE = re.compile(r"[+-]?[0-9]+", re.ASCII)
 _FLOAT_RE = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?", re.ASCII)
 _DOY_RE = re.compile(r"(\d{4})-(\d{3})T(\d{2}):(\d{2}):(\d{2}(?:\.\d+)?)Z?", re.ASCII)
 
 
-def read_bytes(path: Path) -> bytes:
-    """The file's bytes; a missing or unreadable file is a LabelError."""
+#: Labels (and the label head of a product with an attached label) are read up to this size.
+MAX_LABEL_BYTES = 4 * 1024 * 1024
+#: Wall-clock budget of parsing one label (seconds); past it the label is a LabelError.
+PARSE_SECONDS = 5.0
+
+
+def read_bytes(path: Path, limit: int = MAX_LABEL_BYTES) -> tuple[bytes, bool]:
+    """The first ``limit`` bytes of a regular file and whether the file is longer.
+
+    A missing or unreadable file, or one that is not a regular file (a directory, FIFO or
+    device such as /dev/zero), is a LabelError; nothing is read from non-regular files.
+    """
     try:
-        return path.read_bytes()
+        info = path.stat()
+        if not stat.S_ISREG(info.st_mode):
+            raise LabelError(path, None, "not a regular file")
+        with path.open("rb") as handle:
+            data = handle.read(limit + 1)
     except OSError as exc:
         raise LabelError(path, None, f"cannot read label: {exc.strerror or exc}") from exc
+    return data[:limit], len(data) > limit
+
+
+class _Overtime(Exception):
+    """Raised inside a parse that ran past its time limit."""
+
+
+@contextmanager
+def time_limit(path: Path, seconds: float = PARSE_SECONDS) -> Iterator[None]:
+    """Stop the enclosed parse with a LabelError once it has run ``seconds`` of wall time.
+
+    Uses a real-time interval timer (SIGALRM), so it applies on the main thread of a process
+    (the CLI, build workers); elsewhere the parse runs unguarded and the label size limit
+    alone bounds it. A timer set by the caller is restored afterwards.
+    """
+    if threading.current_thread() is not threading.main_thread() or not hasattr(
+        signal, "setitimer"
+    ):
+        yield
+        return
+
+    armed = [True]
+
+    def expire(signum: int, frame: object) -> None:
+        if armed[0]:
+            raise _Overtime
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    outer_delay, outer_interval = signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    except _Overtime:
+        raise LabelError(path, None, f"parsing took longer than {seconds:g} s") from None
+    finally:
+        armed[0] = False
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+        if outer_delay > 0:
+            signal.setitimer(signal.ITIMER_REAL, outer_delay, outer_interval)
 
 
 def is_null(value: Any) -> bool:
@@ -60,6 +120,16 @@ class Fields:
             self.fail(field, f"expected non-empty text, got {_show(value)}")
         return value.strip()
 
+    def identifier(self, value: Any, field: str, limit: int = MAX_ID_CHARS) -> str:
+        """Non-empty text of letters, digits and ``_ . -`` (product ids, instruments, frames):
+        no spaces, slashes or colons, at most ``limit`` characters."""
+        text = self.text(value, field)
+        if not _ID_RE.fullmatch(text):
+            self.fail(field, f"expected an identifier (letters, digits, _ . -), got {_show(text)}")
+        if len(text) > limit:
+            self.fail(field, f"longer than {limit} characters ({len(text)})")
+        return text
+
     def integer(self, value: Any, field: str, minimum: int | None = 0) -> int:
         """An integer (an int, or text of decimal digits), at least ``minimum``."""
         if isinstance(value, str) and _INT_RE.fullmatch(value.strip()):
@@ -71,9 +141,8 @@ class Fields:
         return value
 
     def number(self, value: Any, field: str) -> float:
-        """A finite real number (int, float, pvl Quantity or numeric text)."""
-        if hasattr(value, "value") and hasattr(value, "units"):  # pvl Quantity
-            value = value.value
+        """A finite real number (int, float, numeric text, or a quantity with units)."""
+        value = quantity_value(value)
         if isinstance(value, str) and _FLOAT_RE.fullmatch(value.strip()):
             value = float(value.strip())
         if isinstance(value, bool) or not isinstance(value, int | float):
@@ -100,7 +169,10 @@ class Fields:
         return q / norm
 
     def angle(self, value: Any, field: str, lo: float, hi: float) -> float:
-        """A finite number within [lo, hi] (degrees)."""
+        """A finite number within [lo, hi] (degrees; a quantity must say degrees)."""
+        units = quantity_units(value)
+        if units is not None and units.strip().lower() not in ("deg", "degree", "degrees"):
+            self.fail(field, f"expected degrees, got units {units!r}")
         result = self.number(value, field)
         if not lo <= result <= hi:
             self.fail(field, f"expected a value in [{lo:g}, {hi:g}], got {result:g}")
@@ -119,9 +191,14 @@ class Fields:
             return datetime(value.year, value.month, value.day, tzinfo=timezone.utc)
         self.fail(field, f"expected a time, got {_show(value)}")
 
-    def camera(
-        self, field: str, kind: str, vectors: dict[str, np.ndarray], frame: str
-    ) -> CameraModel:
+    def model_type_code(self, value: Any, field: str) -> int:
+        """CAHVORE's model type: 1, 2 or 3 (labels write it as an integer or a real, "3.0")."""
+        number = self.number(value, field)
+        if number not in (1.0, 2.0, 3.0):
+            self.fail(field, f"expected CAHVORE model type 1, 2 or 3, got {number:g}")
+        return int(number)
+
+    def camera(self, field: str, kind: str, vectors: dict[str, Any], frame: str) -> CameraModel:
         """Build the CameraModel; its ValueError, or a zero axis, becomes a LabelError."""
         for name in ("a", "o"):
             vec = vectors.get(name)
@@ -131,6 +208,20 @@ class Fields:
             return CameraModel(model_type=kind, frame=frame, **vectors)
         except ValueError as exc:
             self.fail(field, f"invalid {kind} camera model: {exc}")
+
+
+def quantity_value(value: Any) -> Any:
+    """The number of a ``value <units>`` quantity (pdr: a {'value', 'units'} mapping)."""
+    if isinstance(value, Mapping) and set(value) == {"value", "units"}:
+        return value["value"]
+    return value
+
+
+def quantity_units(value: Any) -> str | None:
+    """The units of a quantity, or None for a plain value."""
+    if isinstance(value, Mapping) and set(value) == {"value", "units"}:
+        return str(value["units"])
+    return None
 
 
 def parse_time(text: str) -> datetime | None:

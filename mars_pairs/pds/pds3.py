@@ -1,10 +1,19 @@
-"""Curiosity Mastcam PDS3 labels (``.LBL``) -> Observation, parsed with ``pvl``.
+"""Curiosity PDS3 labels (``.LBL``, or attached at the start of an ``.IMG``) -> Observation.
+
+Parsed with pdr's PDS3 label parser (``pdr.parselabel.pds3.parse_pvl``): ~3 ms per Mastcam
+label against ~130 ms for ``pvl.loads``; ``tests/pds/test_pds3_pdr.py`` shows every field read
+here equals what pvl reads, on every real label in ``../shared/pds-samples``. The parse runs
+under a time limit and a size limit (``common.time_limit``, ``common.MAX_LABEL_BYTES``).
+
+Products: Mastcam RDRs (``GEOMETRIC_CAMERA_MODEL_PARMS``, ``DERIVED_IMAGE_PARMS``) and the
+MIPL-processed Navcam, Hazcam and MAHLI EDRs/RDRs (``GEOMETRIC_CAMERA_MODEL``,
+``SITE_DERIVED_GEOMETRY_PARMS``, label attached to the image). Camera models: CAHV, CAHVOR and
+CAHVORE (MODEL_COMPONENT_7..9 = E, T, P).
 
 Required keywords (a LabelError names the one at fault): PRODUCT_ID, INSTRUMENT_ID,
-PLANET_DAY_NUMBER, ROVER_MOTION_COUNTER(_NAME) with SITE and DRIVE, the
-GEOMETRIC_CAMERA_MODEL_PARMS group and the IMAGE object's LINES / LINE_SAMPLES. Optional ones
-(rover pose, derived pointing, FOV, time) are None when absent or "NULL"/"N/A"/"UNK", and a
-LabelError when present but malformed.
+PLANET_DAY_NUMBER, ROVER_MOTION_COUNTER(_NAME) with SITE and DRIVE, the camera model group
+and the IMAGE object's LINES / LINE_SAMPLES. Optional ones (rover pose, derived pointing, FOV,
+time) are None when absent or "NULL"/"N/A"/"UNK", and a LabelError when present but malformed.
 """
 
 from __future__ import annotations
@@ -14,118 +23,99 @@ import warnings
 from collections.abc import Mapping
 from datetime import datetime
 from pathlib import Path
-from types import ModuleType
 from typing import Any
 
 import numpy as np
 
 from mars_pairs.errors import LabelError
 from mars_pairs.geometry.camera import CameraModel
-from mars_pairs.pds.common import Fields, PathLike, image_beside, is_null, read_bytes
+from mars_pairs.pds.common import (
+    PARSE_SECONDS,
+    Fields,
+    PathLike,
+    image_beside,
+    is_null,
+    read_bytes,
+    time_limit,
+)
 from mars_pairs.pds.observation import MotionCounter, Observation
-from mars_pairs.pds.pvl_lexer import lexer as regex_lexer
 
 MISSION = "msl"
-CAMERA_GROUP = "GEOMETRIC_CAMERA_MODEL_PARMS"
+CAMERA_GROUPS = ("GEOMETRIC_CAMERA_MODEL_PARMS", "GEOMETRIC_CAMERA_MODEL")
 ROVER_GROUP = "ROVER_COORDINATE_SYSTEM_PARMS"
 DERIVED_GROUP = "DERIVED_IMAGE_PARMS"
+SITE_DERIVED_GROUP = "SITE_DERIVED_GEOMETRY_PARMS"
 STATE_GROUP = "INSTRUMENT_STATE_PARMS"
-_COMPONENTS = {"CAHV": "cahv", "CAHVOR": "cahvor"}
+_COMPONENTS = {"CAHV": "cahv", "CAHVOR": "cahvor", "CAHVORE": "cahvore"}
 _END_RE = re.compile(rb"^[ \t]*END[ \t]*\r?$", re.MULTILINE)
 
 
 def read_pds3(path: PathLike) -> Observation:
-    """Read a Curiosity Mastcam PDS3 label into an Observation (LabelError on any fault)."""
+    """Read a PDS3 label (detached or attached) into an Observation (LabelError on any fault)."""
     label_path = Path(path)
-    return parse_pds3(read_bytes(label_path), label_path)
+    data, longer = read_bytes(label_path)
+    return parse_pds3(data, label_path, longer)
 
 
-def parse_pds3(data: bytes, path: Path) -> Observation:
-    """Parse the bytes of the PDS3 label at ``path`` (attached labels are cut at END)."""
-    label = _load(data, path)
-    f = Fields(path)
-    return Observation(
-        label_path=path,
-        mission=MISSION,
-        product_id=f.text(_require(f, label, "PRODUCT_ID"), "PRODUCT_ID"),
-        instrument=f.text(_require(f, label, "INSTRUMENT_ID"), "INSTRUMENT_ID").upper(),
-        sol=f.integer(_require(f, label, "PLANET_DAY_NUMBER"), "PLANET_DAY_NUMBER"),
-        rmc=_motion_counter(f, label),
-        width=f.integer(_require(f, _image(f, label), "LINE_SAMPLES"), "LINE_SAMPLES", 1),
-        height=f.integer(_require(f, _image(f, label), "LINES"), "LINES", 1),
-        camera=_camera(f, label),
-        **_rover_pose(f, label),
-        **_pointing(f, label),
-        start_time=_start_time(f, label),
-        image_path=image_beside(path, _pointer(label)),
-    )
+def parse_pds3(data: bytes, path: Path, longer: bool = False) -> Observation:
+    """Parse the PDS3 label at the start of ``data`` (the first bytes of the file at ``path``;
+    ``longer``: the file goes on past them). An attached label is cut at its END line."""
+    return observation_from_label(load_label(data, path, longer), path)
 
 
-def _load(data: bytes, path: Path) -> Mapping[str, Any]:
-    """Decode and parse the label text; any decoding or pvl failure is a LabelError."""
+def load_label(data: bytes, path: Path, longer: bool = False) -> Mapping[str, Any]:
+    """Decode and parse the label text; any decoding or parser failure is a LabelError."""
     end = _END_RE.search(data)
     if end is not None:
         data = data[: end.end()]
+    elif longer:
+        raise LabelError(path, None, f"no END line in the first {len(data)} bytes")
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise LabelError(path, None, f"not a text label (bad byte at {exc.start})") from exc
     if "\x00" in text:
         raise LabelError(path, None, "not a text label (NUL bytes)")
+    from pdr.parselabel.pds3 import parse_pvl
+
     try:
-        label = _parse_pvl(text)
-    except Exception as exc:  # pvl raises many types (LexerError, ValueError, ...) on bad input
+        with time_limit(path, PARSE_SECONDS), warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # pdr warns about unclosed groups: checked below
+            label, _ = parse_pvl(text)
+    except LabelError:
+        raise
+    except Exception as exc:  # pdr's literal parsing raises RecursionError, MemoryError, ...
         raise LabelError(path, None, f"not a readable PDS3 label: {_brief(exc)}") from exc
     if not isinstance(label, Mapping) or len(label) == 0:
         raise LabelError(path, None, "not a PDS3 label (no keywords)")
     return label
 
 
-def _pvl() -> ModuleType:
-    """The pvl module, imported lazily without its import-time deprecation warning."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", PendingDeprecationWarning)
-        import pvl
-        import pvl.decoder
-        import pvl.grammar
-        import pvl.parser
-    return pvl
-
-
-def _parse_pvl(text: str) -> Any:
-    """``pvl.loads(text)``: the same grammar, decoder and parser, made faster in two ways
-    that leave the result identical.
-
-    - Tokens come from :mod:`mars_pairs.pds.pvl_lexer` (a regular expression) instead of
-      pvl's character-by-character lexer, unless the text leaves the subset it handles.
-    - The decoder tries date/time formats only on tokens that could be one (a digit first,
-      then a '-' or a ':'): pvl otherwise runs ~10 ``strptime`` formats on every word.
-
-    A Mastcam label takes ~20 ms instead of pvl's ~260 ms.
-    """
-    pvl = _pvl()
-
-    class _Decoder(pvl.decoder.OmniDecoder):  # type: ignore[name-defined,misc]
-        def decode_datetime(self, value: str) -> Any:
-            if not (value[:1].isdigit() and ("-" in value or ":" in value)):
-                raise ValueError(f"{value!r} is not a date or time")
-            return super().decode_datetime(value)
-
-    decoder = _Decoder(grammar=pvl.grammar.OmniGrammar())
-    return pvl.parser.OmniParser(decoder=decoder, lexer_fn=regex_lexer).parse(text)
+def observation_from_label(label: Mapping[str, Any], path: Path) -> Observation:
+    """The Observation of a parsed PDS3 label (any mapping: pdr's MultiDict or pvl's module)."""
+    f = Fields(path)
+    image = _image(f, label)
+    return Observation(
+        label_path=path,
+        mission=MISSION,
+        product_id=f.identifier(_require(f, label, "PRODUCT_ID"), "PRODUCT_ID"),
+        instrument=f.identifier(_require(f, label, "INSTRUMENT_ID"), "INSTRUMENT_ID").upper(),
+        sol=f.integer(_require(f, label, "PLANET_DAY_NUMBER"), "PLANET_DAY_NUMBER"),
+        rmc=_motion_counter(f, label),
+        width=f.integer(_require(f, image, "LINE_SAMPLES"), "LINE_SAMPLES", 1),
+        height=f.integer(_require(f, image, "LINES"), "LINES", 1),
+        camera=_camera(f, label),
+        **_rover_pose(f, label),
+        **_pointing(f, label),
+        start_time=_start_time(f, label),
+        image_path=_image_path(path, label),
+    )
 
 
 def _brief(exc: BaseException) -> str:
-    """The first line of an exception message, shortened (pvl's LexerError: its message and
-    line/column; a parser that ran out of tokens: says so)."""
-    if isinstance(exc, StopIteration):
-        return "the label ends inside a statement"
-    if hasattr(exc, "msg") and hasattr(exc, "lineno") and hasattr(exc, "colno"):
-        text = f"{exc.msg} (line {exc.lineno}, column {exc.colno})"
-    else:
-        text = str(exc)
-    lines = text.splitlines() or [type(exc).__name__]
-    return lines[0][:200]
+    """The first line of an exception message, shortened (its type if it has none)."""
+    lines = str(exc).splitlines() or [type(exc).__name__]
+    return f"{type(exc).__name__}: {lines[0][:200]}"
 
 
 def _require(f: Fields, container: Mapping[str, Any], key: str, where: str = "") -> Any:
@@ -184,18 +174,28 @@ def _motion_counter(f: Fields, label: Mapping[str, Any]) -> MotionCounter:
 
 
 def _camera(f: Fields, label: Mapping[str, Any]) -> CameraModel:
-    """The CAHV/CAHVOR model: MODEL_COMPONENT_1..6 = C, A, H, V, O, R."""
-    group = _group(f, label, CAMERA_GROUP, required=True)
-    kind = f.text(_require(f, group, "MODEL_TYPE", CAMERA_GROUP), "MODEL_TYPE").upper()
+    """The CAHV/CAHVOR/CAHVORE model: MODEL_COMPONENT_1..9 = C, A, H, V, O, R, E, T, P.
+
+    Mastcam RDRs name the group GEOMETRIC_CAMERA_MODEL_PARMS, MIPL products
+    GEOMETRIC_CAMERA_MODEL; either is read (the first present, in that order).
+    """
+    name = next((g for g in CAMERA_GROUPS if label.get(g) is not None), CAMERA_GROUPS[0])
+    group = _group(f, label, name, required=True)
+    kind = f.text(_require(f, group, "MODEL_TYPE", name), "MODEL_TYPE").upper()
     if kind not in _COMPONENTS:
-        f.fail("MODEL_TYPE", f"unsupported camera model {kind!r} (CAHV or CAHVOR)")
-    vectors = {}
+        f.fail("MODEL_TYPE", f"unsupported camera model {kind!r} (CAHV, CAHVOR or CAHVORE)")
+    vectors: dict[str, Any] = {}
     for i, letter in enumerate(_COMPONENTS[kind], start=1):
         key = f"MODEL_COMPONENT_{i}"
-        vectors[letter] = f.vector(_require(f, group, key, CAMERA_GROUP), 3, key)
+        vectors[letter] = f.vector(_require(f, group, key, name), 3, key)
+    if kind == "CAHVORE":
+        vectors["mtype"] = f.model_type_code(_require(f, group, "MODEL_COMPONENT_8", name),
+                                             "MODEL_COMPONENT_8")  # fmt: skip
+        vectors["mparm"] = f.number(_require(f, group, "MODEL_COMPONENT_9", name),
+                                    "MODEL_COMPONENT_9")  # fmt: skip
     key = "REFERENCE_COORD_SYSTEM_NAME"
-    frame = f.text(_require(f, group, key, CAMERA_GROUP), key).upper()
-    return f.camera(CAMERA_GROUP, kind, vectors, frame)
+    frame = f.identifier(_require(f, group, key, name), key).upper()
+    return f.camera(name, kind, vectors, frame)
 
 
 def _rover_pose(f: Fields, label: Mapping[str, Any]) -> dict[str, np.ndarray | None]:
@@ -218,17 +218,31 @@ def _rover_pose(f: Fields, label: Mapping[str, Any]) -> dict[str, np.ndarray | N
 
 
 def _pointing(f: Fields, label: Mapping[str, Any]) -> dict[str, float | None]:
-    """Derived site-frame azimuth/elevation and the field of view (each optional)."""
+    """Derived SITE_FRAME azimuth/elevation and the field of view (each optional).
+
+    Mastcam RDRs: DERIVED_IMAGE_PARMS FIXED_INSTRUMENT_AZIMUTH/ELEVATION. MIPL products:
+    SITE_DERIVED_GEOMETRY_PARMS INSTRUMENT_AZIMUTH/ELEVATION (``<deg>`` quantities), taken only
+    when the group's REFERENCE_COORD_SYSTEM_NAME is SITE_FRAME (or absent).
+    """
     derived = _group(f, label, DERIVED_GROUP, required=False)
+    site = _group(f, label, SITE_DERIVED_GROUP, required=False)
     state = _group(f, label, STATE_GROUP, required=False)
+    if not is_null(site.get("REFERENCE_COORD_SYSTEM_NAME")) and (
+        str(site.get("REFERENCE_COORD_SYSTEM_NAME")).upper() != "SITE_FRAME"
+    ):
+        site = {}
 
     def get(group: Mapping[str, Any], key: str, lo: float, hi: float) -> float | None:
         value = group.get(key)
         return None if is_null(value) else f.angle(value, key, lo, hi)
 
+    def either(key: str, lo: float, hi: float) -> float | None:
+        fixed = get(derived, f"FIXED_{key}", lo, hi)
+        return fixed if fixed is not None else get(site, key, lo, hi)
+
     return {
-        "azimuth_deg": get(derived, "FIXED_INSTRUMENT_AZIMUTH", -360.0, 720.0),
-        "elevation_deg": get(derived, "FIXED_INSTRUMENT_ELEVATION", -90.0, 90.0),
+        "azimuth_deg": either("INSTRUMENT_AZIMUTH", -360.0, 720.0),
+        "elevation_deg": either("INSTRUMENT_ELEVATION", -90.0, 90.0),
         "hfov_deg": get(state, "HORIZONTAL_FOV", 1e-9, 180.0),
         "vfov_deg": get(state, "VERTICAL_FOV", 1e-9, 180.0),
     }
@@ -243,9 +257,17 @@ def _start_time(f: Fields, label: Mapping[str, Any]) -> datetime | None:
     return None
 
 
-def _pointer(label: Mapping[str, Any]) -> str | None:
-    """The file named by the ^IMAGE pointer, or None (attached data or no pointer)."""
+def _image_path(path: Path, label: Mapping[str, Any]) -> Path | None:
+    """The image: the label file itself when ^IMAGE points inside it (a record number or a
+    byte offset: an attached label), else the named file beside the label, else a browse
+    image with the label's stem."""
     value = label.get("^IMAGE")
+    if isinstance(value, list | tuple) and len(value) == 1:
+        value = value[0]
+    if isinstance(value, bool):
+        return image_beside(path, None)
+    if isinstance(value, int) or (isinstance(value, Mapping) and set(value) == {"value", "units"}):
+        return path
     if isinstance(value, list | tuple) and value:
         value = value[0]
-    return value if isinstance(value, str) else None
+    return image_beside(path, value if isinstance(value, str) else None)

@@ -12,10 +12,12 @@ from __future__ import annotations
 
 from datetime import datetime
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from lxml import etree
 
+from mars_pairs.errors import LabelError
 from mars_pairs.geometry.camera import CameraModel
 from mars_pairs.pds.common import PathLike, image_beside, read_bytes
 from mars_pairs.pds.observation import MotionCounter, Observation
@@ -29,7 +31,7 @@ from mars_pairs.pds.xml import (
 MISSION = "m2020"
 ROVER_FRAME = "ROVER_NAV_FRAME"
 SITE_FRAME = "SITE_FRAME"
-_MODELS = {"CAHVOR_Model": "CAHVOR", "CAHV_Model": "CAHV"}
+_MODELS = {"CAHVORE_Model": "CAHVORE", "CAHVOR_Model": "CAHVOR", "CAHV_Model": "CAHV"}
 _VECTORS = {
     "c": "Vector_Center",
     "a": "Vector_Axis",
@@ -37,13 +39,20 @@ _VECTORS = {
     "v": "Vector_Vertical",
     "o": "Vector_Optical",
 }
-_PRODUCT_PREFIX_INSTRUMENT = {"ZL": "MCZ_LEFT", "ZR": "MCZ_RIGHT"}
+_PRODUCT_PREFIX_INSTRUMENT = {  # product id prefixes of the Mars 2020 mast and body cameras
+    "ZL": "MCZ_LEFT", "ZR": "MCZ_RIGHT", "NL": "NAVCAM_LEFT", "NR": "NAVCAM_RIGHT",
+    "FL": "FRONT_HAZCAM_LEFT", "FR": "FRONT_HAZCAM_RIGHT",
+    "RL": "REAR_HAZCAM_LEFT", "RR": "REAR_HAZCAM_RIGHT",
+}  # fmt: skip
 
 
 def read_pds4(path: PathLike) -> Observation:
     """Read a Perseverance Mastcam-Z PDS4 label into an Observation (LabelError on any fault)."""
     label_path = Path(path)
-    return parse_pds4(read_bytes(label_path), label_path)
+    data, longer = read_bytes(label_path)
+    if longer:
+        raise LabelError(label_path, None, f"larger than {len(data)} bytes: not a label")
+    return parse_pds4(data, label_path)
 
 
 def parse_pds4(data: bytes, path: Path) -> Observation:
@@ -98,19 +107,20 @@ class _Reader(XmlLabel):
                 and comment is not None
                 and "PRODUCT_ID" in self.text(comment).upper()
             ):
-                return self.f.text(self.text(alt), "alternate_id")
+                return self.f.identifier(self.text(alt), "alternate_id")
         lid_el = self.need(self.first("pds", "logical_identifier"), "pds", "logical_identifier")
         lid = self.f.text(self.text(lid_el), "logical_identifier").rsplit(":", 1)[-1]
         if not lid:
             self.f.fail("logical_identifier", "no product part after the last ':'")
         stem = self.path.stem
-        return stem.upper() if stem.lower().startswith(lid.lower()) else lid.upper()
+        found = stem.upper() if stem.lower().startswith(lid.lower()) else lid.upper()
+        return self.f.identifier(found, "logical_identifier")
 
     def instrument(self, product_id: str) -> str:
         """img_surface:ops_instrument_key (MCZ_LEFT / MCZ_RIGHT), else from the product id."""
         key = self.first("img_surface", "ops_instrument_key")
         if key is not None:
-            return self.f.text(self.text(key), "img_surface:ops_instrument_key").upper()
+            return self.f.identifier(self.text(key), "img_surface:ops_instrument_key").upper()
         by_prefix = _PRODUCT_PREFIX_INSTRUMENT.get(product_id[:2].upper())
         if by_prefix:
             return by_prefix
@@ -194,7 +204,7 @@ class _Reader(XmlLabel):
         self.f.fail("Axis_Array", "no Line/Sample image axes and no img:lines/img:samples")
 
     def camera(self, params: etree._Element) -> CameraModel:
-        """The geom:CAHVOR_Model / geom:CAHV_Model with the frame of its reference."""
+        """The geom:CAHVORE_Model / CAHVOR_Model / CAHV_Model with the frame of its reference."""
         model = self._model_element(params)
         kind = _MODELS[local_name(model)]
         declared = self.child(params, "geom", "model_type")
@@ -208,32 +218,45 @@ class _Reader(XmlLabel):
         return self.f.camera("geom:Camera_Model_Parameters", kind, vectors, frame)
 
     def _model_element(self, params: etree._Element) -> etree._Element:
-        """The CAHVOR_Model or CAHV_Model child of Camera_Model_Parameters."""
+        """The CAHVORE_Model, CAHVOR_Model or CAHV_Model child of Camera_Model_Parameters."""
         for local in _MODELS:
             model = self.child(params, "geom", local)
             if model is not None:
                 return model
         declared = self.child(params, "geom", "model_type")
         kind = self.text(declared) if declared is not None else "none"
-        reason = f"no geom:CAHVOR_Model or geom:CAHV_Model (model_type {kind!r})"
+        reason = f"no geom:CAHVORE_Model, CAHVOR_Model or CAHV_Model (model_type {kind!r})"
         self.f.fail("geom:Camera_Model_Parameters", reason)
 
-    def _model_vectors(self, model: etree._Element, kind: str) -> dict[str, np.ndarray]:
-        """C, A, H, V (and O, R for CAHVOR) of a model element."""
+    def _model_vectors(self, model: etree._Element, kind: str) -> dict[str, Any]:
+        """C, A, H, V (O, R for CAHVOR; and E, type, parameter for CAHVORE) of a model."""
         where = f"geom:{local_name(model)}"
-        vectors = {}
-        for letter in "cahvo" if kind == "CAHVOR" else "cahv":
+        vectors: dict[str, Any] = {}
+        for letter in "cahv" if kind == "CAHV" else "cahvo":
             local = _VECTORS[letter]
             vectors[letter] = self.xyz(
                 self.need(self.child(model, "geom", local), "geom", local, where), "geom", local
             )
-        if kind == "CAHVOR":
-            radial = self.need(self.child(model, "geom", "Radial_Terms"), "geom", "Radial_Terms")
-            terms = [
-                self.need(self.child(radial, "geom", c), "geom", c) for c in ("c0", "c1", "c2")
-            ]
-            vectors["r"] = np.array([self.number(t, "geom", f"c{i}") for i, t in enumerate(terms)])
+        if kind != "CAHV":
+            vectors["r"] = self._terms(model, "Radial_Terms")
+        if kind == "CAHVORE":
+            vectors["e"] = self._terms(model, "Entrance_Terms")
+            code = self.need(self.child(model, "geom", "cahvore_model_type"), "geom",
+                             "cahvore_model_type", where)  # fmt: skip
+            vectors["mtype"] = self.f.model_type_code(self.text(code), "geom:cahvore_model_type")
+            parm = self.child(model, "geom", "cahvore_model_parameter")
+            vectors["mparm"] = (
+                0.0 if parm is None else self.number(parm, "geom", "cahvore_model_parameter")
+            )
+            if vectors["mtype"] == 3 and parm is None:
+                self.f.fail("geom:cahvore_model_parameter", "required for model type 3")
         return vectors
+
+    def _terms(self, model: etree._Element, local: str) -> np.ndarray:
+        """The c0, c1, c2 children of geom:Radial_Terms / geom:Entrance_Terms."""
+        block = self.need(self.child(model, "geom", local), "geom", local)
+        terms = [self.need(self.child(block, "geom", c), "geom", c) for c in ("c0", "c1", "c2")]
+        return np.array([self.number(t, "geom", f"c{i}") for i, t in enumerate(terms)])
 
     def rover_pose(self, rmc: MotionCounter) -> tuple[np.ndarray | None, np.ndarray | None]:
         """ROVER_NAV_FRAME origin and quaternion relative to SITE_FRAME (None if absent)."""

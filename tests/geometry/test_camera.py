@@ -112,3 +112,30 @@ def test_scaled_model_follows_a_resampled_image() -> None:
 def test_unknown_model_type_is_refused() -> None:
     with pytest.raises(ValueError, match="unsupported"):
         CameraModel("PINHOLE", np.zeros(3), np.ones(3), np.ones(3), np.ones(3))
+
+
+@pytest.mark.parametrize("kind", ["CAHV", "CAHVOR", "CAHVORE"])
+@pytest.mark.parametrize("factor", [(0.5, 0.5), (0.25, 0.25), (1 / 3, 0.5), (2.0, 2.0)])
+def test_scaled_model_is_the_camera_of_the_resized_image(
+    kind: str, factor: tuple[float, float]
+) -> None:
+    """Resizing the image by (sx, sy) moves pixel edges: x' + 0.5 = sx (x + 0.5). The scaled
+    model must put every 3-D point there, and give the same ray for the moved pixel."""
+    base = make_camera("CAHVOR" if kind == "CAHVORE" else kind)
+    cam = base
+    if kind == "CAHVORE":
+        cam = CameraModel("CAHVORE", base.c, base.a, base.h, base.v, o=base.o, r=base.r,
+                          e=np.array([0.01, 0.05, -0.02]), mtype=3, mparm=0.3)  # fmt: skip
+    sx, sy = factor
+    small = cam.scaled(sx, sy)
+    rng = np.random.default_rng(11)
+    _, rays = cam.unproject(rng.uniform([0, 0], [1151, 431], size=(300, 2)))
+    points = cam.c + rng.uniform(2.0, 80.0, size=(300, 1)) * rays
+    full = cam.project(points)
+    expected = np.stack([sx * (full[:, 0] + 0.5) - 0.5, sy * (full[:, 1] + 0.5) - 0.5], axis=-1)
+    np.testing.assert_allclose(small.project(points), expected, atol=1e-7)
+    o_full, r_full = cam.unproject(full)
+    o_small, r_small = small.unproject(expected)
+    np.testing.assert_allclose(r_small, r_full, atol=1e-10)
+    np.testing.assert_allclose(o_small, o_full, atol=1e-10)
+    assert small.model_type == cam.model_type and small.frame == cam.frame

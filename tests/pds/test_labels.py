@@ -72,22 +72,6 @@ def test_every_sample_label_parses(samples: Path) -> None:
             assert value is not None and math.isfinite(value)
 
 
-def test_fast_pvl_decoder_gives_what_pvl_gives(samples: Path) -> None:
-    import warnings
-
-    from mars_pairs.pds.pds3 import _parse_pvl, _pvl
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        for path in sorted(samples.glob("msl/*.LBL")):
-            text = path.read_text()
-            fast = _parse_pvl(text)
-            assert fast == _pvl().loads(text), path.name
-            # the times are still times, with pvl's UTC
-            start = fast["START_TIME"]
-            assert isinstance(start, datetime) and start.tzinfo is timezone.utc
-
-
 def test_model_fov_matches_label_fov(samples: Path) -> None:
     """The camera model on the IMAGE grid reproduces the label's FOV (ZLF is off by 0.7 %)."""
     for path in _labels(samples):
