@@ -48,6 +48,14 @@ SITE_DERIVED_GROUP = "SITE_DERIVED_GEOMETRY_PARMS"
 STATE_GROUP = "INSTRUMENT_STATE_PARMS"
 _COMPONENTS = {"CAHV": "cahv", "CAHVOR": "cahvor", "CAHVORE": "cahvore"}
 _END_RE = re.compile(rb"^[ \t]*END[ \t]*\r?$", re.MULTILINE)
+# pdr turns values into Python objects with ast.literal_eval, which also reads Python-only
+# syntax that PDS3 does not have: a '#' starts a comment ("12002#101#" -> 12002), digits may
+# hold '_' ("1_000"), 0x/0o/0b prefixes and complex numbers. Such text is refused first.
+_QUOTED_OR_COMMENT = re.compile(r'"[^"]*"|/\*.*?\*/', re.DOTALL)
+_RADIX = re.compile(r"(?<![\w#])[+-]?\d{1,2}#[+-]?[0-9A-Za-z]+#(?![\w#])")
+_NOT_PDS3_NUMBER = re.compile(
+    r"#|\b\d+(?:_\d+)+\b|\b0[xXoObB][0-9A-Fa-f_]+\b|\b\d+(?:\.\d*)?(?:[eE][+-]?\d+)?[jJ]\b"
+)
 
 
 def read_pds3(path: PathLike) -> Observation:
@@ -76,6 +84,7 @@ def load_label(data: bytes, path: Path, longer: bool = False) -> Mapping[str, An
         raise LabelError(path, None, f"not a text label (bad byte at {exc.start})") from exc
     if "\x00" in text:
         raise LabelError(path, None, "not a text label (NUL bytes)")
+    _refuse_python_only_numbers(text, path)
     from pdr.parselabel.pds3 import parse_pvl
 
     try:
@@ -89,6 +98,21 @@ def load_label(data: bytes, path: Path, longer: bool = False) -> Mapping[str, An
     if not isinstance(label, Mapping) or len(label) == 0:
         raise LabelError(path, None, "not a PDS3 label (no keywords)")
     return label
+
+
+def _refuse_python_only_numbers(text: str, path: Path) -> None:
+    """LabelError at the first value pdr's literal parsing would misread (see above)."""
+    bare = _QUOTED_OR_COMMENT.sub(lambda m: " " * len(m.group()), text)
+    bare = _RADIX.sub(lambda m: " " * len(m.group()), bare)
+    bad = _NOT_PDS3_NUMBER.search(bare)
+    if bad is not None:
+        start = text.rfind("\n", 0, bad.start()) + 1
+        end = text.find("\n", bad.start())
+        shown = text[start : None if end < 0 else end].strip()
+        key = re.match(r"\s*([A-Za-z^][\w:^]*)\s*=", text[start:])
+        line = text.count("\n", 0, bad.start()) + 1
+        field = key.group(1) if key else None
+        raise LabelError(path, field, f"line {line}: not a PDS3 value ({shown[:60]!r})")
 
 
 def observation_from_label(label: Mapping[str, Any], path: Path) -> Observation:

@@ -475,7 +475,9 @@ def test_pds3_deleted_group(workdir: Path, group: str, required: bool) -> None:
 
 
 _BAD_ANY = ["abc", '"abc"', '""', '"NULL"', "(1, 2)", "NaN", "TRUE", "2016-08-13", '("a")']
-_BAD_INT = [*_BAD_ANY, "1.5", "-3", "1.0e999", '"12x"', "1.0", "12002#101#", "2#102#"]
+_BAD_INT = [*_BAD_ANY, "1.5", "-3", "1.0e999", '"12x"', "1.0"]
+# found by fuzzing; pdr's literal_eval reads them as Python ("12002#101#" -> 12002)
+_BAD_INT += ["12002#101#", "2#102#", "1_000", "0x10", "12 # c", "3j"]
 _BAD_VECTOR = [
     *_BAD_ANY,
     "1.0",
