@@ -288,6 +288,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--viewsheds", action="store_true", help="also write viewshed GeoTIFFs")
     p.set_defaults(func=_cmd_export_qgis)
 
+    from mars_pairs.fetch.cli import add_fetch_parser
+
+    add_fetch_parser(sub)
+
     p = sub.add_parser("synth", help="generate the synthetic mission (terrain, labels, images)")
     p.add_argument("out", help="output folder")
     p.add_argument("--seed", type=int, default=0)

@@ -45,8 +45,8 @@ class InputsConfig:
 
     labels: tuple[str, ...]  # glob patterns (absolute after loading)
     places: Path
-    dem: Path
-    ortho: Path
+    dem: Path | str  # a local path, or a GDAL path to a remote raster ("/vsicurl/https://...")
+    ortho: Path | str
     images: Path | None = None  # a folder to look for images in, besides the label's folder
     synthetic: SyntheticSpec | None = None
 
@@ -183,6 +183,16 @@ class _Section:
             raise ConfigError(f"{self._name(key)}: expected one of {list(options)}, got {value!r}")
         return str(value)
 
+    def raster(self, key: str, base: Path) -> Path | str:
+        """A raster: a local path, or an http(s) URL read window by window (``/vsicurl/``)."""
+        from mars_pairs.fetch.vsi import gdal_path, is_remote, use_remote_defaults
+
+        value = self.raw(key)
+        if isinstance(value, str) and is_remote(value):
+            use_remote_defaults()
+            return gdal_path(value)
+        return self.path(key, base)  # type: ignore[return-value]
+
     def path(self, key: str, base: Path, default: Any = ...) -> Path | None:
         value = self.raw(key, default)
         if value is None:
@@ -218,8 +228,8 @@ def _inputs(data: Any, base: Path) -> InputsConfig:
     return InputsConfig(
         labels=tuple(str(base / Path(p).expanduser()) for p in labels),
         places=sec.path("places", base),  # type: ignore[arg-type]
-        dem=sec.path("dem", base),  # type: ignore[arg-type]
-        ortho=sec.path("ortho", base),  # type: ignore[arg-type]
+        dem=sec.raster("dem", base),
+        ortho=sec.raster("ortho", base),
         images=sec.path("images", base, None),
         synthetic=synthetic,
     )
@@ -314,7 +324,8 @@ def _areas(data: Any) -> dict[str, tuple[tuple[float, float, float, float], ...]
 
 def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConfig:
     """Validate a config mapping (relative paths against ``base``) into a BuildConfig."""
-    top = _Section(data, "", {"inputs", "geometry", "chips", "output", "splits"})
+    # "fetch" is read by mars_pairs.fetch.config (mars-pairs fetch), not by the build
+    top = _Section(data, "", {"inputs", "geometry", "chips", "output", "splits", "fetch"})
     geo = _Section(
         top.raw("geometry", {}),
         "geometry",

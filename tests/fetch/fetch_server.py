@@ -6,6 +6,7 @@ Content-Range, 416). Faults are queued per path and used one per request:
     "404", "500"     that status instead of the file
     "slow"           sleep ``slow_s`` before answering (longer than the client's timeout)
     "truncate"       send the headers of the full answer, half its body, then drop the connection
+    "stall"          send half the body, then wait ``slow_s`` before the rest (kill a client then)
     "corrupt"        the same number of bytes with one changed (an MD5 mismatch)
     "longer"         the file with 100 bytes appended (a wrong size)
 
@@ -117,20 +118,27 @@ class ArchiveServer:
                     self._variant(Path(path), fault) if fault in ("corrupt", "longer") else path
                 )
                 resp = send_file(served, environ, conditional=True, etag=True, max_age=None)
-                if fault == "truncate":
+                if fault in ("truncate", "stall"):
                     limit = max(1, (resp.content_length or 2) // 2)
 
         def recording_start(status: str, headers, exc_info=None):  # type: ignore[no-untyped-def]
             entry.status = int(status.split()[0])
             return start_response(status, headers, exc_info)
 
-        return self._counted(resp(environ, recording_start), entry, limit)
+        stall = self.slow_s if fault == "stall" else None
+        return self._counted(resp(environ, recording_start), entry, limit, stall)
 
     def _counted(
-        self, body: Iterable[bytes], entry: LogEntry, limit: int | None
+        self, body: Iterable[bytes], entry: LogEntry, limit: int | None, stall: float | None
     ) -> Iterator[bytes]:
         try:
             for chunk in body:
+                if stall is not None and limit is not None and entry.sent + len(chunk) >= limit:
+                    head, chunk = chunk[: limit - entry.sent], chunk[limit - entry.sent :]
+                    entry.sent += len(head)
+                    yield head
+                    time.sleep(stall)
+                    limit = None
                 if limit is not None and entry.sent + len(chunk) >= limit:
                     chunk = chunk[: limit - entry.sent]
                     entry.sent += len(chunk)

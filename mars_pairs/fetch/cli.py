@@ -1,0 +1,119 @@
+"""``mars-pairs fetch products|places|orbital|all --config CONFIG``: the command line.
+
+Bad input (a config error, an unreadable index) exits 2 with one line naming the file or URL
+(``cli/main.py``); products that fail to download are listed one line each and in
+``<cache>/fetch_failures.parquet``, and the command exits 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+from typing import Any
+
+
+def add_fetch_parser(sub: Any) -> None:
+    """Register ``fetch`` and its subcommands on the top-level subparsers."""
+    p = sub.add_parser("fetch", help="download products, PLACES and orbital windows (PDS, USGS)")
+    fsub = p.add_subparsers(dest="fetch_command", required=True)
+
+    def common(q: argparse.ArgumentParser) -> None:
+        q.add_argument("--config", required=True, help="build config with a fetch: section")
+        q.add_argument("--cache", help="cache root (overrides fetch.cache)")
+        q.add_argument("--workers", type=int, help="parallel downloads (overrides fetch.workers)")
+        q.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    def filters(q: argparse.ArgumentParser) -> None:
+        q.add_argument("--sol", nargs=2, type=int, metavar=("FIRST", "LAST"))
+        q.add_argument("--instrument", action="append", help="e.g. MAST_LEFT, MCZ_RIGHT")
+        q.add_argument("--product-type", action="append", help="e.g. DRCL, DRCX, RAD")
+        q.add_argument("--site", action="append", type=int)
+        q.add_argument("--drive", action="append", type=int)
+
+    q = fsub.add_parser("products", help="labels and images chosen from the archive's index")
+    common(q)
+    filters(q)
+    q.add_argument("--dry-run", action="store_true", help="print product count and bytes only")
+    q.set_defaults(func=_cmd_products)
+
+    q = fsub.add_parser("places", help="the PLACES localization table")
+    common(q)
+    q.set_defaults(func=_cmd_places)
+
+    q = fsub.add_parser("orbital", help="DEM/ortho windows around the rover positions, as COGs")
+    common(q)
+    filters(q)
+    q.add_argument("--margin", type=float, help="metres around the positions (default: radius)")
+    q.set_defaults(func=_cmd_orbital)
+
+    q = fsub.add_parser("all", help="places, products, then orbital windows")
+    common(q)
+    filters(q)
+    q.add_argument("--margin", type=float, help="metres around the positions (default: radius)")
+    q.set_defaults(func=_cmd_all)
+
+
+def _config(args: argparse.Namespace) -> Any:
+    from pathlib import Path
+
+    from mars_pairs.fetch.config import load_fetch_config
+
+    cfg = load_fetch_config(args.config)
+    if args.cache:
+        cfg = replace(cfg, cache=Path(args.cache).resolve())
+    if args.workers:
+        cfg = replace(cfg, policy=replace(cfg.policy, workers=args.workers))
+    return cfg
+
+
+def _filters(args: argparse.Namespace, cfg: Any) -> Any:
+    base = cfg.products.filters if cfg.products is not None else None
+    if base is None:
+        from mars_pairs.fetch.products import ProductFilter
+
+        base = ProductFilter()
+    changes: dict[str, Any] = {}
+    if args.sol:
+        changes["sols"] = (args.sol[0], args.sol[1])
+    if args.instrument:
+        changes["instruments"] = tuple(s.upper() for s in args.instrument)
+    if args.product_type:
+        changes["product_types"] = tuple(s.upper() for s in args.product_type)
+    if args.site:
+        changes["sites"] = tuple(args.site)
+    if args.drive:
+        changes["drives"] = tuple(args.drive)
+    return replace(base, **changes)
+
+
+def _cmd_products(args: argparse.Namespace) -> int:
+    from mars_pairs.fetch.run import fetch_products
+
+    cfg = _config(args)
+    report = fetch_products(
+        cfg, filters=_filters(args, cfg), dry_run=args.dry_run, progress=not args.quiet
+    )
+    print(report.format(args.dry_run))
+    return 1 if report.failures else 0
+
+
+def _cmd_places(args: argparse.Namespace) -> int:
+    from mars_pairs.fetch.run import fetch_places
+
+    print(fetch_places(_config(args)))
+    return 0
+
+
+def _cmd_orbital(args: argparse.Namespace) -> int:
+    from mars_pairs.fetch.run import fetch_orbital
+
+    cfg = _config(args)
+    for res in fetch_orbital(cfg, filters=_filters(args, cfg), margin_m=args.margin):
+        state = "cached" if res.cached else "cut"
+        print(f"{res.path}: {res.shape[1]} x {res.shape[0]} cells from {res.source} ({state})")
+    return 0
+
+
+def _cmd_all(args: argparse.Namespace) -> int:
+    args.dry_run = False
+    return max(step(args) for step in (_cmd_places, _cmd_products, _cmd_orbital))

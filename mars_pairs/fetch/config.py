@@ -1,0 +1,255 @@
+"""The ``fetch:`` section of a build config: archive roots, what to fetch, the cache root.
+
+```yaml
+fetch:
+  cache: ../data/archive          # one root; the archive's paths are mirrored under it
+  retries: 4                      # per file, exponential backoff from backoff_s
+  backoff_s: 0.5
+  timeout_s: 60                   # read timeout (seconds)
+  workers: 4                      # parallel downloads
+  products:
+    mission: msl                  # msl (PDS3 volumes) | m2020 (PDS4 bundle)
+    archive: https://...          # archive root URL (or a local folder)
+    volumes: [MSLMST_0012]        # msl: volumes whose INDEX/<index>.LBL/.TAB list products
+    index: RDRINDEX               # msl: RDRINDEX or EDRINDEX
+    bundle: mars2020_mastcamz_ops_calibrated              # m2020
+    collection: data/collection_data.xml                  # m2020, inside the bundle
+    label_path: data/sol/{sol:05d}/ids/rdr/zcam/{product_id}.xml   # m2020, inside the bundle
+    sols: [1429, 1429]            # inclusive; optional filters below
+    instruments: [MAST_LEFT]
+    product_types: [DRCL]
+    sites: [56]
+    drives: [1632]
+  places: {archive: https://..., path: MSLPLC_1XXX/DATA/LOCALIZATIONS/localized_interp.csv}
+  orbital:
+    dem: https://.../dem.tif      # remote (or local) rasters to cut windows from
+    ortho: https://.../ortho.tif
+    margin_m: null                # default: geometry.radius of the build config
+```
+Relative ``cache`` and local archive roots resolve against the config file's folder.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from mars_pairs.errors import ConfigError
+from mars_pairs.fetch.download import FetchPolicy
+from mars_pairs.fetch.products import ProductFilter
+
+MISSIONS = ("msl", "m2020")
+INDEXES = ("RDRINDEX", "EDRINDEX")
+
+
+@dataclass(frozen=True)
+class ProductsSpec:
+    """Where the products are listed and which to take."""
+
+    mission: str
+    archive: str
+    volumes: tuple[str, ...] = ()
+    index: str = "RDRINDEX"
+    bundle: str | None = None
+    collection: str = "data/collection_data.xml"
+    label_path: str = "data/sol/{sol:05d}/ids/rdr/zcam/{product_id}.xml"
+    filters: ProductFilter = field(default_factory=ProductFilter)
+
+
+@dataclass(frozen=True)
+class RemoteSpec:
+    """One file: archive root URL and the path inside it (mirrored in the cache)."""
+
+    archive: str
+    path: str
+
+
+@dataclass(frozen=True)
+class OrbitalSpec:
+    """Remote rasters to cut windows from; ``margin_m`` (ground metres) around the positions."""
+
+    dem: str | None = None
+    ortho: str | None = None
+    margin_m: float | None = None
+
+
+@dataclass(frozen=True)
+class FetchConfig:
+    """The validated ``fetch:`` section."""
+
+    cache: Path
+    policy: FetchPolicy
+    products: ProductsSpec | None
+    places: RemoteSpec | None
+    orbital: OrbitalSpec | None
+    radius_m: float  # geometry.radius of the build config (the default orbital margin)
+
+
+def _root(value: Any, key: str, base: Path) -> str:
+    if not isinstance(value, str) or not value:
+        raise ConfigError(f"{key}: expected a URL or folder, got {value!r}")
+    if value.startswith(("http://", "https://")):
+        return value.rstrip("/")
+    return (base / Path(value).expanduser()).resolve().as_uri()
+
+
+def _mapping(value: Any, key: str, known: set[str]) -> dict[str, Any]:
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise ConfigError(f"{key}: expected a mapping, got {type(value).__name__}")
+    unknown = sorted(set(value) - known)
+    if unknown:
+        raise ConfigError(f"{key}.{unknown[0]}: unknown key (expected one of {sorted(known)})")
+    return value
+
+
+def _ints(value: Any, key: str) -> tuple[int, ...]:
+    if value is None:
+        return ()
+    if isinstance(value, int) and not isinstance(value, bool):
+        return (value,)
+    if not isinstance(value, list) or not all(
+        isinstance(v, int) and not isinstance(v, bool) for v in value
+    ):
+        raise ConfigError(f"{key}: expected an integer or a list of integers, got {value!r}")
+    return tuple(value)
+
+
+def _strs(value: Any, key: str) -> tuple[str, ...]:
+    if value is None:
+        return ()
+    if isinstance(value, str):
+        return (value,)
+    if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
+        raise ConfigError(f"{key}: expected a string or a list of strings, got {value!r}")
+    return tuple(value)
+
+
+def _sols(value: Any, key: str) -> tuple[int, int] | None:
+    if value is None:
+        return None
+    sols = _ints(value, key)
+    if len(sols) == 1:
+        return (sols[0], sols[0])
+    if len(sols) != 2 or sols[0] > sols[1]:
+        raise ConfigError(f"{key}: expected [first, last] with first <= last, got {value!r}")
+    return (sols[0], sols[1])
+
+
+def _products(data: Any, base: Path) -> ProductsSpec | None:
+    key = "fetch.products"
+    known = {"mission", "archive", "volumes", "index", "bundle", "collection", "label_path",
+             "sols", "instruments", "product_types", "sites", "drives"}  # fmt: skip
+    d = _mapping(data, key, known)
+    if not d:
+        return None
+    mission = d.get("mission")
+    if mission not in MISSIONS:
+        raise ConfigError(f"{key}.mission: expected one of {list(MISSIONS)}, got {mission!r}")
+    filters = ProductFilter(
+        sols=_sols(d.get("sols"), f"{key}.sols"),
+        instruments=tuple(s.upper() for s in _strs(d.get("instruments"), f"{key}.instruments")),
+        product_types=tuple(
+            s.upper() for s in _strs(d.get("product_types"), f"{key}.product_types")
+        ),
+        sites=_ints(d.get("sites"), f"{key}.sites"),
+        drives=_ints(d.get("drives"), f"{key}.drives"),
+    )
+    spec = ProductsSpec(
+        mission=mission,
+        archive=_root(d.get("archive"), f"{key}.archive", base),
+        volumes=_strs(d.get("volumes"), f"{key}.volumes"),
+        index=str(d.get("index", "RDRINDEX")).upper(),
+        bundle=d.get("bundle"),
+        collection=str(d.get("collection", ProductsSpec.collection)),
+        label_path=str(d.get("label_path", ProductsSpec.label_path)),
+        filters=filters,
+    )
+    if mission == "msl" and not spec.volumes:
+        raise ConfigError(f"{key}.volumes: required for msl (PDS3 volumes, e.g. MSLMST_0012)")
+    if mission == "msl" and spec.index not in INDEXES:
+        raise ConfigError(f"{key}.index: expected one of {list(INDEXES)}, got {spec.index!r}")
+    if mission == "m2020" and not isinstance(spec.bundle, str):
+        raise ConfigError(f"{key}.bundle: required for m2020 (the PDS4 bundle folder)")
+    return spec
+
+
+def _number(d: dict[str, Any], name: str, key: str, default: float | None) -> float | None:
+    value = d.get(name, default)
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:
+        raise ConfigError(f"{key}.{name}: expected a non-negative number, got {value!r}")
+    return float(value)
+
+
+def parse_fetch(data: Any, base: Path, radius_m: float) -> FetchConfig:
+    """Validate a ``fetch:`` mapping (relative paths against ``base``)."""
+    known = {"cache", "retries", "backoff_s", "timeout_s", "workers", "products", "places",
+             "orbital"}  # fmt: skip
+    d = _mapping(data, "fetch", known)
+    if not d:
+        raise ConfigError("fetch: the config has no fetch section")
+    cache = d.get("cache")
+    if not isinstance(cache, str) or not cache:
+        raise ConfigError(f"fetch.cache: expected a folder, got {cache!r}")
+    retries = d.get("retries", 4)
+    workers = d.get("workers", 4)
+    for name, value in (("retries", retries), ("workers", workers)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < (name == "workers"):
+            raise ConfigError(f"fetch.{name}: expected a non-negative integer, got {value!r}")
+    policy = FetchPolicy(
+        retries=retries,
+        backoff_s=_number(d, "backoff_s", "fetch", 0.5),  # type: ignore[arg-type]
+        read_timeout_s=_number(d, "timeout_s", "fetch", 60.0),  # type: ignore[arg-type]
+        workers=workers,
+    )
+    places = None
+    if d.get("places") is not None:
+        p = _mapping(d["places"], "fetch.places", {"archive", "path"})
+        if not isinstance(p.get("path"), str):
+            raise ConfigError(f"fetch.places.path: expected a path, got {p.get('path')!r}")
+        places = RemoteSpec(_root(p.get("archive"), "fetch.places.archive", base), p["path"])
+    orbital = None
+    if d.get("orbital") is not None:
+        o = _mapping(d["orbital"], "fetch.orbital", {"dem", "ortho", "margin_m"})
+        rasters = {}
+        for name in ("dem", "ortho"):
+            value = o.get(name)
+            if value is not None and (not isinstance(value, str) or not value):
+                raise ConfigError(f"fetch.orbital.{name}: expected a URL or path, got {value!r}")
+            if isinstance(value, str) and not value.startswith(("http://", "https://", "/vsi")):
+                value = str((base / value).resolve())
+            rasters[name] = value
+        orbital = OrbitalSpec(rasters["dem"], rasters["ortho"],
+                              _number(o, "margin_m", "fetch.orbital", None))  # fmt: skip
+    return FetchConfig(
+        cache=(base / Path(cache).expanduser()).resolve(),
+        policy=policy,
+        products=_products(d.get("products"), base),
+        places=places,
+        orbital=orbital,
+        radius_m=radius_m,
+    )
+
+
+def load_fetch_config(path: str | Path) -> FetchConfig:
+    """Read the ``fetch:`` section of a YAML build config."""
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read config: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected a mapping at the top level")
+    radius = (data.get("geometry") or {}).get("radius", 2000.0)
+    try:
+        return parse_fetch(data.get("fetch"), path.resolve().parent, float(radius))
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None

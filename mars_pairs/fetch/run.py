@@ -1,0 +1,239 @@
+"""``fetch products / places / orbital``: index -> labels -> images, in parallel, verified.
+
+Products: the index files are fetched first (PDS3 ``INDEX/<index>.LBL`` + ``.TAB`` per volume;
+PDS4 collection label + inventory), filtered on what they list, then each product's label is
+fetched and read (image file, its size and MD5, site/drive where the index lacks them),
+filtered again, and its image fetched. ``workers`` products go at once; a tqdm bar counts
+them. A product that fails (404, retries exhausted, bad label, MD5) becomes one failure row
+in ``<cache>/fetch_failures.parquet`` and one line on stderr naming the URL; the rest go on.
+"""
+
+from __future__ import annotations
+
+import sys
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass, field, replace
+from pathlib import Path, PurePosixPath
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+from tqdm import tqdm
+
+from mars_pairs.errors import FetchError, MarsPairsError
+from mars_pairs.fetch.cache import Cache, archive_path, atomic_write, join_url
+from mars_pairs.fetch.config import FetchConfig, ProductsSpec, RemoteSpec
+from mars_pairs.fetch.download import Downloader, RemoteFile
+from mars_pairs.fetch.orbital import WindowResult, cut_window, rover_positions, window_bounds
+from mars_pairs.fetch.pds3_index import index_files, products_from_index, read_index_table
+from mars_pairs.fetch.pds4_inventory import (
+    inventory_delimiter,
+    inventory_of,
+    products_from_inventory,
+)
+from mars_pairs.fetch.products import Product, ProductFilter, with_label_facts
+
+FAILURES = "fetch_failures.parquet"
+
+
+@dataclass(frozen=True)
+class Failure:
+    """One product (or file) that could not be fetched."""
+
+    product_id: str
+    url: str
+    stage: str  # index | label | image
+    error: str
+    message: str
+
+
+@dataclass
+class ProductsReport:
+    """What a products run found and moved."""
+
+    listed: int = 0  # products the index lists that pass the index-level filters
+    selected: int = 0  # after the label-level filters
+    image_bytes: int = 0  # bytes of the selected products' images (known sizes)
+    to_fetch_bytes: int = 0  # of those, not in the cache yet
+    downloaded: int = 0  # files downloaded (or resumed) in this run
+    cached: int = 0  # files already in the cache
+    bytes_received: int = 0
+    failures: list[Failure] = field(default_factory=list)
+    products: list[Product] = field(default_factory=list)
+
+    def format(self, dry_run: bool) -> str:
+        """Human summary lines."""
+        if dry_run:
+            return (
+                f"dry run: {self.selected} products ({self.listed} listed), "
+                f"{self.image_bytes} image bytes, {self.to_fetch_bytes} not yet in the cache; "
+                f"{len(self.failures)} failures"
+            )
+        return (
+            f"{self.selected} products ({self.listed} listed): {self.downloaded} files "
+            f"downloaded ({self.bytes_received} bytes), {self.cached} already cached, "
+            f"{len(self.failures)} failures"
+        )
+
+
+# -- listing -------------------------------------------------------------------------------
+def list_products(spec: ProductsSpec, dl: Downloader) -> list[Product]:
+    """Fetch the index files and list the products passing the index-level filters."""
+    found: list[Product] = []
+    if spec.mission == "msl":
+        for volume in spec.volumes:
+            lbl, tab = index_files(volume, spec.index)
+            for rel in (lbl, tab):
+                dl.fetch(RemoteFile(rel, join_url(spec.archive, rel)))
+            label_path = dl.cache.path(lbl)
+            table = read_index_table(label_path)
+            found.extend(
+                products_from_index(table, volume, spec.archive, str(label_path), spec.mission)
+            )
+    else:
+        bundle = archive_path(spec.bundle or "", where="fetch.products.bundle")
+        coll = bundle / archive_path(spec.collection, where="fetch.products.collection")
+        dl.fetch(RemoteFile(coll, join_url(spec.archive, coll)))
+        coll_path = dl.cache.path(coll)
+        inv = inventory_of(coll_path, coll)
+        dl.fetch(RemoteFile(inv, join_url(spec.archive, inv)))
+        found.extend(
+            products_from_inventory(
+                dl.cache.path(inv),
+                inventory_delimiter(coll_path),
+                bundle,
+                spec.label_path,
+                spec.archive,
+            )
+        )
+    unique = {p.label.rel: p for p in found}
+    return [p for p in unique.values() if spec.filters.wants(p, unknown_ok=True)]
+
+
+# -- one product ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Outcome:
+    product: Product | None  # None: filtered out by its label
+    files: tuple[str, ...]  # statuses of the files fetched ("cached", "downloaded", ...)
+    received: int
+    to_fetch: int
+    failure: Failure | None = None
+
+
+def _one(
+    p: Product, spec: ProductsSpec, dl: Downloader, filt: ProductFilter, dry_run: bool
+) -> _Outcome:
+    stage, url = "label", p.label.url
+    try:
+        got = dl.fetch(p.label)
+        p = with_label_facts(p, got.path, spec.archive)
+        if not filt.wants(p, unknown_ok=False):
+            return _Outcome(None, (got.status,), got.bytes_received, 0)
+        assert p.image is not None
+        stage, url = "image", p.image.url
+        target = dl.cache.path(p.image.rel, where=url)
+        cached = target.is_file() and (p.image.size in (None, target.stat().st_size))
+        if dry_run:
+            size = p.image.size if p.image.size is not None else dl.head_size(p.image.url)
+            if p.image.size is None and size is not None:
+                p = replace(p, image=replace(p.image, size=size))
+            return _Outcome(p, (got.status,), got.bytes_received, 0 if cached else (size or 0))
+        img = dl.fetch(p.image)
+        if p.image.size is None:
+            p = replace(p, image=replace(p.image, size=img.path.stat().st_size))
+        return _Outcome(p, (got.status, img.status), got.bytes_received + img.bytes_received, 0)
+    except MarsPairsError as exc:
+        reason = exc.reason if isinstance(exc, FetchError) else str(exc)
+        return _Outcome(
+            None, (), 0, 0, Failure(p.product_id, url, stage, type(exc).__name__, reason)
+        )
+
+
+def fetch_products(
+    cfg: FetchConfig,
+    *,
+    filters: ProductFilter | None = None,
+    dry_run: bool = False,
+    progress: bool = True,
+) -> ProductsReport:
+    """List, filter and fetch the configured products into the cache."""
+    if cfg.products is None:
+        raise FetchError("fetch.products", "the config has no fetch.products section")
+    spec = cfg.products
+    if filters is not None:
+        spec = replace(spec, filters=filters)
+    cache = Cache(cfg.cache)
+    dl = Downloader(cache, cfg.policy)
+    report = ProductsReport()
+    listed = list_products(spec, dl)
+    report.listed = len(listed)
+    bar = tqdm(total=len(listed), unit="product", disable=not progress, file=sys.stderr)
+    with ThreadPoolExecutor(max_workers=cfg.policy.workers) as pool:
+        futures = [pool.submit(_one, p, spec, dl, spec.filters, dry_run) for p in listed]
+        for fut in as_completed(futures):
+            out = fut.result()
+            bar.update(1)
+            if out.failure is not None:
+                report.failures.append(out.failure)
+                tqdm.write(
+                    f"mars-pairs fetch: {out.failure.url}: {out.failure.message}", file=sys.stderr
+                )
+                continue
+            report.downloaded += sum(s in ("downloaded", "resumed") for s in out.files)
+            report.cached += sum(s == "cached" for s in out.files)
+            report.bytes_received += out.received
+            if out.product is not None:
+                report.products.append(out.product)
+                report.selected += 1
+                report.image_bytes += out.product.image.size or 0  # type: ignore[union-attr]
+                report.to_fetch_bytes += out.to_fetch
+    bar.close()
+    report.products.sort(key=lambda p: str(p.label.rel))
+    report.failures.sort(key=lambda f: (f.product_id, f.stage))
+    write_failures(cache, report.failures)
+    return report
+
+
+def write_failures(cache: Cache, failures: list[Failure]) -> Path:
+    """``<cache>/fetch_failures.parquet`` (atomic; empty when nothing failed)."""
+    cols = ("product_id", "url", "stage", "error", "message")
+    table = pa.table({c: pa.array([getattr(f, c) for f in failures], pa.string()) for c in cols})
+    sink = pa.BufferOutputStream()
+    pq.write_table(table, sink)
+    target = cache.path(FAILURES)
+    atomic_write(target, sink.getvalue().to_pybytes())
+    return target
+
+
+# -- single files --------------------------------------------------------------------------
+def fetch_remote(cfg: FetchConfig, spec: RemoteSpec) -> Path:
+    """One archive file (e.g. the PLACES table) into the cache; its path there."""
+    rel = archive_path(spec.path, where="fetch.places.path")
+    dl = Downloader(Cache(cfg.cache), cfg.policy)
+    return dl.fetch(RemoteFile(PurePosixPath(rel), join_url(spec.archive, rel))).path
+
+
+def fetch_places(cfg: FetchConfig) -> Path:
+    """The configured PLACES table, in the cache."""
+    if cfg.places is None:
+        raise FetchError("fetch.places", "the config has no fetch.places section")
+    return fetch_remote(cfg, cfg.places)
+
+
+def fetch_orbital(
+    cfg: FetchConfig, *, filters: ProductFilter | None = None, margin_m: float | None = None
+) -> list[WindowResult]:
+    """DEM/ortho windows around the PLACES rover positions (sols/sites of ``filters``)."""
+    if cfg.orbital is None:
+        raise FetchError("fetch.orbital", "the config has no fetch.orbital section")
+    places = fetch_places(cfg)
+    filt = filters or (cfg.products.filters if cfg.products else ProductFilter())
+    pos = rover_positions(places, sols=filt.sols, sites=filt.sites)
+    margin = margin_m if margin_m is not None else cfg.orbital.margin_m
+    bounds = window_bounds(pos, cfg.radius_m if margin is None else margin)
+    cache = Cache(cfg.cache)
+    out = []
+    for name in ("dem", "ortho"):
+        source = getattr(cfg.orbital, name)
+        if source is not None:
+            out.append(cut_window(source, bounds, pos.crs, cache.path(f"orbital/{name}.tif")))
+    return out

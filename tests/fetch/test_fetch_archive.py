@@ -1,0 +1,201 @@
+"""Index-driven product fetches from the fixture archive over a real loopback server."""
+
+from __future__ import annotations
+
+import hashlib
+import shutil
+from pathlib import Path
+
+import fetch_archive
+import pyarrow.parquet as pq
+import pytest
+import yaml
+from fetch_server import ArchiveServer
+
+from mars_pairs.errors import ConfigError, FetchError
+from mars_pairs.fetch.config import load_fetch_config
+from mars_pairs.fetch.products import ProductFilter
+from mars_pairs.fetch.run import FAILURES, fetch_products
+from mars_pairs.pds import read_observation
+
+
+@pytest.fixture()
+def archive(tmp_path_factory) -> fetch_archive.Archive:
+    """Both synthetic missions laid out as the real archives (built once per run)."""
+    return fetch_archive.shared_archive(tmp_path_factory.getbasetemp())
+
+
+@pytest.fixture()
+def server(archive):
+    with ArchiveServer(archive.root, slow_s=1.0) as srv:
+        yield srv
+
+
+def write_config(tmp: Path, url: str, mission: str, **products) -> Path:
+    """A build config whose fetch section points at the loopback archive."""
+    if mission == "msl":
+        prod = {"mission": "msl", "archive": f"{url}/msl", "volumes": ["MSLMST_0001"]}
+        places = {"archive": f"{url}/msl", "path": fetch_archive.MSL_PLACES}
+    else:
+        prod = {
+            "mission": "m2020",
+            "archive": f"{url}/mars2020",
+            "bundle": fetch_archive.M2020_BUNDLE,
+            "label_path": fetch_archive.LABEL_TEMPLATE,
+        }
+        places = {"archive": f"{url}/mars2020", "path": fetch_archive.M2020_PLACES}
+    prod.update(products)
+    doc = {
+        "fetch": {"cache": "cache", "retries": 1, "backoff_s": 0.01, "timeout_s": 0.5,
+                  "workers": 2, "products": prod, "places": places},
+        "geometry": {"radius": 200},
+    }  # fmt: skip
+    path = tmp / f"{mission}.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def _gets(srv: ArchiveServer, suffix: str) -> list[str]:
+    return [e.path for e in srv.log if e.method == "GET" and e.path.endswith(suffix)]
+
+
+def test_msl_products_from_the_pds3_index_mirror_the_archive(archive, server, tmp_path):
+    cfg = load_fetch_config(write_config(tmp_path, server.url, "msl"))
+    report = fetch_products(cfg, progress=False)
+    assert report.selected == 4 and not report.failures
+    for label in archive.msl_labels:
+        rel = label.relative_to(archive.root / "msl")
+        assert (cfg.cache / rel).read_bytes() == label.read_bytes()
+        jpg = rel.with_suffix(".jpg")
+        assert (cfg.cache / jpg).read_bytes() == label.with_suffix(".jpg").read_bytes()
+        # the product fields come from the index/label, and agree with the label
+        p = next(p for p in report.products if str(p.label.rel) == str(rel))
+        obs = read_observation(label)
+        assert (p.sol, p.instrument, p.product_type) == (obs.sol, obs.instrument, "DRCL")
+        assert (p.site, p.drive) == (obs.rmc.site, obs.rmc.drive)
+    server.reset_log()
+    again = fetch_products(cfg, progress=False)
+    assert again.downloaded == 0 and again.selected == 4
+    assert [e for e in server.log if e.method == "GET"] == []  # a rerun fetches nothing
+
+
+def test_index_columns_are_read_by_name_not_position(archive, server, tmp_path):
+    """A second volume whose index lists the same columns in another order and width."""
+    vol2 = archive.root / "msl" / "MSLMST_0002"
+    if not vol2.exists():
+        shutil.copytree(archive.root / "msl" / fetch_archive.MSL_VOLUME / "DATA", vol2 / "DATA")
+        import pdr
+
+        rows = pdr.read(str(archive.root / "msl/MSLMST_0001/INDEX/RDRINDEX.LBL"))["INDEX_TABLE"]
+        records = rows.to_dict("records")
+        cols = list(reversed(fetch_archive.MSL_COLUMNS))
+        cols = [(n, t, w + 3) for n, t, w in cols]
+        fetch_archive.write_pds3_index(vol2, records, cols)
+    one = fetch_products(
+        load_fetch_config(write_config(tmp_path, server.url, "msl")), dry_run=True, progress=False
+    )
+    two = fetch_products(
+        load_fetch_config(
+            write_config(tmp_path / "..", server.url, "msl", volumes=["MSLMST_0002"])
+        ),
+        dry_run=True,
+        progress=False,
+    )
+    key = lambda r: sorted((p.product_id, p.sol, p.instrument, p.site) for p in r.products)  # noqa: E731
+    assert key(one) == key(two) and len(key(one)) == 4
+
+
+@pytest.mark.parametrize(
+    ("filters", "count"),
+    [
+        (ProductFilter(sols=(1429, 1429)), 2),
+        (ProductFilter(instruments=("MAST_LEFT",)), 2),
+        (ProductFilter(product_types=("DRCX",)), 0),
+        (ProductFilter(sols=(1430, 1430), instruments=("MAST_RIGHT",)), 1),
+    ],
+)
+def test_msl_filters(archive, server, tmp_path, filters, count):
+    cfg = load_fetch_config(write_config(tmp_path, server.url, "msl"))
+    report = fetch_products(cfg, filters=filters, dry_run=True, progress=False)
+    assert report.selected == count
+
+
+def test_site_drive_filter_reads_the_labels_when_the_index_lacks_them(archive, server, tmp_path):
+    obs = read_observation(archive.msl_labels[0])
+    cfg = load_fetch_config(write_config(tmp_path, server.url, "msl"))
+    filt = ProductFilter(sites=(obs.rmc.site,), drives=(obs.rmc.drive,))
+    report = fetch_products(cfg, filters=filt, progress=False)
+    same = [p for p in archive.msl_labels if read_observation(p).rmc.drive == obs.rmc.drive]
+    assert report.selected == len(same) >= 1
+    assert len(_gets(server, ".jpg")) == len(same)  # images of the others were never fetched
+
+
+def test_m2020_products_from_the_pds4_inventory_verify_md5(archive, server, tmp_path):
+    cfg = load_fetch_config(write_config(tmp_path, server.url, "m2020"))
+    dry = fetch_products(cfg, dry_run=True, progress=False)
+    sizes = sum(p.with_suffix(".jpg").stat().st_size for p in archive.m2020_labels)
+    assert dry.selected == 4 and dry.image_bytes == sizes == dry.to_fetch_bytes
+    assert _gets(server, ".jpg") == []  # a dry run downloads no image
+    assert dry.format(True).startswith(f"dry run: 4 products (4 listed), {sizes} image bytes")
+    report = fetch_products(cfg, progress=False)
+    assert report.selected == 4 and not report.failures
+    for p in report.products:
+        data = (cfg.cache / p.image.rel).read_bytes()
+        assert hashlib.md5(data).hexdigest() == p.image.md5 and len(data) == p.image.size
+    sol52 = fetch_products(cfg, filters=ProductFilter(sols=(52, 52)), dry_run=True, progress=False)
+    assert {p.sol for p in sol52.products} == {52} and sol52.to_fetch_bytes == 0
+
+
+def test_failures_become_rows_and_a_rerun_completes(archive, server, tmp_path):
+    cfg = load_fetch_config(write_config(tmp_path, server.url, "m2020"))
+    bad_label = archive.m2020_labels[0].relative_to(archive.root)
+    bad_image = archive.m2020_labels[1].with_suffix(".jpg").relative_to(archive.root)
+    server.fault(str(bad_label), "404")
+    server.fault(str(bad_image), *["corrupt"] * (cfg.policy.retries + 1))
+    report = fetch_products(cfg, progress=False)
+    assert report.selected == 2 and len(report.failures) == 2
+    rows = pq.read_table(cfg.cache / FAILURES).to_pylist()
+    assert {(r["stage"], r["url"].removeprefix(server.url + "/")) for r in rows} == {
+        ("label", str(bad_label)),
+        ("image", str(bad_image)),
+    }
+    assert any("MD5" in r["message"] for r in rows) and any("404" in r["message"] for r in rows)
+    leftovers = [p for p in cfg.cache.rglob("*") if p.suffix in (".part", ".tmp")]
+    assert leftovers == [] and not (cfg.cache / bad_image.relative_to("mars2020")).exists()
+    assert server.faults == {str(bad_label): [], str(bad_image): []}  # every fault was used
+    server.reset_log()
+    again = fetch_products(cfg, progress=False)
+    assert again.selected == 4 and not again.failures
+    fetched = sorted(e.path for e in server.log if e.method == "GET")
+    assert fetched == sorted(
+        [f"/{bad_label}", f"/{bad_label.with_suffix('.jpg')}", f"/{bad_image}"]
+    )  # only what was missing
+    assert pq.read_table(cfg.cache / FAILURES).num_rows == 0
+
+
+def test_an_unreachable_index_is_one_clear_error(archive, server, tmp_path):
+    cfg = load_fetch_config(write_config(tmp_path, server.url, "msl", volumes=["MSLMST_9999"]))
+    with pytest.raises(FetchError, match=r"MSLMST_9999/INDEX/RDRINDEX\.LBL: HTTP 404"):
+        fetch_products(cfg, progress=False)
+
+
+def test_index_entries_that_escape_the_cache_are_refused(archive, server, tmp_path):
+    vol = archive.root / "msl" / "MSLMST_0666"
+    row = {"VOLUME_ID": "MSLMST_0666", "PATH_NAME": "../../../../tmp/", "FILE_NAME": "x.LBL",
+           "PRODUCT_ID": "X_DRCL", "INSTRUMENT_ID": "MAST_LEFT", "PLANET_DAY_NUMBER": 1,
+           "IMAGE_ID": "X"}  # fmt: skip
+    fetch_archive.write_pds3_index(vol, [row])
+    cfg = load_fetch_config(write_config(tmp_path, server.url, "msl", volumes=["MSLMST_0666"]))
+    with pytest.raises(FetchError, match="escapes the archive root"):
+        fetch_products(cfg, progress=False)
+
+
+def test_config_errors_name_the_key(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump({"fetch": {"cache": "c", "products": {"mission": "mer"}}}))
+    with pytest.raises(ConfigError, match=r"fetch\.products\.mission"):
+        load_fetch_config(path)
+    products = {"mission": "msl", "archive": "x"}
+    path.write_text(yaml.safe_dump({"fetch": {"cache": "c", "products": products}}))
+    with pytest.raises(ConfigError, match=r"fetch\.products\.volumes"):
+        load_fetch_config(path)
