@@ -7,9 +7,13 @@ Two tiny CNN encoders embed the ground image (resized to --image-size) and the o
 loss is a symmetric InfoNCE over the batch. Images taken at the same rover position share one
 chip, so every pair from the same position counts as a positive (multi-positive InfoNCE).
 
-The dataset is small, so it is decoded once through a DataLoader and kept in memory; for a
-large dataset iterate ``MarsPairsIterableDataset`` (or a shuffled ``MarsPairsDataset``)
-instead. At the end it prints ground->ortho retrieval recall@1/@5 against the distinct chips
+The dataset's transforms resize the chips and make float32 images; the dataset is small, so
+it is decoded once and kept in memory (for a large dataset, give the augmentations to
+``MarsPairsDataset(transform=...)`` and iterate a DataLoader). Every training step augments
+its samples with transforms that keep the pairing (``mars_pairs.torch.transforms``: a random
+chip crop, which moves the chip's georeferencing and keypoints with it, and colour jitter of
+the ground image); ``--plot PNG`` writes ``MarsPairsDataset.plot`` of an augmented sample.
+At the end it prints ground->ortho retrieval recall@1/@5 against the distinct chips
 of the val split (or of all samples when val has fewer than 2 positions), with chance levels.
 Deterministic for a given --seed (single-threaded CPU by default).
 """
@@ -26,11 +30,11 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
-from torch.utils.data import DataLoader
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from mars_pairs.torch import MarsPairsDataset, collate_samples
+from mars_pairs.torch import MarsPairsDataset
+from mars_pairs.torch.transforms import ColorJitter, Compose, Crop, RandomCrop, Resize, ToFloat
 
 
 class Encoder(nn.Module):
@@ -66,44 +70,53 @@ def info_nce(
     return (g2o.mean() + o2g.mean()) / 2
 
 
-def load(
-    root: Path, image_size: int, use_dem: bool
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, list[str]]:
-    """Decode every sample once: ground [N,3,S,S], chip [N,C,S,S], location id [N], splits."""
-    fields = ("ground", "ortho", "dem") if use_dem else ("ground", "ortho")
-    ds = MarsPairsDataset(root, fields=fields, ground_size=image_size, normalize_dem=True)
+PAD = 8  # chips are resized to image_size + PAD, then cropped (randomly while training)
+
+
+def load(root: Path, image_size: int, use_dem: bool) -> tuple[MarsPairsDataset, list[dict]]:
+    """Decode every sample once, through the dataset's transforms: the ground image resized
+    to image_size (at decode), the chips to image_size + PAD, images to float32."""
+    fields = ("ground", "ortho", "dem", "corr") if use_dem else ("ground", "ortho", "corr")
+    base = Compose([Resize(chip=image_size + PAD), ToFloat()])
+    ds = MarsPairsDataset(
+        root, fields=fields, ground_size=image_size, normalize_dem=True, transform=base
+    )
     if len(ds) < 2:
         raise SystemExit(f"{root}: need at least 2 samples, found {len(ds)}")
-    loader = DataLoader(ds, batch_size=16, collate_fn=collate_samples)
-    grounds, chips, positions, splits = [], [], [], []
-    for batch in loader:
-        grounds.append(batch["ground"])
-        chip = batch["ortho"]
-        if use_dem:
-            chip = torch.cat([chip, batch["dem"] / 20.0], dim=1)  # ~unit scale (metres / 20)
-        chips.append(F.interpolate(chip, size=(image_size, image_size), mode="area"))
-        positions += zip(batch["meta"]["easting"], batch["meta"]["northing"], strict=True)
-        splits += batch["meta"]["split"]
+    return ds, [ds[i] for i in range(len(ds))]
+
+
+def location_ids(samples: list[dict]) -> torch.Tensor:
+    """One id per rover position (images from the same stop share a chip)."""
     ids: dict[tuple[float, float], int] = {}
-    loc = [ids.setdefault((round(x, 1), round(y, 1)), len(ids)) for x, y in positions]
-    return standardize(torch.cat(grounds)), standardize(torch.cat(chips)), torch.tensor(loc), splits
+    return torch.tensor(
+        [
+            ids.setdefault(
+                (round(s["meta"]["easting"], 1), round(s["meta"]["northing"], 1)), len(ids)
+            )
+            for s in samples
+        ]
+    )
 
 
-def standardize(x: torch.Tensor) -> torch.Tensor:
-    """Zero mean, unit variance per channel (over the whole set)."""
-    mean = x.mean(dim=(0, 2, 3), keepdim=True)
-    return (x - mean) / x.std(dim=(0, 2, 3), keepdim=True).clamp_min(1e-6)
-
-
-def augment(ground: torch.Tensor, chip: torch.Tensor, gen: torch.Generator) -> tuple:
-    """Gain/offset jitter of the (standardised) ground image; a small random shift of the chip."""
-    n = ground.shape[0]
-    gain = 1 + 0.2 * (torch.rand(n, 1, 1, 1, generator=gen) - 0.5)
-    bias = 0.2 * (torch.rand(n, 1, 1, 1, generator=gen) - 0.5)
-    ground = ground * gain + bias
-    dx, dy = (int(v) for v in torch.randint(-3, 4, (2,), generator=gen))
-    chip = torch.roll(chip, shifts=(dy, dx), dims=(2, 3))
+def tensors(samples: list[dict], use_dem: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    """Ground [N, 3, S, S] and chip [N, C, S, S] batches of samples."""
+    ground = torch.stack([s["ground"] for s in samples])
+    chip = torch.stack([s["ortho"] for s in samples])
+    if use_dem:  # ~unit scale (metres / 20)
+        chip = torch.cat([chip, torch.stack([s["dem"] for s in samples]) / 20.0], dim=1)
     return ground, chip
+
+
+class Standardize:
+    """Zero mean, unit variance per channel, with statistics of the whole (unaugmented) set."""
+
+    def __init__(self, x: torch.Tensor) -> None:
+        self.mean = x.mean(dim=(0, 2, 3), keepdim=True)
+        self.std = x.std(dim=(0, 2, 3), keepdim=True).clamp_min(1e-6)
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        return (x - self.mean) / self.std
 
 
 @torch.no_grad()
@@ -132,6 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--log-every", type=int, default=25)
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     p.add_argument("--no-dem", action="store_true", help="ortho chip only, no DEM channel")
+    p.add_argument("--plot", type=Path, help="write the figure of an augmented sample (PNG)")
     args = p.parse_args(argv)
 
     random.seed(args.seed)
@@ -141,15 +155,30 @@ def main(argv: list[str] | None = None) -> int:
     torch.use_deterministic_algorithms(True)
 
     t0 = time.perf_counter()
-    ground, chip, loc, splits = load(args.dataset, args.image_size, not args.no_dem)
-    n = len(loc)
-    print(
-        f"{n} samples at {len(set(loc.tolist()))} positions, ground {tuple(ground.shape[1:])}, "
-        f"chip {tuple(chip.shape[1:])}; decoded in {time.perf_counter() - t0:.1f} s"
-    )
-    genc, oenc = Encoder(3), Encoder(chip.shape[1])
-    opt = torch.optim.AdamW([*genc.parameters(), *oenc.parameters()], lr=args.lr)
+    use_dem = not args.no_dem
+    ds, samples = load(args.dataset, args.image_size, use_dem)
+    n, size = len(samples), args.image_size
+    loc = location_ids(samples)
+    splits = [s["meta"]["split"] for s in samples]
     gen = torch.Generator().manual_seed(args.seed)
+    # augmentations that keep the pairing: chip crops move the chip's transform and keypoints
+    augment = Compose(
+        [RandomCrop(size, target="chip", generator=gen), ColorJitter(0.2, 0.2, 0.1, generator=gen)]
+    )
+    centre = Crop(PAD // 2, PAD // 2, size, size, target="chip")
+    plain = [centre(s) for s in samples]
+    ground_all, chip_all = tensors(plain, use_dem)
+    norm_ground, norm_chip = Standardize(ground_all), Standardize(chip_all)
+    print(
+        f"{n} samples at {len(set(loc.tolist()))} positions, ground {tuple(ground_all.shape[1:])}, "
+        f"chip {tuple(chip_all.shape[1:])}; decoded in {time.perf_counter() - t0:.1f} s"
+    )
+    if args.plot is not None:
+        fig = ds.plot(augment(samples[0]), title="an augmented training sample")
+        fig.savefig(args.plot, dpi=60)
+        print(f"wrote {args.plot}")
+    genc, oenc = Encoder(3), Encoder(chip_all.shape[1])
+    opt = torch.optim.AdamW([*genc.parameters(), *oenc.parameters()], lr=args.lr)
     batch = min(args.batch_size, n)
     order = torch.randperm(n, generator=gen)
     cursor, window = 0, []
@@ -159,8 +188,8 @@ def main(argv: list[str] | None = None) -> int:
             order, cursor = torch.randperm(n, generator=gen), 0
         idx = order[cursor : cursor + batch]
         cursor += batch
-        g, c = augment(ground[idx], chip[idx], gen)
-        loss = info_nce(genc(g), oenc(c), loc[idx], args.temperature)
+        g, c = tensors([augment(samples[int(i)]) for i in idx], use_dem)
+        loss = info_nce(genc(norm_ground(g)), oenc(norm_chip(c)), loc[idx], args.temperature)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -169,6 +198,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"step {step:5d} loss {np.mean(window):.4f}", flush=True)
             window = []
     print(f"trained {args.steps} steps in {time.perf_counter() - t1:.1f} s")
+    ground, chip = norm_ground(ground_all), norm_chip(chip_all)
 
     genc.eval()
     oenc.eval()

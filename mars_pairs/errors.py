@@ -51,3 +51,32 @@ class FetchError(MarsPairsError):
         self.url = str(url)
         self.reason = reason
         super().__init__(f"{self.url}: {reason}")
+
+
+class MissingMemberError(DatasetError, KeyError):
+    """A sample has no member of the requested field (also a KeyError, as before)."""
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return Exception.__str__(self)
+
+
+class UsageError(MarsPairsError):
+    """A caller's misuse: a bad argument or command-line option (the CLI exits with 2)."""
+
+
+class ArgumentError(UsageError, ValueError, TypeError):
+    """A function argument of the wrong type or value; the message names the argument.
+
+    Also a ValueError and a TypeError, which is what code written against the earlier
+    releases catches."""
+
+
+class SampleKeyError(UsageError, KeyError):
+    """No sample with the requested key (a KeyError too)."""
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return Exception.__str__(self)
+
+
+class SampleIndexError(UsageError, IndexError):
+    """A dataset index out of range (an IndexError, so ``for s in ds`` still ends)."""

@@ -7,7 +7,7 @@ import json
 import sys
 from collections.abc import Sequence
 
-from mars_pairs.errors import MarsPairsError
+from mars_pairs.errors import MarsPairsError, UsageError
 
 
 def _cmd_locate(args: argparse.Namespace) -> int:
@@ -134,10 +134,6 @@ def _cmd_viewshed(args: argparse.Namespace) -> int:
         f"el band {req.el_band}"
     )
     return 0
-
-
-class UsageError(Exception):
-    """A command-line misuse: reported in one line, exit status 2."""
 
 
 def _band(low: float | None, high: float | None, names: str) -> tuple[float, float] | None:
@@ -308,7 +304,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args))
-    except (MarsPairsError, UsageError, OSError) as exc:  # a missing or unwritable path too
+    except (MarsPairsError, OSError) as exc:  # a missing or unwritable path too
         print(f"mars-pairs {args.command}: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

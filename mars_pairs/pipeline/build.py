@@ -24,7 +24,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from tqdm import tqdm
 
-from mars_pairs.errors import ConfigError
+from mars_pairs.errors import ConfigError, MarsPairsError
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.context import SampleContext
 from mars_pairs.pipeline.sample import build_sample
@@ -73,7 +73,7 @@ class BuildSummary:
         return "\n".join(lines)
 
 
-class BuildError(Exception):
+class BuildError(MarsPairsError):
     """A strict build stopped at its first failure."""
 
 

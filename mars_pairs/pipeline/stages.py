@@ -6,8 +6,10 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+from mars_pairs.errors import MarsPairsError
 
-class StageError(Exception):
+
+class StageError(MarsPairsError):
     """A failure at a named stage of one observation; becomes a row of failures.parquet."""
 
     def __init__(self, stage: str, error: BaseException) -> None:

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 import rasterio
+import rasterio.errors
 from affine import Affine
 from numpy.typing import ArrayLike, NDArray
 from rasterio.crs import CRS
@@ -22,6 +23,7 @@ from rasterio.enums import Resampling
 from rasterio.warp import reproject
 from rasterio.windows import Window, from_bounds
 
+from mars_pairs.errors import TerrainError
 from mars_pairs.geometry.frames import crs_string
 from mars_pairs.kernels.resample import sample_affine
 
@@ -112,15 +114,27 @@ class ChipReader:
     In the raster's own CRS a chip is one windowed read of the pixels it covers plus a numba
     resampling (any rotation); in another CRS GDAL's warper reprojects it. Either way only
     the blocks under the chip are read, never the whole raster. Nodata becomes NaN.
+    A raster that cannot be opened or read raises TerrainError naming the file.
     """
 
     def __init__(self, path: str | Path) -> None:
         self.path = str(path)
-        self.dataset = rasterio.open(self.path)
+        try:
+            self.dataset = rasterio.open(self.path)
+        except rasterio.errors.RasterioError as exc:
+            raise TerrainError(f"{self.path}: cannot open the raster: {exc}") from None
         self.crs_wkt = self.dataset.crs.to_wkt() if self.dataset.crs else ""
 
     def read(self, grid: ChipGrid, *, nearest: bool = False, band: int = 1) -> NDArray[np.float32]:
         """The chip of ``band`` on ``grid`` (bilinear, or nearest for masks and classes)."""
+        if not 1 <= band <= self.dataset.count:
+            raise TerrainError(f"{self.path}: band {band}: the raster has {self.dataset.count}")
+        try:
+            return self._read(grid, nearest, band)
+        except rasterio.errors.RasterioError as exc:
+            raise TerrainError(f"{self.path}: band {band}: cannot read a chip: {exc}") from None
+
+    def _read(self, grid: ChipGrid, nearest: bool, band: int) -> NDArray[np.float32]:
         src = self.dataset
         if not _same_crs(self.crs_wkt, grid.crs):
             return self._warp(grid, nearest, band)

@@ -13,6 +13,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from pyproj import CRS
 
+from mars_pairs.errors import ArgumentError, MarsPairsError
 from mars_pairs.geometry.frames import MARS_RADIUS_M
 
 MEMBERS = ("ground", "ortho", "dem", "viewshed", "corr", "meta")
@@ -174,10 +175,13 @@ class Manifest:
         """The manifest of a built dataset folder."""
         root = Path(root)
         if not (root / "manifest.parquet").is_file():
-            from mars_pairs.errors import MarsPairsError
-
             raise MarsPairsError(f"{root}: no manifest.parquet (not a mars-pairs dataset)")
         return cls(root)
+
+    @property
+    def schema(self) -> pa.Schema:
+        """The manifest's Arrow schema (its columns)."""
+        return self._dataset.schema
 
     @property
     def crs(self) -> str | None:
@@ -206,7 +210,9 @@ class Manifest:
         ``bbox_map``: (xmin, ymin, xmax, ymax) in the dataset CRS; ``near``: (lat, lon,
         radius_m), great circle on the Mars sphere; ``polygon``: shapely geometry or WKT in
         the dataset CRS; ``sol``: inclusive (first, last); ``mission``/``instrument``/``split``:
-        a value or a list of values.
+        a value or a list of values. Numbers may be Python, numpy or pandas scalars (and the
+        tuples numpy arrays or pandas Series); a wrong type, size or a NaN raises
+        ArgumentError naming the argument.
         """
         import pyarrow.dataset as ds
 
@@ -214,13 +220,13 @@ class Manifest:
         terms = []
         exact = list(self._exact)
         if bbox_lonlat is not None:
-            w, s, e, n = bbox_lonlat
+            w, s, e, n = _numbers(bbox_lonlat, 4, "bbox_lonlat")
             terms.append((f("latitude") >= s) & (f("latitude") <= n))
             lon_term = _longitude_range(f("longitude"), w, e)
             if lon_term is not None:
                 terms.append(lon_term)
         if bbox_map is not None:
-            x0, y0, x1, y1 = bbox_map
+            x0, y0, x1, y1 = _numbers(bbox_map, 4, "bbox_map")
             terms.append(
                 (f("easting") >= x0)
                 & (f("easting") <= x1)
@@ -228,7 +234,7 @@ class Manifest:
                 & (f("northing") <= y1)
             )
         if near is not None:
-            lat, lon, radius = near
+            lat, lon, radius = _numbers(near, 3, "near")
             dlat = math.degrees(radius / MARS_RADIUS_M)
             coslat = max(math.cos(math.radians(min(abs(lat) + dlat, 90.0))), 1e-9)
             dlon = dlat / coslat
@@ -239,9 +245,7 @@ class Manifest:
                     terms.append(lon_term)
             exact.append(_NearPredicate(lat, lon, radius))
         if polygon is not None:
-            import shapely
-
-            geom = shapely.from_wkt(polygon) if isinstance(polygon, str) else polygon
+            geom = _geometry(polygon)
             x0, y0, x1, y1 = geom.bounds
             terms.append(
                 (f("easting") >= x0)
@@ -249,13 +253,13 @@ class Manifest:
                 & (f("northing") >= y0)
                 & (f("northing") <= y1)
             )
-            exact.append(_PolygonPredicate(shapely.to_wkb(geom)))
+            exact.append(_PolygonPredicate(_shapely().to_wkb(geom)))
         for name, value in (("mission", mission), ("instrument", instrument), ("split", split)):
             if value is not None:
-                values = [value] if isinstance(value, str) else list(value)
-                terms.append(f(name).isin(values))
+                terms.append(f(name).isin(_strings(value, name)))
         if sol is not None:
-            terms.append((f("sol") >= sol[0]) & (f("sol") <= sol[1]))
+            first, last = _integers(sol, 2, "sol")
+            terms.append((f("sol") >= first) & (f("sol") <= last))
         expression = self._expression
         for term in terms:
             expression = term if expression is None else expression & term
@@ -280,6 +284,74 @@ class Manifest:
         if not self._exact:
             return self._dataset.count_rows(filter=self._expression)
         return self.to_table(columns=["key"]).num_rows
+
+
+# -- filter arguments as users pass them: Python, numpy and pandas scalars ----------------------
+
+
+def _sequence(value: Any, n: int, name: str) -> list[Any]:
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__"):
+        raise ArgumentError(f"{name}: expected {n} numbers, got {value!r}")
+    items = list(value.tolist() if hasattr(value, "tolist") else value)
+    if len(items) != n:
+        raise ArgumentError(f"{name}: expected {n} numbers, got {len(items)}: {value!r}")
+    return items
+
+
+def _number(value: Any, name: str) -> float:
+    """A finite float of a Python, numpy or pandas real scalar (not bool, not a string)."""
+    if isinstance(value, (str, bytes, bool)) or type(value).__name__ == "bool_":
+        raise ArgumentError(f"{name}: expected a number, got {value!r}")
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ArgumentError(f"{name}: expected a number, got {value!r}") from None
+    if not math.isfinite(number):
+        raise ArgumentError(f"{name}: expected a finite number, got {value!r}")
+    return number
+
+
+def _numbers(value: Any, n: int, name: str) -> list[float]:
+    return [_number(v, name) for v in _sequence(value, n, name)]
+
+
+def _integers(value: Any, n: int, name: str) -> list[int]:
+    out = []
+    for v in _numbers(value, n, name):
+        if v != int(v):
+            raise ArgumentError(f"{name}: expected whole numbers, got {value!r}")
+        out.append(int(v))
+    return out
+
+
+def _strings(value: Any, name: str) -> list[str]:
+    """One value or a list of values (a str, numpy str, list, array or Series) as strings."""
+    if isinstance(value, str):
+        return [str(value)]
+    if not hasattr(value, "__iter__") or isinstance(value, bytes):
+        raise ArgumentError(f"{name}: expected a string or a list of strings, got {value!r}")
+    values = list(value.tolist() if hasattr(value, "tolist") else value)
+    bad = [v for v in values if not isinstance(v, str)]
+    if bad:
+        raise ArgumentError(f"{name}: expected strings, got {bad[0]!r}")
+    return [str(v) for v in values]
+
+
+def _shapely() -> Any:
+    import shapely
+
+    return shapely
+
+
+def _geometry(polygon: Any) -> Any:
+    shapely = _shapely()
+    try:
+        geom = shapely.from_wkt(polygon) if isinstance(polygon, str) else polygon
+    except shapely.errors.ShapelyError as exc:
+        raise ArgumentError(f"polygon: not WKT: {exc}") from None
+    if not isinstance(geom, shapely.Geometry) or geom.is_empty:
+        raise ArgumentError(f"polygon: expected a shapely geometry or WKT, got {polygon!r}")
+    return geom
 
 
 def _longitude_range(field: Any, west: float, east: float) -> Any:

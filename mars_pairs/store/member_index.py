@@ -16,13 +16,16 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from mars_pairs.errors import MissingMemberError
+
 
 class MemberIndex:
     """Member locations of ``fields`` and the ``meta_columns`` of a manifest table's rows.
 
     ``table`` holds, for each field, ``<field>_shard`` (path relative to the dataset root),
     ``<field>_offset`` and ``<field>_size`` (bytes of the member's data in that file), and the
-    meta columns. A null location (a sample without that member) reads as a KeyError.
+    meta columns. A null location (a sample without that member) raises MissingMemberError
+    (a KeyError too).
     """
 
     def __init__(self, table: pa.Table, fields: Sequence[str], meta_columns: Sequence[str]) -> None:
@@ -33,6 +36,7 @@ class MemberIndex:
             (name, column.chunk(0) if column.num_chunks == 1 else column)
             for name, column in zip(meta.column_names, meta.columns, strict=True)
         ]
+        self._names = {name: k for k, (name, _) in enumerate(self._meta_columns)}
         self._shards: dict[str, list[str]] = {}
         self._columns: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         for field in self.fields:
@@ -51,9 +55,17 @@ class MemberIndex:
         codes, offsets, sizes = self._columns[field]
         code, offset, size = int(codes[index]), int(offsets[index]), int(sizes[index])
         if code < 0 or offset < 0 or size < 0:
-            key = self.meta(index).get("key", index)
-            raise KeyError(f"sample {key} has no {field} member")
+            key = self.meta_value(index, "key") if "key" in self._names else index
+            raise MissingMemberError("manifest.parquet", f"{key}.{field}", "no such member")
         return self._shards[field][code], offset, size
+
+    def column(self, name: str) -> pa.Array:
+        """One meta column (all rows)."""
+        return self._meta_columns[self._names[name]][1]
+
+    def meta_value(self, index: int, name: str) -> Any:
+        """One meta value of sample ``index``."""
+        return self.column(name)[index].as_py()
 
     def meta(self, index: int) -> dict[str, Any]:
         """The meta values of sample ``index`` as plain Python values (~30 us: one scalar a

@@ -1,8 +1,9 @@
-"""Torch datasets over a built dataset: map-style and streaming datasets, collate, transport."""
+"""Torch datasets over a built dataset: map-style and streaming datasets, collate, transforms."""
 
 from mars_pairs.torch.collate import collate_samples
-from mars_pairs.torch.datasets import MarsPairsDataset, MarsPairsIterableDataset
+from mars_pairs.torch.datasets import MarsPairsDataset
 from mars_pairs.torch.decode import ALL_FIELDS, DEFAULT_FIELDS, decode_member
+from mars_pairs.torch.streaming import MarsPairsIterableDataset
 
 __all__ = [
     "ALL_FIELDS",

@@ -8,40 +8,33 @@ from typing import Any
 import torch
 from torch.utils.data import default_collate
 
-from mars_pairs.torch.lazy_float import Uint8AsFloat32
 from mars_pairs.torch.transport import stacked_base
 
 
 def collate_samples(batch: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """Stack tensors of a batch; ``meta`` becomes a dict of lists.
+    """Stack tensors of a batch; ``meta`` becomes a dict of lists, other values lists.
 
     Rows of one batch buffer (from ``MarsPairsDataset.__getitems__``) are returned as that
     buffer, without a copy; other tensors are stacked with ``default_collate``, which in a
-    DataLoader worker writes the batch straight into shared memory. Lazy float32 image rows
-    of one uint8 buffer (a worker's batch) stay lazy: they cross to the main process as
-    uint8 and arrive as float32.
+    DataLoader worker writes the batch straight into shared memory. Tensors whose shapes
+    differ across the batch (ground images without ``ground_size``) stay a list.
     """
     out: dict[str, Any] = {}
     for key in batch[0]:
+        values = [b[key] for b in batch]
         if key == "meta":
-            out["meta"] = {k: [b["meta"][k] for b in batch] for k in batch[0]["meta"]}
-        elif isinstance(batch[0][key], torch.Tensor):
-            out[key] = _collate_tensors([b[key] for b in batch])
+            out["meta"] = {k: [m[k] for m in values] for k in values[0]}
+        elif all(isinstance(v, torch.Tensor) for v in values):
+            out[key] = _collate_tensors(values)
         else:
-            out[key] = [b[key] for b in batch]
+            out[key] = values
     return out
 
 
-def _collate_tensors(tensors: list[torch.Tensor]) -> torch.Tensor:
+def _collate_tensors(tensors: list[torch.Tensor]) -> torch.Tensor | list[torch.Tensor]:
     """One field's [B, ...] batch: the buffer the rows view (no copy), else a stack (into
-    shared memory inside a worker). Unused lazy rows stay lazy: the batch is their uint8
-    buffer, or their uint8 rows stacked."""
-    lazy = [t for t in tensors if isinstance(t, Uint8AsFloat32) and not t.materialized]
-    if len(lazy) == len(tensors) and len({(t.divisor, t.shape) for t in lazy}) == 1:
-        base = stacked_base([t.uint8 for t in lazy])
-        pooled = base is not None and all(t.pooled for t in lazy)
-        if base is None:
-            base = default_collate([t.uint8 for t in lazy])
-        return Uint8AsFloat32(base, lazy[0].divisor, pooled=pooled).stacked_from(lazy)
+    shared memory inside a worker); a list when the shapes differ."""
+    if len({t.shape for t in tensors}) > 1:
+        return tensors
     base = stacked_base(tensors)
     return base if base is not None else default_collate(tensors)

@@ -1,38 +1,50 @@
 """Torch datasets over a built mars-pairs dataset: map-style and streaming.
 
-Samples are dicts of tensors (torchgeo style): ``ground`` float32 [3, H, W] in [0, 1],
-``ortho`` float32 [1, h, w] in [0, 1], ``dem`` float32 [1, h, w] (metres, or normalised),
-``viewshed`` float32 [1, h, w] in {0, 1}, ``corr`` float32 [2, H/k, W/k] (chip column, row of
-each strided ground pixel's ray hit, NaN for no hit) and ``meta`` (plain Python values).
-With ``image_dtype=torch.uint8`` ground and ortho are uint8 0..255 and viewshed uint8 {0, 1}.
+Samples are dicts (torchgeo style). Images are uint8 by default, the transport DataLoader
+workers send best (convert with :class:`~mars_pairs.torch.transforms.ToFloat`, in a collate
+function or on the GPU): ``ground`` uint8 [3, H, W], ``ortho`` uint8 [1, h, w], ``viewshed``
+uint8 [1, h, w] in {0, 1}; with ``image_dtype=torch.float32`` they are float32 in [0, 1].
+``dem`` float32 [1, h, w] (metres above the areoid, or normalised); ``corr`` float32
+[2, H/k, W/k] and ``corr_ground`` float32 [2, H/k, W/k], the keypoints (chip pixel and
+ground pixel of each strided ray, NaN for no hit); ``crs``, ``bounds``, ``transform`` and
+``rotation`` place the chips on the map (:mod:`mars_pairs.torch.georef`); ``meta`` holds
+plain Python values of the manifest row.
+
+Every error a user can catch is a :class:`~mars_pairs.errors.MarsPairsError`: a bad
+argument an ArgumentError (also a TypeError / ValueError), a damaged shard or member a
+DatasetError naming the shard and the member (``verify=True`` checks each member's
+CRC-32C against the manifest where it has ``<member>_crc32c`` columns).
 """
 
 from __future__ import annotations
 
-import random
-from collections.abc import Callable, Iterator, Sequence
+import json
+import warnings
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
 import torch
-from torch.utils.data import Dataset, IterableDataset, get_worker_info
+from torch.utils.data import Dataset, get_worker_info
 
+from mars_pairs.errors import ArgumentError, DatasetError, SampleIndexError, SampleKeyError
 from mars_pairs.store.manifest import SUMMARY_COLUMNS, Manifest
 from mars_pairs.store.member_index import MemberIndex
 from mars_pairs.torch.decode import (
     ALL_FIELDS,
     DEFAULT_FIELDS,
-    IMAGE_FIELDS,
+    MEMBER_SUFFIXES,
     TORCH_DTYPES,
-    UINT8_DIVISORS,
     chw_shape,
     decode_raw,
     finish_chw,
     out_dtype,
 )
 from mars_pairs.torch.files import ShardFiles
-from mars_pairs.torch.lazy_float import TransportBuffers, Uint8AsFloat32
+from mars_pairs.torch.georef import GEO_COLUMNS, chip_transform, corr_ground_grid
 from mars_pairs.torch.transport import shared_empty
 
 META_COLUMNS = SUMMARY_COLUMNS
@@ -53,17 +65,36 @@ FILTER_KEYS = (
 def _ground_size(value: int | Sequence[int] | None) -> tuple[int, int] | None:
     if value is None:
         return None
-    if isinstance(value, int):
-        return (value, value)
-    h, w = value
-    return (int(h), int(w))
+    try:
+        if isinstance(value, (int, np.integer)):
+            size = (int(value), int(value))
+        else:
+            h, w = value
+            size = (int(h), int(w))
+    except (TypeError, ValueError):
+        raise ArgumentError(f"ground_size: expected an int or (H, W), got {value!r}") from None
+    if min(size) < 1:
+        raise ArgumentError(f"ground_size: sizes must be positive, got {value!r}")
+    return size
 
 
 def _check_fields(fields: Sequence[str]) -> tuple[str, ...]:
+    if isinstance(fields, str):
+        fields = (fields,)
     bad = [f for f in fields if f not in ALL_FIELDS]
-    if bad:
-        raise ValueError(f"unknown field(s) {bad}; expected some of {list(ALL_FIELDS)}")
+    if bad or not fields:
+        raise ArgumentError(f"fields: unknown field(s) {bad}; expected some of {list(ALL_FIELDS)}")
     return tuple(fields)
+
+
+def _dataset_json(root: Path) -> dict[str, Any]:
+    path = root / "dataset.json"
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        return {}
+    except (OSError, ValueError) as exc:
+        raise DatasetError(path, None, f"unreadable: {exc}") from None
 
 
 class MarsPairsDataset(Dataset):
@@ -71,9 +102,10 @@ class MarsPairsDataset(Dataset):
 
     Filter arguments are those of :meth:`mars_pairs.Manifest.filter`. ``ground_size`` (int or
     (H, W)) resizes ground images so they batch; ``normalize_dem`` subtracts each chip's
-    median elevation. ``image_dtype=torch.uint8`` returns ground and ortho as uint8 (0..255)
-    and viewshed as uint8 {0, 1}: a quarter of the bytes through DataLoader workers (convert
-    on the device). ``transform`` is applied to the sample dict.
+    median elevation. ``image_dtype`` is torch.uint8 (default) or torch.float32 (images in
+    [0, 1]). ``transform`` is applied to the sample dict (see
+    :mod:`mars_pairs.torch.transforms`). ``verify`` checks each member's CRC-32C.
+    Use as a context manager, or call :meth:`close`.
     """
 
     def __init__(
@@ -84,69 +116,188 @@ class MarsPairsDataset(Dataset):
         transform: Callable[[dict[str, Any]], dict[str, Any]] | None = None,
         ground_size: int | Sequence[int] | None = None,
         normalize_dem: bool = False,
-        image_dtype: torch.dtype = torch.float32,
+        image_dtype: torch.dtype = torch.uint8,
+        verify: bool = False,
         **filters: Any,
     ) -> None:
         unknown = set(filters) - set(FILTER_KEYS)
         if unknown:
-            raise TypeError(f"unknown filter argument(s) {sorted(unknown)}")
+            raise ArgumentError(f"unknown filter argument(s) {sorted(unknown)}")
+        if transform is not None and not callable(transform):
+            raise ArgumentError(f"transform: expected a callable, got {transform!r}")
         self.root = Path(root)
         self.fields = _check_fields(fields)
         self.transform = transform
         self.ground_size = _ground_size(ground_size)
-        self.normalize_dem = normalize_dem
+        self.normalize_dem = bool(normalize_dem)
         self._dtypes = {f: out_dtype(f, image_dtype) for f in self.fields}
         self.image_dtype = image_dtype
         manifest = Manifest.open(self.root).filter(**filters)
-        columns = list(META_COLUMNS)
+        info = _dataset_json(self.root)
+        self.crs: str = info.get("crs") or manifest.crs or ""
+        self.chip_px = int(info.get("chip", {}).get("size_px", 0)) or None
+        self.ray_stride = int(info.get("config", {}).get("geometry", {}).get("ray_stride", 1))
+        names = set(manifest.schema.names)
+        self._crc_fields = tuple(f for f in self.fields if f"{f}_crc32c" in names)
+        self.verify = bool(verify)
+        if self.verify and len(self._crc_fields) < len(self.fields):
+            missing = [f for f in self.fields if f not in self._crc_fields]
+            warnings.warn(
+                f"{self.root}: the manifest has no checksums of {missing} (built before "
+                "checksums): verify=True checks the others only",
+                stacklevel=2,
+            )
+        columns = [*META_COLUMNS, *GEO_COLUMNS, "width", "height", "ground_member"]
         for name in self.fields:
             columns += [f"{name}_shard", f"{name}_offset", f"{name}_size"]
-        table = manifest.to_table(columns=list(dict.fromkeys(columns)))
+        columns += [f"{f}_crc32c" for f in self._crc_fields]
+        table = manifest.to_table(columns=[c for c in dict.fromkeys(columns) if c in names])
         self._index = MemberIndex(table, self.fields, META_COLUMNS)
+        self._geo = np.column_stack(
+            [table[c].fill_null(np.nan).to_numpy().astype(np.float64) for c in GEO_COLUMNS]
+        ).reshape(table.num_rows, len(GEO_COLUMNS))
+        self._size = np.column_stack(
+            [table[c].fill_null(0).to_numpy().astype(np.int64) for c in ("width", "height")]
+        ).reshape(table.num_rows, 2)
+        self._ground_member = (
+            table["ground_member"].combine_chunks() if "ground_member" in names else None
+        )
+        self._crc = {
+            f: table[f"{f}_crc32c"].fill_null(-1).to_numpy().astype(np.int64)
+            for f in self._crc_fields
+        }
         self._files = ShardFiles(self.root)
-        self._transport = TransportBuffers()
+
+    # -- life cycle ---------------------------------------------------------------------------
+    def close(self) -> None:
+        """Close the shard files this process opened (the dataset reopens them on use)."""
+        self._files.close()
+
+    def __enter__(self) -> MarsPairsDataset:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     def __len__(self) -> int:
         return len(self._index)
 
+    def index_of(self, key: str) -> int:
+        """The index of the sample with ``key`` (SampleKeyError, a KeyError too, if absent)."""
+        keys = self._index.column("key")
+        found = pc.index(keys, pa.scalar(str(key), keys.type)).as_py()
+        if found < 0:
+            raise SampleKeyError(f"{self.root}: no sample with key {key!r} in this dataset")
+        return int(found)
+
+    def _checked(self, index: Any) -> int:
+        if isinstance(index, (bool, np.bool_)) or not isinstance(index, (int, np.integer)):
+            if (
+                isinstance(index, torch.Tensor)
+                and index.numel() == 1
+                and not index.is_floating_point()
+            ):
+                index = int(index)
+            else:
+                raise ArgumentError(f"dataset index: expected an int, got {index!r}")
+        i, n = int(index), len(self)
+        if not -n <= i < n:
+            raise SampleIndexError(f"dataset index {i} out of range for {n} samples")
+        return i % n
+
+    # -- reading ------------------------------------------------------------------------------
+    def member_name(self, index: int, field: str) -> str:
+        """The tar member name (``<key>.<suffix>``) of sample ``index``'s ``field``."""
+        key = self._index.meta_value(index, "key")
+        if field == "ground" and self._ground_member is not None:
+            suffix = self._ground_member[index].as_py() or "ground"
+        else:
+            suffix = MEMBER_SUFFIXES[field]
+        return f"{key}.{suffix}"
+
+    def _bytes(self, index: int, field: str) -> bytearray:
+        shard, offset, size = self._index.location(index, field)
+        try:
+            data = self._files.read(shard, offset, size)
+        except OSError as exc:
+            name = self.member_name(index, field)
+            raise DatasetError(self.root / shard, name, f"cannot read: {exc}") from None
+        if self.verify and field in self._crc:
+            expected = int(self._crc[field][index])
+            if expected >= 0:
+                from crc32c import crc32c
+
+                got = crc32c(data)
+                if got != expected:
+                    raise DatasetError(
+                        self.root / shard,
+                        self.member_name(index, field),
+                        f"checksum mismatch (crc32c {got:#010x}, manifest {expected:#010x})",
+                    )
+        return data
+
     def _raw(self, index: int) -> dict[str, np.ndarray]:
         raw = {}
         for name in self.fields:
-            data = self._files.read(*self._index.location(index, name))
-            raw[name] = decode_raw(name, data, self.ground_size, self.normalize_dem)
+            data = self._bytes(index, name)
+            try:
+                raw[name] = decode_raw(name, data, self.ground_size, self.normalize_dem)
+            except (OSError, ValueError, SyntaxError, EOFError) as exc:  # PIL, numpy headers
+                shard = self._index.location(index, name)[0]
+                raise DatasetError(
+                    self.root / shard,
+                    self.member_name(index, name),
+                    f"cannot decode: {type(exc).__name__}: {exc}",
+                ) from None
         return raw
 
-    def _finish_sample(self, tensors: dict[str, torch.Tensor], meta: dict) -> dict[str, Any]:
+    def _georef(self, index: int, raw: dict[str, np.ndarray]) -> dict[str, Any]:
+        """crs, bounds, transform, rotation (and corr_ground with corr) of sample ``index``."""
+        xmin, ymin, xmax, ymax, rotation = (float(v) for v in self._geo[index])
+        size_px = self.chip_px
+        for name in ("ortho", "dem", "viewshed"):
+            if name in raw:
+                size_px = raw[name].shape[0]
+        out: dict[str, Any] = {
+            "crs": self.crs,
+            "bounds": torch.tensor([xmin, ymin, xmax, ymax], dtype=torch.float64),
+            "rotation": torch.tensor(rotation, dtype=torch.float64),
+        }
+        if size_px:
+            affine = chip_transform((xmin, ymin, xmax, ymax), rotation, size_px)
+            out["transform"] = torch.tensor(affine, dtype=torch.float64)
+        if "corr" in raw:
+            width, height = (int(v) for v in self._size[index])
+            if "ground" in raw:
+                ground_hw = raw["ground"].shape[:2]
+            else:
+                ground_hw = self.ground_size or (height, width)
+            grid = corr_ground_grid(
+                raw["corr"].shape[:2], self.ray_stride, (width, height), ground_hw
+            )
+            out["corr_ground"] = torch.from_numpy(grid)
+        return out
+
+    def _finish_sample(
+        self, tensors: dict[str, torch.Tensor], index: int, raw: dict[str, np.ndarray]
+    ) -> dict[str, Any]:
         sample: dict[str, Any] = dict(tensors)
-        sample["meta"] = meta
+        sample.update(self._georef(index, raw))
+        sample["meta"] = self._index.meta(index)
         return self.transform(sample) if self.transform is not None else sample
 
-    def __getitem__(self, index: int) -> dict[str, Any]:
-        """Sample ``index``. Inside a DataLoader worker (without ``transform``) float32 image
-        fields are :class:`~mars_pairs.torch.lazy_float.Uint8AsFloat32`, so they cross to the main
-        process as uint8."""
-        in_worker = get_worker_info() is not None
-        tensors = {
-            name: self._tensor(name, raw, self._lazy(name, in_worker))
-            for name, raw in self._raw(index).items()
-        }
-        return self._finish_sample(tensors, self._index.meta(index))
-
-    def _lazy(self, field: str, in_worker: bool) -> bool:
-        """Whether ``field`` is handed out as Uint8AsFloat32 (float32 images in a worker)."""
-        return (
-            in_worker
-            and self.transform is None
-            and field in IMAGE_FIELDS
-            and self._dtypes[field] == np.float32
-        )
-
-    def _tensor(self, field: str, raw: np.ndarray, lazy: bool) -> torch.Tensor:
+    def _tensor(self, field: str, raw: np.ndarray) -> torch.Tensor:
         """One sample's [C, H, W] tensor of a stage-1 array (its own memory)."""
-        out = np.empty(chw_shape(raw), dtype=np.uint8 if lazy else self._dtypes[field])
+        out = np.empty(chw_shape(raw), dtype=self._dtypes[field])
         finish_chw(field, raw, out)
-        tensor = torch.from_numpy(out)
-        return Uint8AsFloat32(tensor, UINT8_DIVISORS[field]) if lazy else tensor
+        return torch.from_numpy(out)
+
+    def __getitem__(self, index: int) -> dict[str, Any]:
+        """Sample ``index`` (negative indices count from the end)."""
+        i = self._checked(index)
+        raw = self._raw(i)
+        tensors = {name: self._tensor(name, r) for name, r in raw.items()}
+        return self._finish_sample(tensors, i, raw)
 
     def __getitems__(self, indices: Sequence[int]) -> list[dict[str, Any]]:
         """A batch of samples (the DataLoader's batched fetch).
@@ -154,106 +305,35 @@ class MarsPairsDataset(Dataset):
         Members are decoded to compact arrays first; each field whose shapes agree across the
         batch is then converted into one [B, C, H, W] buffer whose rows are the samples'
         tensors, so ``collate_samples`` hands it on without another copy. Inside a DataLoader
-        worker the buffers are in shared memory, and float32 image fields (without a
-        ``transform``) are :class:`~mars_pairs.torch.lazy_float.Uint8AsFloat32` rows of a uint8
-        buffer: a quarter of the bytes to the main process, where they arrive as float32.
+        worker the buffers are in shared memory.
         """
-        raws = [self._raw(int(i)) for i in indices]
+        checked = [self._checked(i) for i in indices]
+        raws = [self._raw(i) for i in checked]
         in_worker = get_worker_info() is not None
         tensors: list[dict[str, torch.Tensor]] = [{} for _ in raws]
         for name in self.fields:
             shapes = {chw_shape(r[name]) for r in raws}
             dtype = self._dtypes[name]
-            lazy = self._lazy(name, in_worker)
             if len(shapes) == 1:
                 shape = (len(raws), *shapes.pop())
-                if lazy:  # a reused buffer: no fresh shared memory in the steady state
-                    batch = self._transport.empty(shape)
-                elif in_worker:
+                if in_worker:
                     batch = shared_empty(shape, TORCH_DTYPES[dtype])
                 else:  # numpy reuses freed memory; torch.empty page-faults it in anew
                     batch = torch.from_numpy(np.empty(shape, dtype=dtype))
                 for j, r in enumerate(raws):
-                    finish_chw(name, r[name], batch[j].numpy())  # uint8: viewshed {0, 1}
-                    tensors[j][name] = (
-                        Uint8AsFloat32(batch[j], UINT8_DIVISORS[name], pooled=True)
-                        if lazy
-                        else batch[j]
-                    )
+                    finish_chw(name, r[name], batch[j].numpy())
+                    tensors[j][name] = batch[j]
             else:  # sizes differ (no ground_size): a tensor each
                 for j, r in enumerate(raws):
-                    tensors[j][name] = self._tensor(name, r[name], lazy)
-        metas = self._index.metas([int(i) for i in indices])
-        return [self._finish_sample(t, m) for t, m in zip(tensors, metas, strict=True)]
+                    tensors[j][name] = self._tensor(name, r[name])
+        return [
+            self._finish_sample(t, i, r) for t, i, r in zip(tensors, checked, raws, strict=True)
+        ]
 
+    def plot(self, sample: dict[str, Any], *, title: str | None = None) -> Any:
+        """A matplotlib Figure of one sample (as returned by ``ds[i]``, transformed or not):
+        the ground image, the ortho chip with the viewshed and the camera wedge, the DEM as a
+        hillshade and the keypoints, colour-linked (needs the ``viz`` extra)."""
+        from mars_pairs.viz.sample import sample_figure
 
-def _world() -> tuple[int, int]:
-    if torch.distributed.is_available() and torch.distributed.is_initialized():
-        return torch.distributed.get_rank(), torch.distributed.get_world_size()
-    return 0, 1
-
-
-class MarsPairsIterableDataset(IterableDataset):
-    """Streams samples shard by shard through a shuffle buffer.
-
-    Shards are split across distributed ranks and DataLoader workers (every shard goes to
-    exactly one (rank, worker)); within a shard members are read in file order. Call
-    ``set_epoch`` to reshuffle between epochs.
-    """
-
-    def __init__(
-        self,
-        root: str | Path,
-        *,
-        fields: Sequence[str] = DEFAULT_FIELDS,
-        transform: Callable[[dict[str, Any]], dict[str, Any]] | None = None,
-        ground_size: int | Sequence[int] | None = None,
-        normalize_dem: bool = False,
-        image_dtype: torch.dtype = torch.float32,
-        shuffle_buffer: int = 64,
-        seed: int = 0,
-        **filters: Any,
-    ) -> None:
-        self._inner = MarsPairsDataset(
-            root,
-            fields=fields,
-            transform=transform,
-            ground_size=ground_size,
-            normalize_dem=normalize_dem,
-            image_dtype=image_dtype,
-            **filters,
-        )
-        self.shuffle_buffer = shuffle_buffer
-        self.seed = seed
-        self.epoch = 0
-        self._by_shard = self._inner._index.shard_order(self._inner.fields[0])
-        self.shards = sorted(self._by_shard)
-
-    def set_epoch(self, epoch: int) -> None:
-        """Reseed the shard order and shuffle buffer."""
-        self.epoch = epoch
-
-    def my_shards(self) -> list[str]:
-        """The shards this (rank, worker) streams."""
-        rank, world = _world()
-        info = get_worker_info()
-        worker, workers = (info.id, info.num_workers) if info is not None else (0, 1)
-        order = list(self.shards)
-        random.Random(self.seed + self.epoch).shuffle(order)
-        slot, slots = rank * workers + worker, world * workers
-        return order[slot::slots]
-
-    def __iter__(self) -> Iterator[dict[str, Any]]:
-        mine = self.my_shards()
-        rng = random.Random(f"{self.seed}:{self.epoch}:{','.join(mine)}")
-        buffer: list[dict[str, Any]] = []
-        for shard in mine:
-            for index in self._by_shard[shard]:
-                buffer.append(self._inner[index])
-                if len(buffer) >= max(self.shuffle_buffer, 1):
-                    yield buffer.pop(rng.randrange(len(buffer)))
-        rng.shuffle(buffer)
-        yield from buffer
-
-    def __len__(self) -> int:
-        return len(self._inner)
+        return sample_figure(sample, title=title)

@@ -14,6 +14,8 @@ import pyarrow as pa
 import torch
 from PIL import Image
 
+from mars_pairs.errors import ArgumentError
+
 DEFAULT_FIELDS = ("ground", "ortho", "dem", "viewshed")
 
 
@@ -21,6 +23,17 @@ ALL_FIELDS = ("ground", "ortho", "dem", "viewshed", "corr")
 
 
 IMAGE_FIELDS = ("ground", "ortho", "viewshed")  # uint8 with image_dtype=torch.uint8
+
+
+#: tar member suffixes of the fields (the ground image's is in the manifest's ground_member)
+MEMBER_SUFFIXES = {
+    "ground": "ground.jpg",
+    "ortho": "ortho.png",
+    "dem": "dem.npy",
+    "viewshed": "viewshed.png",
+    "corr": "corr.npy",
+    "meta": "meta.json",
+}
 
 
 UINT8_DIVISORS = {"ground": 255.0, "ortho": 255.0, "viewshed": 1.0}  # float32 = uint8 / this
@@ -95,7 +108,7 @@ def decode_raw(
         return dem
     if field == "corr":
         return _decode_npy(data)
-    raise KeyError(f"unknown field {field!r}")
+    raise ArgumentError(f"unknown field {field!r}; expected one of {list(ALL_FIELDS)}")
 
 
 def chw_shape(raw: np.ndarray) -> tuple[int, int, int]:
@@ -111,7 +124,9 @@ def out_dtype(field: str, image_dtype: torch.dtype) -> np.dtype:
     if field in IMAGE_FIELDS and image_dtype == torch.uint8:
         return np.dtype(np.uint8)
     if image_dtype not in (torch.float32, torch.uint8):
-        raise ValueError(f"image_dtype must be torch.float32 or torch.uint8, got {image_dtype}")
+        raise ArgumentError(
+            f"image_dtype: expected torch.uint8 or torch.float32, got {image_dtype}"
+        )
     return np.dtype(np.float32)
 
 
@@ -140,7 +155,7 @@ def decode_member(
     *,
     ground_size: tuple[int, int] | None = None,
     normalize_dem: bool = False,
-    image_dtype: torch.dtype = torch.float32,
+    image_dtype: torch.dtype = torch.uint8,
 ) -> Any:
     """Decode one member's bytes into its tensor (or dict, for ``meta``)."""
     if field == "meta":

@@ -12,7 +12,6 @@ import numpy as np
 
 from mars_pairs.errors import MarsPairsError
 from mars_pairs.store.manifest import Manifest
-from mars_pairs.store.shards import MemberLocation, read_member
 
 DPI = 90
 
@@ -41,18 +40,6 @@ def manifest_rows(root: Path) -> list[dict[str, Any]]:
     if not root.is_dir():
         raise MarsPairsError(f"{root}: no such dataset folder")
     return Manifest.open(root).to_table().to_pylist()
-
-
-def manifest_row(root: Path, key: str) -> dict[str, Any]:
-    rows = [r for r in manifest_rows(root) if r["key"] == key]
-    if not rows:
-        raise MarsPairsError(f"{root}: no sample with key {key!r} (see mars-pairs query)")
-    return rows[0]
-
-
-def member_bytes(root: Path, row: dict[str, Any], name: str) -> bytes:
-    loc = MemberLocation(row[f"{name}_shard"], row[f"{name}_offset"], row[f"{name}_size"])
-    return read_member(root, loc)
 
 
 def hillshade(

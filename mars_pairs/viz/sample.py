@@ -3,31 +3,22 @@
 from __future__ import annotations
 
 import colorsys
-import io
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from PIL import Image
 
-from mars_pairs.viz.common import (
-    DPI,
-    SHOW_SIZE,
-    hillshade,
-    manifest_row,
-    member_bytes,
-    pyplot,
-)
+from mars_pairs.errors import MarsPairsError
+from mars_pairs.viz.common import DPI, SHOW_SIZE, hillshade, pyplot
 
 
 @dataclass(frozen=True)
 class _Links:
-    """Sampled ground pixels and their map points (chip pixels), colour-linked."""
+    """Sampled keypoints: ground pixels and their map points (chip pixels), colour-linked."""
 
-    ground: np.ndarray  # (N, 2) displayed ground image (x, y), pixel-centre coordinates
+    ground: np.ndarray  # (N, 2) ground image (x, y), pixel-edge coordinates
     chip: np.ndarray  # (N, 2) chip (column, row), pixel-edge coordinates as the transform
     colours: np.ndarray  # (N, 3) RGB
     on_chip: np.ndarray  # (N,) bool
@@ -37,39 +28,35 @@ class _Links:
 
 def _links(
     corr: np.ndarray,
-    meta: dict[str, Any],
+    corr_ground: np.ndarray,
     ground_shape: tuple[int, ...],
     chip_shape: tuple[int, ...],
     target: tuple[int, int] = (18, 13),
 ) -> _Links | None:
-    """About ``target`` (columns, lines) evenly spread strided pixels that hit the terrain."""
+    """About ``target`` (columns, lines) evenly spread keypoints that hit the terrain.
+
+    ``corr`` and ``corr_ground`` are [2, h, w] (the sample's keypoints: chip column, row and
+    ground x, y of each strided ray)."""
     if corr.size == 0:
         return None
-    k = int(meta["ray_stride"])
-    gh, gw = corr.shape[:2]
+    gh, gw = corr.shape[1:]
     sy, sx = max(1, math.ceil(gh / target[1])), max(1, math.ceil(gw / target[0]))
-    lines, samples = np.meshgrid(np.arange(0, gh, sy) * k, np.arange(0, gw, sx) * k, indexing="ij")
-    pts = corr[::sy, ::sx].reshape(-1, 2).astype(np.float64)
-    hit = np.all(np.isfinite(pts), axis=1)
-    width, height = max(int(meta["width"]), 1), max(int(meta["height"]), 1)
-    s, ln = samples.ravel()[hit], lines.ravel()[hit]
-    ground = np.stack(
-        [
-            (s + 0.5) * ground_shape[1] / width - 0.5,
-            (ln + 0.5) * ground_shape[0] / height - 0.5,
-        ],
-        axis=-1,
-    )
-    chip = pts[hit]
+    pts = corr[:, ::sy, ::sx].reshape(2, -1).T.astype(np.float64)
+    ground = corr_ground[:, ::sy, ::sx].reshape(2, -1).T.astype(np.float64)
+    hit = np.all(np.isfinite(pts), axis=1) & np.all(np.isfinite(ground), axis=1)
+    ground, chip = ground[hit], pts[hit]
     on_chip = (
         (chip[:, 0] >= 0)
         & (chip[:, 1] >= 0)
         & (chip[:, 0] <= chip_shape[1])
         & (chip[:, 1] <= chip_shape[0])
     )
-    colours = _colour_wheel(s / width, ln / height)
-    all_hits = int(np.all(np.isfinite(corr.reshape(-1, 2)), axis=1).sum())
-    return _Links(ground, chip, colours, on_chip, gh * gw, all_hits)
+    height, width = max(ground_shape[0], 1), max(ground_shape[1], 1)
+    colours = _colour_wheel(
+        np.clip(ground[:, 0] / width, 0, 1), np.clip(ground[:, 1] / height, 0, 1)
+    )
+    all_hits = int(np.all(np.isfinite(corr.reshape(2, -1)), axis=0).sum())
+    return _Links(ground - 0.5, chip, colours, on_chip, gh * gw, all_hits)
 
 
 def _colour_wheel(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -97,9 +84,10 @@ def _wedge_pixels(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The camera's azimuth wedge (az +/- hFOV/2) from ``origin`` to the farthest visible range,
     as a closed ring of chip pixel coordinates."""
-    rng = max(float(row["max_visible_range_m"] or 0.0), 1.0)
-    half = float(row["hfov_deg"]) / 2
-    az = np.radians(np.linspace(row["azimuth_deg"] - half, row["azimuth_deg"] + half, 33))
+    rng = max(float(row.get("max_visible_range_m") or 0.0), 1.0)
+    half = float(row.get("hfov_deg") or 0.0) / 2
+    azimuth = float(row.get("azimuth_deg") or 0.0)
+    az = np.radians(np.linspace(azimuth - half, azimuth + half, 33))
     x = np.concatenate([[origin[0]], origin[0] + rng * np.sin(az), [origin[0]]])
     y = np.concatenate([[origin[1]], origin[1] + rng * np.cos(az), [origin[1]]])
     return _apply(inv, x, y)
@@ -192,22 +180,31 @@ def _draw_links(ground_ax: Any, map_ax: Any, links: _Links | None) -> None:
     map_ax.scatter(*links.chip[on].T, c=links.colours[on], s=16, edgecolors="black", linewidths=0.4)
 
 
-def _info_panel(ax: Any, row: dict[str, Any], meta: dict[str, Any], links: _Links | None) -> None:
+def _info_panel(
+    ax: Any, row: dict[str, Any], res: float, rotation: float, links: _Links | None
+) -> None:
     """The sample's numbers as text."""
     ax.axis("off")
+
+    def num(name: str, fmt: str) -> str:
+        value = row.get(name)
+        return "?" if value is None else format(value, fmt)
+
+    elevation = row.get("elevation_m", row.get("elevation"))
     lines = [
-        f"key  {row['key']}",
-        f"mission  {row['mission']}   instrument  {row['instrument']}",
-        f"sol {row['sol']}   site {row['site']}   drive {row['drive']}   split {row['split']}",
-        f"rover  E {row['easting']:.1f}  N {row['northing']:.1f}  ({row['localization']})",
-        f"lat {row['latitude']:.6f}   lon {row['longitude']:.6f}",
-        f"elevation  {row['elevation']:.1f} m",
-        f"camera  az {row['azimuth_deg']:.1f}°  el {row['elevation_deg']:.1f}°  "
-        f"FOV {row['hfov_deg']:.1f}° x {row['vfov_deg']:.1f}°",
-        f"viewshed  {row['visible_cells']} cells, {row['viewshed_area_m2']:.0f} m², "
-        f"max range {row['max_visible_range_m']:.0f} m",
-        f"chip  {meta.get('chip_transform', [0])[0] * 1.0:.2f} map units / px, "
-        f"rotation {row['chip_rotation_deg']:.0f}°",
+        f"key  {row.get('key')}",
+        f"mission  {row.get('mission')}   instrument  {row.get('instrument')}",
+        f"sol {row.get('sol')}   site {row.get('site')}   drive {row.get('drive')}   "
+        f"split {row.get('split')}",
+        f"rover  E {num('easting', '.1f')}  N {num('northing', '.1f')}  "
+        f"({row.get('localization')})",
+        f"lat {num('latitude', '.6f')}   lon {num('longitude', '.6f')}",
+        f"elevation  {'?' if elevation is None else format(elevation, '.1f')} m",
+        f"camera  az {num('azimuth_deg', '.1f')}°  el {num('elevation_deg', '.1f')}°  "
+        f"FOV {num('hfov_deg', '.1f')}° x {num('vfov_deg', '.1f')}°",
+        f"viewshed  {row.get('visible_cells')} cells, {num('viewshed_area_m2', '.0f')} m², "
+        f"max range {num('max_visible_range_m', '.0f')} m",
+        f"chip  {res:.2f} map units / px, rotation {rotation:.0f}°",
     ]
     if links is not None:
         lines += [
@@ -218,7 +215,7 @@ def _info_panel(ax: Any, row: dict[str, Any], meta: dict[str, Any], links: _Link
             "colour: hue = image column, brightness = image line",
         ]  # fmt: skip
     else:
-        lines.append("no correspondence (ray casting off)")
+        lines.append("no correspondence (corr not loaded, or ray casting off)")
     ax.text(
         0.0,
         1.0,
@@ -232,89 +229,157 @@ def _info_panel(ax: Any, row: dict[str, Any], meta: dict[str, Any], links: _Link
     )
 
 
-def show_sample(root: str | Path, key: str, out: str | Path, dpi: int = DPI) -> Path:
-    """One figure of a sample, written to ``out`` (PNG of ``SHOW_SIZE`` inches at ``dpi``).
+def _numpy_parts(sample: dict[str, Any]) -> dict[str, Any]:
+    """The sample's images as display arrays: ground [H, W, 3] uint8, ortho [h, w] uint8,
+    viewshed bool, dem float (metres); absent fields are None."""
+
+    def arr(name: str) -> np.ndarray | None:
+        value = sample.get(name)
+        return None if value is None else np.asarray(value)
+
+    def uint8(a: np.ndarray | None) -> np.ndarray | None:
+        if a is None or a.dtype == np.uint8:
+            return a
+        return (np.clip(np.nan_to_num(a), 0, 1) * 255 + 0.5).astype(np.uint8)
+
+    ground, ortho, vis, dem = arr("ground"), arr("ortho"), arr("viewshed"), arr("dem")
+    return {
+        "ground": None if ground is None else uint8(ground.transpose(1, 2, 0)),
+        "ortho": None if ortho is None else uint8(ortho[0]),
+        "viewshed": None if vis is None else vis[0] > 0,
+        "dem": None if dem is None else dem[0].astype(np.float64),
+        "corr": arr("corr"),
+        "corr_ground": arr("corr_ground"),
+    }
+
+
+def _missing(ax: Any, what: str) -> None:
+    ax.text(0.5, 0.5, f"{what}\nnot in the sample", ha="center", va="center", fontsize=10)
+
+
+def sample_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
+    """A matplotlib Figure (``SHOW_SIZE`` inches) of one dataset sample, transformed or not.
 
     Top: the ground image; the ortho chip with the viewshed, the rover and the camera wedge;
-    the DEM chip as a hillshade. Bottom: ground pixels and their map points, colour-linked,
-    over the ground image and over the ortho zoomed on the viewshed; the sample's numbers.
+    the DEM chip as a hillshade. Bottom: keypoints (ground pixels and their map points),
+    colour-linked, over the ground image and over the ortho zoomed on the viewshed; the
+    sample's numbers. The chip panels are drawn through the sample's ``transform``, so a
+    rotated, cropped or flipped chip shows its own wedge and north arrow.
     """
     plt = pyplot()
-    root, out = Path(root), Path(out)
-    row = manifest_row(root, key)
-    ground = np.asarray(Image.open(io.BytesIO(member_bytes(root, row, "ground"))).convert("RGB"))
-    ortho = np.asarray(Image.open(io.BytesIO(member_bytes(root, row, "ortho"))))
-    vis = np.asarray(Image.open(io.BytesIO(member_bytes(root, row, "viewshed")))) > 0
-    dem = np.load(io.BytesIO(member_bytes(root, row, "dem")))
-    corr = np.load(io.BytesIO(member_bytes(root, row, "corr")))
-    meta = json.loads(member_bytes(root, row, "meta"))
-    n = ortho.shape[0]
-    transform = meta["chip_transform"]
+    row = dict(sample.get("meta") or {})
+    parts = _numpy_parts(sample)
+    ground, ortho, vis, dem = parts["ground"], parts["ortho"], parts["viewshed"], parts["dem"]
+    chip = next((a for a in (ortho, dem, vis) if a is not None), None)
+    chip_shape = chip.shape if chip is not None else (1, 1)
+    n_rows, n_cols = chip_shape
+    if vis is None:
+        vis = np.zeros(chip_shape, dtype=bool)
+    transform = [float(v) for v in np.asarray(sample["transform"])[:6]]
     res = float(np.hypot(transform[0], transform[3]))  # map units per chip pixel
+    rotation = float(sample.get("rotation", 0.0))
     inv = _inverse(transform)
-    rover = _apply(inv, row["easting"], row["northing"])
-    cam_xy = (meta.get("camera_center_map") or [row["easting"], row["northing"]])[:2]
-    wedge = _wedge_pixels(row, cam_xy, inv)
-    links = _links(corr, meta, ground.shape, ortho.shape)
-    zoom = _zoom_box(vis, rover, links, n)
+    rover = _apply(inv, row.get("easting", np.nan), row.get("northing", np.nan))
+    wedge = _wedge_pixels(row, [row.get("easting", np.nan), row.get("northing", np.nan)], inv)
+    links = None
+    if parts["corr"] is not None and parts["corr_ground"] is not None:
+        ground_shape = ground.shape if ground is not None else (1, 1)
+        links = _links(parts["corr"], parts["corr_ground"], ground_shape, chip_shape)
+    zoom = _zoom_box(vis, rover, links, max(n_rows, n_cols))
 
     fig, axes = plt.subplots(2, 3, figsize=SHOW_SIZE)
     ax = axes[0, 0]
-    ax.imshow(ground)
+    if ground is not None:
+        ax.imshow(ground)
+    else:
+        _missing(ax, "ground image")
     ax.set_title(
-        f"ground image\n{row['product_id']}\n{row['instrument']}, sol {row['sol']}, "
-        f"az {row['azimuth_deg']:.1f}°, el {row['elevation_deg']:.1f}°",
+        title
+        or f"ground image\n{row.get('product_id')}\n{row.get('instrument')}, sol "
+        f"{row.get('sol')}, az {row.get('azimuth_deg', np.nan):.1f}°, "
+        f"el {row.get('elevation_deg', np.nan):.1f}°",
         fontsize=9,
     )
     ax = axes[0, 1]
-    _ortho_panel(ax, ortho, vis, rover, wedge)
-    if zoom is not None:
-        x0, y0, x1, y1 = zoom
-        ax.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], color="cyan", lw=1, ls="--")
-    _north_arrow(ax, inv, n)
+    if ortho is not None:
+        _ortho_panel(ax, ortho, vis, rover, wedge)
+        if zoom is not None:
+            x0, y0, x1, y1 = zoom
+            ax.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], color="cyan", lw=1, ls="--")
+        _north_arrow(ax, inv, n_cols)
+    else:
+        _missing(ax, "ortho chip")
     ax.set_title(
-        f"ortho chip {n * res:.0f} m: viewshed (green) {row['viewshed_area_m2']:.0f} m², "
-        f"rover ▲,\ncamera wedge (orange) az {row['azimuth_deg']:.0f}° ± "
-        f"{row['hfov_deg'] / 2:.1f}° to {row['max_visible_range_m']:.0f} m",
+        f"ortho chip {n_cols * res:.0f} m: viewshed (green) "
+        f"{row.get('viewshed_area_m2', np.nan):.0f} m², rover ▲,\ncamera wedge (orange) az "
+        f"{row.get('azimuth_deg', np.nan):.0f}° ± {row.get('hfov_deg', np.nan) / 2:.1f}° to "
+        f"{row.get('max_visible_range_m', np.nan):.0f} m",
         fontsize=9,
     )
     ax = axes[0, 2]
-    ax.imshow(hillshade(dem, res), cmap="gray", vmin=0, vmax=1, extent=(0, n, n, 0))
-    if vis.any() and not vis.all():
-        centres = np.arange(n) + 0.5  # pixel centres, in the panel's pixel-edge coordinates
-        ax.contour(
-            centres, centres, vis.astype(float), levels=[0.5], colors=["lime"], linewidths=0.8
+    if dem is not None:
+        extent = (0, n_cols, n_rows, 0)
+        ax.imshow(hillshade(dem, res), cmap="gray", vmin=0, vmax=1, extent=extent)
+        if vis.any() and not vis.all():
+            ax.contour(
+                np.arange(n_cols) + 0.5,  # pixel centres, in the panel's pixel-edge coordinates
+                np.arange(n_rows) + 0.5,
+                vis.astype(float),
+                levels=[0.5],
+                colors=["lime"],
+                linewidths=0.8,
+            )
+        ax.plot(*wedge, color="orange", lw=1.0)
+        ax.plot(*rover, marker="^", color="red", markersize=9, markeredgecolor="white", ls="none")
+        _north_arrow(ax, inv, n_cols)
+        _limits(ax, (0, 0, n_cols, n_rows))
+        finite = np.isfinite(dem)
+        lo, hi = (np.nanmin(dem), np.nanmax(dem)) if finite.any() else (np.nan, np.nan)
+        ax.set_title(
+            f"DEM chip hillshade ({lo:.0f} to {hi:.0f} m)\nviewshed outline (green), wedge",
+            fontsize=9,
         )
-    ax.plot(*wedge, color="orange", lw=1.0)
-    ax.plot(*rover, marker="^", color="red", markersize=9, markeredgecolor="white", ls="none")
-    _north_arrow(ax, inv, n)
-    _limits(ax, (0, 0, n, n))
-    lo, hi = (np.nanmin(dem), np.nanmax(dem)) if np.isfinite(dem).any() else (np.nan, np.nan)
-    ax.set_title(
-        f"DEM chip hillshade ({lo:.0f} to {hi:.0f} m)\nviewshed outline (green), wedge",
-        fontsize=9,
-    )
+    else:
+        _missing(ax, "DEM chip")
 
-    axes[1, 0].imshow(ground)
-    axes[1, 0].set_title("ground pixels (sampled) ...", fontsize=9)
+    if ground is not None:
+        axes[1, 0].imshow(ground)
+    axes[1, 0].set_title("ground pixels (keypoints, sampled) ...", fontsize=9)
     ax = axes[1, 1]
-    _ortho_panel(ax, ortho, vis, rover, wedge, alpha=0.3)
+    if ortho is not None:
+        _ortho_panel(ax, ortho, vis, rover, wedge, alpha=0.3)
     _draw_links(axes[1, 0], ax, links)
     if zoom is not None:
         _limits(ax, zoom)
         ax.set_title(
-            f"... and their map points, same colours\n(ortho zoom {(zoom[2] - zoom[0]) * res:.0f}"
-            " m across: cyan box)",
+            f"... and their map points, same colours\n(ortho zoom "
+            f"{(zoom[2] - zoom[0]) * res:.0f} m across: cyan box)",
             fontsize=9,
         )
     else:
         ax.set_title("... and their map points on the ortho chip, same colours", fontsize=9)
-    _info_panel(axes[1, 2], row, meta, links)
+    _info_panel(axes[1, 2], row, res, rotation, links)
     for a in axes.ravel():
         a.set_xticks([])
         a.set_yticks([])
     fig.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=dpi)
-    plt.close(fig)
+    return fig
+
+
+def show_sample(root: str | Path, key: str, out: str | Path, dpi: int = DPI) -> Path:
+    """The figure of sample ``key`` (:meth:`MarsPairsDataset.plot`) written to ``out`` (PNG
+    of ``SHOW_SIZE`` inches at ``dpi``)."""
+    from mars_pairs.torch import ALL_FIELDS, MarsPairsDataset
+
+    root, out = Path(root), Path(out)
+    if not root.is_dir():
+        raise MarsPairsError(f"{root}: no such dataset folder")
+    plt = pyplot()
+    with MarsPairsDataset(root, fields=ALL_FIELDS) as ds:
+        fig = ds.plot(ds[ds.index_of(key)])
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(out, dpi=dpi)
+    finally:
+        plt.close(fig)
     return out

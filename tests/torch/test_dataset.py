@@ -20,6 +20,7 @@ from PIL import Image
 from torch.utils.data import DataLoader
 
 import mars_pairs.torch.datasets as mpd
+import mars_pairs.torch.streaming as mps
 from mars_pairs import Manifest
 from mars_pairs.pipeline.build import run_build
 from mars_pairs.pipeline.config import parse_config
@@ -93,14 +94,25 @@ def member(members: dict[str, bytes], key: str, suffix: str) -> bytes:
 
 
 # -- map-style samples ---------------------------------------------------------------------------
+GEO_KEYS = {"crs", "bounds", "transform", "rotation"}
+
+
 def test_samples_match_the_tar_members(dataset_dir: Path, members: dict[str, bytes]) -> None:
-    ds = MarsPairsDataset(dataset_dir, fields=mpd.ALL_FIELDS)
+    ds = MarsPairsDataset(dataset_dir, fields=mpd.ALL_FIELDS, image_dtype=torch.float32)
     assert len(ds) == 9
     assert sorted(dataset_keys(ds)) == sorted(all_keys(dataset_dir))
     for i in range(len(ds)):
         s = ds[i]
         key = s["meta"]["key"]
-        assert set(s) == {"ground", "ortho", "dem", "viewshed", "corr", "meta"}
+        assert set(s) == {
+            "ground",
+            "ortho",
+            "dem",
+            "viewshed",
+            "corr",
+            "corr_ground",
+            "meta",
+        }.union(GEO_KEYS)
 
         with Image.open(io.BytesIO(member(members, key, "ground.jpg"))) as im:
             ground = np.asarray(im.convert("RGB"), dtype=np.float32).transpose(2, 0, 1) / 255
@@ -153,11 +165,11 @@ def test_normalized_dem_is_the_chip_minus_its_median(
         assert abs(float(s["dem"].median())) < 1.0
 
 
-def test_uint8_images(dataset_dir: Path) -> None:
-    floats = MarsPairsDataset(dataset_dir, fields=mpd.ALL_FIELDS, ground_size=40)
-    ints = MarsPairsDataset(
-        dataset_dir, fields=mpd.ALL_FIELDS, ground_size=40, image_dtype=torch.uint8
+def test_uint8_images_are_the_default(dataset_dir: Path) -> None:
+    floats = MarsPairsDataset(
+        dataset_dir, fields=mpd.ALL_FIELDS, ground_size=40, image_dtype=torch.float32
     )
+    ints = MarsPairsDataset(dataset_dir, fields=mpd.ALL_FIELDS, ground_size=40)
     a, b = floats[2], ints[2]
     for name in ("ground", "ortho", "viewshed"):
         assert b[name].dtype == torch.uint8 and b[name].shape == a[name].shape
@@ -201,10 +213,12 @@ def test_open_descriptors_are_capped(dataset_dir: Path) -> None:
 
 def test_fields_and_transform(dataset_dir: Path) -> None:
     ds = MarsPairsDataset(
-        dataset_dir, fields=("ortho",), transform=lambda s: {**s, "extra": s["ortho"].mean()}
+        dataset_dir,
+        fields=("ortho",),
+        transform=lambda s: {**s, "extra": s["ortho"].float().mean()},
     )
     s = ds[0]
-    assert set(s) == {"ortho", "meta", "extra"}
+    assert set(s) == {"ortho", "meta", "extra"} | GEO_KEYS
     with pytest.raises(ValueError, match="unknown field"):
         MarsPairsDataset(dataset_dir, fields=("ground", "nope"))
     with pytest.raises(TypeError, match="unknown filter"):
@@ -250,7 +264,7 @@ def test_filters_match_the_manifest(dataset_dir: Path) -> None:
 
 # -- batching and workers ------------------------------------------------------------------------
 def test_ground_size_resizes_and_batches(dataset_dir: Path, members: dict[str, bytes]) -> None:
-    ds = MarsPairsDataset(dataset_dir, ground_size=(48, 64))
+    ds = MarsPairsDataset(dataset_dir, ground_size=(48, 64), image_dtype=torch.float32)
     s = ds[0]
     assert s["ground"].shape == (3, 48, 64)
     with Image.open(io.BytesIO(member(members, s["meta"]["key"], "ground.jpg"))) as im:
@@ -283,12 +297,13 @@ def test_dataloader_with_two_workers(dataset_dir: Path, context: str) -> None:
     )
     keys = []
     for batch in loader:
-        # image fields cross as uint8 and arrive as float32, bit for bit the single items'
+        # image fields cross as uint8, bit for bit the single items
         for j, key in enumerate(batch["meta"]["key"]):
             single = ds[dataset_keys(ds).index(key)]
-            for name in mpd.DEFAULT_FIELDS:
-                assert type(batch[name]) is torch.Tensor and batch[name].dtype == torch.float32
+            for name in (*mpd.DEFAULT_FIELDS, "transform", "bounds"):
+                assert type(batch[name]) is torch.Tensor and batch[name].dtype == single[name].dtype
                 assert torch.equal(batch[name][j], single[name]), (name, key)
+            assert batch["ground"].dtype == torch.uint8
         keys += batch["meta"]["key"]
     assert sorted(keys) == sorted(all_keys(dataset_dir))
 
@@ -308,7 +323,7 @@ def scale_after_collate(batch: Sequence[dict[str, Any]]) -> dict[str, Any]:
 
 
 def test_worker_batches_with_other_collate_functions(dataset_dir: Path) -> None:
-    ds = MarsPairsDataset(dataset_dir, ground_size=32)
+    ds = MarsPairsDataset(dataset_dir, ground_size=32, image_dtype=torch.float32)
     reference = collate_samples([ds[i] for i in range(4)])
     kwargs: dict[str, Any] = dict(batch_size=4, num_workers=1, multiprocessing_context="fork")
     ground, keys = next(iter(DataLoader(ds, collate_fn=stack_ground, **kwargs)))
@@ -360,7 +375,7 @@ def test_iterable_through_workers_gives_the_single_items(dataset_dir: Path) -> N
         reference = single[by_key[keys if j is None else keys[j]]]
         for name in mpd.DEFAULT_FIELDS:
             value = item[name] if j is None else item[name][j]
-            assert type(item[name]) is torch.Tensor and value.dtype == torch.float32
+            assert type(item[name]) is torch.Tensor and value.dtype == reference[name].dtype
             assert torch.equal(value, reference[name]), name
         seen += 1
     assert seen == 2 * len(single)
@@ -373,7 +388,7 @@ def test_iterable_splits_shards_across_ranks(
     per_rank: list[list[str]] = []
     per_rank_workers: list[list[str]] = []
     for rank in (0, 1):
-        monkeypatch.setattr(mpd, "_world", lambda rank=rank: (rank, 2))
+        monkeypatch.setattr(mps, "_world", lambda rank=rank: (rank, 2))
         per_rank.append(stream_keys(ds))
         per_rank_workers.append(stream_keys(ds, workers=2))  # 2 ranks x 2 workers, 3 shards
     everything = all_keys(dataset_dir)
@@ -402,7 +417,9 @@ def test_shards_read_with_webdataset(dataset_dir: Path, members: dict[str, bytes
 # -- the example ---------------------------------------------------------------------------------
 def test_train_contrastive_example_runs_and_learns(dataset_dir: Path) -> None:
     script = ROOT / "examples" / "train_contrastive.py"
+    plot = dataset_dir.parent / "augmented.png"
     args = ["--dataset", str(dataset_dir), "--steps", "60", "--batch-size", "6", "--seed", "0"]
+    args += ["--plot", str(plot)]
     proc = subprocess.run(
         [sys.executable, str(script), *args, "--log-every", "10"],
         capture_output=True,
@@ -414,3 +431,5 @@ def test_train_contrastive_example_runs_and_learns(dataset_dir: Path) -> None:
     assert len(losses) >= 3, proc.stdout
     assert losses[-1] < losses[0], proc.stdout
     assert re.search(r"recall@1", proc.stdout) and re.search(r"chance", proc.stdout)
+    with Image.open(plot) as im:  # MarsPairsDataset.plot of an augmented sample
+        assert im.format == "PNG" and im.size[0] > 500
