@@ -40,6 +40,7 @@ from mars_pairs.store.manifest import (
 )
 from mars_pairs.store.shards import ShardWriter, atomic_write_bytes
 from mars_pairs.store.splits import BUFFER
+from mars_pairs.store.wids_index import WIDS_INDEX, write_wids_index
 
 _DROPPED_KEY = b"mars_pairs:dropped_in_buffer"
 _CONTEXT: SampleContext | None = None  # one per worker process, set by the pool initializer
@@ -272,6 +273,7 @@ def run_build(
         stage_seconds=dict(stage_seconds),
     )
     _write_dataset_json(config, summary, manifest, _dropped(out, len(chunks)))
+    write_wids_index(out, manifest)
     return summary
 
 
@@ -301,6 +303,7 @@ def _clear_outputs(out: Path) -> None:
         "manifest.parquet",
         "failures.parquet",
         "dataset.json",
+        WIDS_INDEX,
     ):
         for stale in out.glob(pattern):
             if stale.is_file():

@@ -33,6 +33,7 @@ from torch.utils.data import Dataset, get_worker_info
 from mars_pairs.errors import ArgumentError, DatasetError, SampleIndexError, SampleKeyError
 from mars_pairs.store.manifest import SUMMARY_COLUMNS, Manifest
 from mars_pairs.store.member_index import MemberIndex
+from mars_pairs.store.shards import checksum
 from mars_pairs.torch.decode import (
     ALL_FIELDS,
     DEFAULT_FIELDS,
@@ -225,9 +226,7 @@ class MarsPairsDataset(Dataset):
         if self.verify and field in self._crc:
             expected = int(self._crc[field][index])
             if expected >= 0:
-                from crc32c import crc32c
-
-                got = crc32c(data)
+                got = checksum(data)  # type: ignore[arg-type]  (a bytearray is fine)
                 if got != expected:
                     raise DatasetError(
                         self.root / shard,

@@ -215,3 +215,81 @@ def test_queries_at_180_reach_both_sides(antimeridian: tuple[Path, pa.Table]) ->
     ):
         lon = m.to_table(columns=["longitude"])["longitude"].to_numpy()
         assert (lon > 179.0).any() and (lon < -179.0).any()
+
+
+# -- arguments as users pass them ---------------------------------------------------------------
+def _as_numpy64(v: float) -> object:
+    return np.float64(v)
+
+
+def _as_numpy32(v: float) -> object:
+    return np.float32(v)
+
+
+def _as_pandas(v: float) -> object:
+    import pandas as pd
+
+    return pd.Series([v], dtype="Float64").iloc[0]  # a pandas nullable scalar
+
+
+@pytest.mark.parametrize("scalar", [_as_numpy64, _as_numpy32, _as_pandas])
+def test_every_filter_takes_numpy_and_pandas_scalars(
+    dataset: tuple[Path, pa.Table], scalar: object
+) -> None:
+    import pandas as pd
+
+    root, _ = dataset
+    convert = scalar  # type: ignore[assignment]
+    box = (LON0 - 0.02, LAT0 - 0.01, LON0 + 0.01, LAT0 + 0.02)
+    x, y = lonlat_to_map([box[0], box[2]], [box[1], box[3]], M2020_PLACES_CRS)
+    cases = {
+        "bbox_lonlat": box,
+        "bbox_map": (float(x[0]), float(y[0]), float(x[1]), float(y[1])),
+        "near": (LAT0, LON0, 900.0),
+        "sol": (100, 250),
+    }
+    m = Manifest.open(root)
+    for name, plain in cases.items():
+        expected = _keys(m.filter(**{name: plain}))
+        assert 0 < len(expected) < N, name
+        for value in (
+            tuple(convert(v) for v in plain),  # type: ignore[operator]
+            np.asarray(plain),
+            pd.Series(plain),
+            list(plain),
+        ):
+            if name == "sol" and isinstance(value, tuple):
+                value = tuple(np.int64(v) for v in plain)
+            assert _keys(m.filter(**{name: value})) == expected, (name, value)
+    for name, plain in (("mission", "msl"), ("split", ["val", "test"])):
+        expected = _keys(m.filter(**{name: plain}))
+        for value in (np.str_("msl"), np.array(["val", "test"]), pd.Series(["val", "test"])):
+            if (name == "mission") == isinstance(value, np.str_):
+                assert _keys(m.filter(**{name: value})) == expected, (name, value)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"bbox_lonlat": (1.0, 2.0, 3.0)}, "bbox_lonlat: expected 4 numbers, got 3"),
+        ({"bbox_lonlat": (1.0, 2.0, "3", 4.0)}, "bbox_lonlat: expected a number"),
+        ({"near": (18.0, 77.0, float("nan"))}, "near: expected a finite number"),
+        ({"near": "18 77 10"}, "near: expected 3 numbers"),
+        ({"sol": (1.5, 3)}, "sol: expected whole numbers"),
+        ({"sol": (True, 3)}, "sol: expected a number"),
+        ({"mission": 3}, "mission: expected a string"),
+        ({"split": ["train", 1]}, "split: expected strings"),
+        ({"polygon": "POLYGON ((0 0, 1"}, "polygon: not WKT"),
+        ({"polygon": 12}, "polygon: expected a shapely geometry"),
+    ],
+)
+def test_bad_filter_arguments_name_the_argument(
+    dataset: tuple[Path, pa.Table], kwargs: dict, match: str
+) -> None:
+    from mars_pairs.errors import ArgumentError, MarsPairsError
+
+    root, _ = dataset
+    with pytest.raises(ArgumentError, match=match) as err:
+        Manifest.open(root).filter(**kwargs)
+    assert isinstance(err.value, MarsPairsError)
+    assert isinstance(err.value, TypeError) and isinstance(err.value, ValueError)

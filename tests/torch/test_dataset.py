@@ -22,9 +22,6 @@ from torch.utils.data import DataLoader
 import mars_pairs.torch.datasets as mpd
 import mars_pairs.torch.streaming as mps
 from mars_pairs import Manifest
-from mars_pairs.pipeline.build import run_build
-from mars_pairs.pipeline.config import parse_config
-from mars_pairs.synth import generate_mission
 from mars_pairs.torch import MarsPairsDataset, MarsPairsIterableDataset, collate_samples
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -35,32 +32,6 @@ SUFFIX = {
     "corr": "corr.npy",
     "meta": "meta.json",
 }
-
-
-@pytest.fixture(scope="module")
-def dataset_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """9 samples in 3 shards of 3, built once for the module."""
-    root = tmp_path_factory.mktemp("mission")
-    out = tmp_path_factory.mktemp("built") / "ds"
-    generate_mission(root, seed=1, mission="m2020", stops=3, images_per_stop=3, size="small")
-    cfg = parse_config(
-        {
-            "inputs": {
-                "labels": str(root / "labels" / "*.xml"),
-                "places": str(root / "places" / "best_interp.csv"),
-                "dem": str(root / "orbital" / "dem.tif"),
-                "ortho": str(root / "orbital" / "ortho.tif"),
-            },
-            "geometry": {"radius": 600, "ray_stride": 16},
-            "chips": {"size_m": 128, "size_px": 128},
-            "output": {"dir": str(out), "shard_size": 3},
-            "splits": {"block_m": 100},
-        },
-        base=root,
-    )
-    summary = run_build(cfg, workers=1, progress=False)
-    assert summary.failures == 0
-    return out
 
 
 @pytest.fixture(scope="module")
@@ -397,21 +368,6 @@ def test_iterable_splits_shards_across_ranks(
         assert len(got[0]) == len(a) and len(got[1]) == len(b)
         assert a | b == everything and not a & b
         assert a and b
-
-
-# -- webdataset compatibility --------------------------------------------------------------------
-def test_shards_read_with_webdataset(dataset_dir: Path, members: dict[str, bytes]) -> None:
-    wds = pytest.importorskip("webdataset")
-    urls = [str(p) for p in sorted((dataset_dir / "shards").glob("*.tar"))]
-    samples = list(wds.WebDataset(urls, shardshuffle=False))
-    assert sorted(s["__key__"] for s in samples) == sorted(all_keys(dataset_dir))
-    expected = {name.split(".", 1)[0]: name for name in members}
-    assert len(expected) == len(samples)
-    for s in samples:
-        fields = {k: v for k, v in s.items() if not k.startswith("__")}
-        assert set(fields) == {"ground.jpg", *SUFFIX.values()}
-        for ext, data in fields.items():
-            assert data == members[f"{s['__key__']}.{ext}"], (s["__key__"], ext)
 
 
 # -- the example ---------------------------------------------------------------------------------

@@ -1,0 +1,56 @@
+"""Small built datasets shared by the torch tests (built once per session)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.config import parse_config
+from mars_pairs.synth import generate_mission
+
+
+@pytest.fixture(scope="session")
+def mission_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A synthetic Perseverance mission: 3 stops of 3 images (its rasters are the truth)."""
+    root = tmp_path_factory.mktemp("mission")
+    generate_mission(root, seed=1, mission="m2020", stops=3, images_per_stop=3, size="small")
+    return root
+
+
+def build(mission: Path, out: Path, **sections: Any) -> Path:
+    doc: dict[str, Any] = {
+        "inputs": {
+            "labels": str(mission / "labels" / "*.xml"),
+            "places": str(mission / "places" / "best_interp.csv"),
+            "dem": str(mission / "orbital" / "dem.tif"),
+            "ortho": str(mission / "orbital" / "ortho.tif"),
+        },
+        "geometry": {"radius": 600, "ray_stride": 16},
+        "chips": {"size_m": 128, "size_px": 128},
+        "output": {"dir": str(out), "shard_size": 3},
+        "splits": {"block_m": 100},
+    }
+    for name, values in sections.items():
+        doc[name] = {**doc.get(name, {}), **values}
+    summary = run_build(parse_config(doc, base=mission), workers=1, progress=False)
+    assert summary.failures == 0
+    return out
+
+
+@pytest.fixture(scope="session")
+def dataset_dir(mission_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """9 samples in 3 shards of 3, north-up chips of 128 m at 1 m, ray stride 16."""
+    return build(mission_dir, tmp_path_factory.mktemp("built") / "ds")
+
+
+@pytest.fixture(scope="session")
+def heading_up_dir(mission_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The same samples with heading-up chips of 96 m at 0.75 m (rotated grids)."""
+    return build(
+        mission_dir,
+        tmp_path_factory.mktemp("built-heading") / "ds",
+        chips={"size_m": 96, "size_px": 128, "orientation": "heading-up"},
+    )
