@@ -199,3 +199,14 @@ def test_config_errors_name_the_key(tmp_path):
     path.write_text(yaml.safe_dump({"fetch": {"cache": "c", "products": products}}))
     with pytest.raises(ConfigError, match=r"fetch\.products\.volumes"):
         load_fetch_config(path)
+
+
+def test_edrindex_is_read_the_same_way(archive, server, tmp_path):
+    import pdr
+
+    vol = archive.root / "msl" / fetch_archive.MSL_VOLUME
+    if not (vol / "INDEX" / "EDRINDEX.LBL").exists():
+        rows = pdr.read(str(vol / "INDEX" / "RDRINDEX.LBL"))["INDEX_TABLE"].to_dict("records")
+        fetch_archive.write_pds3_index(vol, rows[:3], name="EDRINDEX")
+    cfg = load_fetch_config(write_config(tmp_path, server.url, "msl", index="EDRINDEX"))
+    assert fetch_products(cfg, dry_run=True, progress=False).selected == 3
