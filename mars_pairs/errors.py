@@ -21,6 +21,11 @@ class LabelError(MarsPairsError):
         super().__init__(f"{where}: {reason}")
 
 
+class ImageError(MarsPairsError):
+    """A product's image is missing, undecodable, truncated, or does not fit its label's grid;
+    the message names the image file (and both sizes for a size mismatch)."""
+
+
 class PlacesError(MarsPairsError):
     """A PLACES table is unreadable, or has no row that can place an observation."""
 

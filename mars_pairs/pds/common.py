@@ -28,6 +28,8 @@ PathLike = str | os.PathLike[str]
 NULL_TOKENS = frozenset({"", "NULL", "N/A", "UNK", "NONE"})
 BROWSE_SUFFIXES = (".jpg", ".JPG", ".jpeg", ".JPEG", ".png", ".PNG")
 
+#: Largest camera model component accepted (C in metres, H and V in pixels are far below).
+MAX_MODEL_COMPONENT = 1e12
 #: Longest product id / instrument / frame name accepted (real ones are under 60).
 MAX_ID_CHARS = 80
 _ID_RE = re.compile(r"[A-Za-z0-9_.\-]+", re.ASCII)
@@ -199,11 +201,18 @@ class Fields:
         return int(number)
 
     def camera(self, field: str, kind: str, vectors: dict[str, Any], frame: str) -> CameraModel:
-        """Build the CameraModel; its ValueError, or a zero axis, becomes a LabelError."""
+        """Build the CameraModel; its ValueError, a component beyond 1e12 (no projection
+        survives it), or an A / O that is not a unit vector (within 1 %), is a LabelError."""
+        for name in ("c", "a", "h", "v", "o", "r", "e"):
+            vec = vectors.get(name)
+            if vec is not None and not np.all(np.abs(vec) <= MAX_MODEL_COMPONENT):
+                self.fail(field, f"{name.upper()} of the {kind} model exceeds 1e12: {vec.tolist()}")
         for name in ("a", "o"):
             vec = vectors.get(name)
-            if vec is not None and not np.linalg.norm(vec) > 0.0:
-                self.fail(field, f"{name.upper()} vector of the {kind} model is zero")
+            if vec is not None and not abs(float(np.linalg.norm(vec)) - 1.0) <= 0.01:
+                norm = float(np.linalg.norm(vec))
+                self.fail(field, f"{name.upper()} of the {kind} model is not a unit vector "
+                                 f"(norm {norm:.6g})")  # fmt: skip
         try:
             return CameraModel(model_type=kind, frame=frame, **vectors)
         except ValueError as exc:

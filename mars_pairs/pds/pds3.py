@@ -42,7 +42,7 @@ from mars_pairs.pds.observation import MotionCounter, Observation
 
 MISSION = "msl"
 CAMERA_GROUPS = ("GEOMETRIC_CAMERA_MODEL_PARMS", "GEOMETRIC_CAMERA_MODEL")
-ROVER_GROUP = "ROVER_COORDINATE_SYSTEM_PARMS"
+ROVER_GROUPS = ("ROVER_COORDINATE_SYSTEM_PARMS", "ROVER_COORDINATE_SYSTEM")
 DERIVED_GROUP = "DERIVED_IMAGE_PARMS"
 SITE_DERIVED_GROUP = "SITE_DERIVED_GEOMETRY_PARMS"
 STATE_GROUP = "INSTRUMENT_STATE_PARMS"
@@ -225,7 +225,8 @@ def _camera(f: Fields, label: Mapping[str, Any]) -> CameraModel:
 def _rover_pose(f: Fields, label: Mapping[str, Any]) -> dict[str, np.ndarray | None]:
     """ROVER_NAV_FRAME origin and quaternion in SITE_FRAME; None if absent or another frame."""
     none: dict[str, np.ndarray | None] = {"rover_offset_m": None, "rover_quaternion": None}
-    group = _group(f, label, ROVER_GROUP, required=False)
+    name = next((g for g in ROVER_GROUPS if label.get(g) is not None), ROVER_GROUPS[0])
+    group = _group(f, label, name, required=False)
     frame = group.get("COORDINATE_SYSTEM_NAME", "ROVER_NAV_FRAME")
     reference = group.get("REFERENCE_COORD_SYSTEM_NAME", "SITE_FRAME")
     if frame != "ROVER_NAV_FRAME" or reference != "SITE_FRAME":

@@ -52,6 +52,11 @@ def load_xml(data: bytes, path: Path) -> etree._Element:
     except Exception as exc:  # lxml raises XMLSyntaxError, ValueError, ... on bad input
         reason = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
         raise LabelError(path, None, f"not a readable PDS4 label: {reason}") from exc
+    docinfo = root.getroottree().docinfo if root is not None else None
+    if docinfo is not None and (docinfo.doctype or docinfo.internalDTD is not None):
+        # PDS4 labels have no DOCTYPE; one here can only declare entities (external files,
+        # billion laughs): none is resolved or expanded, and the label is refused
+        raise LabelError(path, None, "not a PDS4 label: XML with a DOCTYPE / entity declarations")
     if root is None or not isinstance(root.tag, str) or not root.tag.startswith(f"{{{NS['pds']}}}"):
         raise LabelError(path, None, "not a PDS4 product (root is not in the PDS4 namespace)")
     return root

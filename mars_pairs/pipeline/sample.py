@@ -16,7 +16,7 @@ from mars_pairs.pds import read_observation
 from mars_pairs.pipeline.chips import correspondence, cut_chips
 from mars_pairs.pipeline.context import SampleContext
 from mars_pairs.pipeline.encode import encode_members
-from mars_pairs.pipeline.ground import ground_member
+from mars_pairs.pipeline.ground import ground_image
 from mars_pairs.pipeline.record import manifest_row, sample_meta
 from mars_pairs.pipeline.stages import StageError, Stages
 from mars_pairs.pipeline.view import compute_view
@@ -38,8 +38,9 @@ def build_sample(label: Path, ctx: SampleContext) -> Sample:
     try:
         with stage("label"):
             obs = read_observation(label)
-        with stage("image"):
-            ground_name, ground, ground_size = ground_member(obs, ctx.config.output.image_encoding)
+        with stage("image"):  # decoded and checked; obs re-expressed for a resized image
+            ground = ground_image(obs, ctx.config.output.image_encoding)
+            obs = ground.observation
         with stage("locate"):
             pose = ctx.places.locate(obs)
             camera = MapCamera.from_observation(obs, pose, ctx.terrain.crs)
@@ -48,12 +49,10 @@ def build_sample(label: Path, ctx: SampleContext) -> Sample:
             grid, chips = cut_chips(view, ctx, obs)
         with stage("encode"):
             row = manifest_row(obs, pose, view, grid, ctx)
-            members = encode_members(
-                chips,
-                correspondence(view, grid),
-                sample_meta(row, obs, view, grid, ctx, ground_size),
-            )
+            meta = sample_meta(row, obs, view, grid, ctx, ground.size)
+            meta["ground_image"] = ground.meta
+            members = encode_members(chips, correspondence(view, grid), meta)
     except (MarsPairsError, ValueError, OSError) as exc:
         raise StageError(stage.name, exc) from exc
-    row["ground_member"] = ground_name
-    return Sample(row["key"], row, {ground_name: ground, **members}, stage.seconds)
+    row["ground_member"] = ground.name
+    return Sample(row["key"], row, {ground.name: ground.data, **members}, stage.seconds)

@@ -17,7 +17,7 @@ from mars_pairs.errors import LabelError
 from mars_pairs.geometry.camera import CameraModel
 from mars_pairs.pds import read_observation, read_pds3, read_pds4, sniff_format
 from mars_pairs.pds.observation import MotionCounter, Observation
-from mars_pairs.synth.labels import write_pds3_label, write_pds4_label
+from mars_pairs.synth.labels import write_pds3_img, write_pds3_label, write_pds4_label
 
 SAMPLES = Path(__file__).resolve().parents[2].parent / "shared" / "pds-samples"
 ZLF = "m2020/ZLF_0052_0671559321_081RAD_N0031950ZCAM05024_110085J01.xml"
@@ -192,14 +192,18 @@ def _synthetic(model: str, full: bool) -> Observation:
     rng = np.random.default_rng(7 if full else 11)
     a = np.array([0.8, 0.55, 0.1])
     a /= np.linalg.norm(a)
+    distorted = model in ("CAHVOR", "CAHVORE")
     camera = CameraModel(
         model_type=model,
         c=rng.normal(size=3),
         a=a,
         h=np.array([-1200.3, 3500.1234567890123, 12.5]),
         v=np.array([140.2, 120.8, 3600.000000001]),
-        o=a + np.array([0.001, -0.002, 0.0005]) if model == "CAHVOR" else None,
-        r=np.array([-1.5e-4, -0.139189, -1.250336]) if model == "CAHVOR" else None,
+        o=a + np.array([0.001, -0.002, 0.0005]) if distorted else None,
+        r=np.array([-1.5e-4, -0.139189, -1.250336]) if distorted else None,
+        e=np.array([-8.0e-09, 1.0e-08, -2.9e-08]) if model == "CAHVORE" else None,
+        mtype=3 if model == "CAHVORE" else None,
+        mparm=0.37 if model == "CAHVORE" else None,
     )
     q = rng.normal(size=4)
     optional = {
@@ -241,7 +245,8 @@ def assert_same(got: Observation, want: Observation) -> None:
         else:
             np.testing.assert_allclose(getattr(got, name), getattr(want, name), atol=1e-9)
     assert (got.camera.model_type, got.camera.frame) == (want.camera.model_type, want.camera.frame)
-    for name in ("c", "a", "h", "v", "o", "r"):
+    assert (got.camera.mtype, got.camera.mparm) == (want.camera.mtype, want.camera.mparm)
+    for name in ("c", "a", "h", "v", "o", "r", "e"):
         if getattr(want.camera, name) is None:
             assert getattr(got.camera, name) is None, name
         else:
@@ -250,17 +255,18 @@ def assert_same(got: Observation, want: Observation) -> None:
             )
 
 
-@pytest.mark.parametrize("model", ["CAHV", "CAHVOR"])
+@pytest.mark.parametrize("style", ["mastcam", "mipl"])
+@pytest.mark.parametrize("model", ["CAHV", "CAHVOR", "CAHVORE"])
 @pytest.mark.parametrize("full", [True, False])
-def test_pds3_writer_round_trip(tmp_path: Path, model: str, full: bool) -> None:
+def test_pds3_writer_round_trip(tmp_path: Path, model: str, full: bool, style: str) -> None:
     obs = _synthetic(model, full)
-    path = write_pds3_label(obs, tmp_path / f"{obs.product_id}.LBL")
+    path = write_pds3_label(obs, tmp_path / f"{obs.product_id}.LBL", style=style)
     got = read_observation(path)
     assert_same(got, obs)
     assert got.label_path == path and got.image_path is None
 
 
-@pytest.mark.parametrize("model", ["CAHV", "CAHVOR"])
+@pytest.mark.parametrize("model", ["CAHV", "CAHVOR", "CAHVORE"])
 @pytest.mark.parametrize("full", [True, False])
 def test_pds4_writer_round_trip(tmp_path: Path, model: str, full: bool) -> None:
     obs = replace(
@@ -302,6 +308,26 @@ def test_real_labels_round_trip_through_writers(samples: Path, tmp_path: Path) -
         as_msl, as_m2020 = replace(obs, mission="msl"), replace(obs, mission="m2020")
         assert_same(read_observation(write_pds3_label(obs, tmp_path / "r.LBL")), as_msl)
         assert_same(read_observation(write_pds4_label(obs, tmp_path / "r.xml")), as_m2020)
+
+
+@pytest.mark.parametrize("model", ["CAHV", "CAHVORE"])
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+@pytest.mark.parametrize("bands", [1, 3])
+def test_attached_label_img_round_trip(tmp_path: Path, model: str, dtype: type, bands: int) -> None:
+    """write_pds3_img: the label at the start of the IMG reads back; pdr reads the pixels."""
+    import pdr
+
+    obs = replace(_synthetic(model, True), width=40, height=24)
+    rng = np.random.default_rng(1)
+    shape = (24, 40) if bands == 1 else (24, 40, 3)
+    pixels = rng.integers(0, np.iinfo(dtype).max, size=shape).astype(dtype)
+    path = write_pds3_img(obs, tmp_path / "product.IMG", pixels, style="mipl")
+    got = read_observation(path)
+    assert_same(got, obs)
+    assert got.image_path == path
+    arr = np.asarray(pdr.read(str(path))["IMAGE"])
+    expected = pixels if bands == 1 else np.moveaxis(pixels, -1, 0)
+    np.testing.assert_array_equal(arr, expected)
 
 
 def test_writer_rejects_non_finite(tmp_path: Path) -> None:

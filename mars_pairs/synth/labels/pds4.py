@@ -1,4 +1,6 @@
-"""Synthetic Perseverance Mastcam-Z PDS4 labels (geom frames, derived geometry, array axes)."""
+"""Synthetic Perseverance PDS4 labels (geom frames, derived geometry, array axes), with the
+camera as geom:CAHV_Model, CAHVOR_Model or CAHVORE_Model, optionally with the ``.IMG`` beside
+(a VICAR-style header, then the array named by the product's local_identifier)."""
 
 from __future__ import annotations
 
@@ -16,9 +18,18 @@ from mars_pairs.synth.labels.format import iso_time, pointer_name, real_text, ro
 _LID_PREFIX = "urn:nasa:pds:mars2020_mastcamz_ops_calibrated:data:"
 
 
-def write_pds4_label(obs: Observation, path: str | os.PathLike[str]) -> Path:
-    """Write ``obs`` as a Mastcam-Z-style PDS4 label at ``path``; returns the path."""
+def write_pds4_label(
+    obs: Observation, path: str | os.PathLike[str], pixels: np.ndarray | None = None
+) -> Path:
+    """Write ``obs`` as a Mars 2020-style PDS4 label at ``path``; returns the path.
+
+    With ``pixels`` (uint8 or uint16, (H, W) or (H, W, 3)) the data file the label points to
+    is written beside it too: a 64-byte VICAR-style header, then the array (band sequential,
+    MSB first), described by an Array_2D_Image / Array_3D_Image with that offset.
+    """
     path = Path(path)
+    if pixels is not None:
+        pixels = _check_pixels(obs, pixels)
     nsmap = {None: NS["pds"], **{k: v for k, v in NS.items() if k != "pds"}}
     root = etree.Element(q("pds", "Product_Observational"), nsmap=nsmap)
     _pds4_identification(root, obs)
@@ -32,7 +43,9 @@ def write_pds4_label(obs: Observation, path: str | os.PathLike[str]) -> Path:
     _pds4_derived(lander, obs)
     _pds4_counter(lander, obs)
     _pds4_imaging(discipline, obs)
-    _pds4_file_area(root, obs, path)
+    _pds4_file_area(root, obs, path, pixels)
+    if pixels is not None:
+        _write_img(path.parent / pointer_name(obs, path, ".IMG"), pixels)
     etree.ElementTree(root).write(
         str(path), xml_declaration=True, encoding="UTF-8", pretty_print=True
     )
@@ -140,12 +153,19 @@ def _pds4_camera(lander: etree._Element, obs: Observation) -> None:
     _xyz(model, "Vector_Axis", cam.a, "unit", None)
     _xyz(model, "Vector_Horizontal", cam.h, "pixel", None)
     _xyz(model, "Vector_Vertical", cam.v, "pixel", None)
-    if cam.model_type == "CAHVOR":
+    if cam.model_type in ("CAHVOR", "CAHVORE"):
         assert cam.o is not None and cam.r is not None
         _xyz(model, "Vector_Optical", cam.o, "unit", None)
-        radial = _el(model, "geom", "Radial_Terms")
-        for name, value in zip(("c0", "c1", "c2"), cam.r, strict=True):
-            _el(radial, "geom", name, real_text(value))
+        for local, values in (("Radial_Terms", cam.r), ("Entrance_Terms", cam.e)):
+            if local == "Entrance_Terms" and cam.model_type != "CAHVORE":
+                continue
+            terms = _el(model, "geom", local)
+            for name, value in zip(("c0", "c1", "c2"), values, strict=True):
+                _el(terms, "geom", name, real_text(value))
+    if cam.model_type == "CAHVORE":
+        assert cam.mtype is not None and cam.mparm is not None
+        _el(model, "geom", "cahvore_model_type", str(cam.mtype))
+        _el(model, "geom", "cahvore_model_parameter", real_text(cam.mparm))
     _indexed(params, "Coordinate_Space_Reference", cam.frame, _rmc_indices(obs))
 
 
@@ -220,17 +240,58 @@ def _pds4_imaging(discipline: etree._Element, obs: Observation) -> None:
     _el(info, "img_surface", "ops_instrument_key", obs.instrument)
 
 
-def _pds4_file_area(root: etree._Element, obs: Observation, path: Path) -> None:
-    """File_Area_Observational: the data file and its Array_3D_Image axes."""
+_HEADER_BYTES = 64
+
+
+def _check_pixels(obs: Observation, pixels: np.ndarray) -> np.ndarray:
+    pixels = np.asarray(pixels)
+    if pixels.dtype not in (np.uint8, np.uint16) or pixels.ndim not in (2, 3):
+        raise ValueError(f"pixels must be uint8/uint16 (H, W[, 3]), got {pixels.dtype}")
+    if pixels.shape[:2] != (obs.height, obs.width):
+        raise ValueError(f"pixels are {pixels.shape[:2]}, the label says {(obs.height, obs.width)}")
+    return pixels
+
+
+def _write_img(path: Path, pixels: np.ndarray) -> None:
+    """The data file: a VICAR-style text header of _HEADER_BYTES, then band-sequential data."""
+    bands = 1 if pixels.ndim == 2 else pixels.shape[2]
+    kind = "BYTE" if pixels.dtype == np.uint8 else "HALF"
+    header = f"LBLSIZE={_HEADER_BYTES} FORMAT='{kind}' NB={bands}".encode("ascii")
+    data = np.moveaxis(pixels.reshape(*pixels.shape[:2], bands), -1, 0)
+    body = data.astype(">u2" if pixels.dtype == np.uint16 else "u1").tobytes()
+    path.write_bytes(header.ljust(_HEADER_BYTES, b" ") + body)
+
+
+def _pds4_file_area(
+    root: etree._Element, obs: Observation, path: Path, pixels: np.ndarray | None = None
+) -> None:
+    """File_Area_Observational: the data file, its header and the image array's axes.
+
+    Without pixels the array is described as the 3-band 8-bit product at offset 0 (the
+    data file itself is not written)."""
     area = _el(root, "pds", "File_Area_Observational")
     _el(_el(area, "pds", "File"), "pds", "file_name", pointer_name(obs, path, ".IMG"))
-    array = _el(area, "pds", "Array_3D_Image")
+    bands, bits, offset = 3, 8, 0
+    if pixels is not None:
+        bands = 1 if pixels.ndim == 2 else pixels.shape[2]
+        bits, offset = 8 * pixels.itemsize, _HEADER_BYTES
+        header = _el(area, "pds", "Header")
+        _el(header, "pds", "local_identifier", "VICAR_Header")
+        _el(header, "pds", "offset", "0", unit="byte")
+        _el(header, "pds", "object_length", str(_HEADER_BYTES), unit="byte")
+        _el(header, "pds", "parsing_standard_id", "VICAR2")
+    three_d = bands != 1
+    array = _el(area, "pds", "Array_3D_Image" if three_d else "Array_2D_Image")
     _el(array, "pds", "local_identifier", obs.product_id.lower())
-    _el(array, "pds", "offset", "0", unit="byte")
-    _el(array, "pds", "axes", "3")
+    _el(array, "pds", "offset", str(offset), unit="byte")
+    _el(array, "pds", "axes", "3" if three_d else "2")
     _el(array, "pds", "axis_index_order", "Last Index Fastest")
-    _el(_el(array, "pds", "Element_Array"), "pds", "data_type", "UnsignedByte")
-    for seq, (name, count) in enumerate((("Band", 3), ("Line", obs.height), ("Sample", obs.width))):
+    kind = "UnsignedByte" if bits == 8 else "UnsignedMSB2"
+    _el(_el(array, "pds", "Element_Array"), "pds", "data_type", kind)
+    axes = [("Line", obs.height), ("Sample", obs.width)]
+    if three_d:
+        axes.insert(0, ("Band", bands))
+    for seq, (name, count) in enumerate(axes):
         axis = _el(array, "pds", "Axis_Array")
         _el(axis, "pds", "axis_name", name)
         _el(axis, "pds", "elements", str(count))
