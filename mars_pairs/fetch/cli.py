@@ -115,5 +115,12 @@ def _cmd_orbital(args: argparse.Namespace) -> int:
 
 
 def _cmd_all(args: argparse.Namespace) -> int:
+    """Every step whose section the config has (orbital windows need the PLACES table)."""
+    cfg = _config(args)
     args.dry_run = False
-    return max(step(args) for step in (_cmd_places, _cmd_products, _cmd_orbital))
+    steps = [
+        (cfg.places is not None, _cmd_places),
+        (cfg.products is not None, _cmd_products),
+        (cfg.orbital is not None and cfg.places is not None, _cmd_orbital),
+    ]
+    return max([step(args) for wanted, step in steps if wanted], default=0)

@@ -103,3 +103,35 @@ def test_a_fetch_killed_mid_download_resumes_and_fetches_only_what_was_missing(a
         hashlib.md5(data).hexdigest()
         == hashlib.md5((archive.root / image).read_bytes()).hexdigest()
     )
+
+
+def test_fetch_all_lays_out_what_a_build_reads(archive, tmp_path, capsys):
+    with ArchiveServer(archive.root) as srv:
+        config = write_config(tmp_path, srv.url, "msl")
+        doc = yaml.safe_load(config.read_text())
+        base = f"{srv.url}/orbital/msl"
+        doc["fetch"]["orbital"] = {"dem": f"{base}/dem_cog.tif", "ortho": f"{base}/ortho_cog.tif"}
+        config.write_text(yaml.safe_dump(doc))
+        assert main(["fetch", "all", "--config", str(config), "--quiet"]) == 0
+    cache = tmp_path / "cache"
+    assert (cache / fetch_archive.MSL_PLACES).is_file()
+    assert len(list(cache.glob("MSLMST_0001/DATA/RDR/SURFACE/*/*.LBL"))) == 4
+    assert len(list(cache.glob("MSLMST_0001/DATA/RDR/SURFACE/*/*.jpg"))) == 4
+    assert (cache / "orbital" / "dem.tif").is_file() and (cache / "orbital" / "ortho.tif").is_file()
+    out = capsys.readouterr().out
+    assert "4 products (4 listed)" in out and "orbital/dem.tif" in out
+
+
+def test_an_unreachable_archive_is_one_line_and_exit_2(tmp_path, capsys):
+    config = write_config(tmp_path, "http://127.0.0.1:9", "msl")  # discard port: refused
+    assert main(["fetch", "products", "--config", str(config), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "http://127.0.0.1:9/msl/MSLMST_0001/INDEX/RDRINDEX.LBL" in err[0]
+
+
+def test_fetch_all_runs_the_sections_the_config_has(archive, tmp_path, capsys):
+    with ArchiveServer(archive.root) as srv:
+        config = write_config(tmp_path, srv.url, "m2020")  # no orbital section
+        assert main(["fetch", "all", "--config", str(config), "--quiet"]) == 0
+    assert (tmp_path / "cache" / fetch_archive.M2020_PLACES).is_file()
+    assert "4 products (4 listed)" in capsys.readouterr().out
