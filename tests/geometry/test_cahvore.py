@@ -64,6 +64,44 @@ MODELS = {
 }
 
 
+# Real Mars 2020 CAHVORE models: a Navcam model from an example Mars 2020 PDS4 label (type 2,
+# fish-eye linearity, ROVER_NAV_FRAME) and the front-left Hazcam of the m2020-urdf-models
+# calibration file (5120 x 3840; its type 3 / linearity 0.37 may be that file's default).
+REAL = {
+    "m2020 navcam label (type 2)": CameraModel(
+        "CAHVORE", c=np.array([0.955584, 0.764515, -1.95254]),
+        a=np.array([-0.35631, 0.916392, 0.182443]), h=np.array([-3229.43, 141.993, 229.563]),
+        v=np.array([-168.067, 400.716, 3088.89]), o=np.array([-0.357624, 0.915861, 0.182539]),
+        r=np.array([1.736e-06, 0.0501396, -0.0171254]), e=np.array([-8.0e-09, 1.0e-08, -2.9e-08]),
+        mtype=2, mparm=0.0,
+    ),
+    "m2020 front hazcam left (type 3, L = 0.37)": CameraModel(
+        "CAHVORE", c=np.array([1.103534, -0.008945, -0.729124]),
+        a=np.array([0.884935, -0.17181, 0.432865]),
+        h=np.array([2606.49053, 1675.438136, 1273.544923]),
+        v=np.array([747.819318, -326.899856, 2757.18855]),
+        o=np.array([0.885293, -0.171227, 0.432363]), r=np.array([1e-6, 0.00889, -0.006754]),
+        e=np.array([-0.006127, 0.010389, 0.004541]), mtype=3, mparm=0.37,
+    ),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("name", list(REAL))
+def test_real_models_round_trip_over_their_whole_image(name: str) -> None:
+    """The frame is the one centred on the model's principal point (A.H, A.V)."""
+    cam = REAL[name]
+    width, height = round(2 * cam.hc + 1), round(2 * cam.vc + 1)
+    pix = every_pixel(width, height, step=8)
+    origins, rays = cam.unproject(pix)
+    assert np.all(np.isfinite(rays)) and np.all(np.isfinite(origins)), "unproject diverged"
+    for distance in (0.5, 3.0, 100.0):
+        back = cam.project(origins + distance * rays)
+        assert np.max(np.abs(back - pix)) < 1e-6, (name, distance)
+    # the principal point's ray is the axis A (JPL's convention)
+    _, axis = cam.unproject(np.array([[cam.hc, cam.vc]]))
+    assert float(axis[0] @ cam.a) == pytest.approx(1.0, abs=1e-5)
+
+
 def every_pixel(width: int = W, height: int = H, step: int = 1) -> np.ndarray:
     """Every ``step``-th pixel centre plus the outer pixel edges (-0.5 and size - 0.5)."""
     xs = np.unique(np.r_[-0.5, np.arange(0, width, step), width - 0.5])

@@ -283,3 +283,46 @@ def test_bad_images_become_failure_rows_and_the_rest_builds(mission: Path, tmp_p
         assert row["stage"] == "image"
         name = Path(row["path"]).stem.removeprefix("bad_")
         assert bad[name].name in row["message"]
+
+
+SAMPLES = Path(__file__).resolve().parents[2].parent / "shared" / "pds-samples"
+
+
+def _real_labels() -> list[Path]:
+    if not SAMPLES.is_dir():
+        pytest.skip(f"real PDS samples not found at {SAMPLES} (../shared beside the checkout)")
+    return sorted(SAMPLES.glob("msl/*.LBL")) + sorted(SAMPLES.glob("m2020/*.xml"))
+
+
+def test_real_browse_images_fit_their_labels_and_resized_ones_keep_the_label_fov(
+    tmp_path: Path,
+) -> None:
+    """Every real browse image is the label's grid; resized to 1/2 and 1/4 its scaled camera
+    still gives the label's own HORIZONTAL_FOV / VERTICAL_FOV (an independent check)."""
+    for label in _real_labels():
+        obs = read_observation(label)
+        same = ground_image(obs, "jpg")
+        assert same.meta["image_scale"] == [1.0, 1.0] and same.observation == obs
+        for factor in (2, 4):
+            small = tmp_path / f"{label.stem}_{factor}.jpg"
+            with Image.open(obs.image_path) as im:
+                im.resize((round(obs.width / factor), round(obs.height / factor))).save(small)
+            got = ground_image(replace(obs, image_path=small), "jpg").observation
+            hfov, vfov = got.camera.fov_deg(got.width, got.height)
+            assert hfov == pytest.approx(obs.hfov_deg, rel=0.01), (label.name, factor)
+            assert vfov == pytest.approx(obs.vfov_deg, rel=0.01), (label.name, factor)
+
+
+def test_locate_reads_every_new_kind(
+    mission: Path, kinds: dict[str, list[Path]], capsys: pytest.CaptureFixture[str]
+) -> None:
+    from mars_pairs.cli.main import main
+
+    paths = [str(p) for paths in kinds.values() for p in paths]
+    places = str(mission / "places" / "best_interp.csv")
+    assert main(["locate", *paths, "--places", places, "--json"]) == 0
+    lines = [json.loads(line) for line in capsys.readouterr().out.splitlines() if line]
+    assert len(lines) == len(paths)
+    types = {d["product_id"].rsplit("_", 1)[1]: d["camera_model_type"] for d in lines}
+    assert types["ORE3"] == types["ORE4"] == "CAHVORE"
+    assert all(d["localization"] for d in lines)
