@@ -8,7 +8,7 @@ import numpy as np
 
 from mars_pairs.pds.observation import Observation
 from mars_pairs.pipeline.context import SampleContext
-from mars_pairs.pipeline.view import View
+from mars_pairs.pipeline.view import View, in_view
 from mars_pairs.raster.chips import ChipGrid, resample_array
 
 
@@ -18,7 +18,8 @@ def cut_chips(view: View, ctx: SampleContext, obs: Observation) -> tuple[ChipGri
     rover = view.camera.origin_map
     rotation = 0.0
     if spec.orientation == "heading-up":
-        rotation = view.camera.pointing_az_el()[0]
+        # the chip's up is the camera azimuth, as a map (grid) azimuth
+        rotation = float(view.camera.grid_azimuth_deg(view.camera.pointing_az_el()[0]))
     grid = ChipGrid.around(
         float(rover[0]),
         float(rover[1]),
@@ -30,11 +31,26 @@ def cut_chips(view: View, ctx: SampleContext, obs: Observation) -> tuple[ChipGri
     ortho = ctx.ortho.read(grid)
     dem = ctx.dem.read(grid)
     vis = resample_array(view.mask, view.window.transform, ctx.crs_wkt, grid, nearest=True)
+    visible = chip_view(np.nan_to_num(vis) > 0.5, dem, grid, view)
     return grid, {
         "ortho": np.nan_to_num(ortho, nan=0.0).clip(0, 255).astype(np.uint8),
         "dem": dem.astype(np.float32),
-        "viewshed": (np.nan_to_num(vis) > 0.5).astype(np.uint8) * 255,
+        "viewshed": visible.astype(np.uint8) * 255,
     }
+
+
+def chip_view(visible: np.ndarray, dem: np.ndarray, grid: ChipGrid, view: View) -> np.ndarray:
+    """The chip's viewshed, each pixel tested itself: line of sight from the DEM cell it lies
+    in (``visible``, nearest), and the view's exact test on the pixel centre's own terrain
+    point (``dem`` chip heights), so the chip's mask is inside the image at chip resolution."""
+    rows, cols = np.nonzero(visible & np.isfinite(dem))
+    out = np.zeros_like(visible, dtype=bool)
+    if len(rows):
+        x, y = grid.transform * (cols + 0.5, rows + 0.5)
+        points = np.column_stack([x, y, dem[rows, cols].astype(np.float64)])
+        keep = in_view(points, view)
+        out[rows[keep], cols[keep]] = True
+    return out
 
 
 def correspondence(view: View, grid: ChipGrid) -> np.ndarray:

@@ -42,6 +42,9 @@ class View:
     hits: np.ndarray | None
     grid_shape: tuple[int, int]
     dem_offset_m: float = 0.0
+    radius_m: float = math.inf
+    mode: str = "frustum"
+    bands: tuple[tuple[float, float], tuple[float, float]] = ((0.0, 360.0), (-90.0, 90.0))
 
 
 def anchor_camera(
@@ -83,37 +86,35 @@ def kernel_bands(
     return ((float(g_start) - _AZ_MARGIN_DEG) % 360.0, (float(g_end) + _AZ_MARGIN_DEG) % 360.0), el
 
 
-def exact_view_mask(
-    los: np.ndarray,
-    window: DemWindow,
-    camera: MapCamera,
-    radius: float,
-    mode: str,
-    bands: tuple[tuple[float, float], tuple[float, float]],
-) -> np.ndarray:
-    """The cells of ``los`` (line-of-sight visible, uint8) that the view keeps, exactly.
+def in_view(points_map: np.ndarray, view: View) -> np.ndarray:
+    """Which map points (N, 3: x, y map units, z metres) the view keeps, tested exactly.
 
-    Tested in true metres in the rover's local frame: horizontal range from the camera centre
-    at most ``radius`` metres, and in "frustum" mode the cell's terrain point projects inside
-    the image; in "band" mode its azimuth/elevation lies inside ``bands`` (true north, deg).
+    In true metres in the rover's local frame: horizontal range from the camera centre at most
+    the view radius, and in "frustum" mode the point projects inside the image through the
+    camera model; in "band" mode its true azimuth/elevation lies inside the image's band.
+    Line of sight is not tested here (the kernel's mask says that).
     """
+    camera = view.camera
+    rel = camera.local_points(points_map, MARS_RADIUS_M) - camera.map_to_local(camera.center_map)
+    keep = np.hypot(rel[:, 0], rel[:, 1]) <= view.radius_m
+    if view.mode == "frustum":
+        return keep & camera.in_image(points_map, MARS_RADIUS_M)
+    (az0, az1), (el0, el1) = view.bands
+    az, el = azimuth_elevation_deg(rel)
+    if (az0, az1) != (0.0, 360.0):
+        keep &= (az - az0) % 360.0 <= (az1 - az0) % 360.0
+    return keep & (el >= el0) & (el <= el1)
+
+
+def exact_mask(los: np.ndarray, view: View) -> np.ndarray:
+    """The cells of ``los`` (line-of-sight visible, uint8 on the window grid) in the view."""
     rows, cols = np.nonzero(los)
     mask = np.zeros_like(los, dtype=np.uint8)
-    if len(rows) == 0:
-        return mask
-    x, y = window.colrow_to_xy(cols, rows)
-    points = np.column_stack([x, y, window.data[rows, cols].astype(np.float64)])
-    rel = camera.local_points(points, MARS_RADIUS_M) - camera.map_to_local(camera.center_map)
-    keep = np.hypot(rel[:, 0], rel[:, 1]) <= radius
-    if mode == "frustum":
-        keep &= camera.in_image(points, MARS_RADIUS_M)
-    else:
-        (az0, az1), (el0, el1) = bands
-        az, el = azimuth_elevation_deg(rel)
-        if (az0, az1) != (0.0, 360.0):
-            keep &= (az - az0) % 360.0 <= (az1 - az0) % 360.0
-        keep &= (el >= el0) & (el <= el1)
-    mask[rows[keep], cols[keep]] = 1
+    if len(rows):
+        x, y = view.window.colrow_to_xy(cols, rows)
+        points = np.column_stack([x, y, view.window.data[rows, cols].astype(np.float64)])
+        keep = in_view(points, view)
+        mask[rows[keep], cols[keep]] = 1
     return mask
 
 
@@ -134,9 +135,21 @@ def compute_view(
         window = ctx.dem_window(cx, cy, radius_map + 2.0 * max(ctx.terrain.res))
         # the exact band the image covers, from its border rays (true north)
         az_band, el_band = camera.view_band_deg()
-    mask = hits = None
     stride = geo.ray_stride
     grid_shape = (len(range(0, camera.height, stride)), len(range(0, camera.width, stride)))
+    empty = np.zeros(window.data.shape, dtype=np.uint8)
+    view = View(
+        camera,
+        height,
+        window,
+        empty,
+        None,
+        grid_shape,
+        offset,
+        geo.radius,
+        geo.view_mask,
+        (az_band, el_band),
+    )
     if geo.viewshed in ("wedge", "both"):
         with stage("viewshed"):
             grid_az, grid_el = kernel_bands(camera, az_band, el_band)
@@ -151,17 +164,16 @@ def compute_view(
                 el_band=grid_el,
                 planet_radius=MARS_RADIUS_M,
             )
-            mask = exact_view_mask(
-                los, window, camera, geo.radius, geo.view_mask, (az_band, el_band)
-            )
+            view.mask = exact_mask(los, view)
     if geo.viewshed in ("raycast", "both"):
         with stage("raycast"):
             origins, dirs = camera.pixel_rays(camera.pixel_grid(stride))
-            hits, _ = cast_rays(origins, dirs, window, max_range=geo.radius, observer_xy=(cx, cy))
-            if mask is None:
-                mask = mask_from_hits(hits, window)
-    assert mask is not None
-    return View(camera, height, window, mask, hits, grid_shape, offset)
+            view.hits, _ = cast_rays(
+                origins, dirs, window, max_range=geo.radius, observer_xy=(cx, cy)
+            )
+            if geo.viewshed == "raycast":
+                view.mask = mask_from_hits(view.hits, window)
+    return view
 
 
 def mask_from_hits(hits: np.ndarray, window: DemWindow) -> np.ndarray:
