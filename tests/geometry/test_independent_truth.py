@@ -125,7 +125,7 @@ def test_correspondence_lands_on_the_independent_ray_hit(built: tuple[Path, Path
 
 def test_tar_members_are_what_the_checks_read(built: tuple[Path, Path]) -> None:
     """The checks above read members by manifest offset: those are the tar's own members."""
-    mission, out = built
+    _, out = built
     row = pq.read_table(out / "m2020" / "manifest.parquet").to_pylist()[0]
     with tarfile.open(out / "m2020" / row["viewshed_shard"]) as tar:
         member = tar.getmember(f"{row['key']}.viewshed.png")
