@@ -94,6 +94,18 @@ def _ned_basis(lon_deg: float, lat_deg: float) -> FloatArray:
     return np.stack([north, east, down])
 
 
+def site_to_local_ned(
+    site_lon_deg: float, site_lat_deg: float, lon_deg: float, lat_deg: float
+) -> FloatArray:
+    """Rotation (3 x 3) from NED axes at the site origin to NED axes at lon/lat (degrees).
+
+    SITE_FRAME is level at its origin; the rover's quaternion is relative to it. At a rover
+    d metres away the two levels differ by d / R (168 m: 0.003 deg, which moves a grazing
+    ray's ground hit at 200 m by ~0.5 m). v_local = M @ v_site.
+    """
+    return _ned_basis(lon_deg, lat_deg) @ _ned_basis(site_lon_deg, site_lat_deg).T
+
+
 @dataclass(frozen=True)
 class TangentFrame:
     """A local NED tangent frame (like SITE_FRAME) at a point of the Mars sphere.

@@ -15,6 +15,7 @@ from mars_pairs.geometry.frames import (
     local_map_jacobian,
     lonlat_to_map,
     quaternion_to_matrix,
+    site_to_local_ned,
 )
 from mars_pairs.geometry.places import Pose
 from mars_pairs.pds.observation import Observation
@@ -49,7 +50,9 @@ class MapCamera:
         if pose.quaternion is None:
             raise PlacesError(f"{obs.label_path}: no rover attitude in the label or PLACES table")
         target = crs_string(crs) if crs is not None else pose.crs
-        rot = quaternion_to_matrix(pose.quaternion)
+        rot = quaternion_to_matrix(pose.quaternion)  # ROVER_NAV_FRAME -> SITE_FRAME
+        if pose.site_lonlat is not None:  # SITE_FRAME is level at the site origin
+            rot = site_to_local_ned(*pose.site_lonlat, pose.longitude, pose.latitude) @ rot
         local = obs.camera.transformed(rot, np.zeros(3), LOCAL_NED)
         x, y = lonlat_to_map(pose.longitude, pose.latitude, target)
         origin = np.array([float(x), float(y), pose.elevation_m])

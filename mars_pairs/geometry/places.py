@@ -60,6 +60,9 @@ class Pose:
     quaternion: np.ndarray | None
     source: str
     attitude_source: str | None
+    #: the SITE_FRAME origin (planetocentric lon, lat degrees) the quaternion refers to, when
+    #: the table has the SITE row; None: the quaternion is taken as relative to NED at the rover
+    site_lonlat: tuple[float, float] | None = None
 
 
 def _valid(*values: float) -> bool:
@@ -180,12 +183,14 @@ class Places:
         """
         site, drive = obs.rmc.site, obs.rmc.drive
         pose = self.rover_pose(site, drive)
+        origin = self.site_origin(site)
+        site_lonlat = None if origin is None else (origin[0], origin[1])
         if pose is not None:
+            pose = replace(pose, site_lonlat=site_lonlat)
             if pose.quaternion is None and obs.rover_quaternion is not None:
                 q = np.asarray(obs.rover_quaternion, dtype=np.float64)
                 pose = replace(pose, quaternion=q, attitude_source="label")
             return pose
-        origin = self.site_origin(site)
         if origin is None or obs.rover_offset_m is None:
             why = "no SITE origin" if origin is None else "the label has no rover offset"
             raise PlacesError(
@@ -208,4 +213,5 @@ class Places:
             quaternion=None if q is None else np.asarray(q, dtype=np.float64),
             source="label",
             attitude_source=None if q is None else "label",
+            site_lonlat=site_lonlat,
         )

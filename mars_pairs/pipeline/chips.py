@@ -30,7 +30,8 @@ def cut_chips(view: View, ctx: SampleContext, obs: Observation) -> tuple[ChipGri
     )
     ortho = ctx.ortho.read(grid)
     dem = ctx.dem.read(grid)
-    vis = resample_array(view.mask, view.window.transform, ctx.crs_wkt, grid, nearest=True)
+    los = view.mask if view.los is None else view.los
+    vis = resample_array(los, view.window.transform, ctx.crs_wkt, grid, nearest=True)
     visible = chip_view(np.nan_to_num(vis) > 0.5, dem, grid, view)
     return grid, {
         "ortho": np.nan_to_num(ortho, nan=0.0).clip(0, 255).astype(np.uint8),
@@ -40,9 +41,9 @@ def cut_chips(view: View, ctx: SampleContext, obs: Observation) -> tuple[ChipGri
 
 
 def chip_view(visible: np.ndarray, dem: np.ndarray, grid: ChipGrid, view: View) -> np.ndarray:
-    """The chip's viewshed, each pixel tested itself: line of sight from the DEM cell it lies
-    in (``visible``, nearest), and the view's exact test on the pixel centre's own terrain
-    point (``dem`` chip heights), so the chip's mask is inside the image at chip resolution."""
+    """The chip's viewshed, each pixel tested itself: line of sight of the DEM cell it lies in
+    (``visible``: the kernel's mask, nearest) and the view's exact test on the pixel centre's
+    own terrain point (``dem`` chip heights): inside the image at the chip's resolution."""
     rows, cols = np.nonzero(visible & np.isfinite(dem))
     out = np.zeros_like(visible, dtype=bool)
     if len(rows):

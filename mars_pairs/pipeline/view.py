@@ -45,6 +45,7 @@ class View:
     radius_m: float = math.inf
     mode: str = "frustum"
     bands: tuple[tuple[float, float], tuple[float, float]] = ((0.0, 360.0), (-90.0, 90.0))
+    los: np.ndarray | None = None  # line of sight alone (uint8, window grid), before the view test
 
 
 def anchor_camera(
@@ -164,6 +165,7 @@ def compute_view(
                 el_band=grid_el,
                 planet_radius=MARS_RADIUS_M,
             )
+            view.los = los
             view.mask = exact_mask(los, view)
     if geo.viewshed in ("raycast", "both"):
         with stage("raycast"):
@@ -172,7 +174,7 @@ def compute_view(
                 origins, dirs, window, max_range=geo.radius, observer_xy=(cx, cy)
             )
             if geo.viewshed == "raycast":
-                view.mask = mask_from_hits(view.hits, window)
+                view.mask = view.los = mask_from_hits(view.hits, window)
     return view
 
 

@@ -48,6 +48,7 @@ from mars_pairs.synth.terrain import make_dem
 from mars_pairs.synth.traverse import (
     DemSampler,
     RoverState,
+    SiteOrigin,
     Traverse,
     euler_zyx_deg,
     make_traverse,
@@ -174,11 +175,12 @@ class Shot:
     sclk: int
 
 
-def _pose(state: RoverState, crs: str) -> Pose:
+def _pose(state: RoverState, crs: str, site: SiteOrigin) -> Pose:
     return Pose(
         site=state.site, drive=state.drive, easting=state.x, northing=state.y, crs=crs,
         latitude=state.lat, longitude=state.lon, elevation_m=state.z,
         quaternion=state.quaternion.copy(), source="places", attitude_source="places",
+        site_lonlat=(site.lon, site.lat),
     )  # fmt: skip
 
 
@@ -188,6 +190,7 @@ def _plan_shots(rng: np.random.Generator, spec: MissionSpec, size: str, trav: Tr
     cams = mission_cameras(spec.name, size)
     shots: list[Shot] = []
     index = 0
+    sites = {s.site: s for s in trav.sites}
     for k, stop in enumerate(trav.stops):
         rot = quaternion_to_matrix(stop.quaternion)
         az0 = rng.uniform(0.0, 360.0)
@@ -222,7 +225,7 @@ def _plan_shots(rng: np.random.Generator, spec: MissionSpec, size: str, trav: Tr
                 start_time=_SCLK_EPOCH + timedelta(seconds=sclk),
                 image_path=label.with_suffix(".jpg"),
             )  # fmt: skip
-            shots.append(Shot(stop, index, obs, _pose(stop, spec.crs), sclk))
+            shots.append(Shot(stop, index, obs, _pose(stop, spec.crs, sites[stop.site]), sclk))
             index += 1
     return shots
 

@@ -28,6 +28,7 @@ from mars_pairs.geometry.frames import (
     local_map_jacobian,
     map_to_lonlat,
     matrix_to_quaternion,
+    site_to_local_ned,
 )
 
 F64 = NDArray[np.float64]
@@ -56,7 +57,7 @@ class RoverState:
     lon: float  # planetocentric degrees
     lat: float
     heading_deg: float  # travel direction, clockwise from north
-    rotation: F64  # ROVER_NAV_FRAME -> local NED, 3 x 3
+    rotation: F64  # ROVER_NAV_FRAME -> SITE_FRAME (NED level at the site origin), 3 x 3
     quaternion: F64  # (s, v1, v2, v3) of ``rotation``
     landing: F64 = field(default_factory=lambda: np.zeros(3))  # NED from the site origin
     stop: int = -1  # index of the imaging stop, -1 for a row passed while driving
@@ -239,7 +240,11 @@ def make_traverse(
         rovers.append(r)
     origins = {s.site: TangentFrame(s.lon, s.lat, s.z) for s in sites}
     for r in rovers:
-        r.landing = origins[r.site].lonlat_to_ned(r.lon, r.lat, r.z)
+        o = origins[r.site]
+        r.landing = o.lonlat_to_ned(r.lon, r.lat, r.z)
+        # the attitude was built level at the rover; labels give it relative to SITE_FRAME
+        r.rotation = site_to_local_ned(o.lon_deg, o.lat_deg, r.lon, r.lat).T @ r.rotation
+        r.quaternion = matrix_to_quaternion(r.rotation)
     return Traverse(sites, rovers)
 
 

@@ -94,3 +94,21 @@ def test_the_same_point_has_different_eastings_in_jezero_crses() -> None:
     x, y = map_to_map(4354557.816, 1093309.691, M2020_PLACES_CRS, ts0)
     assert x == pytest.approx(4354557.816 / np.cos(np.radians(18.4663)), rel=1e-9)
     assert y == pytest.approx(1093309.691)
+
+
+def test_site_frame_levels_differ_by_the_arc_to_the_rover() -> None:
+    from mars_pairs.geometry.body import MARS_RADIUS_M
+    from mars_pairs.geometry.frames import site_to_local_ned
+
+    assert np.allclose(site_to_local_ned(77.45, 18.44, 77.45, 18.44), np.eye(3), atol=1e-15)
+    # a rover 168 m east of its site origin: the levels differ by the arc, 168 / R
+    dlon = np.degrees(168.0 / (MARS_RADIUS_M * np.cos(np.radians(18.44))))
+    m = site_to_local_ned(77.45, 18.44, 77.45 + dlon, 18.44)
+    down_site_in_local = m @ np.array([0.0, 0.0, 1.0])
+    tilt = np.arccos(np.clip(down_site_in_local[2], -1.0, 1.0))
+    assert abs(tilt - 168.0 / MARS_RADIUS_M) < 1e-9
+    # the site's "down" seen from the rover leans west, towards the site (-east)
+    assert down_site_in_local[1] < -1e-5
+    # and the whole turn is the longitude step about the spin axis (meridians converge)
+    angle = np.arccos((np.trace(m) - 1.0) / 2.0)
+    assert abs(angle - np.radians(dlon)) < 1e-9
