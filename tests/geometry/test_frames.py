@@ -107,8 +107,8 @@ def test_site_frame_levels_differ_by_the_arc_to_the_rover() -> None:
     down_site_in_local = m @ np.array([0.0, 0.0, 1.0])
     tilt = np.arccos(np.clip(down_site_in_local[2], -1.0, 1.0))
     assert abs(tilt - 168.0 / MARS_RADIUS_M) < 1e-9
-    # the site's "down" seen from the rover leans west, towards the site (-east)
-    assert down_site_in_local[1] < -1e-5
+    # the site's "down" (towards the centre from a point to the west) leans east here
+    assert down_site_in_local[1] > 1e-5
     # and the whole turn is the longitude step about the spin axis (meridians converge)
     angle = np.arccos((np.trace(m) - 1.0) / 2.0)
     assert abs(angle - np.radians(dlon)) < 1e-9
