@@ -87,6 +87,17 @@ def _cmd_inspect(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_verify(args: argparse.Namespace) -> int:
+    from mars_pairs.cli.verify import verify_dataset
+
+    report = verify_dataset(args.dataset)
+    if report.damage:
+        print(report.format(), file=sys.stderr)
+        return 2
+    print(report.format())
+    return 0
+
+
 def _cmd_synth(args: argparse.Namespace) -> int:
     from mars_pairs.synth import generate_mission
 
@@ -232,6 +243,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("inspect", help="counts, failures and size of a built dataset")
     p.add_argument("dataset", help="dataset folder")
     p.set_defaults(func=_cmd_inspect)
+
+    p = sub.add_parser("verify", help="check every member's tar header, size and checksum")
+    p.add_argument("dataset", help="dataset folder")
+    p.set_defaults(func=_cmd_verify)
 
     p = sub.add_parser("query", help="filter a dataset's manifest by place and attributes")
     p.add_argument("dataset", help="dataset folder")

@@ -13,7 +13,7 @@ import pyarrow as pa
 import shapely
 from PIL import Image
 
-from mars_pairs.errors import MarsPairsError
+from mars_pairs.errors import DatasetError, MarsPairsError
 from mars_pairs.store.manifest import SUMMARY_COLUMNS, Manifest
 from mars_pairs.store.shards import MemberLocation, read_member
 
@@ -55,11 +55,10 @@ def export_geopackage(root: str | Path, out: str | Path, with_viewsheds: bool = 
         raise MarsPairsError(f"{out}: the output must be a .gpkg file")
     if not root.is_dir():
         raise MarsPairsError(f"{root}: no such dataset folder")
-    manifest = Manifest.open(root)
-    rows = manifest.to_table().to_pylist()
+    rows = Manifest.open(root).require().to_table().to_pylist()
     if not rows:
         raise MarsPairsError(f"{root}: the dataset has no samples")
-    crs = json.loads((root / "dataset.json").read_text())["crs"]
+    crs = _dataset_crs(root)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}.gpkg")
     tmp.unlink(missing_ok=True)
@@ -89,6 +88,20 @@ def export_geopackage(root: str | Path, out: str | Path, with_viewsheds: bool = 
     if with_viewsheds:
         _write_viewsheds(root, rows, viewsheds_folder(out), crs)
     return out
+
+
+def _dataset_crs(root: Path) -> str:
+    """The dataset CRS from dataset.json; DatasetError when it is missing or damaged."""
+    path = root / "dataset.json"
+    try:
+        crs = json.loads(path.read_bytes())["crs"]
+    except FileNotFoundError:
+        raise DatasetError(path, None, "no such file") from None
+    except (ValueError, KeyError, TypeError) as exc:
+        raise DatasetError(path, "crs", f"unreadable: {exc!r}") from None
+    if not isinstance(crs, str):
+        raise DatasetError(path, "crs", f"expected CRS text, got {type(crs).__name__}")
+    return crs
 
 
 def viewsheds_folder(out: str | Path) -> Path:

@@ -5,9 +5,11 @@ from __future__ import annotations
 from collections import Counter
 from pathlib import Path
 
+import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mars_pairs.errors import MarsPairsError
+from mars_pairs.errors import DatasetError
+from mars_pairs.store.manifest import Manifest
 
 
 def _counts(title: str, values: list[object]) -> list[str]:
@@ -23,16 +25,17 @@ def _size(root: Path) -> int:
 def inspect_dataset(dataset: str | Path) -> str:
     """A text report: counts by mission, sol, instrument and split; failures; size."""
     root = Path(dataset)
-    manifest_path = root / "manifest.parquet"
-    if not manifest_path.is_file():
-        raise MarsPairsError(f"{root}: no manifest.parquet (not a mars-pairs dataset)")
-    manifest = pq.read_table(manifest_path, columns=["mission", "sol", "instrument", "split"])
+    columns = ["mission", "sol", "instrument", "split"]
+    manifest = Manifest.open(root).require(columns).to_table(columns=columns)
     lines = [f"dataset: {root}", f"samples: {manifest.num_rows}"]
     for name in ("mission", "instrument", "split", "sol"):
         lines += _counts(name, manifest.column(name).to_pylist())
     failures_path = root / "failures.parquet"
     if failures_path.is_file():
-        failures = pq.read_table(failures_path)
+        try:
+            failures = pq.read_table(failures_path, columns=["stage", "error_type"])
+        except (pa.ArrowException, OSError, KeyError) as exc:
+            raise DatasetError(failures_path, None, f"unreadable: {exc}") from None
         reasons = [
             f"{s} ({e})"
             for s, e in zip(

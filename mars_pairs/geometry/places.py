@@ -98,18 +98,56 @@ class Places:
         frames = [str(f).strip().upper() for f in self._cols["frame"]]
         self._rover: dict[tuple[int, int], int] = {}
         self._site: dict[int, int] = {}
+        self._conflicts: dict[tuple[int, int], str] = {}
         for i, kind in enumerate(frames):
-            site, drive = int(self._cols["site"][i]), int(self._cols["drive"][i])
-            if kind == "ROVER":
-                self._rover[(site, drive)] = i
-            elif kind == "SITE":
+            if kind not in ("ROVER", "SITE"):
+                continue
+            site, drive = self._index(i, "site"), self._index(i, "drive")
+            if kind == "SITE":
                 self._site[site] = i
+            elif (site, drive) in self._rover:
+                self._note_duplicate(site, drive, self._rover[(site, drive)], i)
+            else:
+                self._rover[(site, drive)] = i
         self.crs = crs or self._infer_crs()
+
+    def _where(self, row: int, column: str) -> str:
+        # line numbers of the CSV file: the header is line 1
+        return f"{self.path}: line {row + 2}: {column}"
+
+    def _index(self, row: int, column: str) -> int:
+        """The site or drive number of a row: an integer in [-1, 2**31); else PlacesError."""
+        v = self._cols[column][row]
+        try:
+            number = float(v)  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            number = math.nan
+        if not (math.isfinite(number) and number == int(number) and -1 <= number < 2**31):
+            raise PlacesError(f"{self._where(row, column)}: expected an integer, got {v!r}")
+        return int(number)
+
+    def _note_duplicate(self, site: int, drive: int, first: int, again: int) -> None:
+        """Two ROVER rows for one (site, drive): kept if they agree within 1 cm, else the
+        position is refused (``locate`` raises) rather than one of them chosen silently."""
+        try:
+            a = [self._value(c, first) for c in ("easting", "northing", "elevation")]
+            b = [self._value(c, again) for c in ("easting", "northing", "elevation")]
+        except PlacesError as exc:
+            self._conflicts[(site, drive)] = str(exc)
+            return
+        gap = math.dist(a, b) if _valid(*a, *b) else math.inf
+        if not gap <= 0.01:
+            self._conflicts[(site, drive)] = (
+                f"{self.path}: lines {first + 2} and {again + 2}: conflicting ROVER rows for "
+                f"site {site} drive {drive} ({gap:.3f} m apart)"
+            )
 
     @classmethod
     def from_csv(cls, path: str | Path, crs: str | None = None) -> Places:
         """Read a PLACES CSV by header name; ``crs`` overrides the inferred table CRS."""
         path = Path(path)
+        if not path.is_file():  # a FIFO or a device would block or never end
+            raise PlacesError(f"{path}: cannot read PLACES table: not a regular file")
         try:
             table = pacsv.read_csv(path)
         except (OSError, pa.ArrowInvalid) as exc:
@@ -121,14 +159,23 @@ class Places:
 
     def _infer_crs(self) -> str:
         for i in range(len(self)):
-            e, lon = self._cols["easting"][i], self._cols["longitude"][i]
+            try:
+                e, lon = self._value("easting", i), self._value("longitude", i)
+            except PlacesError:
+                continue
             if _valid(e, lon) and abs(lon) > 1e-3:
-                return infer_places_crs(float(e), float(lon))
+                return infer_places_crs(e, lon)
         raise PlacesError(f"{self.path}: no row with a valid easting and longitude")
 
     def _value(self, column: str, row: int) -> float:
+        """A numeric cell: NaN when empty; PlacesError naming line and column for text."""
         v = self._cols[column][row]
-        return float(v) if v is not None else math.nan
+        if v is None:
+            return math.nan
+        try:
+            return float(v)
+        except (TypeError, ValueError):
+            raise PlacesError(f"{self._where(row, column)}: expected a number, got {v!r}") from None
 
     def _quaternion(self, row: int) -> np.ndarray | None:
         q = [self._value(c, row) for c in ("quat_s", "quat_v1", "quat_v2", "quat_v3")]
@@ -149,7 +196,10 @@ class Places:
         return (lon, lat, elev) if _valid(lon, lat, elev) else None
 
     def rover_pose(self, site: int, drive: int) -> Pose | None:
-        """The localized ROVER row for (site, drive) as a Pose, or None when absent."""
+        """The localized ROVER row for (site, drive) as a Pose, or None when absent;
+        PlacesError when the table's rows for it conflict or hold text for numbers."""
+        if (site, drive) in self._conflicts:
+            raise PlacesError(self._conflicts[(site, drive)])
         row = self._rover.get((site, drive))
         if row is None:
             return None

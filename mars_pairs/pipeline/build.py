@@ -13,6 +13,7 @@ import hashlib
 import json
 import multiprocessing as mp
 import platform
+import re
 import time
 from collections import Counter
 from collections.abc import Iterator
@@ -44,6 +45,11 @@ from mars_pairs.store.wids_index import WIDS_INDEX, write_wids_index
 
 _DROPPED_KEY = b"mars_pairs:dropped_in_buffer"
 _CONTEXT: SampleContext | None = None  # one per worker process, set by the pool initializer
+_START_ERROR: str | None = None  # why the worker could not open its context, if it could not
+
+#: The longest sample key: ``<key>.<member>`` must fit tar's 100-byte USTAR name field.
+MAX_KEY_LENGTH = 80
+_KEY = re.compile(r"[a-z0-9_\-]+", re.ASCII)
 
 
 @dataclass(frozen=True)
@@ -78,6 +84,10 @@ class BuildError(MarsPairsError):
     """A strict build stopped at its first failure."""
 
 
+class WorkerStartError(MarsPairsError):
+    """A worker could not open the build's inputs (the message is the worker's error)."""
+
+
 def check_inputs(config: BuildConfig) -> list[Path]:
     """The labels to build, after checking every input opens; ConfigError names the key."""
     import rasterio
@@ -101,19 +111,44 @@ def check_inputs(config: BuildConfig) -> list[Path]:
 
 
 def _init_worker(config: BuildConfig) -> None:
-    global _CONTEXT
-    _CONTEXT = SampleContext.open(config)
+    """Open the worker's context. It never raises: a pool respawns workers whose initializer
+    raised, for ever; the error is kept and reported by the worker's first task instead."""
+    global _CONTEXT, _START_ERROR
+    try:
+        _CONTEXT = SampleContext.open(config)
+    except Exception as exc:
+        own = isinstance(exc, MarsPairsError)
+        _START_ERROR = str(exc) if own else f"{type(exc).__name__}: {exc}"
 
 
 def _work(label: str) -> tuple[str, Any]:
-    """Build one sample in a worker: ("ok", Sample) or ("fail", failure row)."""
-    assert _CONTEXT is not None
+    """Build one sample in a worker: ("ok", Sample), ("fail", failure row), or ("start",
+    message) when the worker could not start."""
+    if _CONTEXT is None:
+        return "start", _START_ERROR or "worker context not opened"
     try:
-        return "ok", build_sample(Path(label), _CONTEXT)
+        sample = build_sample(Path(label), _CONTEXT)
+        _check_record(sample)
+        return "ok", sample
     except StageError as exc:
         return "fail", _failure_row(label, exc.stage, exc.error)
     except Exception as exc:
         return "fail", _failure_row(label, "internal", exc)
+
+
+def _check_record(sample: Any) -> None:
+    """StageError("record") unless the sample's key makes valid tar member names and its row
+    fits the manifest schema (a sol too large for int32, a key with '/', a 300-char id)."""
+    key = sample.key
+    try:
+        if not _KEY.fullmatch(key) or len(key) > MAX_KEY_LENGTH:
+            raise ValueError(
+                f"sample key {key[:100]!r} (from the product id) must be 1 to {MAX_KEY_LENGTH} "
+                "characters of a-z, 0-9, '_' and '-'"
+            )
+        rows_to_table([sample.row], MANIFEST_SCHEMA)
+    except (ValueError, TypeError, OverflowError, pa.ArrowException) as exc:
+        raise StageError("record", exc) from None
 
 
 def _failure_row(label: str, stage: str, error: BaseException) -> dict[str, Any]:
@@ -139,19 +174,33 @@ def _part_paths(out: Path, k: int) -> tuple[str, Path, Path]:
 
 
 def _results(config: BuildConfig, labels: list[str], workers: int) -> Iterator[tuple[str, Any]]:
-    """Results in label order, from a process pool (or this process for one worker)."""
+    """Results in label order, from a process pool (or this process for one worker).
+
+    A worker that cannot start (a PLACES table without a column, an unreadable raster) fails
+    the build once with WorkerStartError, whatever the worker count."""
+    if not labels:
+        return
     if workers <= 1:
-        _init_worker(config)
+        global _CONTEXT
+        context = SampleContext.open(config)  # its error is the build's, as it is
+        _CONTEXT = context
         try:
             yield from map(_work, labels)
         finally:
-            if _CONTEXT is not None:
-                _CONTEXT.close()
+            _CONTEXT = None
+            context.close()
         return
     # spawn, not fork: a parent that already ran numba's OpenMP threads cannot fork safely
     ctx = mp.get_context("spawn")
     with ctx.Pool(workers, initializer=_init_worker, initargs=(config,)) as pool:
-        yield from pool.imap(_work, labels, chunksize=1)
+        for status, result in pool.imap(_work, labels, chunksize=1):
+            if status == "start":
+                raise WorkerStartError(result)
+            yield status, result
+
+
+class DuplicateKeyError(MarsPairsError):
+    """Two labels give the same sample key (the same product id): the first one is kept."""
 
 
 def _write_chunk(
@@ -160,13 +209,24 @@ def _write_chunk(
     results: list[tuple[str, Any]],
     strict: bool,
     stage_seconds: Counter[str],
+    seen: dict[str, str],
 ) -> int:
     """Write chunk k's shard and parts; samples in the split buffer are dropped when the
     config says so (their count goes in the manifest part's metadata)."""
     out = config.output.dir
     shard_rel, manifest_part, failures_part = _part_paths(out, k)
     rows, failures = [], []
-    samples = [r for status, r in results if status == "ok"]
+    samples = []
+    for i, (status, r) in enumerate(results):
+        if status != "ok":
+            continue
+        label = r.row["label_path"]
+        if r.key in seen:
+            error = DuplicateKeyError(f"{label}: key {r.key}: already built from {seen[r.key]}")
+            results[i] = ("fail", _failure_row(label, "record", error))
+            continue
+        seen[r.key] = label
+        samples.append(r)
     dropped = 0
     if config.splits.buffer_policy == "drop":
         kept = [s for s in samples if s.row["split"] != BUFFER]
@@ -213,23 +273,29 @@ def run_build(
     """Build the dataset described by ``config`` into ``config.output.dir``."""
     start = time.perf_counter()
     out = config.output.dir
-    labels = check_inputs(config)[: limit if limit else None]
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ConfigError(f"--workers: expected an integer >= 1, got {workers!r}")
+    if limit is not None and (isinstance(limit, bool) or not isinstance(limit, int) or limit < 1):
+        raise ConfigError(f"--limit: expected an integer >= 1, got {limit!r}")
+    labels = check_inputs(config)[:limit]
     out.mkdir(parents=True, exist_ok=True)
     chunks = _chunks(labels, config.output.shard_size)
     for leftover in out.rglob(".*.tmp-*"):  # temporary files of a killed build
         leftover.unlink()
     fingerprint = _fingerprint(config, labels)
     stamp = out / "parts" / "build.json"
-    if resume and stamp.is_file() and json.loads(stamp.read_text()) != fingerprint:
+    previous = _read_stamp(stamp)
+    if resume and previous is not None and previous != fingerprint:
         raise ConfigError(
             f"{out}: cannot resume: the config or the label list changed since the "
             "interrupted build; rerun without --resume"
         )
-    if not resume:
+    if not resume or previous is None:  # no stamp: no part can be trusted, resumed or not
         _clear_outputs(out)
     stamp.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(stamp, json.dumps(fingerprint).encode())
     todo = [k for k in range(len(chunks)) if not _part_paths(out, k)[1].exists()]
+    seen = _built_keys(out, [k for k in range(len(chunks)) if k not in todo])
     pending = [str(p) for k in todo for p in chunks[k]]
     bar = tqdm(
         total=len(labels),
@@ -246,7 +312,7 @@ def run_build(
             for _ in chunks[k]:
                 batch.append(next(results))
                 bar.update(1)
-            _write_chunk(config, k, batch, strict, stage_seconds)
+            _write_chunk(config, k, batch, strict, stage_seconds, seen)
     finally:
         bar.close()
         close = getattr(results, "close", None)
@@ -295,17 +361,41 @@ def _fingerprint(config: BuildConfig, labels: list[Path]) -> dict[str, Any]:
     return {"config": doc, "labels": hashlib.sha256(names).hexdigest(), "count": len(labels)}
 
 
+def _read_stamp(stamp: Path) -> dict[str, Any] | None:
+    """The fingerprint of the build that wrote the parts; None when absent or damaged."""
+    try:
+        doc = json.loads(stamp.read_bytes())
+    except (OSError, ValueError):
+        return None
+    return doc if isinstance(doc, dict) else None
+
+
+def _built_keys(out: Path, done: list[int]) -> dict[str, str]:
+    """Sample key -> label path of the chunks a resumed build keeps (for duplicate ids)."""
+    seen: dict[str, str] = {}
+    for k in done:
+        part = pq.read_table(_part_paths(out, k)[1], columns=["key", "label_path"])
+        seen.update(zip(part["key"].to_pylist(), part["label_path"].to_pylist(), strict=True))
+    return seen
+
+
 def _clear_outputs(out: Path) -> None:
-    """Remove what an earlier build left: parts, shards, manifest, failures."""
+    """Remove what an earlier build left, crash-safely: the stamp goes first, so a build
+    killed at any point of the clearing leaves no stamp and its rerun (resumed or not)
+    clears again; then the dataset's own commit marker (manifest.parquet), so no reader
+    sees a manifest whose shards are going; then the chunk commit markers (manifest parts)
+    before the failure parts and shards they vouch for."""
     for pattern in (
-        "parts/*.parquet",
-        "shards/*.tar",
+        "parts/build.json",
         "manifest.parquet",
-        "failures.parquet",
         "dataset.json",
         WIDS_INDEX,
+        "failures.parquet",
+        "parts/manifest-*.parquet",
+        "parts/*.parquet",
+        "shards/*.tar",
     ):
-        for stale in out.glob(pattern):
+        for stale in sorted(out.glob(pattern)):
             if stale.is_file():
                 stale.unlink()
 

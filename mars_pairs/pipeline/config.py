@@ -7,6 +7,8 @@ the key (``geometry.radius``) and what was expected.
 from __future__ import annotations
 
 import glob
+import math
+import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,6 +27,15 @@ IMAGE_ENCODINGS = ("png", "jpg")
 SPLIT_STYLES = ("same-area", "cross-area")
 SPLIT_GUARDS = ("chip", "footprint")
 BUFFER_POLICIES = ("split", "drop")
+_NUMBER_TEXT = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)[eE][+-]?[0-9]+", re.ASCII)
+
+MAX_CONFIG_BYTES = 1_000_000
+# Upper bounds that keep one sample within memory and the numbers within meaning (metres).
+MAX_RADIUS_M = 200_000.0  # viewshed radius: ~3.4 degrees of Mars
+MAX_OBSERVER_HEIGHT_M = 10_000.0
+MAX_CHIP_SIZE_M = 200_000.0
+MAX_CHIP_SIZE_PX = 8192  # 8192^2 float32 cells: 256 MB per chip
+MAX_BLOCK_M = 10_000_000.0  # ~ Mars' circumference / 2
 
 
 @dataclass(frozen=True)
@@ -161,20 +172,34 @@ class _Section:
             return default
         return self.data[key]
 
-    def number(self, key: str, default: Any = ..., *, positive: bool = True) -> Any:
+    def number(
+        self, key: str, default: Any = ..., *, positive: bool = True, maximum: float = math.inf
+    ) -> Any:
+        """A finite number (YAML 1.1 reads ``1e12``, without a dot, as text: accepted too),
+        positive if ``positive``, at most ``maximum``."""
         value = self.raw(key, default)
         if value is None:
             return None
+        if isinstance(value, str) and _NUMBER_TEXT.fullmatch(value.strip()):
+            value = float(value)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{self._name(key)}: expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ConfigError(f"{self._name(key)}: expected a finite number, got {value!r}")
         if positive and value <= 0:
             raise ConfigError(f"{self._name(key)}: expected a positive number, got {value!r}")
+        if value > maximum:
+            raise ConfigError(f"{self._name(key)}: expected a number <= {maximum:g}, got {value!r}")
         return float(value)
 
-    def integer(self, key: str, default: Any = ..., *, minimum: int = 1) -> int:
+    def integer(
+        self, key: str, default: Any = ..., *, minimum: int = 1, maximum: int = 2**31 - 1
+    ) -> int:
         value = self.raw(key, default)
-        if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-            raise ConfigError(f"{self._name(key)}: expected an integer >= {minimum}, got {value!r}")
+        if isinstance(value, bool) or not isinstance(value, int) or not minimum <= value <= maximum:
+            raise ConfigError(
+                f"{self._name(key)}: expected an integer in [{minimum}, {maximum}], got {value!r}"
+            )
         return value
 
     def choice(self, key: str, options: tuple[str, ...], default: Any = ...) -> str:
@@ -269,7 +294,7 @@ def _splits(data: Any) -> SplitsConfig:
         raise ConfigError(f"splits.buffer_m: expected a distance >= 0, got {buffer_m!r}")
     return SplitsConfig(
         style=style,
-        block_m=sec.number("block_m", 10000.0),
+        block_m=sec.number("block_m", 10000.0, maximum=MAX_BLOCK_M),
         ratios={str(k): float(v) for k, v in ratios.items()},
         seed=sec.integer("seed", 0, minimum=0),
         areas=areas,
@@ -336,15 +361,15 @@ def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConf
     return BuildConfig(
         inputs=_inputs(top.raw("inputs"), base),
         geometry=GeometryConfig(
-            observer_height=geo.number("observer_height", None),
-            radius=geo.number("radius", 2000.0),
+            observer_height=geo.number("observer_height", None, maximum=MAX_OBSERVER_HEIGHT_M),
+            radius=geo.number("radius", 2000.0, maximum=MAX_RADIUS_M),
             viewshed=geo.choice("viewshed", VIEWSHED_MODES, "both"),
             view_mask=geo.choice("view_mask", VIEW_MASKS, "frustum"),
-            ray_stride=geo.integer("ray_stride", 8),
+            ray_stride=geo.integer("ray_stride", 8, maximum=100_000),
         ),
         chips=ChipsConfig(
-            size_m=chips.number("size_m", 256.0),
-            size_px=chips.integer("size_px", 512, minimum=8),
+            size_m=chips.number("size_m", 256.0, maximum=MAX_CHIP_SIZE_M),
+            size_px=chips.integer("size_px", 512, minimum=8, maximum=MAX_CHIP_SIZE_PX),
             orientation=chips.choice("orientation", ORIENTATIONS, "north-up"),
         ),
         output=OutputConfig(
@@ -361,11 +386,25 @@ def load_config(path: str | Path) -> BuildConfig:
     """Read and validate a YAML build config."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        if not path.is_file():
+            raise ConfigError(f"{path}: cannot read config: not a regular file")
+        if path.stat().st_size > MAX_CONFIG_BYTES:
+            raise ConfigError(f"{path}: cannot read config: larger than {MAX_CONFIG_BYTES} bytes")
+        raw = path.read_bytes()
     except OSError as exc:
-        raise ConfigError(f"{path}: cannot read config: {exc.strerror}") from None
+        raise ConfigError(f"{path}: cannot read config: {exc.strerror or exc}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"{path}: not UTF-8 text (byte {exc.start}: {raw[exc.start : exc.start + 4]!r})"
+        ) from None
+    try:
+        data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: not valid YAML: nested too deeply") from None
     try:
         return parse_config(data, path.resolve().parent, source=path.resolve())
     except ConfigError as exc:

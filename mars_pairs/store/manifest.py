@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -13,7 +14,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from pyproj import CRS
 
-from mars_pairs.errors import ArgumentError, MarsPairsError
+from mars_pairs.errors import ArgumentError
 from mars_pairs.geometry.frames import MARS_RADIUS_M
 
 MEMBERS = ("ground", "ortho", "dem", "viewshed", "corr", "meta")
@@ -69,6 +70,9 @@ for _m in MEMBERS:
     ]
 
 MANIFEST_SCHEMA = pa.schema(_FIELDS)
+
+#: The columns every reader may rely on (the checksums are absent from older datasets).
+CORE_COLUMNS = tuple(f.name for f in MANIFEST_SCHEMA if not f.name.endswith("_crc32c"))
 
 #: The plain per-sample attributes that readers pass on (dataset meta, GeoPackage attributes).
 SUMMARY_COLUMNS = (
@@ -129,12 +133,19 @@ def footprints_bbox(table: pa.Table) -> list[float] | None:
 def write_parquet_atomic(table: pa.Table, path: Path, row_group_size: int = 4096) -> None:
     """Write a Parquet file through a temporary name and a rename."""
     path.parent.mkdir(parents=True, exist_ok=True)
+    from mars_pairs.store.shards import naming
+
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    pq.write_table(
-        table, tmp, row_group_size=row_group_size, compression="zstd", write_statistics=True
-    )
-    with open(tmp, "rb") as fh:
-        os.fsync(fh.fileno())
+    with naming(path):
+        try:
+            pq.write_table(
+                table, tmp, row_group_size=row_group_size, compression="zstd", write_statistics=True
+            )
+            with open(tmp, "rb") as fh:
+                os.fsync(fh.fileno())
+        except OSError:
+            tmp.unlink(missing_ok=True)
+            raise
     os.replace(tmp, path)
 
 
@@ -173,10 +184,32 @@ class Manifest:
     @classmethod
     def open(cls, root: str | Path) -> Manifest:
         """The manifest of a built dataset folder."""
+        import pyarrow.dataset as ds
+
+        from mars_pairs.errors import DatasetError
+
         root = Path(root)
-        if not (root / "manifest.parquet").is_file():
-            raise MarsPairsError(f"{root}: no manifest.parquet (not a mars-pairs dataset)")
-        return cls(root)
+        path = root / "manifest.parquet"
+        if not path.is_file():
+            raise DatasetError(root, None, "no manifest.parquet (not a mars-pairs dataset)")
+        try:
+            dataset = ds.dataset(path, format="parquet")
+            dataset.schema.field("key")
+        except (pa.ArrowException, OSError) as exc:
+            raise DatasetError(path, None, f"unreadable Parquet: {exc}") from None
+        except KeyError:
+            raise DatasetError(path, "key", "no such column (not a mars-pairs manifest)") from None
+        return cls(root, dataset=dataset)
+
+    def require(self, columns: Sequence[str] = CORE_COLUMNS) -> Manifest:
+        """This manifest, or DatasetError naming it and the first of ``columns`` it lacks."""
+        from mars_pairs.errors import DatasetError
+
+        missing = [c for c in columns if c not in self._dataset.schema.names]
+        if missing:
+            path = self.root / "manifest.parquet"
+            raise DatasetError(path, missing[0], f"no such column ({len(missing)} missing)")
+        return self
 
     @property
     def schema(self) -> pa.Schema:
@@ -271,7 +304,12 @@ class Manifest:
         if columns is not None:
             extra = {"latitude", "longitude", "easting", "northing"} if self._exact else set()
             needed = list(dict.fromkeys([*columns, *sorted(extra)]))
-        table = self._dataset.to_table(columns=needed, filter=self._expression)
+        try:
+            table = self._dataset.to_table(columns=needed, filter=self._expression)
+        except (pa.ArrowException, OSError) as exc:  # a damaged file or a missing column
+            from mars_pairs.errors import DatasetError
+
+            raise DatasetError(self.root / "manifest.parquet", None, str(exc)) from None
         for predicate in self._exact:
             table = table.filter(predicate(table))
         return table.select(columns) if columns is not None else table
@@ -282,7 +320,12 @@ class Manifest:
 
     def __len__(self) -> int:
         if not self._exact:
-            return self._dataset.count_rows(filter=self._expression)
+            try:
+                return self._dataset.count_rows(filter=self._expression)
+            except (pa.ArrowException, OSError) as exc:
+                from mars_pairs.errors import DatasetError
+
+                raise DatasetError(self.root / "manifest.parquet", None, str(exc)) from None
         return self.to_table(columns=["key"]).num_rows
 
 

@@ -3,9 +3,12 @@ CRC-32C checksum (the ``crc32c`` package: hardware CRC, ~10 GB/s)."""
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import tarfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -31,10 +34,24 @@ def checksum(data: bytes) -> int:
     return int(_crc32c.crc32c(data))
 
 
+@contextmanager
+def naming(path: Path) -> Iterator[None]:
+    """Re-raise an OSError that names no file (a full disk: ``[Errno 28] No space left on
+    device``) as one naming ``path``."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is not None:
+            raise
+        if exc.errno is None:
+            raise OSError(f"{path}: {exc}") from exc
+        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
+
+
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` through a temporary name and a rename (all or nothing)."""
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    with open(tmp, "wb") as fh:
+    with naming(path), open(tmp, "wb") as fh:
         fh.write(data)
         fh.flush()
         os.fsync(fh.fileno())
@@ -71,7 +88,8 @@ class ShardWriter:
             info = tarfile.TarInfo(f"{key}.{fld}")
             info.size, info.mtime, info.mode = len(data), 0, 0o644
             info.uname = info.gname = ""
-            self._tar.addfile(info, io.BytesIO(data))
+            with naming(self.path):
+                self._tar.addfile(info, io.BytesIO(data))
             # the data ends the member, padded to whole 512-byte blocks
             padded = -(-len(data) // tarfile.BLOCKSIZE) * tarfile.BLOCKSIZE
             out[fld] = MemberLocation(
@@ -81,15 +99,24 @@ class ShardWriter:
         return out
 
     def close(self, commit: bool = True) -> None:
-        """Finish the tar; rename it into place if ``commit``, else delete it."""
-        self._tar.close()
-        self._fh.flush()
-        os.fsync(self._fh.fileno())
-        self._fh.close()
+        """Finish the tar and rename it into place if ``commit``, else delete it."""
+        try:
+            if commit:
+                with naming(self.path):
+                    self._tar.close()
+                    self._fh.flush()
+                    os.fsync(self._fh.fileno())
+        except OSError:
+            commit = False
+            raise
+        finally:
+            if not commit:
+                with contextlib.suppress(OSError):  # a full disk cannot take the buffer either
+                    self._fh.close()
+                self._tmp.unlink(missing_ok=True)
         if commit:
+            self._fh.close()
             os.replace(self._tmp, self.path)
-        else:
-            self._tmp.unlink(missing_ok=True)
 
     def __enter__(self) -> ShardWriter:
         return self

@@ -39,7 +39,7 @@ def pyplot() -> Any:
 def manifest_rows(root: Path) -> list[dict[str, Any]]:
     if not root.is_dir():
         raise MarsPairsError(f"{root}: no such dataset folder")
-    return Manifest.open(root).to_table().to_pylist()
+    return Manifest.open(root).require().to_table().to_pylist()
 
 
 def hillshade(

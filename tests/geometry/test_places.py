@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -152,3 +153,52 @@ def test_real_m2020_table(samples_dir: Path) -> None:
     assert origin is not None
     ned = TangentFrame(*origin).lonlat_to_ned(pose.longitude, pose.latitude, pose.elevation_m)
     np.testing.assert_allclose(ned, [9.996, 63.730, -0.930], atol=0.05)
+
+
+# -- damaged tables (issue 17) ----------------------------------------------------------------
+def _with_cell(table: Path, line: int, column: str, value: str) -> Path:
+    lines = table.read_text().splitlines()
+    cells = lines[line - 1].split(",")
+    cells[HEADER.split(",").index(column)] = value
+    lines[line - 1] = ",".join(cells)
+    out = table.with_name(f"{column}-{line}.csv")
+    out.write_text("\n".join(lines) + "\n")
+    return out
+
+
+@pytest.mark.parametrize(("column", "value"), [("site", "abc"), ("drive", ""), ("drive", "1.5")])
+def test_a_bad_site_or_drive_cell_names_the_line_and_column(
+    gale_table: Path, column: str, value: str
+) -> None:
+    bad = _with_cell(gale_table, 3, column, value)
+    with pytest.raises(PlacesError, match=rf"{bad.name}: line 3: {column}: expected an integer"):
+        Places.from_csv(bad)
+
+
+def test_a_text_easting_fails_only_the_observations_of_its_row(gale_table: Path) -> None:
+    places = Places.from_csv(_with_cell(gale_table, 3, "easting", "x"))
+    with pytest.raises(PlacesError, match=r"line 3: easting: expected a number, got 'x'"):
+        places.locate(_observation(5, 100, None))
+    assert places.locate(_observation(6, 42, (1.0, 2.0, 0.0))).source == "label"
+
+
+def test_conflicting_rover_rows_are_refused_identical_ones_kept(gale_table: Path) -> None:
+    lines = gale_table.read_text().splitlines()
+    crs = MSL_PLACES_CRS
+    moved = _row("ROVER", 5, 100, 137.403, -4.601, -4501.5, crs, (0.7071068, 0, 0, 0.7071068))
+    conflict = gale_table.with_name("conflict.csv")
+    conflict.write_text("\n".join([*lines, moved]) + "\n")
+    places = Places.from_csv(conflict)
+    with pytest.raises(PlacesError, match=r"lines 3 and 6: conflicting ROVER rows .* m apart"):
+        places.locate(_observation(5, 100, None))
+    assert places.locate(_observation(5, 200, None)).source == "places"  # the others still work
+    same = gale_table.with_name("same.csv")
+    same.write_text("\n".join([*lines, lines[2]]) + "\n")
+    assert Places.from_csv(same).locate(_observation(5, 100, None)).source == "places"
+
+
+def test_a_fifo_is_refused_without_blocking(tmp_path: Path) -> None:
+    fifo = tmp_path / "places.csv"
+    os.mkfifo(fifo)
+    with pytest.raises(PlacesError, match="not a regular file"):
+        Places.from_csv(fifo)
