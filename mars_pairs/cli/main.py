@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+
+import numpy as np
 
 from mars_pairs.errors import MarsPairsError, UsageError
+from mars_pairs.pipeline.config import MAX_RADIUS_M
 
 
 def _cmd_locate(args: argparse.Namespace) -> int:
@@ -25,13 +29,27 @@ def _cmd_locate(args: argparse.Namespace) -> int:
             print(f"mars-pairs locate: {exc}", file=sys.stderr)
             status = 2
             continue
-        summary = describe(obs, pose)
+        try:
+            with np.errstate(all="raise"):
+                summary = describe(obs, pose)
+            _require_finite(summary)
+        except (FloatingPointError, ValueError) as exc:
+            print(f"mars-pairs locate: {label}: {exc}", file=sys.stderr)
+            status = 2
+            continue
         if args.json:
-            print(json.dumps(summary), flush=True)
+            print(json.dumps(summary, allow_nan=False), flush=True)
         else:
             width = max(len(k) for k in summary)
             print("\n".join(f"{k:<{width}}  {v}" for k, v in summary.items()), end="\n\n")
     return status
+
+
+def _require_finite(summary: dict[str, object]) -> None:
+    """ValueError naming the first field of ``summary`` that is not a finite number."""
+    for key, value in summary.items():
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ValueError(f"{key}: not a finite number ({value}); check the camera model")
 
 
 def _cmd_build(args: argparse.Namespace) -> int:
@@ -147,6 +165,47 @@ def _cmd_viewshed(args: argparse.Namespace) -> int:
     return 0
 
 
+def _finite(text: str) -> float:
+    """argparse type: a finite number."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def _bounded(low: float, high: float, *, open_low: bool = False) -> Callable[[str], float]:
+    """argparse type: a finite number in [low, high] (or (low, high] with ``open_low``)."""
+
+    def parse(text: str) -> float:
+        value = _finite(text)
+        if value < low or value > high or (open_low and value == low):
+            bracket = "(" if open_low else "["
+            raise argparse.ArgumentTypeError(
+                f"expected a number in {bracket}{low:g}, {high:g}], got {text!r}"
+            )
+        return value
+
+    return parse
+
+
+def _count(minimum: int) -> Callable[[str], int]:
+    """argparse type: an integer >= ``minimum``."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {text!r}")
+        return value
+
+    return parse
+
+
 def _band(low: float | None, high: float | None, names: str) -> tuple[float, float] | None:
     """A (low, high) band from two options given together, or None when both are absent."""
     if low is None and high is None:
@@ -197,9 +256,9 @@ def _cmd_query(args: argparse.Namespace) -> int:
 def _add_build_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", required=True, help="build configuration (YAML)")
     p.add_argument("--out", help="dataset folder (overrides output.dir)")
-    p.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    p.add_argument("--workers", type=_count(1), default=1, help="worker processes (default 1)")
     p.add_argument("--resume", action="store_true", help="keep finished shards of a killed build")
-    p.add_argument("--limit", type=int, help="build at most N observations")
+    p.add_argument("--limit", type=_count(1), help="build at most N observations")
     p.add_argument("--strict", action="store_true", help="stop at the first failure")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -223,17 +282,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output GeoTIFF")
     p.add_argument("--label", help="PDS label of the image (with --places)")
     p.add_argument("--places", help="PLACES table")
-    p.add_argument("--radius", type=float, default=5000.0, help="metres (default 5000)")
+    p.add_argument(
+        "--radius",
+        type=_bounded(0.0, MAX_RADIUS_M, open_low=True),
+        default=5000.0,
+        help="metres (default 5000)",
+    )
     p.add_argument(
         "--height",
-        type=float,
+        type=_finite,
         help="observer height above the terrain, metres (label default: camera's)",
     )
     p.add_argument("--absolute", action="store_true", help="--height is an absolute elevation")
-    p.add_argument("--x", type=float, help="observer x, DEM CRS map units")
-    p.add_argument("--y", type=float, help="observer y, DEM CRS map units")
-    for name in ("az-min", "az-max", "el-min", "el-max"):
-        p.add_argument(f"--{name}", type=float, help="degrees (azimuth clockwise from north)")
+    p.add_argument("--x", type=_finite, help="observer x, DEM CRS map units")
+    p.add_argument("--y", type=_finite, help="observer y, DEM CRS map units")
+    for name in ("az-min", "az-max"):
+        p.add_argument(f"--{name}", type=_finite, help="degrees clockwise from north")
+    for name in ("el-min", "el-max"):
+        p.add_argument(f"--{name}", type=_bounded(-90, 90), help="degrees up from the horizon")
     p.set_defaults(func=_cmd_viewshed)
 
     p = sub.add_parser("build", help="build a dataset from a config")
@@ -254,21 +320,21 @@ def build_parser() -> argparse.ArgumentParser:
     where.add_argument(
         "--bbox",
         nargs=4,
-        type=float,
+        type=_finite,
         metavar=("W", "S", "E", "N"),
         help="longitude/latitude box, degrees",
     )
     where.add_argument(
         "--bbox-map",
         nargs=4,
-        type=float,
+        type=_finite,
         metavar=("XMIN", "YMIN", "XMAX", "YMAX"),
         help="box in the dataset CRS, map units",
     )
     where.add_argument(
         "--near",
         nargs=3,
-        type=float,
+        type=_finite,
         metavar=("LAT", "LON", "RADIUS_M"),
         help="within a great-circle radius (metres) of a point",
     )
@@ -305,10 +371,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("synth", help="generate the synthetic mission (terrain, labels, images)")
     p.add_argument("out", help="output folder")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=_count(0), default=0)
     p.add_argument("--mission", choices=("m2020", "msl", "both"), default="m2020")
-    p.add_argument("--stops", type=int, help="rover stops (default: the size's, 3 or 8)")
-    p.add_argument("--images-per-stop", type=int, help="default: the size's (4)")
+    p.add_argument("--stops", type=_count(1), help="rover stops (default: the size's, 3 or 8)")
+    p.add_argument("--images-per-stop", type=_count(1), help="default: the size's (4)")
     p.add_argument("--size", choices=("small", "default"), default="small")
     p.set_defaults(func=_cmd_synth)
     return parser

@@ -50,23 +50,57 @@ def filter_arguments(
     the dataset CRS, ``near`` (lat, lon, radius_m), ``polygon`` WKT in the dataset CRS.
     """
     out: dict[str, Any] = {}
-    if bbox:
-        out["bbox_lonlat"] = tuple(bbox)
-    if bbox_map:
-        out["bbox_map"] = tuple(bbox_map)
-    if near:
-        out["near"] = tuple(near)
-    if polygon:
-        try:
-            out["polygon"] = shapely.from_wkt(polygon)
-        except shapely.errors.GEOSException as exc:
-            raise MarsPairsError(f"--polygon: not valid WKT: {exc}") from None
+    if bbox is not None:
+        w, s, e, n = _finite("--bbox", bbox, 4)
+        for name, lat in (("S", s), ("N", n)):
+            if not -90.0 <= lat <= 90.0:
+                raise MarsPairsError(f"--bbox: {name}: latitude {lat:g} is outside [-90, 90]")
+        if s > n:
+            raise MarsPairsError(f"--bbox: S ({s:g}) is north of N ({n:g})")
+        out["bbox_lonlat"] = (w, s, e, n)
+    if bbox_map is not None:
+        x0, y0, x1, y1 = _finite("--bbox-map", bbox_map, 4)
+        if x0 > x1 or y0 > y1:
+            raise MarsPairsError("--bbox-map: expected XMIN <= XMAX and YMIN <= YMAX")
+        out["bbox_map"] = (x0, y0, x1, y1)
+    if near is not None:
+        lat, lon, radius = _finite("--near", near, 3)
+        if not -90.0 <= lat <= 90.0:
+            raise MarsPairsError(f"--near: LAT: latitude {lat:g} is outside [-90, 90]")
+        if not radius > 0.0:
+            raise MarsPairsError(f"--near: RADIUS_M: expected a positive radius, got {radius:g}")
+        out["near"] = (lat, lon, radius)
+    if polygon is not None:
+        out["polygon"] = _polygon(polygon)
     for name, value in (("mission", mission), ("instrument", instrument), ("split", split)):
         if value:
             out[name] = value
     if sol:
         out["sol"] = tuple(sol)
     return out
+
+
+def _finite(option: str, values: Sequence[float], n: int) -> tuple[float, ...]:
+    """``n`` finite numbers, or MarsPairsError naming the option."""
+    numbers = tuple(float(v) for v in values)
+    if len(numbers) != n or not all(np.isfinite(numbers)):
+        raise MarsPairsError(f"{option}: expected {n} finite numbers, got {list(values)}")
+    return numbers
+
+
+def _polygon(wkt: str) -> Any:
+    """A non-empty polygon with finite coordinates from WKT (dataset CRS)."""
+    try:
+        geom = shapely.from_wkt(wkt)
+    except shapely.errors.GEOSException as exc:
+        raise MarsPairsError(f"--polygon: not valid WKT: {exc}") from None
+    if geom is None or geom.is_empty:
+        raise MarsPairsError(f"--polygon: an empty geometry ({wkt!r}) selects nothing")
+    if geom.geom_type not in ("Polygon", "MultiPolygon"):
+        raise MarsPairsError(f"--polygon: expected a Polygon or MultiPolygon, got {geom.geom_type}")
+    if not np.isfinite(shapely.get_coordinates(geom)).all():
+        raise MarsPairsError("--polygon: coordinates must be finite numbers")
+    return geom
 
 
 #: GeoJSON's CRS member for the Mars sphere, planetocentric, east longitude (R = 3396190 m).
@@ -109,7 +143,7 @@ def run_query(
     dataset: str | Path, filters: dict[str, Any], fmt: str = "table", out: str | None = None
 ) -> int:
     """Print (or write to ``out``) the rows matching ``filters``, as table/csv/parquet/geojson."""
-    manifest = Manifest.open(dataset)
+    manifest = Manifest.open(dataset).require()
     table = manifest.filter(**filters).to_table()
     if fmt == "parquet":
         if not out:

@@ -132,14 +132,19 @@ class Fields:
             self.fail(field, f"longer than {limit} characters ({len(text)})")
         return text
 
-    def integer(self, value: Any, field: str, minimum: int | None = 0) -> int:
-        """An integer (an int, or text of decimal digits), at least ``minimum``."""
-        if isinstance(value, str) and _INT_RE.fullmatch(value.strip()):
+    def integer(
+        self, value: Any, field: str, minimum: int | None = 0, maximum: int = 2**31 - 1
+    ) -> int:
+        """An integer (an int, or text of decimal digits) in [``minimum``, ``maximum``]
+        (the manifest's int32 columns by default)."""
+        if isinstance(value, str) and _INT_RE.fullmatch(value.strip()) and len(value) < 40:
             value = int(value.strip())
         if isinstance(value, bool) or not isinstance(value, int):
             self.fail(field, f"expected an integer, got {_show(value)}")
         if minimum is not None and value < minimum:
-            self.fail(field, f"expected an integer >= {minimum}, got {value}")
+            self.fail(field, f"expected an integer >= {minimum}, got {_show(value)}")
+        if value > maximum:
+            self.fail(field, f"expected an integer <= {maximum}, got {_show(value)}")
         return value
 
     def number(self, value: Any, field: str) -> float:

@@ -28,13 +28,13 @@ def cut_chips(view: View, ctx: SampleContext, obs: Observation) -> tuple[ChipGri
         ctx.crs_wkt,
         rotation_deg=rotation,
     )
-    ortho = ctx.ortho.read(grid)
+    ortho = ctx.ortho.read_uint8(grid)  # scaled by the ortho's declared or measured range
     dem = ctx.dem.read(grid)
     los = view.mask if view.los is None else view.los
     vis = resample_array(los, view.window.transform, ctx.crs_wkt, grid, nearest=True)
     visible = chip_view(np.nan_to_num(vis) > 0.5, dem, grid, view)
     return grid, {
-        "ortho": np.nan_to_num(ortho, nan=0.0).clip(0, 255).astype(np.uint8),
+        "ortho": ortho,
         "dem": dem.astype(np.float32),
         "viewshed": visible.astype(np.uint8) * 255,
     }

@@ -74,5 +74,6 @@ def sample_meta(
         observer_height_m=view.height,
         camera_center_map=[float(v) for v in view.camera.center_map],
         camera_model_type=obs.camera.model_type,
+        ortho_range=ctx.ortho.value_range().to_dict(),
     )
     return meta

@@ -108,12 +108,38 @@ def _sample_grid(
     )
 
 
+@dataclass(frozen=True)
+class ValueRange:
+    """The range of a band's values (after scale/offset) that maps to 0..255 in 8-bit chips.
+
+    ``source``: "dtype" (an unscaled uint8 band: its values as they are), "declared" (the
+    band's GDAL STATISTICS_MINIMUM/MAXIMUM) or "measured" (GDAL's approximate statistics).
+    """
+
+    low: float
+    high: float
+    source: str
+
+    def to_uint8(self, values: NDArray[np.float32]) -> NDArray[np.uint8]:
+        """``values`` scaled from [low, high] to 0..255 (NaN -> 0)."""
+        if self.source == "dtype":  # the byte values as they are (truncated after bilinear)
+            return np.nan_to_num(values, nan=0.0).clip(0, 255).astype(np.uint8)
+        span = self.high - self.low
+        scaled = (values.astype(np.float64) - self.low) * (255.0 / span if span > 0 else 0.0)
+        return np.rint(np.nan_to_num(scaled, nan=0.0)).clip(0, 255).astype(np.uint8)
+
+    def to_dict(self) -> dict[str, object]:
+        """Plain values for meta.json."""
+        return {"low": self.low, "high": self.high, "source": self.source}
+
+
 class ChipReader:
     """An open raster that cuts chips; use as a context manager, like a rasterio dataset.
 
     In the raster's own CRS a chip is one windowed read of the pixels it covers plus a numba
     resampling (any rotation); in another CRS GDAL's warper reprojects it. Either way only
-    the blocks under the chip are read, never the whole raster. Nodata becomes NaN.
+    the blocks under the chip are read, never the whole raster. Nodata becomes NaN; values
+    are the band's physical ones (its GDAL scale and offset applied: a DEM in metres).
     A raster that cannot be opened or read raises TerrainError naming the file.
     """
 
@@ -124,15 +150,69 @@ class ChipReader:
         except rasterio.errors.RasterioError as exc:
             raise TerrainError(f"{self.path}: cannot open the raster: {exc}") from None
         self.crs_wkt = self.dataset.crs.to_wkt() if self.dataset.crs else ""
+        self._ranges: dict[int, ValueRange] = {}
+
+    def scale_offset(self, band: int = 1) -> tuple[float, float]:
+        """The band's GDAL scale and offset (physical = raw * scale + offset)."""
+        scales, offsets = self.dataset.scales, self.dataset.offsets
+        scale = scales[band - 1] if scales and scales[band - 1] is not None else 1.0
+        offset = offsets[band - 1] if offsets and offsets[band - 1] is not None else 0.0
+        return float(scale), float(offset)
+
+    def value_range(self, band: int = 1) -> ValueRange:
+        """The band's display range for 8-bit chips (see ValueRange), computed once."""
+        if band not in self._ranges:
+            self._ranges[band] = self._value_range(band)
+        return self._ranges[band]
+
+    def _value_range(self, band: int) -> ValueRange:
+        scale, offset = self.scale_offset(band)
+        if self.dataset.dtypes[band - 1] == "uint8" and (scale, offset) == (1.0, 0.0):
+            return ValueRange(0.0, 255.0, "dtype")
+        tags = self.dataset.tags(band)
+        try:
+            low = float(tags["STATISTICS_MINIMUM"])
+            high = float(tags["STATISTICS_MAXIMUM"])
+            source = "declared"
+        except (KeyError, ValueError):
+            low, high = self._measured_range(band)
+            source = "measured"
+        if not (math.isfinite(low) and math.isfinite(high) and high > low):
+            raise TerrainError(
+                f"{self.path}: band {band}: no usable value range ({source} {low}..{high})"
+            )
+        return ValueRange(low, high, source)
+
+    def _measured_range(self, band: int, cells: int = 1 << 20) -> tuple[float, float]:
+        """Min and max of the band's physical values on a decimated read of <= ``cells``
+        (GDAL uses overviews when there are; no statistics file is written beside it)."""
+        src = self.dataset
+        step = max(1.0, math.sqrt(src.width * src.height / cells))
+        shape = (max(1, round(src.height / step)), max(1, round(src.width / step)))
+        values = src.read(band, out_shape=shape, masked=True, resampling=Resampling.nearest)
+        scale, offset = self.scale_offset(band)
+        data = values.astype(np.float64).filled(np.nan) * scale + offset
+        data = data[np.isfinite(data)]
+        if data.size == 0:
+            return math.nan, math.nan
+        return float(data.min()), float(data.max())
+
+    def read_uint8(self, grid: ChipGrid, *, band: int = 1) -> NDArray[np.uint8]:
+        """The chip of ``band`` scaled to 0..255 by ``value_range`` (bilinear; NaN -> 0)."""
+        return self.value_range(band).to_uint8(self.read(grid, band=band))
 
     def read(self, grid: ChipGrid, *, nearest: bool = False, band: int = 1) -> NDArray[np.float32]:
         """The chip of ``band`` on ``grid`` (bilinear, or nearest for masks and classes)."""
         if not 1 <= band <= self.dataset.count:
             raise TerrainError(f"{self.path}: band {band}: the raster has {self.dataset.count}")
+        scale, offset = self.scale_offset(band)
         try:
-            return self._read(grid, nearest, band)
+            values = self._read(grid, nearest, band)
         except rasterio.errors.RasterioError as exc:
             raise TerrainError(f"{self.path}: band {band}: cannot read a chip: {exc}") from None
+        if (scale, offset) != (1.0, 0.0):
+            values = values * np.float32(scale) + np.float32(offset)
+        return values
 
     def _read(self, grid: ChipGrid, nearest: bool, band: int) -> NDArray[np.float32]:
         src = self.dataset
