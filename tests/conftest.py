@@ -29,3 +29,13 @@ def sample_labels() -> list[Path]:
     if not SAMPLES.is_dir():
         return []
     return sorted(SAMPLES.glob("msl/*.LBL")) + sorted(SAMPLES.glob("m2020/*.xml"))
+
+
+@pytest.fixture(scope="session")
+def small_mission(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 4-image synthetic Perseverance mission (2 stops x 2 images), generated once."""
+    from mars_pairs.synth import generate_mission
+
+    root = tmp_path_factory.mktemp("small_mission")
+    generate_mission(root, seed=3, mission="m2020", stops=2, images_per_stop=2, size="small")
+    return root

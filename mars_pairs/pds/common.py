@@ -137,7 +137,9 @@ class Fields:
     ) -> int:
         """An integer (an int, or text of decimal digits) in [``minimum``, ``maximum``]
         (the manifest's int32 columns by default)."""
-        if isinstance(value, str) and _INT_RE.fullmatch(value.strip()) and len(value) < 40:
+        if isinstance(value, str) and _INT_RE.fullmatch(value.strip()):
+            if len(value.strip()) > 40:  # int() of thousands of digits is slow, then refused
+                self.fail(field, f"expected an integer <= {maximum}, got {_show(value)}")
             value = int(value.strip())
         if isinstance(value, bool) or not isinstance(value, int):
             self.fail(field, f"expected an integer, got {_show(value)}")

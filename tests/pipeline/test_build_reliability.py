@@ -1,0 +1,261 @@
+"""Bad build inputs (issue 17): one bad label, PLACES cell or duplicate costs one failure row,
+worker start-up failures fail once whatever the worker count, limits and counts are checked."""
+
+from __future__ import annotations
+
+import errno
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tarfile
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+import yaml
+
+from mars_pairs.cli.main import main
+from mars_pairs.errors import ConfigError
+from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.config import load_config
+from mars_pairs.store.manifest import FAILURE_SCHEMA, rows_to_table, write_parquet_atomic
+from mars_pairs.store.shards import ShardWriter, atomic_write_bytes
+
+
+@pytest.fixture(scope="module")
+def mission(small_mission: Path) -> Path:
+    return small_mission
+
+
+def write_config(path: Path, mission: Path, out: Path, labels: Path, places: Path) -> Path:
+    doc = {
+        "inputs": {
+            "labels": str(labels / "*.xml"),
+            "places": str(places),
+            "dem": str(mission / "orbital" / "dem.tif"),
+            "ortho": str(mission / "orbital" / "ortho.tif"),
+        },
+        "geometry": {"radius": 300, "ray_stride": 32},
+        "chips": {"size_m": 64, "size_px": 32},
+        "output": {"dir": str(out), "shard_size": 2},
+        "splits": {"block_m": 100},
+    }
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def copy_labels(mission: Path, dest: Path) -> list[Path]:
+    """The mission's labels and images copied into ``dest`` (sorted label paths)."""
+    dest.mkdir(parents=True, exist_ok=True)
+    for f in (mission / "labels").iterdir():
+        shutil.copy(f, dest / f.name)
+    return sorted(dest.glob("*.xml"))
+
+
+def variant(label: Path, name: str, old: str, new: str) -> Path:
+    """A copy of ``label`` named ``name`` with ``old`` replaced by ``new`` (the image is the
+    original's: the label points to it by name)."""
+    text = label.read_text()
+    assert old in text, old
+    out = label.with_name(name)
+    out.write_text(text.replace(old, new, 1))
+    return out
+
+
+def alternate_id(label: Path) -> str:
+    found = re.search(r"<alternate_id>([^<]+)</alternate_id>", label.read_text())
+    assert found
+    return found.group(1)
+
+
+def failures(out: Path) -> dict[str, dict]:
+    return {Path(r["path"]).name: r for r in pq.read_table(out / "failures.parquet").to_pylist()}
+
+
+@pytest.fixture(scope="module")
+def bad_labels_build(mission: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A build over the 4 good labels plus: a sol too large for int32, an alternate_id with
+    '/', an id too long for a tar member name, and a second label with a good one's id."""
+    tmp = tmp_path_factory.mktemp("bad")
+    labels = copy_labels(mission, tmp / "labels")
+    first, pid = labels[0], alternate_id(labels[0])
+    variant(
+        first, "a_huge_sol.xml", "<mars2020:sol_number>52<", "<mars2020:sol_number>99999999999<"
+    )
+    variant(first, "b_slash.xml", f"<alternate_id>{pid}<", f"<alternate_id>{pid[:8]}/{pid[9:]}<")
+    variant(first, "c_long.xml", f"<alternate_id>{pid}<", f"<alternate_id>{pid * 5}<")
+    variant(first, "zz_duplicate.xml", "<mars2020:sol_number>52<", "<mars2020:sol_number>52<")
+    places = mission / "places" / "best_interp.csv"
+    config = load_config(write_config(tmp / "c.yaml", mission, tmp / "ds", tmp / "labels", places))
+    summary = run_build(config, progress=False)
+    assert summary.samples == 4
+    return tmp / "ds"
+
+
+def test_a_sol_too_large_for_the_manifest_is_a_failure_row(bad_labels_build: Path) -> None:
+    row = failures(bad_labels_build)["a_huge_sol.xml"]
+    assert row["stage"] == "label" and "sol_number" in row["message"], row
+    assert "99999999999" in row["message"]
+
+
+def test_an_alternate_id_with_a_slash_is_a_failure_row(bad_labels_build: Path) -> None:
+    row = failures(bad_labels_build)["b_slash.xml"]
+    assert row["stage"] == "record" and "a-z, 0-9" in row["message"], row
+
+
+def test_an_id_too_long_for_tar_is_a_failure_row(bad_labels_build: Path) -> None:
+    row = failures(bad_labels_build)["c_long.xml"]
+    assert row["stage"] == "record" and "1 to 80 characters" in row["message"], row
+
+
+def test_a_duplicate_product_id_is_a_failure_row_naming_the_first(bad_labels_build: Path) -> None:
+    row = failures(bad_labels_build)["zz_duplicate.xml"]
+    assert row["stage"] == "record" and row["error_type"] == "DuplicateKeyError", row
+    assert "already built from" in row["message"] and "ZLF_0052" in row["message"]
+    keys = pq.read_table(bad_labels_build / "manifest.parquet")["key"].to_pylist()
+    assert len(keys) == len(set(keys)) == 4
+    names = []
+    for shard in (bad_labels_build / "shards").glob("*.tar"):
+        with tarfile.open(shard) as tar:
+            names += tar.getnames()
+    assert len(names) == len(set(names)) == 4 * 6
+
+
+def test_resume_over_bad_labels_finishes(bad_labels_build: Path) -> None:
+    config = load_config(bad_labels_build.parent / "c.yaml")
+    (bad_labels_build / "parts" / "manifest-000003.parquet").unlink()  # the last chunk redone
+    summary = run_build(config, resume=True, progress=False)
+    assert (summary.samples, summary.failures, summary.chunks_resumed) == (4, 4, 3)
+    assert set(failures(bad_labels_build)) == {
+        "a_huge_sol.xml",
+        "b_slash.xml",
+        "c_long.xml",
+        "zz_duplicate.xml",
+    }
+
+
+# -- PLACES -------------------------------------------------------------------------------------
+def _places_variant(mission: Path, dest: Path, edit: object) -> Path:
+    lines = (mission / "places" / "best_interp.csv").read_text().splitlines()
+    dest.write_text("\n".join(edit(lines)) + "\n")  # type: ignore[operator]
+    return dest
+
+
+def _drop_column(lines: list[str], name: str) -> list[str]:
+    header = lines[0].split(",")
+    i = header.index(name)
+    return [",".join(c for j, c in enumerate(line.split(",")) if j != i) for line in lines]
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_places_table_without_a_column_fails_once_whatever_the_workers(
+    mission: Path, tmp_path: Path, workers: int
+) -> None:
+    places = _places_variant(mission, tmp_path / "p.csv", lambda ls: _drop_column(ls, "drive"))
+    config = write_config(tmp_path / "c.yaml", mission, tmp_path / "ds", mission / "labels", places)
+    cmd = [sys.executable, "-m", "mars_pairs.cli", "build", "--config", str(config), "--quiet"]
+    done = subprocess.run(
+        [*cmd, "--workers", str(workers)], capture_output=True, text=True, timeout=120, check=False
+    )
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert lines == [f"mars-pairs build: {places}: missing column(s) drive"], done.stderr
+
+
+def test_non_numeric_places_cells_are_failure_rows_or_one_line(
+    mission: Path, tmp_path: Path
+) -> None:
+    def text_easting(lines: list[str]) -> list[str]:
+        i = lines[0].split(",").index("easting")
+        out = list(lines)
+        for k, line in enumerate(out[1:], start=1):
+            cells = line.split(",")
+            if cells[0] == "ROVER":
+                cells[i] = "x"
+                out[k] = ",".join(cells)
+        return out
+
+    places = _places_variant(mission, tmp_path / "p.csv", text_easting)
+    config = write_config(tmp_path / "c.yaml", mission, tmp_path / "ds", mission / "labels", places)
+    summary = run_build(load_config(config), progress=False)
+    assert summary.samples == 0 and summary.failures == 4
+    for row in failures(tmp_path / "ds").values():
+        assert row["stage"] == "locate" and "easting: expected a number, got 'x'" in row["message"]
+
+    def empty_drive(lines: list[str]) -> list[str]:
+        i = lines[0].split(",").index("drive")
+        cells = lines[2].split(",")
+        cells[i] = ""
+        return [lines[0], lines[1], ",".join(cells), *lines[3:]]
+
+    places = _places_variant(mission, tmp_path / "p2.csv", empty_drive)
+    config = write_config(tmp_path / "c.yaml", mission, tmp_path / "ds", mission / "labels", places)
+    assert main(["build", "--config", str(config), "--quiet"]) == 2
+
+
+def test_conflicting_rover_rows_are_failure_rows(mission: Path, tmp_path: Path) -> None:
+    def moved_duplicate(lines: list[str]) -> list[str]:
+        header = lines[0].split(",")
+        rover = next(line for line in lines[1:] if line.startswith("ROVER"))
+        cells = rover.split(",")
+        e = header.index("easting")
+        cells[e] = f"{float(cells[e]) + 118.0:.4f}"
+        return [*lines, ",".join(cells)]
+
+    places = _places_variant(mission, tmp_path / "p.csv", moved_duplicate)
+    config = write_config(tmp_path / "c.yaml", mission, tmp_path / "ds", mission / "labels", places)
+    summary = run_build(load_config(config), progress=False)
+    rows = list(failures(tmp_path / "ds").values())
+    assert summary.failures == len(rows) >= 1 and summary.samples == 4 - len(rows)
+    assert all(
+        "conflicting ROVER rows" in r["message"] and "118.000 m" in r["message"] for r in rows
+    )
+
+
+# -- limits and counts --------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("option", "value"),
+    [("--limit", "-1"), ("--limit", "0"), ("--workers", "-3"), ("--workers", "0")],
+)
+def test_nonpositive_limit_and_workers_are_refused(
+    mission: Path, tmp_path: Path, option: str, value: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    config = write_config(
+        tmp_path / "c.yaml",
+        mission,
+        tmp_path / "ds",
+        mission / "labels",
+        mission / "places" / "best_interp.csv",
+    )
+    with pytest.raises(SystemExit) as exc:
+        main(["build", "--config", str(config), "--quiet", option, value])
+    assert exc.value.code == 2
+    assert f"argument {option}: expected an integer >= 1" in capsys.readouterr().err
+    assert not (tmp_path / "ds").exists()
+    with pytest.raises(ConfigError, match=option):
+        run_build(load_config(config), **{option[2:]: int(value)}, progress=False)
+
+
+# -- a full disk --------------------------------------------------------------------------------
+def _full_disk_at(path: Path) -> None:
+    """Make the temporary file of ``path`` (this process) a link to /dev/full: ENOSPC."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    os.symlink("/dev/full", path.with_name(f".{path.name}.tmp-{os.getpid()}"))
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
+def test_a_full_disk_names_the_file(tmp_path: Path) -> None:
+    _full_disk_at(tmp_path / "shards" / "s.tar")
+    full = r"No space left on device: '.*shards/s\.tar'"
+    with pytest.raises(OSError, match=full) as exc, ShardWriter(tmp_path, "shards/s.tar") as shard:
+        shard.add("k", {"x.bin": os.urandom(1 << 16)})
+    assert exc.value.errno == errno.ENOSPC
+    _full_disk_at(tmp_path / "dataset.json")
+    with pytest.raises(OSError, match=r"No space left on device: '.*dataset\.json'"):
+        atomic_write_bytes(tmp_path / "dataset.json", b"{}" * 10000)
+    _full_disk_at(tmp_path / "failures.parquet")
+    with pytest.raises(OSError, match=r"failures\.parquet"):
+        write_parquet_atomic(rows_to_table([], FAILURE_SCHEMA), tmp_path / "failures.parquet")
+    assert not (tmp_path / "failures.parquet").exists()
