@@ -146,8 +146,13 @@ def _check_record(sample: Any) -> None:
                 f"sample key {key[:100]!r} (from the product id) must be 1 to {MAX_KEY_LENGTH} "
                 "characters of a-z, 0-9, '_' and '-'"
             )
-        rows_to_table([sample.row], MANIFEST_SCHEMA)
-    except (ValueError, TypeError, OverflowError, pa.ArrowException) as exc:
+        for f in MANIFEST_SCHEMA:  # column by column, to name the one at fault
+            try:
+                pa.array([sample.row.get(f.name)], type=f.type)
+            except (ValueError, TypeError, OverflowError, pa.ArrowException) as exc:
+                value = repr(sample.row.get(f.name))[:60]
+                raise ValueError(f"{f.name}: {value} does not fit {f.type}: {exc}") from None
+    except ValueError as exc:
         raise StageError("record", exc) from None
 
 

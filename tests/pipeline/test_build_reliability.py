@@ -18,8 +18,10 @@ import yaml
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build import _check_record, run_build
 from mars_pairs.pipeline.config import load_config
+from mars_pairs.pipeline.sample import Sample
+from mars_pairs.pipeline.stages import StageError
 from mars_pairs.store.manifest import FAILURE_SCHEMA, rows_to_table, write_parquet_atomic
 from mars_pairs.store.shards import ShardWriter, atomic_write_bytes
 
@@ -102,12 +104,33 @@ def test_a_sol_too_large_for_the_manifest_is_a_failure_row(bad_labels_build: Pat
 
 def test_an_alternate_id_with_a_slash_is_a_failure_row(bad_labels_build: Path) -> None:
     row = failures(bad_labels_build)["b_slash.xml"]
-    assert row["stage"] == "record" and "a-z, 0-9" in row["message"], row
+    assert row["stage"] == "label" and "alternate_id" in row["message"], row
 
 
 def test_an_id_too_long_for_tar_is_a_failure_row(bad_labels_build: Path) -> None:
     row = failures(bad_labels_build)["c_long.xml"]
-    assert row["stage"] == "record" and "1 to 80 characters" in row["message"], row
+    assert row["stage"] == "label" and "alternate_id: longer than" in row["message"], row
+
+
+@pytest.mark.parametrize(
+    ("key", "row", "needle"),
+    [
+        ("a/b", {}, "must be 1 to 80 characters of a-z"),
+        ("a.b", {}, "must be 1 to 80 characters of a-z"),
+        ("k" * 81, {}, "must be 1 to 80 characters of a-z"),
+        ("ok", {"sol": 2**40}, "sol"),
+        ("ok", {"latitude": "north"}, "latitude"),
+    ],
+)
+def test_rows_the_shard_or_manifest_cannot_hold_fail_at_record(
+    key: str, row: dict, needle: str
+) -> None:
+    """Whatever a label reader lets through, a key tar cannot name or a value the manifest
+    cannot hold is a 'record' failure of that sample, not a crashed chunk."""
+    with pytest.raises(StageError) as exc:
+        _check_record(Sample(key, {"key": key, **row}))
+    assert exc.value.stage == "record" and needle in str(exc.value.error)
+    _check_record(Sample("m2020_ok-1", {"key": "m2020_ok-1", "sol": 52}))
 
 
 def test_a_duplicate_product_id_is_a_failure_row_naming_the_first(bad_labels_build: Path) -> None:
