@@ -369,11 +369,13 @@ def sample_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
 def show_sample(root: str | Path, key: str, out: str | Path, dpi: int = DPI) -> Path:
     """The figure of sample ``key`` (:meth:`MarsPairsDataset.plot`) written to ``out`` (PNG
     of ``SHOW_SIZE`` inches at ``dpi``)."""
+    from mars_pairs.store.manifest import Manifest
     from mars_pairs.torch import ALL_FIELDS, MarsPairsDataset
 
     root, out = Path(root), Path(out)
     if not root.is_dir():
         raise MarsPairsError(f"{root}: no such dataset folder")
+    Manifest.open(root).require()  # a damaged or column-less manifest: one error naming it
     plt = pyplot()
     with MarsPairsDataset(root, fields=ALL_FIELDS) as ds:
         fig = ds.plot(ds[ds.index_of(key)])
