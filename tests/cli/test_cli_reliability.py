@@ -244,7 +244,7 @@ def test_locate_a_1e308_camera_component(
     assert code == 2
     out = capsys.readouterr()
     assert out.out == "" and "NaN" not in out.err
-    assert str(label) in out.err and "H vector" in out.err
+    assert str(label) in out.err and "H of the CAHVOR model exceeds" in out.err
 
 
 def test_locate_with_a_text_places_cell(
