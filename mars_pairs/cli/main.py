@@ -131,12 +131,40 @@ def _cmd_synth(args: argparse.Namespace) -> int:
     return 0
 
 
+def _label_viewshed(args: argparse.Namespace, terrain: object) -> int:
+    """``viewshed --label``: the image's view (frustum or the study's band) as a GeoTIFF."""
+    import numpy as np
+
+    from mars_pairs.geometry.places import Places
+    from mars_pairs.pds import read_observation
+    from mars_pairs.pipeline.view import label_view
+    from mars_pairs.raster.viewshed_tiff import NODATA, write_viewshed_geotiff
+
+    obs = read_observation(args.label)
+    pose = Places.from_csv(args.places).locate(obs)
+    view = label_view(obs, pose, terrain, args.radius, args.height, args.mask)  # type: ignore[arg-type]
+    rows, cols = np.indices(view.mask.shape)
+    x, y = view.window.colrow_to_xy(cols, rows)
+    points = np.stack([x, y, view.window.data.astype(np.float64)], axis=-1).reshape(-1, 3)
+    centre = view.camera.map_to_local(view.camera.center_map)
+    local = view.camera.map_to_local(points) - centre
+    far = (np.hypot(local[:, 0], local[:, 1]) > args.radius).reshape(view.mask.shape)
+    codes = np.where(far | ~np.isfinite(view.window.data), NODATA, view.mask).astype(np.uint8)
+    write_viewshed_geotiff(args.out, codes, view.window.transform, view.window.crs)
+    cx, cy, cz = view.camera.center_map
+    print(
+        f"{args.out}: {int((codes == 1).sum())} cells in view ({args.mask} mask) of "
+        f"{codes.size}; camera centre x={cx:.3f} y={cy:.3f} z={cz:.3f} m "
+        f"({view.height:.3f} m above the DEM at the rover; DEM - PLACES {view.dem_offset_m:+.3f} m)"
+    )
+    return 0
+
+
 def _cmd_viewshed(args: argparse.Namespace) -> int:
     from mars_pairs.raster.terrain import Terrain
     from mars_pairs.raster.viewshed_tiff import (
         ViewshedRequest,
         compute_request,
-        request_from_label,
         write_viewshed_geotiff,
     )
 
@@ -144,7 +172,7 @@ def _cmd_viewshed(args: argparse.Namespace) -> int:
         if args.label:
             if not args.places:
                 raise UsageError("--label needs --places")
-            req = request_from_label(args.label, args.places, terrain, args.radius, args.height)
+            return _label_viewshed(args, terrain)
         else:
             if args.x is None or args.y is None or args.height is None:
                 raise UsageError("without --label, give --x, --y and --height")
@@ -294,6 +322,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="observer height above the terrain, metres (label default: camera's)",
     )
     p.add_argument("--absolute", action="store_true", help="--height is an absolute elevation")
+    p.add_argument(
+        "--mask",
+        choices=("frustum", "band"),
+        default="frustum",
+        help="with --label: frustum = what the image saw (default); band = the study's az/el band",
+    )
     p.add_argument("--x", type=_finite, help="observer x, DEM CRS map units")
     p.add_argument("--y", type=_finite, help="observer y, DEM CRS map units")
     for name in ("az-min", "az-max"):

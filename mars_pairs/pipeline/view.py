@@ -17,7 +17,7 @@ from mars_pairs.kernels.viewshed import compute_viewshed
 from mars_pairs.pds.observation import Observation
 from mars_pairs.pipeline.context import SampleContext
 from mars_pairs.pipeline.stages import Stages
-from mars_pairs.raster.terrain import DemWindow
+from mars_pairs.raster.terrain import DemWindow, Terrain
 
 _AZ_MARGIN_DEG = 2.0  # the kernel's wedge is a prefilter: the exact test follows
 _EL_MARGIN_DEG = 1.0
@@ -119,6 +119,54 @@ def exact_mask(los: np.ndarray, view: View) -> np.ndarray:
     return mask
 
 
+def apply_line_of_sight(view: View, cell: float) -> None:
+    """Fill ``view.los`` (the kernel's line of sight from the camera centre, in a conservative
+    grid wedge) and ``view.mask`` (those cells that pass the exact view test). ``cell``: the
+    DEM's largest pixel size, map units."""
+    camera = view.camera
+    cx, cy, cz = (float(v) for v in camera.center_map)
+    grid_az, grid_el = kernel_bands(camera, *view.bands)
+    view.los = compute_viewshed(
+        view.window,
+        cx,
+        cy,
+        height=cz,
+        height_is_absolute=True,
+        radius=view.radius_m * camera.map_scale_range()[1] + cell,
+        az_band=grid_az,
+        el_band=grid_el,
+        planet_radius=MARS_RADIUS_M,
+    )
+    view.mask = exact_mask(view.los, view)
+
+
+def label_view(
+    obs: Observation,
+    pose: Pose,
+    terrain: Terrain,
+    radius_m: float,
+    observer_height: float | None = None,
+    mode: str = "frustum",
+) -> View:
+    """One image's view mask over ``terrain`` (the ``mars-pairs viewshed --label`` job): the
+    camera anchored at the rover origin, line of sight and the exact ``mode`` test."""
+    camera = MapCamera.from_observation(obs, pose, terrain.crs)
+    ox, oy = (float(v) for v in camera.origin_map[:2])
+    camera, offset, height = anchor_camera(
+        camera, pose, terrain.elevation_at(ox, oy), observer_height
+    )
+    cx, cy = (float(v) for v in camera.center_map[:2])
+    cell = max(terrain.res)
+    window = terrain.read_dem_window(cx, cy, radius_m * camera.map_scale_range()[1] + 2 * cell)
+    empty = np.zeros(window.data.shape, dtype=np.uint8)
+    view = View(
+        camera, height, window, empty, None, (0, 0), offset, radius_m, mode,
+        camera.view_band_deg(),
+    )  # fmt: skip
+    apply_line_of_sight(view, cell)
+    return view
+
+
 def compute_view(
     obs: Observation, pose: Pose, camera: MapCamera, ctx: SampleContext, stage: Stages
 ) -> View:
@@ -130,7 +178,7 @@ def compute_view(
         if not math.isfinite(ground):
             raise MarsPairsError(f"{ctx.config.inputs.dem}: no DEM data under the rover")
         camera, offset, height = anchor_camera(camera, pose, ground, geo.observer_height)
-        cx, cy, cz = (float(v) for v in camera.center_map)
+        cx, cy = (float(v) for v in camera.center_map[:2])
         k_max = camera.map_scale_range()[1]
         radius_map = geo.radius * k_max  # the window and kernel work in map units
         window = ctx.dem_window(cx, cy, radius_map + 2.0 * max(ctx.terrain.res))
@@ -153,20 +201,7 @@ def compute_view(
     )
     if geo.viewshed in ("wedge", "both"):
         with stage("viewshed"):
-            grid_az, grid_el = kernel_bands(camera, az_band, el_band)
-            los = compute_viewshed(
-                window,
-                cx,
-                cy,
-                height=cz,
-                height_is_absolute=True,
-                radius=radius_map + max(ctx.terrain.res),
-                az_band=grid_az,
-                el_band=grid_el,
-                planet_radius=MARS_RADIUS_M,
-            )
-            view.los = los
-            view.mask = exact_mask(los, view)
+            apply_line_of_sight(view, max(ctx.terrain.res))
     if geo.viewshed in ("raycast", "both"):
         with stage("raycast"):
             origins, dirs = camera.pixel_rays(camera.pixel_grid(stride))

@@ -11,10 +11,7 @@ import numpy as np
 import rasterio
 
 from mars_pairs.geometry.frames import MARS_RADIUS_M
-from mars_pairs.geometry.mapcam import MapCamera
-from mars_pairs.geometry.places import Places
 from mars_pairs.kernels.viewshed import compute_viewshed
-from mars_pairs.pds import read_observation
 from mars_pairs.raster.terrain import DemWindow, Terrain
 
 NODATA = 255
@@ -36,27 +33,6 @@ class ViewshedRequest:
     az_band: tuple[float, float] | None = None
     el_band: tuple[float, float] | None = None
     height_is_absolute: bool = False
-
-
-def request_from_label(
-    label: str | Path,
-    places: str | Path,
-    terrain: Terrain,
-    radius: float,
-    height: float | None = None,
-) -> ViewshedRequest:
-    """The viewshed request of a labelled image: camera centre, and the image's exact band.
-
-    The height defaults to the camera centre's height above the rover origin (camera model).
-    """
-    obs = read_observation(label)
-    pose = Places.from_csv(places).locate(obs)
-    cam = MapCamera.from_observation(obs, pose, terrain.crs)
-    centre = cam.center_map
-    terrain.require_inside(float(centre[0]), float(centre[1]), "camera")
-    az_band, el_band = cam.view_band_deg()
-    h = float(centre[2] - pose.elevation_m) if height is None else float(height)
-    return ViewshedRequest(float(centre[0]), float(centre[1]), h, radius, az_band, el_band)
 
 
 def compute_request(terrain: Terrain, req: ViewshedRequest) -> tuple[np.ndarray, DemWindow]:

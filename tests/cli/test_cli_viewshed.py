@@ -156,3 +156,31 @@ def test_label_without_places_exits_2(
     assert main([*argv, "--label", str(real_label)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--places" in err, err
+
+
+def test_label_frustum_mask_is_inside_the_image_and_band_is_the_studys(
+    real_label: Path, tmp_path: Path
+) -> None:
+    """--mask frustum (default) keeps what the image saw; --mask band the study's rectangle.
+
+    Checked with the independent truth (label fields, numpy + pyproj; no mars_pairs code).
+    """
+    import independent_truth as truth
+
+    dem = write_dem(tmp_path / "dem.tif", ROVER_XY, fractal_slope(1200))
+    counts, inside = {}, {}
+    for mask in ("frustum", "band"):
+        out = tmp_path / f"{mask}.tif"
+        argv = ["viewshed", "--dem", str(dem), "--out", str(out), "--label", str(real_label)]
+        assert main([*argv, "--places", str(PLACES), "--radius", "500", "--mask", mask]) == 0
+        with rasterio.open(out) as src:
+            rows, cols = np.nonzero(src.read(1) == 1)
+            xs, ys = rasterio.transform.xy(src.transform, rows, cols)
+        counts[mask] = len(rows)
+        inside[mask] = truth.fraction_inside_image(
+            real_label, PLACES, dem, np.column_stack([xs, ys]), lo=-0.5
+        )
+    assert counts["frustum"] > 100
+    assert inside["frustum"] >= 0.99, inside
+    # the band is the image's az/el rectangle: it holds the image and sees more beside it
+    assert counts["band"] > counts["frustum"] and inside["band"] < inside["frustum"], inside
