@@ -1,32 +1,34 @@
-"""Benchmark: torch DataLoader throughput over a built dataset against a decode-only loop.
+"""Benchmark: torch DataLoader throughput over a built dataset against a decode-only loop
+and against WebDataset's own pipeline over the same shards.
 
     python benchmarks/bench_loader.py                     # out/demo/dataset, or build it
     python benchmarks/bench_loader.py --dataset DIR --epochs 20
 
 Uses ``out/demo/dataset`` when it exists, else builds ``configs/demo.yaml`` into a temp dir.
 Prints a markdown table of samples/s (best of --repeats rounds in which the loops take turns,
-after a warm-up epoch each) for the
-default fields (ground, ortho, dem, viewshed):
+after a warm-up epoch each) for the default fields (ground, ortho, dem, viewshed):
 
 - decode only (the anchor): one process reads each member by its manifest offset and
   decodes it to a numpy array (``np.asarray`` of the PIL image, converted only where its mode
   differs; ``np.load`` for the DEM), nothing else;
-- ``MarsPairsDataset`` indexed in a loop (one process, tensors in [0, 1] / metres);
+- ``MarsPairsDataset`` indexed in a loop (one process; uint8 images, the default);
 - ``DataLoader(num_workers=0, batch_size=8, collate_fn=collate_samples)`` (one process, the
   batched ``__getitems__`` path);
-- ``DataLoader(num_workers=2, batch_size=8, collate_fn=collate_samples)``, persistent
-  workers (steady state), and a fresh loader per epoch (includes starting the workers).
-  Float32 image batches cross from the workers as uint8 in reused shared memory and are
-  divided into float32 on arrival in this process (``mars_pairs.torch.lazy_float``), so that
-  work is in the timing;
-- the persistent loader with spawned workers (macOS and Windows start workers so);
-- the same with ``image_dtype=torch.uint8`` (images stay uint8, a quarter of the bytes
-  through shared memory; the decode-only loop's arrays are uint8 too).
+- ``DataLoader(num_workers=2, ...)``: persistent workers (steady state), a fresh loader per
+  epoch (includes starting the workers), spawned workers (macOS and Windows start workers
+  so); images cross from the workers as uint8, a quarter of float32's bytes;
+- the same with float32 images: ``image_dtype=torch.float32`` (float32 through shared
+  memory), and uint8 transport with ``ToFloat`` applied to each batch in this process;
+- the streaming ``MarsPairsIterableDataset`` through 2 workers;
+- WebDataset's own pipeline over the same shards: ``wds.WebDataset(urls).decode(...)
+  .to_tuple(...).batched(8)`` through ``DataLoader(batch_size=None, num_workers=2)``,
+  decoding each member as the anchor does (handlers for .jpg/.png, WebDataset's own .npy).
 
-The ratio column is each row's rate over the decode-only rate (target >= 0.8 for the
-DataLoader); the CPU column (this process and its worker processes, /proc) shows the work
-per sample, which other processes' load does not change. Wall-clock numbers are noisy on a
-shared machine (2 workers only help when 2 cores are free); the load average is printed.
+The ratio column is each row's rate over the decode-only rate (targets: the 2-worker
+DataLoader >= 1.0x and >= the WebDataset row); the CPU column (this process and its worker
+processes, /proc) shows the work per sample, which other processes' load does not change.
+Wall-clock numbers are noisy on a shared machine (2 workers only help when 2 cores are
+free); the load average is printed.
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
@@ -51,7 +54,13 @@ import pyarrow.parquet as pq  # noqa: E402
 import torch  # noqa: E402
 from torch.utils.data import DataLoader  # noqa: E402
 
-from mars_pairs.torch import DEFAULT_FIELDS, MarsPairsDataset, collate_samples  # noqa: E402
+from mars_pairs.torch import (  # noqa: E402
+    DEFAULT_FIELDS,
+    MarsPairsDataset,
+    MarsPairsIterableDataset,
+    collate_samples,
+)
+from mars_pairs.torch.transforms import ToFloat  # noqa: E402
 
 
 def demo_dataset(tmp: Path) -> Path:
@@ -116,10 +125,17 @@ def dataset_loop(ds: MarsPairsDataset) -> Callable[[], int]:
 
 
 def loader_loop(
-    ds: MarsPairsDataset, workers: int, batch: int, persistent: bool, context: str = "fork"
+    ds: Any,
+    workers: int,
+    batch: int | None,
+    persistent: bool,
+    context: str = "fork",
+    on_batch: Callable[[Any], Any] | None = None,
+    collate: Callable | None = collate_samples,
 ) -> Callable:
-    """Iterate a DataLoader (one loader reused when ``persistent``, else a fresh one)."""
-    kwargs = dict(batch_size=batch, num_workers=workers, collate_fn=collate_samples)
+    """Iterate a DataLoader (one loader reused when ``persistent``, else a fresh one);
+    ``on_batch`` runs on each batch in this process."""
+    kwargs: dict[str, Any] = dict(batch_size=batch, num_workers=workers, collate_fn=collate)
     if workers:
         kwargs.update(multiprocessing_context=context, persistent_workers=persistent)
     shared = DataLoader(ds, **kwargs) if persistent else None
@@ -128,10 +144,34 @@ def loader_loop(
         loader = shared if shared is not None else DataLoader(ds, **kwargs)
         n = 0
         for b in loader:
-            n += b["ground"].shape[0]
+            if on_batch is not None:
+                b = on_batch(b)
+            n += len(b[0]) if isinstance(b, (tuple, list)) else b["ground"].shape[0]
         return n
 
     return run
+
+
+def webdataset_pipeline(root: Path, batch: int) -> Any:
+    """WebDataset's own pipeline over the dataset's shards: decode as the anchor does, to
+    tuples, batched in the workers (numpy arrays stacked by WebDataset's collation)."""
+    import webdataset as wds
+
+    def rgb(data: bytes) -> np.ndarray:
+        with Image.open(io.BytesIO(data)) as im:
+            return np.asarray(im if im.mode == "RGB" else im.convert("RGB"))
+
+    def grey(data: bytes) -> np.ndarray:
+        with Image.open(io.BytesIO(data)) as im:
+            return np.asarray(im if im.mode == "L" else im.convert("L"))
+
+    urls = [str(p) for p in sorted((root / "shards").glob("*.tar"))]
+    return (
+        wds.WebDataset(urls, shardshuffle=False, empty_check=False)
+        .decode(wds.handle_extension("jpg", rgb), wds.handle_extension("png", grey))
+        .to_tuple("ground.jpg", "ortho.png", "dem.npy", "viewshed.png")
+        .batched(batch)
+    )
 
 
 def cpu_seconds() -> float:
@@ -187,31 +227,45 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="bench-loader-") as tmp:
         root = args.dataset or demo_dataset(Path(tmp))
         ds = MarsPairsDataset(root)
-        fields = DEFAULT_FIELDS
+        w, bs = args.workers, args.batch_size
         load0 = os.getloadavg()[0]
+        to_float = ToFloat()
         loops = {
-            "decode only (1 process, numpy)": decode_only(root, fields),
-            "MarsPairsDataset[i] loop (1 process)": dataset_loop(ds),
+            "read + decode only (1 process, numpy; the anchor)": decode_only(root, DEFAULT_FIELDS),
+            "`MarsPairsDataset[i]` (1 process)": dataset_loop(ds),
+            "DataLoader, 0 workers": loader_loop(ds, 0, bs, False),
+            f"DataLoader, {w} workers, persistent": loader_loop(ds, w, bs, True),
+            f"DataLoader, {w} workers, new loader each epoch (worker start-up included)": (
+                loader_loop(ds, w, bs, False)
+            ),
+            f"DataLoader, {w} workers, persistent, spawned workers": (
+                loader_loop(ds, w, bs, True, "spawn")
+            ),
+            f"DataLoader, {w} workers, persistent, `image_dtype=torch.float32`": loader_loop(
+                MarsPairsDataset(root, image_dtype=torch.float32), w, bs, True
+            ),
+            f"DataLoader, {w} workers, persistent, uint8 + `ToFloat` in the main process": (
+                loader_loop(ds, w, bs, True, on_batch=to_float)
+            ),
+            f"`MarsPairsIterableDataset`, {w} workers, persistent": loader_loop(
+                MarsPairsIterableDataset(root, shuffle_buffer=bs), w, bs, True
+            ),
+            f"WebDataset pipeline (`wds.WebDataset` + decode + batched), {w} workers, "
+            "persistent": loader_loop(webdataset_pipeline(root, bs), w, None, True, collate=None),
         }
-        name = f"DataLoader workers=0 batch={args.batch_size} (batched reads, 1 process)"
-        loops[name] = loader_loop(ds, 0, args.batch_size, False)
-        for persistent, label in ((True, "persistent workers"), (False, "fresh loader/epoch")):
-            name = f"DataLoader workers={args.workers} batch={args.batch_size}, {label}"
-            loops[name] = loader_loop(ds, args.workers, args.batch_size, persistent)
-        name = f"DataLoader workers={args.workers} batch={args.batch_size}, persistent, spawn"
-        loops[name] = loader_loop(ds, args.workers, args.batch_size, True, "spawn")
-        ds8 = MarsPairsDataset(root, image_dtype=torch.uint8)
-        name = f"DataLoader workers={args.workers} batch={args.batch_size}, persistent, uint8"
-        loops[name] = loader_loop(ds8, args.workers, args.batch_size, True)
         rows = list(rates(loops, args.epochs, args.repeats).items())
         load1 = os.getloadavg()[0]
         s = ds[0]
-        shapes = ", ".join(f"{k} {list(v.shape)}" for k, v in s.items() if k != "meta")
+        shapes = ", ".join(
+            f"{k} {list(v.shape)} {str(v.dtype).replace('torch.', '')}"
+            for k, v in s.items()
+            if k in DEFAULT_FIELDS
+        )
         print(f"\n{root}: {len(ds)} samples; fields {shapes}")
         print(f"torch {torch.__version__}, {os.cpu_count()} CPUs, load {load0:.2f} -> {load1:.2f}")
         print()
         base = rows[0][1][0]
-        print("| loop | samples/s | vs decode only | CPU ms/sample (all processes) |")
+        print("| loop | samples/s | vs decode only | CPU ms/sample |")
         print("|---|---:|---:|---:|")
         for label, (value, cpu) in rows:
             print(f"| {label} | {value:.1f} | {value / base:.2f}x | {cpu:.1f} |")

@@ -88,7 +88,7 @@ def synthetic_manifest(n: int, seed: int = 0) -> pa.Table:
         "longitude": lon,
         "easting": x,
         "northing": y,
-        "elevation": rng.normal(-2550.0, 30.0, n),
+        "elevation_m": rng.normal(-2550.0, 30.0, n),
         "azimuth_deg": rng.uniform(0, 360, n),
         "elevation_deg": rng.uniform(-30, 10, n),
         "hfov_deg": np.full(n, 19.2),

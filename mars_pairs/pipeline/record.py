@@ -40,7 +40,7 @@ def manifest_row(
         "product_id": obs.product_id, "label_path": str(obs.label_path), "sol": obs.sol,
         "site": obs.rmc.site, "drive": obs.rmc.drive, "pose": obs.rmc.pose,
         "time": obs.start_time, "latitude": pose.latitude, "longitude": pose.longitude,
-        "easting": rover_x, "northing": rover_y, "elevation": pose.elevation_m,
+        "easting": rover_x, "northing": rover_y, "elevation_m": pose.elevation_m,
         "azimuth_deg": obs.azimuth_deg if obs.azimuth_deg is not None else az,
         "elevation_deg": obs.elevation_deg if obs.elevation_deg is not None else el,
         "hfov_deg": obs.hfov_deg if obs.hfov_deg is not None else hfov,

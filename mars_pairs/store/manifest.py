@@ -14,8 +14,15 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from pyproj import CRS
 
-from mars_pairs.errors import ArgumentError
 from mars_pairs.geometry.frames import MARS_RADIUS_M
+from mars_pairs.store.columns import (
+    RENAMED,
+    canonical_names,
+    rename_to,
+    stored_name,
+    warn_renamed,
+)
+from mars_pairs.store.filter_args import geometry, integers, numbers, shapely_module, strings
 
 MEMBERS = ("ground", "ortho", "dem", "viewshed", "corr", "meta")
 
@@ -37,7 +44,7 @@ _FIELDS: list[tuple[str, pa.DataType]] = [
     ("longitude", pa.float64()),  # degrees east
     ("easting", pa.float64()),  # dataset CRS, map units
     ("northing", pa.float64()),
-    ("elevation", pa.float64()),  # metres above the areoid
+    ("elevation_m", pa.float64()),  # metres above the areoid (was "elevation", see columns.py)
     ("azimuth_deg", pa.float64()),  # camera axis, clockwise from north
     ("elevation_deg", pa.float64()),  # camera axis, up from the horizon
     ("hfov_deg", pa.float64()),
@@ -77,7 +84,7 @@ CORE_COLUMNS = tuple(f.name for f in MANIFEST_SCHEMA if not f.name.endswith("_cr
 #: The plain per-sample attributes that readers pass on (dataset meta, GeoPackage attributes).
 SUMMARY_COLUMNS = (
     "key", "mission", "instrument", "product_id", "sol", "site", "drive", "split", "latitude",
-    "longitude", "easting", "northing", "elevation", "azimuth_deg", "elevation_deg", "hfov_deg",
+    "longitude", "easting", "northing", "elevation_m", "azimuth_deg", "elevation_deg", "hfov_deg",
     "vfov_deg", "localization", "viewshed_area_m2", "visible_cells", "max_visible_range_m",
 )  # fmt: skip
 
@@ -253,13 +260,13 @@ class Manifest:
         terms = []
         exact = list(self._exact)
         if bbox_lonlat is not None:
-            w, s, e, n = _numbers(bbox_lonlat, 4, "bbox_lonlat")
+            w, s, e, n = numbers(bbox_lonlat, 4, "bbox_lonlat")
             terms.append((f("latitude") >= s) & (f("latitude") <= n))
             lon_term = _longitude_range(f("longitude"), w, e)
             if lon_term is not None:
                 terms.append(lon_term)
         if bbox_map is not None:
-            x0, y0, x1, y1 = _numbers(bbox_map, 4, "bbox_map")
+            x0, y0, x1, y1 = numbers(bbox_map, 4, "bbox_map")
             terms.append(
                 (f("easting") >= x0)
                 & (f("easting") <= x1)
@@ -267,7 +274,7 @@ class Manifest:
                 & (f("northing") <= y1)
             )
         if near is not None:
-            lat, lon, radius = _numbers(near, 3, "near")
+            lat, lon, radius = numbers(near, 3, "near")
             dlat = math.degrees(radius / MARS_RADIUS_M)
             coslat = max(math.cos(math.radians(min(abs(lat) + dlat, 90.0))), 1e-9)
             dlon = dlat / coslat
@@ -278,7 +285,7 @@ class Manifest:
                     terms.append(lon_term)
             exact.append(_NearPredicate(lat, lon, radius))
         if polygon is not None:
-            geom = _geometry(polygon)
+            geom = geometry(polygon)
             x0, y0, x1, y1 = geom.bounds
             terms.append(
                 (f("easting") >= x0)
@@ -286,24 +293,36 @@ class Manifest:
                 & (f("northing") >= y0)
                 & (f("northing") <= y1)
             )
-            exact.append(_PolygonPredicate(_shapely().to_wkb(geom)))
+            exact.append(_PolygonPredicate(shapely_module().to_wkb(geom)))
         for name, value in (("mission", mission), ("instrument", instrument), ("split", split)):
             if value is not None:
-                terms.append(f(name).isin(_strings(value, name)))
+                terms.append(f(name).isin(strings(value, name)))
         if sol is not None:
-            first, last = _integers(sol, 2, "sol")
+            first, last = integers(sol, 2, "sol")
             terms.append((f("sol") >= first) & (f("sol") <= last))
         expression = self._expression
         for term in terms:
             expression = term if expression is None else expression & term
         return Manifest(self.root, expression, tuple(exact), self._dataset)
 
+    @property
+    def column_names(self) -> list[str]:
+        """The columns a reader sees (a dataset built before a rename shows the new names)."""
+        return canonical_names(self._dataset.schema.names)
+
     def to_table(self, columns: list[str] | None = None) -> pa.Table:
-        """The filtered rows (all columns, or ``columns``)."""
+        """The filtered rows (all columns, or ``columns``). An old column name (see
+        :mod:`mars_pairs.store.columns`) reads its new column, with a DeprecationWarning."""
+        stored = self._dataset.schema.names
         needed = None
         if columns is not None:
+            columns = list(columns)
+            for name in columns:
+                if name in RENAMED:
+                    warn_renamed(name)
             extra = {"latitude", "longitude", "easting", "northing"} if self._exact else set()
             needed = list(dict.fromkeys([*columns, *sorted(extra)]))
+            needed = list(dict.fromkeys(stored_name(c, stored) for c in needed))
         try:
             table = self._dataset.to_table(columns=needed, filter=self._expression)
         except (pa.ArrowException, OSError) as exc:  # a damaged file or a missing column
@@ -312,7 +331,9 @@ class Manifest:
             raise DatasetError(self.root / "manifest.parquet", None, str(exc)) from None
         for predicate in self._exact:
             table = table.filter(predicate(table))
-        return table.select(columns) if columns is not None else table
+        if columns is None:
+            return rename_to(table, canonical_names(table.column_names))
+        return rename_to(table.select([stored_name(c, stored) for c in columns]), columns)
 
     def to_pandas(self) -> Any:
         """The filtered rows as a pandas DataFrame."""
@@ -327,74 +348,6 @@ class Manifest:
 
                 raise DatasetError(self.root / "manifest.parquet", None, str(exc)) from None
         return self.to_table(columns=["key"]).num_rows
-
-
-# -- filter arguments as users pass them: Python, numpy and pandas scalars ----------------------
-
-
-def _sequence(value: Any, n: int, name: str) -> list[Any]:
-    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__"):
-        raise ArgumentError(f"{name}: expected {n} numbers, got {value!r}")
-    items = list(value.tolist() if hasattr(value, "tolist") else value)
-    if len(items) != n:
-        raise ArgumentError(f"{name}: expected {n} numbers, got {len(items)}: {value!r}")
-    return items
-
-
-def _number(value: Any, name: str) -> float:
-    """A finite float of a Python, numpy or pandas real scalar (not bool, not a string)."""
-    if isinstance(value, (str, bytes, bool)) or type(value).__name__ == "bool_":
-        raise ArgumentError(f"{name}: expected a number, got {value!r}")
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        raise ArgumentError(f"{name}: expected a number, got {value!r}") from None
-    if not math.isfinite(number):
-        raise ArgumentError(f"{name}: expected a finite number, got {value!r}")
-    return number
-
-
-def _numbers(value: Any, n: int, name: str) -> list[float]:
-    return [_number(v, name) for v in _sequence(value, n, name)]
-
-
-def _integers(value: Any, n: int, name: str) -> list[int]:
-    out = []
-    for v in _numbers(value, n, name):
-        if v != int(v):
-            raise ArgumentError(f"{name}: expected whole numbers, got {value!r}")
-        out.append(int(v))
-    return out
-
-
-def _strings(value: Any, name: str) -> list[str]:
-    """One value or a list of values (a str, numpy str, list, array or Series) as strings."""
-    if isinstance(value, str):
-        return [str(value)]
-    if not hasattr(value, "__iter__") or isinstance(value, bytes):
-        raise ArgumentError(f"{name}: expected a string or a list of strings, got {value!r}")
-    values = list(value.tolist() if hasattr(value, "tolist") else value)
-    bad = [v for v in values if not isinstance(v, str)]
-    if bad:
-        raise ArgumentError(f"{name}: expected strings, got {bad[0]!r}")
-    return [str(v) for v in values]
-
-
-def _shapely() -> Any:
-    import shapely
-
-    return shapely
-
-
-def _geometry(polygon: Any) -> Any:
-    shapely = _shapely()
-    try:
-        geom = shapely.from_wkt(polygon) if isinstance(polygon, str) else polygon
-    except shapely.errors.ShapelyError as exc:
-        raise ArgumentError(f"polygon: not WKT: {exc}") from None
-    if not isinstance(geom, shapely.Geometry) or geom.is_empty:
-        raise ArgumentError(f"polygon: expected a shapely geometry or WKT, got {polygon!r}")
-    return geom
 
 
 def _longitude_range(field: Any, west: float, east: float) -> Any:

@@ -17,6 +17,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from mars_pairs.errors import MissingMemberError
+from mars_pairs.store.columns import SampleMeta
 
 
 class MemberIndex:
@@ -70,7 +71,7 @@ class MemberIndex:
     def meta(self, index: int) -> dict[str, Any]:
         """The meta values of sample ``index`` as plain Python values (~30 us: one scalar a
         column; a one-row slice of the table costs 4x that)."""
-        return {name: column[index].as_py() for name, column in self._meta_columns}
+        return SampleMeta((name, column[index].as_py()) for name, column in self._meta_columns)
 
     def metas(self, indices: Sequence[int]) -> list[dict[str, Any]]:
         """The meta values of several samples."""

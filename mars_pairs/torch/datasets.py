@@ -138,7 +138,7 @@ class MarsPairsDataset(Dataset):
         self.crs: str = info.get("crs") or manifest.crs or ""
         self.chip_px = int(info.get("chip", {}).get("size_px", 0)) or None
         self.ray_stride = int(info.get("config", {}).get("geometry", {}).get("ray_stride", 1))
-        names = set(manifest.schema.names)
+        names = set(manifest.column_names)
         self._crc_fields = tuple(f for f in self.fields if f"{f}_crc32c" in names)
         self.verify = bool(verify)
         if self.verify and len(self._crc_fields) < len(self.fields):

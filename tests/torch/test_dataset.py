@@ -389,3 +389,13 @@ def test_train_contrastive_example_runs_and_learns(dataset_dir: Path) -> None:
     assert re.search(r"recall@1", proc.stdout) and re.search(r"chance", proc.stdout)
     with Image.open(plot) as im:  # MarsPairsDataset.plot of an augmented sample
         assert im.format == "PNG" and im.size[0] > 500
+
+
+def test_meta_names_units_and_reads_the_old_name(dataset_dir: Path) -> None:
+    with MarsPairsDataset(dataset_dir, fields=("viewshed",)) as ds:
+        meta = ds[0]["meta"]
+        batch = collate_samples(ds.__getitems__([0, 1]))
+    assert -9000 < meta["elevation_m"] < 0 and -90 <= meta["elevation_deg"] <= 90
+    with pytest.warns(DeprecationWarning, match="elevation_m"):
+        assert meta["elevation"] == meta["elevation_m"]
+    assert "elevation" not in batch["meta"] and len(batch["meta"]["elevation_m"]) == 2
