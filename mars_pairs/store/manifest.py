@@ -212,7 +212,8 @@ class Manifest:
         """This manifest, or DatasetError naming it and the first of ``columns`` it lacks."""
         from mars_pairs.errors import DatasetError
 
-        missing = [c for c in columns if c not in self._dataset.schema.names]
+        names = set(self.column_names)  # a dataset built before a rename has the new names
+        missing = [c for c in columns if RENAMED.get(c, c) not in names]
         if missing:
             path = self.root / "manifest.parquet"
             raise DatasetError(path, missing[0], f"no such column ({len(missing)} missing)")

@@ -83,3 +83,9 @@ def test_sample_meta_reads_the_old_key_with_a_warning() -> None:
     with pytest.raises(KeyError):
         meta["nope"]
     assert pickle.loads(pickle.dumps(meta)) == meta
+
+
+def test_an_old_manifest_meets_the_column_requirements(old_root: Path) -> None:
+    m = Manifest.open(old_root)
+    assert m.require(["key", "elevation_m"]) is m
+    assert m.require(["elevation"]) is m

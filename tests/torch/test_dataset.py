@@ -399,3 +399,16 @@ def test_meta_names_units_and_reads_the_old_name(dataset_dir: Path) -> None:
     with pytest.warns(DeprecationWarning, match="elevation_m"):
         assert meta["elevation"] == meta["elevation_m"]
     assert "elevation" not in batch["meta"] and len(batch["meta"]["elevation_m"]) == 2
+
+
+def test_a_dataset_built_before_the_rename_reads(dataset_dir: Path, tmp_path: Path) -> None:
+    import shutil
+
+    import pyarrow.parquet as pq
+
+    old = Path(shutil.copytree(dataset_dir, tmp_path / "old"))
+    table = pq.read_table(old / "manifest.parquet")
+    names = ["elevation" if n == "elevation_m" else n for n in table.column_names]
+    pq.write_table(table.rename_columns(names), old / "manifest.parquet")
+    with MarsPairsDataset(old, fields=("ortho",)) as ds, MarsPairsDataset(dataset_dir) as new:
+        assert ds[0]["meta"]["elevation_m"] == new[0]["meta"]["elevation_m"]
