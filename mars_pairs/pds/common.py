@@ -28,6 +28,10 @@ PathLike = str | os.PathLike[str]
 NULL_TOKENS = frozenset({"", "NULL", "N/A", "UNK", "NONE"})
 BROWSE_SUFFIXES = (".jpg", ".JPG", ".jpeg", ".JPEG", ".png", ".PNG")
 
+#: Largest integer a label field may hold (sol, site, drive, pose): the int32 maximum.
+MAX_INTEGER = 2**31 - 1
+#: Largest image side (lines or samples) accepted; real products are at most 5120.
+MAX_IMAGE_SIDE = 100_000
 #: Largest camera model component accepted (C in metres, H and V in pixels are far below).
 MAX_MODEL_COMPONENT = 1e12
 #: Longest product id / instrument / frame name accepted (real ones are under 60).
@@ -148,6 +152,10 @@ class Fields:
         if value > maximum:
             self.fail(field, f"expected an integer <= {maximum}, got {_show(value)}")
         return value
+
+    def image_side(self, value: Any, field: str) -> int:
+        """An image's line or sample count: 1 to MAX_IMAGE_SIDE."""
+        return self.integer(value, field, 1, MAX_IMAGE_SIDE)
 
     def number(self, value: Any, field: str) -> float:
         """A finite real number (int, float, numeric text, or a quantity with units)."""

@@ -193,14 +193,14 @@ class _Reader(XmlLabel):
                 if name is not None and count is not None:
                     axes.setdefault(self.text(name).lower(), self.text(count))
             if "line" in axes and "sample" in axes:
-                width = self.f.integer(axes["sample"], "elements", 1)
-                return width, self.f.integer(axes["line"], "elements", 1)
+                width = self.f.image_side(axes["sample"], "elements")
+                return width, self.f.image_side(axes["line"], "elements")
         for scope in (self.first("img", "Subframe"), None):
             lines = self.first("img", "lines", scope)
             samples = self.first("img", "samples", scope)
             if lines is not None and samples is not None:
-                width = self.f.integer(self.text(samples), "img:samples", 1)
-                return width, self.f.integer(self.text(lines), "img:lines", 1)
+                width = self.f.image_side(self.text(samples), "img:samples")
+                return width, self.f.image_side(self.text(lines), "img:lines")
         self.f.fail("Axis_Array", "no Line/Sample image axes and no img:lines/img:samples")
 
     def camera(self, params: etree._Element) -> CameraModel:

@@ -478,6 +478,8 @@ _BAD_ANY = ["abc", '"abc"', '""', '"NULL"', "(1, 2)", "NaN", "TRUE", "2016-08-13
 _BAD_INT = [*_BAD_ANY, "1.5", "-3", "1.0e999", '"12x"', "1.0"]
 # found by fuzzing; pdr's literal_eval reads them as Python ("12002#101#" -> 12002)
 _BAD_INT += ["12002#101#", "2#102#", "1_000", "0x10", "12 # c", "3j"]
+# issue 17: numbers no column or array can hold (a 400-digit LINES raised OverflowError)
+_BAD_INT += ["9" * 400, "2147483648", "1" * 5000]
 _BAD_VECTOR = [
     *_BAD_ANY,
     "1.0",
@@ -491,7 +493,7 @@ _BAD_VECTOR = [
 _BAD_TEXT = ["5", "1.5", "(A, B)", '""', "2016-08-13T00:00:00", '"NULL"']
 PDS3_BAD = {
     "PLANET_DAY_NUMBER": _BAD_INT,
-    "LINES": [*_BAD_INT, "0"],
+    "LINES": [*_BAD_INT, "0", "100001"],
     "LINE_SAMPLES": [*_BAD_INT, "0"],
     **{f"MODEL_COMPONENT_{i}": _BAD_VECTOR for i in range(1, 7)},
     "PRODUCT_ID": _BAD_TEXT,

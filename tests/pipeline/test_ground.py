@@ -326,3 +326,81 @@ def test_locate_reads_every_new_kind(
     types = {d["product_id"].rsplit("_", 1)[1]: d["camera_model_type"] for d in lines}
     assert types["ORE3"] == types["ORE4"] == "CAHVORE"
     assert all(d["localization"] for d in lines)
+
+
+def _mipl_navcam_img(path: Path, pixels: np.ndarray) -> Path:
+    """An attached-label Navcam RDR as MIPL writes them (ODL3 header, no MSL: prefixes,
+    GEOMETRIC_CAMERA_MODEL / ROVER_COORDINATE_SYSTEM, a VICAR header object before the image,
+    record pointers), written by hand rather than by our writer."""
+    record, lines, samples = 2048, *pixels.shape
+    label = f"""ODL_VERSION_ID = ODL3
+RECORD_TYPE = FIXED_LENGTH
+RECORD_BYTES = {record}
+FILE_RECORDS = {3 + lines * samples * 2 // record}
+LABEL_RECORDS = 2
+^IMAGE_HEADER = 3
+^IMAGE = 4
+INSTRUMENT_ID = NAV_RIGHT_B
+PLANET_DAY_NUMBER = 3423
+PRODUCT_ID = "NRB_701383954RAS_F0933408NCAM00200M1"
+ROVER_MOTION_COUNTER_NAME = ("SITE", "DRIVE", "POSE")
+ROVER_MOTION_COUNTER = (93, 3408, 12)
+GROUP = ROVER_COORDINATE_SYSTEM
+ COORDINATE_SYSTEM_NAME = ROVER_NAV_FRAME
+ ORIGIN_OFFSET_VECTOR = (1.0, 2.0, 0.5)
+ ORIGIN_ROTATION_QUATERNION = (1.0, 0.0, 0.0, 0.0)
+ REFERENCE_COORD_SYSTEM_NAME = SITE_FRAME
+END_GROUP = ROVER_COORDINATE_SYSTEM
+GROUP = GEOMETRIC_CAMERA_MODEL
+ MODEL_TYPE = CAHVOR
+ MODEL_COMPONENT_ID = ("C","A","H","V","O","R")
+ MODEL_COMPONENT_UNIT = (METER,"N/A",PIXEL,PIXEL,"N/A","N/A")
+ MODEL_COMPONENT_1 = (0.953083,0.737269,-1.83989)
+ MODEL_COMPONENT_2 = (0.61802,-0.158336,0.770042)
+ MODEL_COMPONENT_3 = (622.069,1100.35,388.444)
+ MODEL_COMPONENT_4 = (-588.816,157.005,1176.66)
+ MODEL_COMPONENT_5 = (0.615108,-0.158211,0.772395)
+ MODEL_COMPONENT_6 = (1.35787e-05,0.00183074,-0.0057552)
+ REFERENCE_COORD_SYSTEM_NAME = ROVER_NAV_FRAME
+END_GROUP = GEOMETRIC_CAMERA_MODEL
+GROUP = SITE_DERIVED_GEOMETRY_PARMS
+ INSTRUMENT_AZIMUTH = 346.2 <deg>
+ INSTRUMENT_ELEVATION = -50.1 <deg>
+ REFERENCE_COORD_SYSTEM_NAME = SITE_FRAME
+END_GROUP = SITE_DERIVED_GEOMETRY_PARMS
+OBJECT = IMAGE_HEADER
+ HEADER_TYPE = VICAR2
+ INTERCHANGE_FORMAT = ASCII
+ BYTES = {record}
+END_OBJECT = IMAGE_HEADER
+OBJECT = IMAGE
+ LINES = {lines}
+ LINE_SAMPLES = {samples}
+ SAMPLE_TYPE = MSB_INTEGER
+ SAMPLE_BITS = 16
+ BANDS = 1
+ BAND_STORAGE_TYPE = BAND_SEQUENTIAL
+END_OBJECT = IMAGE
+END
+""".replace("\n", "\r\n").encode()
+    assert len(label) <= 2 * record
+    vicar = b"LBLSIZE=2048 FORMAT='HALF' NL=64 NS=64".ljust(record, b" ")
+    path.write_bytes(label.ljust(2 * record, b" ") + vicar + pixels.astype(">i2").tobytes())
+    return path
+
+
+def test_a_mipl_navcam_img_reads_and_its_image_is_chosen_by_type(tmp_path: Path) -> None:
+    pixels = (np.arange(64 * 64).reshape(64, 64) % 4000).astype(np.int16)
+    path = _mipl_navcam_img(tmp_path / "NRB_701383954RAS_F0933408NCAM00200M1.IMG", pixels)
+    obs = read_observation(path)
+    assert (obs.instrument, obs.sol, obs.rmc.site, obs.rmc.drive) == ("NAV_RIGHT_B", 3423, 93, 3408)
+    assert (obs.width, obs.height, obs.camera.model_type) == (64, 64, "CAHVOR")
+    assert (obs.azimuth_deg, obs.elevation_deg) == (346.2, -50.1)
+    np.testing.assert_allclose(obs.rover_offset_m, [1.0, 2.0, 0.5])
+    assert obs.image_path == path
+    got = ground_image(obs, "png")
+    assert got.meta["source_array"] == "IMAGE"  # not IMAGE_HEADER
+    lo, hi = np.percentile(pixels, [0.5, 99.5])
+    with Image.open(io.BytesIO(got.data)) as im:
+        expected = np.clip(np.rint((pixels - lo) / (hi - lo) * 255), 0, 255)
+        np.testing.assert_array_equal(np.asarray(im), expected)
