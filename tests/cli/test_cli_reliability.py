@@ -218,7 +218,7 @@ def test_locate_a_400_digit_line_count(
     huge = "9" * 400
     label = _label_variant(small_mission, tmp_path, ">600<", f">{huge}<")
     assert main(["locate", str(label), "--json"]) == 2
-    one_line_error(capsys, str(label), "expected an integer <= 2147483647")
+    one_line_error(capsys, str(label), "expected an integer <= ")
 
 
 def test_locate_a_400_digit_pds3_line_count(
@@ -230,7 +230,7 @@ def test_locate_a_400_digit_pds3_line_count(
     bad = tmp_path / label.name
     bad.write_text(text)
     assert main(["locate", str(bad)]) == 2
-    one_line_error(capsys, str(bad), "LINES: expected an integer <= 2147483647")
+    one_line_error(capsys, str(bad), "LINES: expected an integer <= ")
 
 
 def test_locate_a_1e308_camera_component(
