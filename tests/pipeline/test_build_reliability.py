@@ -282,3 +282,64 @@ def test_a_full_disk_names_the_file(tmp_path: Path) -> None:
     with pytest.raises(OSError, match=r"failures\.parquet"):
         write_parquet_atomic(rows_to_table([], FAILURE_SCHEMA), tmp_path / "failures.parquet")
     assert not (tmp_path / "failures.parquet").exists()
+
+
+# -- orthos of other data types, FIFO labels ------------------------------------------------
+@pytest.mark.parametrize(("dtype", "scale"), [("float32", 1 / 255), ("uint16", 16.0)])
+def test_orthos_of_any_dtype_give_the_same_chips(
+    mission: Path, tmp_path: Path, dtype: str, scale: float
+) -> None:
+    """The mission's 8-bit ortho as float32 in [0, 1] (all black before) and as 12-bit uint16
+    (all white before) gives chips equal to the 8-bit ones up to the range stretch."""
+    import io
+    import json
+
+    import numpy as np
+    import rasterio
+    from PIL import Image
+
+    src = mission / "orbital" / "ortho.tif"
+    ortho = tmp_path / f"ortho-{dtype}.tif"
+    with rasterio.open(src) as ds:
+        profile = {**ds.profile, "dtype": dtype, "nodata": None}
+        data = ds.read(1)
+    with rasterio.open(ortho, "w", **profile) as dst:
+        dst.write((data * scale).astype(dtype), 1)
+    low, high = float(data.min()), float(data.max())
+    places = mission / "places" / "best_interp.csv"
+    chips = {}
+    for name, raster in (("u8", src), (dtype, ortho)):
+        path = write_config(
+            tmp_path / f"{name}.yaml", mission, tmp_path / name, mission / "labels", places
+        )
+        doc = yaml.safe_load(path.read_text())
+        doc["inputs"]["ortho"] = str(raster)
+        doc["inputs"]["labels"] = str(mission / "labels" / "ZLF*.xml")
+        path.write_text(yaml.safe_dump(doc))
+        assert run_build(load_config(path), progress=False).samples == 2
+        with tarfile.open(tmp_path / name / "shards" / "shard-000000.tar") as tar:
+            member = next(m for m in tar.getmembers() if m.name.endswith(".ortho.png"))
+            chips[name] = np.asarray(Image.open(io.BytesIO(tar.extractfile(member).read())))
+            meta = next(m for m in tar.getmembers() if m.name.endswith(".meta.json"))
+            ranges = json.loads(tar.extractfile(meta).read())["ortho_range"]
+        if name != "u8":
+            assert ranges["source"] == "measured"
+            assert (ranges["low"], ranges["high"]) == pytest.approx((low * scale, high * scale))
+    u8, other = chips["u8"].astype(float), chips[dtype].astype(float)
+    assert other.std() > 10 and 20 < other.mean() < 235  # neither all black nor all white
+    stretched = (u8 - low) * 255.0 / (high - low)  # the truth, from the 8-bit chip
+    assert np.abs(other - stretched).max() <= 2.0
+
+
+def test_a_fifo_among_the_labels_is_a_failure_row(mission: Path, tmp_path: Path) -> None:
+    labels = tmp_path / "labels"
+    copy_labels(mission, labels)
+    os.mkfifo(labels / "a_fifo.xml")
+    places = mission / "places" / "best_interp.csv"
+    config = load_config(
+        write_config(tmp_path / "c.yaml", mission, tmp_path / "ds", labels, places)
+    )
+    summary = run_build(config, progress=False)
+    assert (summary.samples, summary.failures) == (4, 1)
+    row = failures(tmp_path / "ds")["a_fifo.xml"]
+    assert row["stage"] == "label" and "not a regular file" in row["message"]
