@@ -44,7 +44,11 @@ _SAFE_FM = {"arcp", "contract"}
 _AZ_EPS = 1e-9
 _PARALLEL_MIN_STEPS = 4_000_000  # planned ray steps below which one thread is faster
 _HEAVY_STEPS = 8  # rays with at most this many steps go to the cheap second pass
-_EXACT_LINES = 4  # grid lines just before a cell checked on its exact line of sight
+_TAIL_LINES = 1  # grid lines before a cell always checked on its exact line of sight (fixed)
+_ERR_GAIN = 1.0  # safety factor on the sweep's horizon error estimate
+_CHUNK = 64  # rays per parallel work item (one scratch buffer each)
+_BLOCK_SHIFT = 5  # ray samples per block of the per-block maxima: 32
+_TOL_M = 1e-6  # metres the terrain may rise above a sight line (rounding at the target)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -96,21 +100,78 @@ def _line_z(flat, major, st_maj, st_min, n_min, mn):
 
 
 @njit(cache=True, fastmath=_SAFE_FM)
-def _clears_last_lines(
-    flat, major, sgn, s, cm, o_maj, o_min, st_maj, st_min, n_min, dc, sl, inv2r, eye
-):
-    """Does the exact sight line (slope ``sl``) to cell (major, cm) clear the ``_EXACT_LINES``
-    grid lines just before it? (NaN terrain never blocks.)"""
-    inv = 1.0 / (major - o_maj)
-    for j in range(1, _EXACT_LINES + 1):
-        if s - j < 1:
-            break
-        line = major - sgn * j
-        t = (line - o_maj) * inv
-        z = _line_z(flat, line, st_maj, st_min, n_min, o_min + t * (cm - o_min))
-        dist = t * dc
-        if z - dist * dist * inv2r - eye > sl * dist:
-            return False
+def _quad_rise(flat, w, i, j, u0, v0, du, dv, ta, tb, q2c, eye, slope):
+    """Max over t in [ta, tb] of (bilinear terrain - curvature drop - sight line), metres, in
+    the quad with top-left cell centre (col i, row j); -inf when a corner is nodata."""
+    idx = j * w + i
+    z00 = flat[idx]
+    z10 = flat[idx + 1]
+    z01 = flat[idx + w]
+    z11 = flat[idx + w + 1]
+    if not (z00 == z00 and z10 == z10 and z01 == z01 and z11 == z11):
+        return -np.inf
+    fu0 = u0 - i
+    fv0 = v0 - j
+    ca = z10 - z00
+    cb = z01 - z00
+    cc = z00 - z10 - z01 + z11
+    # along the line the bilinear surface is a quadratic in t (exact, not sampled)
+    q2 = cc * du * dv - q2c
+    q1 = ca * du + cb * dv + cc * (fu0 * dv + fv0 * du) - slope
+    q0 = z00 + ca * fu0 + cb * fv0 + cc * fu0 * fv0 - eye
+    best = max(q0 + ta * (q1 + ta * q2), q0 + tb * (q1 + tb * q2))
+    if q2 < 0.0:
+        tv = -q1 / (2.0 * q2)
+        if ta < tv < tb:
+            best = max(best, q0 + tv * (q1 + tv * q2))
+    return best
+
+
+@njit(cache=True, fastmath=_SAFE_FM)
+def _segment_clear(flat, h, w, u0, v0, col, row, a, e, eye, zt, inv2r, t0, t1):
+    """Does the sight line from grid (u0, v0) at elevation ``eye`` to the surface point of
+    cell (col, row) at ``zt`` (curvature-lowered, metres) stay on or above the bilinear,
+    curvature-lowered terrain for t in [t0, t1]? Exact: the line is cut at every grid line it
+    crosses and each piece's quadratic is maximised. Nodata quads never block."""
+    du = col - u0
+    dv = row - v0
+    dc2 = (du * a) ** 2 + (dv * e) ** 2
+    q2c = dc2 * inv2r
+    slope = zt - eye
+    ua = u0 + t0 * du
+    va = v0 + t0 * dv
+    if du > 0.0:
+        tu = (math.floor(ua) + 1.0 - u0) / du
+        su = 1.0 / du
+    elif du < 0.0:
+        tu = (math.ceil(ua) - 1.0 - u0) / du
+        su = -1.0 / du
+    else:
+        tu = su = np.inf
+    if dv > 0.0:
+        tv = (math.floor(va) + 1.0 - v0) / dv
+        sv = 1.0 / dv
+    elif dv < 0.0:
+        tv = (math.ceil(va) - 1.0 - v0) / dv
+        sv = -1.0 / dv
+    else:
+        tv = sv = np.inf
+    ta = t0
+    while ta < t1:
+        tb = min(tu, tv, t1)
+        tm = 0.5 * (ta + tb)
+        um = u0 + tm * du
+        vm = v0 + tm * dv
+        if 0.0 <= um <= w - 1 and 0.0 <= vm <= h - 1:
+            i = min(int(um), w - 2)
+            j = min(int(vm), h - 2)
+            if _quad_rise(flat, w, i, j, u0, v0, du, dv, ta, tb, q2c, eye, slope) > _TOL_M:
+                return False
+        if tb == tu:
+            tu += su
+        if tb == tv:
+            tv += sv
+        ta = tb
     return True
 
 
@@ -138,6 +199,8 @@ def _sweep_ray(
     az_on,
     az_min,
     az_w,
+    s_hi,
+    b_hi,
 ):
     """March ray ``r`` for up to ``s_max`` steps, judging every cell it owns.
 
@@ -158,11 +221,15 @@ def _sweep_ray(
     r2 = radius * radius
     lim = radius + 1.5 * max(abs(a), abs(e))
     lim2 = lim * lim
-    lag = -np.inf  # running max of the ray's samples up to line s - 1 - _EXACT_LINES
-    prev1 = -np.inf  # ray samples on lines s - 1 .. s - 4
-    prev2 = -np.inf
-    prev3 = -np.inf
-    prev4 = -np.inf
+    # the sight line to an owned cell runs within off_m cells of the ray (grid units)
+    off_m = max(0.5 * s_max * inv_p, abs(c_min - o_min) + abs(c_maj - o_maj))
+    # the ray's samples: slope +- its error (terrain gradient across the line x the sight
+    # line's lateral offset, as a slope), so that [lo, hi] holds the exact sight line's horizon
+    b_hi[: ((last + 2) >> _BLOCK_SHIFT) + 1] = -np.inf  # max of s_hi per block of samples
+    hi = -np.inf  # horizon over the samples on lines up to s - 1 - _TAIL_LINES
+    lo = -np.inf
+    hi1 = hi2 = lo1 = lo2 = -np.inf  # samples on lines s - 1 and s - 2 (_TAIL_LINES <= 2)
+    gain = _ERR_GAIN * off_m
     # steps whose sample lies strictly inside the grid's minor range: no bounds checks there
     s_in = last
     if k != 0:
@@ -187,6 +254,7 @@ def _sweep_ray(
         d2 = dmaj2 + dmin * dmin
         if d2 > lim2:
             break
+        j = s - 1 - _TAIL_LINES  # the newest sample of the horizon
         # the cell nearest to the ray on this line, c_off = round(k s / P), is owned when the
         # ray is the one closest to its centre: -s <= 2 (P c_off - k s) < s
         up = 2 * rem >= big_p
@@ -196,49 +264,86 @@ def _sweep_ray(
             dcm = (cm - o_min) * sc_min
             dc2 = dmaj2 + dcm * dcm
             dc = math.sqrt(dc2)
-            zc = flat[major * st_maj + cm * st_min] + th - dc2 * inv2r - eye
-            # branch-free: NaN zc fails every comparison
-            vis = (dc2 <= r2) & (zc >= lag * dc)
+            zc = flat[major * st_maj + cm * st_min] + th - dc2 * inv2r  # NaN: never visible
+            vis = (dc2 <= r2) & (zc - eye >= lo * dc)
             if vis:
-                sl = zc / dc
+                sl = (zc - eye) / dc
                 vis = (sl >= tmin) & (sl <= tmax)
-                if vis:
-                    vis = _clears_last_lines(
-                        flat,
-                        major,
-                        sgn,
-                        s,
-                        cm,
-                        o_maj,
-                        o_min,
-                        st_maj,
-                        st_min,
-                        n_min,
-                        dc,
-                        sl,
-                        inv2r,
-                        eye,
-                    )
-                if vis and az_on:
-                    vis = (
-                        _in_az(dmaj, dcm, az_min, az_w) if umaj else _in_az(dcm, dmaj, az_min, az_w)
-                    )
+            if vis and az_on:
+                vis = _in_az(dmaj, dcm, az_min, az_w) if umaj else _in_az(dcm, dmaj, az_min, az_w)
+            if vis:
+                col, row = (major, cm) if umaj else (cm, major)
+                inv_n = 1.0 / abs(major - o_maj)
+                # exact on the last lines, where the sight line runs beside the cell's own
+                # slope; then exact near every sample that could reach the sight line
+                t_tail = max(0.0, 1.0 - (_TAIL_LINES + 1) * inv_n)
+                vis = _segment_clear(
+                    flat, h, w, u0, v0, col, row, a, e, eye, zc, inv2r, t_tail, 1.0
+                )
+                if vis and sl < hi:
+                    vis = _head_clear(
+                        flat, h, w, u0, v0, col, row, a, e, eye, zc, inv2r, sl, s_hi, b_hi,
+                        j, abs(c_maj - o_maj), inv_n, t_tail,
+                    )  # fmt: skip
             out[major * st_maj + cm * st_min] = vis
-        lag = max(lag, prev4)
-        if lag > tmax:  # the horizon rose above the elevation band: nothing further is seen
-            break
-        prev4 = prev3
-        prev3 = prev2
-        prev2 = prev1
         if s <= s_in:  # 0 <= m < n_min - 1
             idx = major * st_maj + (c_min + q) * st_min
             z = flat[idx]
+            g = flat[idx + st_min] - z
             if rem != 0:  # (a zero weight must not let a NaN neighbour poison the sample)
-                z += fm * (flat[idx + st_min] - z)
+                z += fm * g
         else:
             z = _line_z(flat, major, st_maj, st_min, n_min, m)
-        sl = (z - d2 * inv2r - eye) / math.sqrt(d2)
-        prev1 = sl if sl == sl else -np.inf
+            g = 0.0
+        if _TAIL_LINES == 2:
+            hi = max(hi, hi2)
+            lo = max(lo, lo2)
+            hi2 = hi1
+            lo2 = lo1
+        elif _TAIL_LINES == 1:
+            hi = max(hi, hi1)
+            lo = max(lo, lo1)
+        if lo > tmax:  # the horizon rose above the elevation band: nothing further is seen
+            break
+        inv_d = 1.0 / math.sqrt(d2)
+        sl = (z - d2 * inv2r - eye) * inv_d
+        de = gain * abs(g) * inv_d
+        if sl == sl:
+            hi1 = sl + de if de == de else np.inf
+            lo1 = sl - de if de == de else sl
+        else:
+            hi1 = lo1 = -np.inf
+        s_hi[s] = hi1
+        bi = s >> _BLOCK_SHIFT
+        b_hi[bi] = max(b_hi[bi], hi1)
+        if _TAIL_LINES == 0:
+            hi = max(hi, hi1)
+            lo = max(lo, lo1)
+
+
+@njit(cache=True, fastmath=_SAFE_FM)
+def _head_clear(
+    flat, h, w, u0, v0, col, row, a, e, eye, zt, inv2r, sl, s_hi, b_hi, j_max, o_off, inv_n,
+    t_tail,
+):  # fmt: skip
+    """Exact test of the sight line (slope ``sl``) near every ray sample 1..``j_max`` whose
+    upper bound ``s_hi`` reaches it: between the grid lines on either side of the sample.
+    ``o_off``: the observer's offset from its cell centre along the major axis (cells);
+    ``inv_n``: 1 / the target's major distance from the observer (cells)."""
+    for bi in range((j_max >> _BLOCK_SHIFT) + 1):
+        if b_hi[bi] < sl:
+            continue
+        j0 = max(1, bi << _BLOCK_SHIFT)
+        j1 = min(j_max, ((bi + 1) << _BLOCK_SHIFT) - 1)
+        for jj in range(j0, j1 + 1):
+            if s_hi[jj] >= sl:
+                ta = max(0.0, (jj - 1 - o_off) * inv_n)
+                tb = min(t_tail, (jj + 1 + o_off) * inv_n)
+                if ta < tb and not _segment_clear(
+                    flat, h, w, u0, v0, col, row, a, e, eye, zt, inv2r, ta, tb
+                ):
+                    return False
+    return True
 
 
 @njit(cache=True)
@@ -288,32 +393,16 @@ def _sweep_parallel(
     az_w,
 ):
     """Sweep ``rays`` over the threads (each cell has one owner ray: no write conflicts)."""
-    for i in prange(rays.size):
-        r = rays[i]
-        _sweep_ray(
-            flat,
-            oflat,
-            h,
-            w,
-            r,
-            big_p,
-            steps[r],
-            ic,
-            ir,
-            u0,
-            v0,
-            a,
-            e,
-            eye,
-            radius,
-            inv2r,
-            th,
-            tmin,
-            tmax,
-            az_on,
-            az_min,
-            az_w,
-        )
+    n_chunks = (rays.size + _CHUNK - 1) // _CHUNK
+    n_s = steps.max() + 2
+    for c in prange(n_chunks):
+        s_hi = np.empty(n_s)
+        b_hi = np.empty((n_s >> _BLOCK_SHIFT) + 2)
+        for i in range(c * _CHUNK, min(rays.size, (c + 1) * _CHUNK)):
+            _sweep_ray(
+                flat, oflat, h, w, rays[i], big_p, steps[rays[i]], ic, ir, u0, v0, a, e, eye,
+                radius, inv2r, th, tmin, tmax, az_on, az_min, az_w, s_hi, b_hi,
+            )  # fmt: skip
 
 
 @njit(cache=True)
@@ -342,32 +431,14 @@ def _sweep_serial(
     az_w,
 ):
     """Sweep ``rays`` on the calling thread (small jobs: wedges, the short rays)."""
+    n_s = (steps.max() if steps.size else 0) + 2
+    s_hi = np.empty(n_s)
+    b_hi = np.empty((n_s >> _BLOCK_SHIFT) + 2)
     for i in range(rays.size):
-        r = rays[i]
         _sweep_ray(
-            flat,
-            oflat,
-            h,
-            w,
-            r,
-            big_p,
-            steps[r],
-            ic,
-            ir,
-            u0,
-            v0,
-            a,
-            e,
-            eye,
-            radius,
-            inv2r,
-            th,
-            tmin,
-            tmax,
-            az_on,
-            az_min,
-            az_w,
-        )
+            flat, oflat, h, w, rays[i], big_p, steps[rays[i]], ic, ir, u0, v0, a, e, eye, radius,
+            inv2r, th, tmin, tmax, az_on, az_min, az_w, s_hi, b_hi,
+        )  # fmt: skip
 
 
 @njit(cache=True)
