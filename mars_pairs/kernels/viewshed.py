@@ -47,7 +47,6 @@ _HEAVY_STEPS = 8  # rays with at most this many steps go to the cheap second pas
 _TAIL_LINES = 1  # grid lines before a cell always checked on its exact line of sight (fixed)
 _ERR_GAIN = 1.0  # safety factor on the sweep's horizon error estimate
 _CHUNK = 64  # rays per parallel work item (one scratch buffer each)
-_BLOCK_SHIFT = 5  # ray samples per block of the per-block maxima: 32
 _TOL_M = 1e-6  # metres the terrain may rise above a sight line (rounding at the target)
 
 
@@ -200,7 +199,7 @@ def _sweep_ray(
     az_min,
     az_w,
     s_hi,
-    b_hi,
+    s_j,
 ):
     """March ray ``r`` for up to ``s_max`` steps, judging every cell it owns.
 
@@ -225,7 +224,7 @@ def _sweep_ray(
     off_m = max(0.5 * s_max * inv_p, abs(c_min - o_min) + abs(c_maj - o_maj))
     # the ray's samples: slope +- its error (terrain gradient across the line x the sight
     # line's lateral offset, as a slope), so that [lo, hi] holds the exact sight line's horizon
-    b_hi[: ((last + 2) >> _BLOCK_SHIFT) + 1] = -np.inf  # max of s_hi per block of samples
+    n_c = 0  # samples that may still reach a sight line: s_j[:n_c] (lines), s_hi[:n_c]
     hi = -np.inf  # horizon over the samples on lines up to s - 1 - _TAIL_LINES
     lo = -np.inf
     hi1 = hi2 = lo1 = lo2 = -np.inf  # samples on lines s - 1 and s - 2 (_TAIL_LINES <= 2)
@@ -282,8 +281,8 @@ def _sweep_ray(
                 )
                 if vis and sl < hi:
                     vis = _head_clear(
-                        flat, h, w, u0, v0, col, row, a, e, eye, zc, inv2r, sl, s_hi, b_hi,
-                        j, abs(c_maj - o_maj), inv_n, t_tail,
+                        flat, h, w, u0, v0, col, row, a, e, eye, zc, inv2r, sl, s_hi, s_j,
+                        n_c, j, abs(c_maj - o_maj), inv_n, t_tail,
                     )  # fmt: skip
             out[major * st_maj + cm * st_min] = vis
         if s <= s_in:  # 0 <= m < n_min - 1
@@ -313,9 +312,10 @@ def _sweep_ray(
             lo1 = sl - de if de == de else sl
         else:
             hi1 = lo1 = -np.inf
-        s_hi[s] = hi1
-        bi = s >> _BLOCK_SHIFT
-        b_hi[bi] = max(b_hi[bi], hi1)
+        if hi1 >= lo:  # (below the horizon a sample never matters again)
+            s_j[n_c] = s
+            s_hi[n_c] = hi1
+            n_c += 1
         if _TAIL_LINES == 0:
             hi = max(hi, hi1)
             lo = max(lo, lo1)
@@ -323,26 +323,24 @@ def _sweep_ray(
 
 @njit(cache=True, fastmath=_SAFE_FM)
 def _head_clear(
-    flat, h, w, u0, v0, col, row, a, e, eye, zt, inv2r, sl, s_hi, b_hi, j_max, o_off, inv_n,
-    t_tail,
+    flat, h, w, u0, v0, col, row, a, e, eye, zt, inv2r, sl, s_hi, s_j, n_c, j_max, o_off,
+    inv_n, t_tail,
 ):  # fmt: skip
-    """Exact test of the sight line (slope ``sl``) near every ray sample 1..``j_max`` whose
-    upper bound ``s_hi`` reaches it: between the grid lines on either side of the sample.
+    """Exact test of the sight line (slope ``sl``) near every kept ray sample on lines up to
+    ``j_max`` whose upper bound reaches it: between the grid lines on either side of it.
     ``o_off``: the observer's offset from its cell centre along the major axis (cells);
     ``inv_n``: 1 / the target's major distance from the observer (cells)."""
-    for bi in range((j_max >> _BLOCK_SHIFT) + 1):
-        if b_hi[bi] < sl:
-            continue
-        j0 = max(1, bi << _BLOCK_SHIFT)
-        j1 = min(j_max, ((bi + 1) << _BLOCK_SHIFT) - 1)
-        for jj in range(j0, j1 + 1):
-            if s_hi[jj] >= sl:
-                ta = max(0.0, (jj - 1 - o_off) * inv_n)
-                tb = min(t_tail, (jj + 1 + o_off) * inv_n)
-                if ta < tb and not _segment_clear(
-                    flat, h, w, u0, v0, col, row, a, e, eye, zt, inv2r, ta, tb
-                ):
-                    return False
+    for i in range(n_c):
+        jj = s_j[i]
+        if jj > j_max:
+            break
+        if s_hi[i] >= sl:
+            ta = max(0.0, (jj - 1 - o_off) * inv_n)
+            tb = min(t_tail, (jj + 1 + o_off) * inv_n)
+            if ta < tb and not _segment_clear(
+                flat, h, w, u0, v0, col, row, a, e, eye, zt, inv2r, ta, tb
+            ):
+                return False
     return True
 
 
@@ -397,11 +395,11 @@ def _sweep_parallel(
     n_s = steps.max() + 2
     for c in prange(n_chunks):
         s_hi = np.empty(n_s)
-        b_hi = np.empty((n_s >> _BLOCK_SHIFT) + 2)
+        s_j = np.empty(n_s, dtype=np.int64)
         for i in range(c * _CHUNK, min(rays.size, (c + 1) * _CHUNK)):
             _sweep_ray(
                 flat, oflat, h, w, rays[i], big_p, steps[rays[i]], ic, ir, u0, v0, a, e, eye,
-                radius, inv2r, th, tmin, tmax, az_on, az_min, az_w, s_hi, b_hi,
+                radius, inv2r, th, tmin, tmax, az_on, az_min, az_w, s_hi, s_j,
             )  # fmt: skip
 
 
@@ -433,11 +431,11 @@ def _sweep_serial(
     """Sweep ``rays`` on the calling thread (small jobs: wedges, the short rays)."""
     n_s = (steps.max() if steps.size else 0) + 2
     s_hi = np.empty(n_s)
-    b_hi = np.empty((n_s >> _BLOCK_SHIFT) + 2)
+    s_j = np.empty(n_s, dtype=np.int64)
     for i in range(rays.size):
         _sweep_ray(
             flat, oflat, h, w, rays[i], big_p, steps[rays[i]], ic, ir, u0, v0, a, e, eye, radius,
-            inv2r, th, tmin, tmax, az_on, az_min, az_w, s_hi, b_hi,
+            inv2r, th, tmin, tmax, az_on, az_min, az_w, s_hi, s_j,
         )  # fmt: skip
 
 
