@@ -45,7 +45,8 @@ _AZ_EPS = 1e-9
 _PARALLEL_MIN_STEPS = 4_000_000  # planned ray steps below which one thread is faster
 _HEAVY_STEPS = 8  # rays with at most this many steps go to the cheap second pass
 _TAIL_LINES = 1  # grid lines before a cell always checked on its exact line of sight (fixed)
-_ERR_GAIN = 1.0  # safety factor on the sweep's horizon error estimate
+_ERR_GAIN = 0.5  # safety factor on the sweep's horizon error estimate
+_TREE_MIN_RAYS = 16  # rays per side at the root of the full circle's tree of rays
 _CHUNK = 64  # rays per parallel work item (one scratch buffer each)
 _TOL_M = 1e-6  # metres the terrain may rise above a sight line (rounding at the target)
 
@@ -74,16 +75,6 @@ def _in_az(cx: float, cy: float, az_min: float, az_width: float) -> bool:
     rel = (az - az_min) % 360.0
     # 1e-9 deg tolerance: degrees(atan2) may land an ulp below a band edge (179.99999999999997)
     return rel <= az_width + _AZ_EPS or rel >= 360.0 - _AZ_EPS
-
-
-@njit(cache=True, fastmath=_SAFE_FM)
-def _last_step(c_maj, sgn, size_maj, c_min, k, inv_p, size_min, s_max):
-    """Last step whose major index and owned minor cell stay on the grid."""
-    last = min(s_max, size_maj - 1 - c_maj if sgn > 0 else c_maj)
-    if k != 0:
-        room = (size_min - 1 - c_min + 0.5) if k > 0 else (c_min + 0.5)
-        last = min(last, int(room / (abs(k) * inv_p)))
-    return last
 
 
 @njit(cache=True, fastmath=_SAFE_FM)
@@ -175,40 +166,20 @@ def _segment_clear(flat, h, w, u0, v0, col, row, a, e, eye, zt, inv2r, t0, t1):
 
 
 @njit(cache=True, fastmath=_SAFE_FM)
-def _sweep_ray(
-    flat,
-    out,
-    h,
-    w,
-    r,
-    big_p,
-    s_max,
-    ic,
-    ir,
-    u0,
-    v0,
-    a,
-    e,
-    eye,
-    radius,
-    inv2r,
-    th,
-    tmin,
-    tmax,
-    az_on,
-    az_min,
-    az_w,
-    s_hi,
-    s_j,
-):
-    """March ray ``r`` for up to ``s_max`` steps, judging every cell it owns.
+def _march(flat, out, geo, umaj, sgn, k, big_p, s0, s1, off_m, st, s_hi, s_j):
+    """March one ray over steps ``s0`` + 1 .. ``s1`` and judge every cell it owns.
 
-    ``flat``/``out``: the DEM and mask raveled (row-major, ``h`` x ``w``). The horizon of a
-    cell is the ray's running maximum up to ``_EXACT_LINES + 1`` lines before it, plus the
-    terrain on the ``_EXACT_LINES`` grid lines just before it sampled on the exact line of
-    sight (where the ray's offset from the true sight line is largest).
+    The ray leaves the observer's cell along its major axis (``umaj``: u, the column axis;
+    ``sgn``: direction) with minor offset ``k`` / ``big_p`` cells per step; a cell is owned
+    when this ray passes closest to its centre among the rays of resolution ``big_p``.
+    ``st`` = (q, rem, hi, lo, hi1, lo1, n_c): stepping state (k s = q big_p + rem), the
+    horizon interval [lo, hi] of the samples on lines up to s - 2, the sample on line s - 1 and
+    the count of kept samples in ``s_hi`` / ``s_j`` (those that may still reach a sight line).
+    ``off_m``: cells the sight lines to owned cells may lie beside the samples (error bars).
+    Returns (state, done): done when the ray left the radius, the grid or the elevation band.
     """
-    umaj, sgn, k = _decode_ray(r, big_p)
+    h, w, ic, ir, u0, v0, a, e, eye, radius, inv2r, th, tmin, tmax, az_on, az_min, az_w = geo
+    q, rem, hi, lo, hi1, lo1, n_c = st
     if umaj:
         st_maj, st_min, n_maj, n_min = 1, w, w, h
         c_maj, c_min, o_maj, o_min, sc_maj, sc_min = ic, ir, u0, v0, a, e
@@ -216,27 +187,19 @@ def _sweep_ray(
         st_maj, st_min, n_maj, n_min = w, 1, h, w
         c_maj, c_min, o_maj, o_min, sc_maj, sc_min = ir, ic, v0, u0, e, a
     inv_p = 1.0 / big_p
-    last = _last_step(c_maj, sgn, n_maj, c_min, k, inv_p, n_min, s_max)
+    last = min(s1, n_maj - 1 - c_maj if sgn > 0 else c_maj)
+    done = last < s1
     r2 = radius * radius
     lim = radius + 1.5 * max(abs(a), abs(e))
     lim2 = lim * lim
-    # the sight line to an owned cell runs within off_m cells of the ray (grid units)
-    off_m = max(0.5 * s_max * inv_p, abs(c_min - o_min) + abs(c_maj - o_maj))
-    # the ray's samples: slope +- its error (terrain gradient across the line x the sight
-    # line's lateral offset, as a slope), so that [lo, hi] holds the exact sight line's horizon
-    n_c = 0  # samples that may still reach a sight line: s_j[:n_c] (lines), s_hi[:n_c]
-    hi = -np.inf  # horizon over the samples on lines up to s - 1 - _TAIL_LINES
-    lo = -np.inf
-    hi1 = hi2 = lo1 = lo2 = -np.inf  # samples on lines s - 1 and s - 2 (_TAIL_LINES <= 2)
+    o_off = abs(c_maj - o_maj)
     gain = _ERR_GAIN * off_m
-    # steps whose sample lies strictly inside the grid's minor range: no bounds checks there
+    # steps whose sample and owned cell lie strictly inside the minor range: no bounds checks
     s_in = last
     if k != 0:
         room = (n_min - 1 - c_min) if k > 0 else c_min
         s_in = min(last, math.ceil(room / (abs(k) * inv_p)) - 1)
-    q = 0  # k * s = q * big_p + rem exactly (0 <= rem < big_p): the ray's minor offset
-    rem = 0
-    for s in range(1, last + 1):
+    for s in range(s0 + 1, last + 1):
         major = c_maj + sgn * s
         dmaj = (major - o_maj) * sc_maj
         dmaj2 = dmaj * dmaj
@@ -252,14 +215,14 @@ def _sweep_ray(
         dmin = (m - o_min) * sc_min
         d2 = dmaj2 + dmin * dmin
         if d2 > lim2:
+            done = True
             break
-        j = s - 1 - _TAIL_LINES  # the newest sample of the horizon
         # the cell nearest to the ray on this line, c_off = round(k s / P), is owned when the
         # ray is the one closest to its centre: -s <= 2 (P c_off - k s) < s
         up = 2 * rem >= big_p
         err = 2 * (big_p - rem) if up else -2 * rem
-        if -s <= err < s:
-            cm = c_min + q + up
+        cm = c_min + q + up
+        if -s <= err < s and (s <= s_in or 0 <= cm < n_min):
             dcm = (cm - o_min) * sc_min
             dc2 = dmaj2 + dcm * dcm
             dc = math.sqrt(dc2)
@@ -273,8 +236,8 @@ def _sweep_ray(
             if vis:
                 col, row = (major, cm) if umaj else (cm, major)
                 inv_n = 1.0 / abs(major - o_maj)
-                # exact on the last lines, where the sight line runs beside the cell's own
-                # slope; then exact near every sample that could reach the sight line
+                # exact on the last lines, where the sight line runs over the cell's own
+                # slope; then exact near every sample whose error bar reaches the sight line
                 t_tail = max(0.0, 1.0 - (_TAIL_LINES + 1) * inv_n)
                 vis = _segment_clear(
                     flat, h, w, u0, v0, col, row, a, e, eye, zc, inv2r, t_tail, 1.0
@@ -282,9 +245,14 @@ def _sweep_ray(
                 if vis and sl < hi:
                     vis = _head_clear(
                         flat, h, w, u0, v0, col, row, a, e, eye, zc, inv2r, sl, s_hi, s_j,
-                        n_c, j, abs(c_maj - o_maj), inv_n, t_tail,
+                        n_c, s - 1 - _TAIL_LINES, o_off, inv_n, t_tail,
                     )  # fmt: skip
             out[major * st_maj + cm * st_min] = vis
+        hi = max(hi, hi1)  # the sample on line s - 1 joins the horizon
+        lo = max(lo, lo1)
+        if lo > tmax:  # the horizon rose above the elevation band: nothing further is seen
+            done = True
+            break
         if s <= s_in:  # 0 <= m < n_min - 1
             idx = major * st_maj + (c_min + q) * st_min
             z = flat[idx]
@@ -294,16 +262,6 @@ def _sweep_ray(
         else:
             z = _line_z(flat, major, st_maj, st_min, n_min, m)
             g = 0.0
-        if _TAIL_LINES == 2:
-            hi = max(hi, hi2)
-            lo = max(lo, lo2)
-            hi2 = hi1
-            lo2 = lo1
-        elif _TAIL_LINES == 1:
-            hi = max(hi, hi1)
-            lo = max(lo, lo1)
-        if lo > tmax:  # the horizon rose above the elevation band: nothing further is seen
-            break
         inv_d = 1.0 / math.sqrt(d2)
         sl = (z - d2 * inv2r - eye) * inv_d
         de = gain * abs(g) * inv_d
@@ -316,9 +274,7 @@ def _sweep_ray(
             s_j[n_c] = s
             s_hi[n_c] = hi1
             n_c += 1
-        if _TAIL_LINES == 0:
-            hi = max(hi, hi1)
-            lo = max(lo, lo1)
+    return (q, rem, hi, lo, hi1, lo1, n_c), done
 
 
 @njit(cache=True, fastmath=_SAFE_FM)
@@ -365,106 +321,143 @@ def _ray_steps(big_d, big_p, a, e, az_on, az_min, az_w, ratio):
     return steps
 
 
+@njit(cache=True, fastmath=_SAFE_FM)
+def _flat_rays(flat, out, geo, rays, steps, big_p, s_hi, s_j):
+    """Sweep ``rays`` (indices at resolution ``big_p``), each from the observer on its own."""
+    _, _, ic, ir, u0, v0 = geo[:6]
+    for i in range(rays.size):
+        umaj, sgn, k = _decode_ray(rays[i], big_p)
+        c_maj, c_min, o_maj, o_min = (ic, ir, u0, v0) if umaj else (ir, ic, v0, u0)
+        s_max = steps[rays[i]]
+        off_m = max(0.5 * s_max / big_p, abs(c_min - o_min) + abs(c_maj - o_maj))
+        st = (0, 0, -np.inf, -np.inf, -np.inf, -np.inf, 0)
+        _march(flat, out, geo, umaj, sgn, k, big_p, 0, s_max, off_m, st, s_hi, s_j)
+
+
+@njit(cache=True, fastmath=_SAFE_FM)
+def _tree_ray(flat, out, geo, r, big_p, n_lev, s_max, off_m, s_hi, s_j, stk_hi, stk_j):
+    """Sweep the tree of rays under coarse ray ``r`` (resolution ``big_p`` >> ``n_lev``).
+
+    A ray of resolution P owns cells out to P steps; there it goes on as ray 2k of resolution
+    2P and hands its horizon to the new ray 2k + 1 beside it, which starts there (its samples
+    so far are its parent's, within one cell of its own sight lines: see ``off_m``).
+    """
+    p_c = big_p >> n_lev
+    umaj, sgn, k = _decode_ray(r, p_c)
+    n_stk = 0
+    stk_i = np.empty((stk_hi.shape[0], 3), dtype=np.int64)  # level, k, s0
+    stk_st = np.empty((stk_hi.shape[0], 7))
+    lev = n_lev
+    s0 = 0
+    st = (0, 0, -np.inf, -np.inf, -np.inf, -np.inf, 0)
+    while True:
+        p_l = big_p >> lev
+        s1 = s_max if lev == 0 else min(p_l, s_max)
+        st, done = _march(flat, out, geo, umaj, sgn, k, p_l, s0, s1, off_m, st, s_hi, s_j)
+        if not done and lev > 0 and s1 < s_max:
+            q, rem, hi, lo, hi1, lo1, n_c = st
+            # the new rays beside this one: 2k + 1, and 2k - 1 at the low end of a v side
+            for kk in (2 * k + 1, 2 * k - 1):
+                if kk == 2 * k + 1:
+                    ok = kk <= (2 * p_l if umaj else 2 * p_l - 1)
+                else:
+                    ok = (not umaj) and k == -(p_l - 1)
+                if not ok:
+                    continue
+                r2 = 2 * rem + (s1 if kk > 2 * k else -s1)
+                q2 = q
+                if r2 >= 2 * p_l:
+                    r2 -= 2 * p_l
+                    q2 += 1
+                elif r2 < 0:
+                    r2 += 2 * p_l
+                    q2 -= 1
+                stk_i[n_stk, 0] = lev - 1
+                stk_i[n_stk, 1] = kk
+                stk_i[n_stk, 2] = s1
+                stk_st[n_stk, 0] = q2
+                stk_st[n_stk, 1] = r2
+                stk_st[n_stk, 2] = hi
+                stk_st[n_stk, 3] = lo
+                stk_st[n_stk, 4] = hi1
+                stk_st[n_stk, 5] = lo1
+                stk_st[n_stk, 6] = n_c
+                stk_hi[n_stk, :n_c] = s_hi[:n_c]
+                stk_j[n_stk, :n_c] = s_j[:n_c]
+                n_stk += 1
+            st = (q, 2 * rem, hi, lo, hi1, lo1, n_c)
+            k = 2 * k
+            lev -= 1
+            s0 = s1
+            continue
+        if n_stk == 0:
+            return
+        n_stk -= 1
+        lev, k, s0 = stk_i[n_stk, 0], stk_i[n_stk, 1], stk_i[n_stk, 2]
+        n_c = int(stk_st[n_stk, 6])
+        st = (
+            int(stk_st[n_stk, 0]), int(stk_st[n_stk, 1]), stk_st[n_stk, 2], stk_st[n_stk, 3],
+            stk_st[n_stk, 4], stk_st[n_stk, 5], n_c,
+        )  # fmt: skip
+        s_hi[:n_c] = stk_hi[n_stk, :n_c]
+        s_j[:n_c] = stk_j[n_stk, :n_c]
+
+
 @njit(cache=True, parallel=True)
-def _sweep_parallel(
-    flat,
-    oflat,
-    h,
-    w,
-    rays,
-    steps,
-    big_p,
-    ic,
-    ir,
-    u0,
-    v0,
-    a,
-    e,
-    eye,
-    radius,
-    inv2r,
-    th,
-    tmin,
-    tmax,
-    az_on,
-    az_min,
-    az_w,
-):
-    """Sweep ``rays`` over the threads (each cell has one owner ray: no write conflicts)."""
-    n_chunks = (rays.size + _CHUNK - 1) // _CHUNK
-    n_s = steps.max() + 2
-    for c in prange(n_chunks):
-        s_hi = np.empty(n_s)
-        s_j = np.empty(n_s, dtype=np.int64)
-        for i in range(c * _CHUNK, min(rays.size, (c + 1) * _CHUNK)):
-            _sweep_ray(
-                flat, oflat, h, w, rays[i], big_p, steps[rays[i]], ic, ir, u0, v0, a, e, eye,
-                radius, inv2r, th, tmin, tmax, az_on, az_min, az_w, s_hi, s_j,
-            )  # fmt: skip
+def _tree_parallel(flat, out, geo, big_p, n_lev, s_max, off_m):
+    """All coarse rays' trees over the threads (each cell has one owner: no write conflicts)."""
+    n_r = 8 * (big_p >> n_lev)
+    for r in prange(n_r):
+        s_hi = np.empty(s_max + 2)
+        s_j = np.empty(s_max + 2, dtype=np.int64)
+        stk_hi = np.empty((2 * n_lev + 2, s_max + 2))
+        stk_j = np.empty((2 * n_lev + 2, s_max + 2), dtype=np.int64)
+        _tree_ray(flat, out, geo, r, big_p, n_lev, s_max, off_m, s_hi, s_j, stk_hi, stk_j)
 
 
 @njit(cache=True)
-def _sweep_serial(
-    flat,
-    oflat,
-    h,
-    w,
-    rays,
-    steps,
-    big_p,
-    ic,
-    ir,
-    u0,
-    v0,
-    a,
-    e,
-    eye,
-    radius,
-    inv2r,
-    th,
-    tmin,
-    tmax,
-    az_on,
-    az_min,
-    az_w,
-):
-    """Sweep ``rays`` on the calling thread (small jobs: wedges, the short rays)."""
+def _tree_serial(flat, out, geo, big_p, n_lev, s_max, off_m):
+    """All coarse rays' trees on the calling thread (small jobs)."""
+    s_hi = np.empty(s_max + 2)
+    s_j = np.empty(s_max + 2, dtype=np.int64)
+    stk_hi = np.empty((2 * n_lev + 2, s_max + 2))
+    stk_j = np.empty((2 * n_lev + 2, s_max + 2), dtype=np.int64)
+    for r in range(8 * (big_p >> n_lev)):
+        _tree_ray(flat, out, geo, r, big_p, n_lev, s_max, off_m, s_hi, s_j, stk_hi, stk_j)
+
+
+@njit(cache=True, parallel=True)
+def _flat_parallel(flat, out, geo, rays, steps, big_p):
+    """``_flat_rays`` over the threads, in chunks of ``_CHUNK`` rays (one scratch each)."""
+    n_s = steps.max() + 2
+    for c in prange((rays.size + _CHUNK - 1) // _CHUNK):
+        s_hi = np.empty(n_s)
+        s_j = np.empty(n_s, dtype=np.int64)
+        part = rays[c * _CHUNK : (c + 1) * _CHUNK]
+        _flat_rays(flat, out, geo, part, steps, big_p, s_hi, s_j)
+
+
+@njit(cache=True)
+def _flat_serial(flat, out, geo, rays, steps, big_p):
+    """``_flat_rays`` on the calling thread (small jobs: wedges, the short rays)."""
     n_s = (steps.max() if steps.size else 0) + 2
     s_hi = np.empty(n_s)
     s_j = np.empty(n_s, dtype=np.int64)
-    for i in range(rays.size):
-        _sweep_ray(
-            flat, oflat, h, w, rays[i], big_p, steps[rays[i]], ic, ir, u0, v0, a, e, eye, radius,
-            inv2r, th, tmin, tmax, az_on, az_min, az_w, s_hi, s_j,
-        )  # fmt: skip
+    _flat_rays(flat, out, geo, rays, steps, big_p, s_hi, s_j)
 
 
 @njit(cache=True)
 def _viewshed_kernel(
-    dem,
-    u0,
-    v0,
-    a,
-    e,
-    eye,
-    radius,
-    inv2r,
-    th,
-    tmin,
-    tmax,
-    el_min_deg,
-    el_max_deg,
-    az_on,
-    az_min,
-    az_w,
-    big_d,
-    big_p,
-):
+    dem, u0, v0, a, e, eye, radius, inv2r, th, tmin, tmax, el_min_deg, el_max_deg, az_on,
+    az_min, az_w, big_d, big_p, n_lev,
+):  # fmt: skip
     """uint8 visibility mask of ``dem`` seen from grid point (u0, v0) at elevation ``eye``.
 
     ``big_d``: steps per ray (radius in cells + 1); ``big_p``: perimeter resolution, i.e.
     rays end at minor offsets k / (big_p / big_d) cells (oversampling when big_p > big_d).
-    Jobs under ``_PARALLEL_MIN_STEPS`` ray steps run on one thread.
+    ``n_lev`` > 0 (full circle only): a tree of rays, ``big_p`` >> ``n_lev`` rays per side at
+    the observer, doubling at each level. Jobs under ``_PARALLEL_MIN_STEPS`` ray steps run on
+    one thread.
     """
     h, w = dem.shape
     out = np.zeros((h, w), dtype=np.uint8)
@@ -472,84 +465,25 @@ def _viewshed_kernel(
     oflat = out.reshape(-1)
     ic = math.floor(u0 + 0.5)
     ir = math.floor(v0 + 0.5)
-    ratio = max(abs(a), abs(e)) / min(abs(a), abs(e))
-    steps = _ray_steps(big_d, big_p, a, e, az_on, az_min, az_w, ratio)
-    heavy = np.nonzero(steps > _HEAVY_STEPS)[0]
-    light = np.nonzero(steps <= _HEAVY_STEPS)[0]
-    if steps[heavy].sum() >= _PARALLEL_MIN_STEPS:
-        _sweep_parallel(
-            flat,
-            oflat,
-            h,
-            w,
-            heavy,
-            steps,
-            big_p,
-            ic,
-            ir,
-            u0,
-            v0,
-            a,
-            e,
-            eye,
-            radius,
-            inv2r,
-            th,
-            tmin,
-            tmax,
-            az_on,
-            az_min,
-            az_w,
-        )
+    geo = (h, w, ic, ir, u0, v0, a, e, eye, radius, inv2r, th, tmin, tmax, az_on, az_min, az_w)
+    if n_lev > 0:
+        # sight lines run within half a cell of their owner ray, which runs within one cell
+        # of the ancestors that took its early samples
+        off_m = max(0.5 * big_d / big_p, abs(ic - u0) + abs(ir - v0)) + 1.0
+        if 6 * big_d * big_p >= _PARALLEL_MIN_STEPS:
+            _tree_parallel(flat, oflat, geo, big_p, n_lev, big_d, off_m)
+        else:
+            _tree_serial(flat, oflat, geo, big_p, n_lev, big_d, off_m)
     else:
-        _sweep_serial(
-            flat,
-            oflat,
-            h,
-            w,
-            heavy,
-            steps,
-            big_p,
-            ic,
-            ir,
-            u0,
-            v0,
-            a,
-            e,
-            eye,
-            radius,
-            inv2r,
-            th,
-            tmin,
-            tmax,
-            az_on,
-            az_min,
-            az_w,
-        )
-    _sweep_serial(
-        flat,
-        oflat,
-        h,
-        w,
-        light,
-        steps,
-        big_p,
-        ic,
-        ir,
-        u0,
-        v0,
-        a,
-        e,
-        eye,
-        radius,
-        inv2r,
-        th,
-        tmin,
-        tmax,
-        az_on,
-        az_min,
-        az_w,
-    )
+        ratio = max(abs(a), abs(e)) / min(abs(a), abs(e))
+        steps = _ray_steps(big_d, big_p, a, e, az_on, az_min, az_w, ratio)
+        heavy = np.nonzero(steps > _HEAVY_STEPS)[0]
+        light = np.nonzero(steps <= _HEAVY_STEPS)[0]
+        if steps[heavy].sum() >= _PARALLEL_MIN_STEPS:
+            _flat_parallel(flat, oflat, geo, heavy, steps, big_p)
+        else:
+            _flat_serial(flat, oflat, geo, heavy, steps, big_p)
+        _flat_serial(flat, oflat, geo, light, steps, big_p)
     _judge_origin(
         dem, out, ic, ir, u0, v0, a, e, eye, th, el_min_deg, el_max_deg, az_on, az_min, az_w
     )
@@ -656,7 +590,11 @@ def compute_viewshed(
     if int(oversample) < 1:
         raise ValueError(f"oversample must be >= 1, got {oversample}")
     big_p = big_d * int(oversample)
+    n_lev = 0
+    if not az_on:  # full circle: a tree of rays, at least _TREE_MIN_RAYS per side at the root
+        n_lev = max(0, int(math.log2(big_p / _TREE_MIN_RAYS)))
+        big_p = math.ceil(big_p / 2**n_lev) * 2**n_lev
     return _viewshed_kernel(
         dem, u0, v0, float(tr.a), float(tr.e), eye, float(radius), inv2r, float(target_height),
-        tmin, tmax, el_lo, el_hi, az_on, az_min, az_w, big_d, big_p,
+        tmin, tmax, el_lo, el_hi, az_on, az_min, az_w, big_d, big_p, n_lev,
     )  # fmt: skip
