@@ -12,8 +12,8 @@ from test_viewshed import (
     centre_xy,
     fractal_dem,
     grid,
-    reference_viewshed,
 )
+from los_reference import exact_viewshed
 
 from mars_pairs.kernels import cast_rays, compute_viewshed
 from mars_pairs.kernels.raycast import max_pyramid
@@ -162,7 +162,9 @@ def test_ray_hits_are_visible_in_viewshed(seed):
     vs = compute_viewshed((dem, tr), x, y, height=2.0, radius=99.0)
     inside = np.hypot(cols - 100, rows - 100) <= 98
     assert inside.sum() > 3000
-    assert vs[rows[inside], cols[inside]].mean() >= 0.98
+    # (a hit point is seen; its cell's centre may sit just behind a crest, or on a face turned
+    # away, which the exact cell-centre sight line then rightly hides)
+    assert vs[rows[inside], cols[inside]].mean() >= 0.97
 
 
 def test_hit_cells_on_rough_terrain_match_brute_force():
@@ -181,7 +183,7 @@ def test_hit_cells_on_rough_terrain_match_brute_force():
     rows = np.floor((hits[:, 1] - tr.f) / tr.e).astype(int)
     inside = np.hypot(cols - 100, rows - 100) <= 98
     vs = compute_viewshed((dem, tr), x, y, height=2.0, radius=99.0, planet_radius=0.0)
-    ref = reference_viewshed(dem, 100, 100, eye, 99.0)
+    ref = exact_viewshed(dem, 100, 100, eye, 99.0)
     r, c = rows[inside], cols[inside]
     assert vs[r, c].mean() >= 0.95
     assert (vs[r, c] == ref[r, c]).mean() >= 0.99
