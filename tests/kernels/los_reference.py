@@ -83,11 +83,11 @@ def segment_clear(dem, u0, v0, eye, col, row, a, e, th, inv2r):
         tm = 0.5 * (ta + tb)
         um = u0 + tm * du
         vm = v0 + tm * dv
-        i = min(max(int(math.floor(um)), 0), w - 2)
-        j = min(max(int(math.floor(vm)), 0), h - 2)
-        if 0.0 <= um <= w - 1 and 0.0 <= vm <= h - 1:
-            if _piece_max(dem, i, j, u0, v0, du, dv, ta, tb, q2c, eye, slope) > TOL_M:
-                return False
+        i = min(max(math.floor(um), 0), w - 2)
+        j = min(max(math.floor(vm), 0), h - 2)
+        inside = 0.0 <= um <= w - 1 and 0.0 <= vm <= h - 1
+        if inside and _piece_max(dem, i, j, u0, v0, du, dv, ta, tb, q2c, eye, slope) > TOL_M:
+            return False
         if tb == tu:
             tu += tu_step
         if tb == tv:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from los_reference import exact_viewshed
 from test_viewshed import (
     X0,
     Y0,
@@ -13,7 +14,6 @@ from test_viewshed import (
     fractal_dem,
     grid,
 )
-from los_reference import exact_viewshed
 
 from mars_pairs.kernels import cast_rays, compute_viewshed
 from mars_pairs.kernels.raycast import max_pyramid

@@ -1,5 +1,6 @@
 """Viewshed kernel: analytic cases (flat plane, wall, curvature, bands) and the exact
-line-of-sight reference (``los_reference``) on fractal DEMs. Map frame: x east, y north (metres), 1 m cells."""
+line-of-sight reference (``los_reference``) on fractal DEMs. Map frame: x east, y north
+(metres), 1 m cells."""
 
 from __future__ import annotations
 
@@ -8,7 +9,6 @@ import math
 import numpy as np
 import pytest
 from affine import Affine
-
 from los_reference import exact_viewshed
 
 from mars_pairs.kernels import compute_viewshed

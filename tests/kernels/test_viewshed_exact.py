@@ -49,7 +49,7 @@ def compare(dem, tr, x, y, radius, az_band, height=2.0, th=0.0):
 
 def exact_ground(dem, u0, v0) -> float:
     """Bilinear DEM value at grid (u0, v0) (cell centres at integers)."""
-    c0, r0 = int(math.floor(u0)), int(math.floor(v0))
+    c0, r0 = math.floor(u0), math.floor(v0)
     fu, fv = u0 - c0, v0 - r0
     z = dem.astype(np.float64)
     return float(
@@ -120,7 +120,7 @@ def test_fractal_iou_against_exact_line_of_sight(seed, std, beta, az_band, th):
     dem = fractal_dem(n, seed, std=std, beta=beta)
     tr = grid(n)
     x, y = centre_xy(tr, 224.3, 223.8)
-    score, mask, ref = compare(dem, tr, x, y, radius, az_band, th=th)
+    score, _, ref = compare(dem, tr, x, y, radius, az_band, th=th)
     assert ref.sum() > 50
     print(f"IoU {score:.4f}, {int(ref.sum())} visible")
     assert score >= IOU_MIN, f"IoU {score:.4f} against exact line of sight"
@@ -135,7 +135,7 @@ def test_real_gale_iou_against_exact_line_of_sight(az_band):
     with rasterio.open(path) as ds:
         dem = ds.read(1, masked=True).filled(np.nan).astype(np.float32)
         tr = ds.transform
-    score, mask, ref = compare(dem, tr, *SOL_1051_XY, 150.0, az_band, height=1.9)
+    score, _, ref = compare(dem, tr, *SOL_1051_XY, 150.0, az_band, height=1.9)
     assert ref.sum() > 200
     print(f"IoU {score:.4f}, {int(ref.sum())} visible")
     assert score >= IOU_MIN, f"IoU {score:.4f} against exact line of sight at sol 1051"
