@@ -5,18 +5,30 @@ metres, square-ish pixels), elevations metres, azimuth degrees clockwise from gr
 (+y), elevation angles degrees above the horizontal. Grid coordinates (u, v) = fractional
 (col, row) with cell centres at integers: x = c + a (u + 0.5), y = f + e (v + 0.5).
 
-Algorithm (an "R2"-style sweep): one ray from the observer's cell to every cell of the perimeter
-of the (2D+1)^2 radius box. A ray steps one cell along its major axis at a time and samples the
-terrain where it crosses that grid line (linear interpolation between the two straddling cells),
-keeping the running maximum of the slope (z - eye) / distance. Each cell is *owned* by exactly
-one ray, the one passing closest to its centre (integer test, so no two threads write a cell);
-the owner declares the cell visible when the slope to the cell's surface (+ target height) is at
-least the running maximum of the ray's samples up to ``_EXACT_LINES`` lines before it and clears
-the terrain on those last lines sampled on the exact line of sight, and the cell lies inside the
-elevation band, the azimuth band and the radius. A ray stops once its horizon rises above the
-elevation band (nothing beyond can be seen inside it). The terrain at horizontal distance d is
-lowered by d^2 / (2R) (Earth-style curvature correction; R = 0 disables it). In wedge mode only rays
-inside the azimuth band (and, near the observer, rays close to it) are marched.
+Visibility (the definition the tests check with an independent brute force): the terrain is
+the bilinear surface through the cell centres, lowered by d^2 / (2R) at horizontal distance d
+(curvature; R = 0 disables it). A cell is visible when the straight segment from the eye to its
+centre's surface point (+ target height, lowered the same way) stays on or above that terrain
+everywhere along it, and the cell lies inside the radius and the azimuth and elevation bands.
+
+Algorithm: an "R2"-style sweep, made exact where it decides. Rays leave the observer's cell
+towards the perimeter of the radius box, step one cell along their major axis and sample the
+terrain where they cross each grid line (linear interpolation between the two straddling cells).
+Each cell is *owned* by exactly one ray, the one passing closest to its centre (integer test, so
+no two threads write a cell). A sample's slope (z - eye) / distance carries an error bar:
+the terrain gradient across the line times how far a sight line to an owned cell may run beside
+the ray, so the running maxima of (slope - bar) and (slope + bar), [lo, hi], bracket the horizon
+of the exact sight line. A cell whose slope is below lo is hidden. Otherwise the sight line is
+tested exactly (cut at every grid line it crosses; in each quad the bilinear terrain along it is
+a quadratic, maximised exactly) over its last two lines, where it runs over the cell's own slope,
+and, when its slope is below hi, near every ray sample whose bar reaches it. The bars are an
+estimate, not a proof: against the exact reference the visible-set IoU is >= 0.998 on fractal
+and real terrain (tests/kernels/test_viewshed_exact.py). A ray stops once its horizon rises above
+the elevation band. In wedge mode only rays inside the azimuth band (and, near the observer, rays
+close to it) are marched. The full circle marches a tree of rays: 16 per side of the box at the
+observer, doubling wherever their spacing reaches a cell, each new ray starting from its
+neighbour's horizon (error bars one cell wider), so the steps near the observer are not repeated
+by every ray.
 """
 
 from __future__ import annotations
@@ -574,10 +586,10 @@ def compute_viewshed(
     taken clockwise from az_min (355..5 crosses north); None = all azimuths. ``el_band`` =
     (el_min, el_max) degrees above the horizontal; None = all. ``target_height`` (metres) is
     added to each cell's surface. ``planet_radius`` (metres) drives the d^2/(2R) curvature drop;
-    0 disables it. Cells are judged against the terrain strictly between the observer's cell
-    and the target cell. ``oversample``: rays per perimeter cell (2: a cell lies within a
-    quarter cell of its ray, ~1.6x slower; 1: within half a cell, >= 99% agreement with exact
-    line of sight thanks to the exact check of the last lines).
+    0 disables it. A cell is visible when the segment from the eye to its surface point stays
+    on or above the bilinear terrain along its whole length (exact where the sweep's verdict is
+    close: see the module docstring). ``oversample``: rays per perimeter cell (2: a cell lies
+    within a quarter cell of its ray, narrower error bars, slower; 1: within half a cell).
     """
     dem, tr = as_grid(window, transform)
     if not (radius > 0 and math.isfinite(radius)):
