@@ -8,6 +8,12 @@ puts the observer at its centre 2 m above the ground, and prints a markdown tabl
 wall times (ms; warm-up runs first, then the median of --repeats runs) with the speed-up
 against gdal_viewshed's full 360-degree run, and the machine load (os.getloadavg) before and
 after: numba's threads stall when other processes hold the cores, so compare rows of one run.
+
+Accuracy: each viewshed (ours and gdal_viewshed's) is compared with the exact line-of-sight
+reference of the tests (tests/kernels/los_reference.py: bilinear terrain, the whole segment
+from the eye to each cell centre tested exactly) on --ref-cells cells drawn at random inside
+the case's band (all of them when the band holds fewer): visible-set IoU, false positives and
+false negatives per 1000 sampled cells.
 """
 
 from __future__ import annotations
@@ -29,6 +35,9 @@ from affine import Affine
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests" / "kernels"))
+
+from los_reference import exact_viewshed  # noqa: E402
 
 from mars_pairs.kernels import cast_rays, compute_viewshed  # noqa: E402
 from mars_pairs.kernels.raycast import max_pyramid  # noqa: E402
@@ -38,6 +47,7 @@ from mars_pairs.synth.terrain import spectral_noise  # noqa: E402
 EQC = "+proj=eqc +lat_ts=0 +lon_0=0 +R=3396190 +units=m +no_defs"
 X0, Y0 = 8141036.0, -271512.0  # a Gale-like map corner (metres)
 HEIGHT = 2.0
+R_MARS = 3396190.0
 CAM_EL = -3.0  # camera looks slightly down (degrees); azimuth: the most open direction
 
 
@@ -93,6 +103,37 @@ def camera_rays(width: int, height: int, stride: int, hfov: float, eye: np.ndarr
     return np.tile(eye, (len(d), 1)), d
 
 
+def band_cells(win, x, y, radius, az_band, el_band, eye, n_max, seed=0):
+    """(rows, cols) of up to ``n_max`` random window cells inside the radius and bands
+    (azimuth clockwise from north, elevation of the cell's own surface point, with curvature)."""
+    rows, cols = np.mgrid[0 : win.shape[0], 0 : win.shape[1]]
+    cx, cy = win.colrow_to_xy(cols.ravel(), rows.ravel())
+    east, north = np.asarray(cx) - x, np.asarray(cy) - y
+    d = np.hypot(east, north)
+    ok = d <= radius
+    if az_band is not None:
+        az = np.degrees(np.arctan2(east, north)) % 360.0
+        ok &= ((az - az_band[0]) % 360.0) <= (az_band[1] - az_band[0]) % 360.0
+    if el_band is not None:
+        z = win.data.ravel() - d**2 / (2 * R_MARS)
+        el = np.degrees(np.arctan2(z - eye, d))
+        ok &= (el >= el_band[0]) & (el <= el_band[1])
+    idx = np.flatnonzero(ok)
+    if idx.size > n_max:
+        idx = np.sort(np.random.default_rng(seed).choice(idx, n_max, replace=False))
+    return rows.ravel()[idx], cols.ravel()[idx]
+
+
+def accuracy(mask: np.ndarray, ref: np.ndarray) -> str:
+    """'IoU | false + per 1000 | false - per 1000' of sampled verdicts against the reference."""
+    mask, ref = mask.astype(bool), ref.astype(bool)
+    union = (mask | ref).sum()
+    score = 1.0 if union == 0 else (mask & ref).sum() / union
+    fp = 1000 * (mask & ~ref).sum() / mask.size
+    fn = 1000 * (~mask & ref).sum() / mask.size
+    return f"{score:.4f} | {fp:.1f} | {fn:.1f}"
+
+
 def run_gdal(dem_path: Path, out: Path, x: float, y: float, radius: float) -> list[str] | None:
     """gdal_viewshed command line, or None when the binary is absent."""
     exe = shutil.which("gdal_viewshed")
@@ -108,11 +149,14 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--cell", type=float, default=1.0, help="cell size in metres")
     ap.add_argument("--radius", type=float, default=2000.0, help="viewshed radius, metres")
     ap.add_argument("--repeats", type=int, default=7, help="timed runs per case (>= 5)")
+    ap.add_argument("--ref-cells", type=int, default=200_000,
+                    help="cells per case checked against the exact reference")  # fmt: skip
     args = ap.parse_args(argv)
     args.repeats = max(5, args.repeats)
     args.load_before = os.getloadavg()
 
-    rows: list[tuple[str, float | None, str]] = []
+    rows: list[tuple[str, float | None, str, str]] = []
+    na = "| |"
     t0 = time.perf_counter()
     tiny = np.zeros((16, 16), np.float32), Affine(1, 0, 0, 0, -1, 16)
     compute_viewshed(tiny, 8, 8, height=2, radius=5)
@@ -120,7 +164,7 @@ def main(argv: list[str] | None = None) -> None:
     cast_rays([[8.0, 8.0, 2.0]], [[0.0, 0.6, -0.8]], tiny, max_range=5)
     cast_rays([[8.0, 8.0, 2.0]], [[0.0, 0.6, -0.8]], tiny, max_range=5, pyramid=max_pyramid(tiny))
     rows.append(("numba first call (compile or cache load)", (time.perf_counter() - t0) * 1e3,
-                 "once per process"))  # fmt: skip
+                 na, "once per process"))  # fmt: skip
 
     with tempfile.TemporaryDirectory() as tmp:
         dem_path = Path(tmp) / "dem.tif"
@@ -131,7 +175,7 @@ def main(argv: list[str] | None = None) -> None:
             win = t.read_dem_window(x, y, args.radius)
             rows.append(("DEM window read (rasterio)",
                          median_ms(lambda: t.read_dem_window(x, y, args.radius), args.repeats),
-                         f"{win.shape[0]} x {win.shape[1]} window"))  # fmt: skip
+                         na, f"{win.shape[0]} x {win.shape[1]} window"))  # fmt: skip
             eye = np.array([x, y, t.elevation_at(x, y) + HEIGHT])
 
         vs_kw = {"height": HEIGHT, "radius": args.radius}
@@ -144,36 +188,53 @@ def main(argv: list[str] | None = None) -> None:
              {"az_band": (cam_az - 3, cam_az + 3), "el_band": (CAM_EL - 2.5, CAM_EL + 2.5)}),
             ("viewshed wedge 20 x 11 deg",
              {"az_band": (cam_az - 10, cam_az + 10), "el_band": (CAM_EL - 5.5, CAM_EL + 5.5)}),
+            ("viewshed wedge 30 deg, all elevations",
+             {"az_band": (cam_az - 15, cam_az + 15)}),
         ]  # fmt: skip
+        u0, v0 = (float(t) - 0.5 for t in ~win.transform * (x, y))
+        ref_kw = {"a": win.transform.a, "e": win.transform.e, "planet_radius": R_MARS}
+        full_cells = None
         for name, kw in cases:
             mask = compute_viewshed(win, x, y, **vs_kw, **kw)
             ms = median_ms(lambda kw=kw: compute_viewshed(win, x, y, **vs_kw, **kw), args.repeats)
-            rows.append((name, ms, f"{int(mask.sum())} cells visible"))
+            cells = band_cells(win, x, y, args.radius, kw.get("az_band"), kw.get("el_band"),
+                               eye[2], args.ref_cells)  # fmt: skip
+            ref = exact_viewshed(win.data, u0, v0, eye[2], args.radius, cells=cells, **ref_kw)
+            if not kw:
+                full_cells, full_ref = cells, ref
+            rows.append((name, ms, accuracy(mask[cells], ref),
+                         f"{int(mask.sum())} cells visible; {len(ref)} checked"))  # fmt: skip
 
         cmd = run_gdal(dem_path, Path(tmp) / "gdal_vs.tif", x, y, args.radius)
         gdal_ms = None
         if cmd is None:
-            rows.append(("gdal_viewshed full 360 (subprocess)", None, "not installed"))
+            rows.append(("gdal_viewshed full 360 (subprocess)", None, na, "not installed"))
         else:
             gdal_ms = median_ms(lambda: subprocess.run(cmd, check=True), args.repeats)
             with rasterio.open(Path(tmp) / "gdal_vs.tif") as ds:
-                n_vis = int((ds.read(1) == 255).sum())
+                gdal_vis = ds.read(1) == 255
+                # the window's cells on the gdal output grid (same cell size, same origin grid)
+                c_off = round((win.transform.c - ds.transform.c) / ds.transform.a)
+                r_off = round((win.transform.f - ds.transform.f) / ds.transform.e)
+            g_mask = gdal_vis[full_cells[0] + r_off, full_cells[1] + c_off]
             rows.append(("gdal_viewshed full 360 (subprocess)", gdal_ms,
-                         f"{n_vis} cells visible; incl. process start + GeoTIFF I/O"))  # fmt: skip
+                         accuracy(g_mask, full_ref),
+                         f"{int(gdal_vis.sum())} cells visible; incl. process start + GeoTIFF "
+                         "I/O"))  # fmt: skip
 
         origins, dirs = camera_rays(1648, 1200, 4, 20.0, eye, cam_az)
         hits, _ = cast_rays(origins, dirs, win, max_range=args.radius)
         n_hits = f"{int(np.isfinite(hits[:, 0]).sum())} hits"
         pyr = max_pyramid(win)
         rows.append(("max pyramid of the window (`max_pyramid`, once per window)",
-                     median_ms(lambda: max_pyramid(win), args.repeats),
+                     median_ms(lambda: max_pyramid(win), args.repeats), na,
                      f"levels 2..{pyr.n_levels}"))  # fmt: skip
         ms = median_ms(lambda: cast_rays(origins, dirs, win, max_range=args.radius, pyramid=pyr),
                        args.repeats)  # fmt: skip
         rows.append((f"ray casting 1648 x 1200 / stride 4 ({len(dirs)} rays), pyramid given", ms,
-                     n_hits))  # fmt: skip
+                     na, n_hits))  # fmt: skip
         ms = median_ms(lambda: cast_rays(origins, dirs, win, max_range=args.radius), args.repeats)
-        rows.append(("ray casting, same rays, pyramid built in the call", ms, n_hits))
+        rows.append(("ray casting, same rays, pyramid built in the call", ms, na, n_hits))
 
     print_table(rows, gdal_ms, args)
 
@@ -187,12 +248,13 @@ def print_table(rows, gdal_ms: float | None, args: argparse.Namespace) -> None:
         f"{HEIGHT} m above the centre, median of {args.repeats} after 2 warm-up runs; "
         f"{os.cpu_count()} CPUs, load average (1, 5, 15 min) {before} before, {after} after\n"
     )
-    print("| case | median ms | speed-up vs gdal_viewshed full | note |")
-    print("|---|---:|---:|---|")
-    for name, ms, note in rows:
+    print("| case | median ms | speed-up vs gdal_viewshed full | IoU vs exact | false + /1000 "
+          "| false - /1000 | note |")  # fmt: skip
+    print("|---|---:|---:|---:|---:|---:|---|")
+    for name, ms, acc, note in rows:
         ms_s = "n/a" if ms is None else f"{ms:.1f}"
-        ratio = "n/a" if (ms is None or gdal_ms is None) else f"{gdal_ms / ms:.1f}x"
-        print(f"| {name} | {ms_s} | {ratio} | {note} |")
+        ratio = "n/a" if (ms is None or gdal_ms is None) else f"{gdal_ms / ms:.2f}x"
+        print(f"| {name} | {ms_s} | {ratio} | {acc} | {note} |")
 
 
 if __name__ == "__main__":
