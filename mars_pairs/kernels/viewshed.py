@@ -58,6 +58,9 @@ _PARALLEL_MIN_STEPS = 4_000_000  # planned ray steps below which one thread is f
 _HEAVY_STEPS = 8  # rays with at most this many steps go to the cheap second pass
 _TAIL_LINES = 1  # grid lines before a cell always checked on its exact line of sight (fixed)
 _ERR_GAIN = 0.5  # safety factor on the sweep's horizon error estimate
+# the tree's error bars are narrowed: with full-width bars the exact checks cost 1.15x the run
+# time for an IoU 0.9997 instead of 0.9985 (fractal, 1000 m); wedges keep the full width
+_TREE_BARS = 0.5
 _TREE_MIN_RAYS = 16  # rays per side at the root of the full circle's tree of rays
 _CHUNK = 64  # rays per parallel work item (one scratch buffer each)
 _TOL_M = 1e-6  # metres the terrain may rise above a sight line (rounding at the target)
@@ -481,7 +484,7 @@ def _viewshed_kernel(
     if n_lev > 0:
         # sight lines run within half a cell of their owner ray, which runs within one cell
         # of the ancestors that took its early samples
-        off_m = max(0.5 * big_d / big_p, abs(ic - u0) + abs(ir - v0)) + 1.0
+        off_m = _TREE_BARS * (max(0.5 * big_d / big_p, abs(ic - u0) + abs(ir - v0)) + 1.0)
         if 6 * big_d * big_p >= _PARALLEL_MIN_STEPS:
             _tree_parallel(flat, oflat, geo, big_p, n_lev, big_d, off_m)
         else:
