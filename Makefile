@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q --upgrade pip
 	# the local CPU build of torch first, so the project's range needs nothing more
 	$(PY) -m pip install -q $(TORCH)
-	$(PY) -m pip install -q -e '.[dev,viz]'
+	$(PY) -m pip install -q -e '.[dev,viz,dask]'
 	touch $(STAMP)
 
 demo: $(STAMP)

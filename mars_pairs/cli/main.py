@@ -63,9 +63,11 @@ def _cmd_build(args: argparse.Namespace) -> int:
     if args.out:
         config = replace(config, output=replace(config.output, dir=Path(args.out).resolve()))
     _ensure_synthetic(config)
+    engine = _engine(args)
     try:
         summary = run_build(
             config,
+            engine=engine,
             workers=args.workers,
             resume=args.resume,
             limit=args.limit,
@@ -77,6 +79,17 @@ def _cmd_build(args: argparse.Namespace) -> int:
         return 2
     print(summary.format())
     return 0
+
+
+def _engine(args: argparse.Namespace) -> object:
+    """The build engine the options name: None (the local pool) or a DaskEngine."""
+    if args.engine == "local":
+        if args.scheduler:
+            raise UsageError("--scheduler needs --engine dask")
+        return None
+    from mars_pairs.pipeline.dask_engine import DaskEngine
+
+    return DaskEngine(scheduler=args.scheduler, workers=args.workers)
 
 
 def _ensure_synthetic(config: object) -> None:
@@ -289,6 +302,18 @@ def _add_build_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--limit", type=_count(1), help="build at most N observations")
     p.add_argument("--strict", action="store_true", help="stop at the first failure")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--engine",
+        choices=("local", "dask"),
+        default="local",
+        help="local: this machine's process pool; dask: a Dask cluster (default local)",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        help="with --engine dask: a running cluster's scheduler (default: a local cluster "
+        "of --workers processes)",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:

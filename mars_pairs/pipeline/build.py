@@ -274,8 +274,13 @@ def run_build(
     limit: int | None = None,
     strict: bool = False,
     progress: bool = True,
+    engine: Any = None,
 ) -> BuildSummary:
-    """Build the dataset described by ``config`` into ``config.output.dir``."""
+    """Build the dataset described by ``config`` into ``config.output.dir``.
+
+    ``engine``: None for this machine's process pool of ``workers``, or an engine with a
+    ``results(config, chunks)`` method (``pipeline.dask_engine.DaskEngine``).
+    """
     start = time.perf_counter()
     out = config.output.dir
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
@@ -309,7 +314,10 @@ def run_build(
         disable=not progress,
         desc="build",
     )
-    results = _results(config, pending, workers)
+    if engine is None:
+        results = _results(config, pending, workers)
+    else:  # one task per chunk, results in label order as the pool's
+        results = engine.results(config, [[str(p) for p in chunks[k]] for k in todo])
     stage_seconds: Counter[str] = Counter()
     try:
         for k in todo:
