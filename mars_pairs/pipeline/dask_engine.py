@@ -34,7 +34,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from mars_pairs.errors import ConfigError, MarsPairsError
+from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.config import BuildConfig
 
 _LOCK = threading.Lock()  # one chunk at a time per worker process (rasterio is not thread-safe)
@@ -100,6 +100,8 @@ class DaskEngine:
         self, config: BuildConfig, chunks: Sequence[Sequence[str]]
     ) -> Iterator[tuple[str, Any]]:
         """Every label's result, chunk after chunk, in order (as the local engine's)."""
+        from mars_pairs.pipeline.build import WorkerStartError
+
         if not chunks:
             return
         with self._client() as client:
@@ -130,7 +132,7 @@ class DaskEngine:
                     submit()
                     for status, result in batch:
                         if status == "start":
-                            raise MarsPairsError(result)
+                            raise WorkerStartError(result)
                         yield status, result
             finally:
                 for future in flight:

@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from mars_pairs.cli.main import main
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build import WorkerStartError, run_build
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.synth import generate_mission
 
@@ -140,3 +140,20 @@ def test_scheduler_needs_the_dask_engine(mission: Path, tmp_path: Path, capsys) 
     argv = ["build", "--config", str(config(tmp_path, mission, "ds")), "--scheduler", "tcp://x:1"]
     assert main(argv) == 2
     assert "--scheduler needs --engine dask" in capsys.readouterr().err
+
+
+def test_a_worker_that_cannot_start_fails_the_build_once(
+    mission: Path, tmp_path: Path, cluster
+) -> None:
+    lines = (mission / "places" / "best_interp.csv").read_text().splitlines()
+    col = lines[0].split(",").index("drive")
+    drop = [",".join(c for i, c in enumerate(line.split(",")) if i != col) for line in lines]
+    places = tmp_path / "p.csv"
+    places.write_text("\n".join(drop) + "\n")
+    cfg_path = config(tmp_path, mission, "ds")
+    doc = yaml.safe_load(cfg_path.read_text())
+    doc["inputs"]["places"] = str(places)
+    cfg_path.write_text(yaml.safe_dump(doc))
+    engine = DaskEngine(scheduler=cluster[0].scheduler_address, announce=False)
+    with pytest.raises(WorkerStartError, match="missing column"):
+        run_build(load_config(cfg_path), engine=engine, progress=False)
