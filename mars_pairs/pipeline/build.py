@@ -31,11 +31,10 @@ from mars_pairs.pipeline.context import SampleContext
 from mars_pairs.pipeline.sample import build_sample
 from mars_pairs.pipeline.splitting import split_rule, splits_report
 from mars_pairs.pipeline.stages import StageError
+from mars_pairs.store.geoparquet import footprints_bbox, geo_metadata
 from mars_pairs.store.manifest import (
     FAILURE_SCHEMA,
     MANIFEST_SCHEMA,
-    footprints_bbox,
-    geo_metadata,
     rows_to_table,
     write_parquet_atomic,
 )

@@ -7,8 +7,6 @@ the key (``geometry.radius``) and what was expected.
 from __future__ import annotations
 
 import glob
-import math
-import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -16,6 +14,7 @@ from typing import Any
 import yaml
 
 from mars_pairs.errors import ConfigError
+from mars_pairs.pipeline.config_section import Section
 
 VIEWSHED_MODES = ("wedge", "raycast", "both")
 #: View masks: "frustum" (default) = cells visible from the camera centre whose terrain point
@@ -27,7 +26,6 @@ IMAGE_ENCODINGS = ("png", "jpg")
 SPLIT_STYLES = ("same-area", "cross-area")
 SPLIT_GUARDS = ("chip", "footprint")
 BUFFER_POLICIES = ("split", "drop")
-_NUMBER_TEXT = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)[eE][+-]?[0-9]+", re.ASCII)
 
 MAX_CONFIG_BYTES = 1_000_000
 # Upper bounds that keep one sample within memory and the numbers within meaning (metres).
@@ -146,90 +144,9 @@ class BuildConfig:
         return plain(asdict(self))
 
 
-# -- validation ------------------------------------------------------------------------------
-class _Section:
-    """Reads typed keys from one mapping, naming ``prefix.key`` in every error."""
-
-    def __init__(self, data: Any, prefix: str, known: set[str]) -> None:
-        if data is None:
-            data = {}
-        if not isinstance(data, dict):
-            raise ConfigError(f"{prefix}: expected a mapping, got {type(data).__name__}")
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ConfigError(
-                f"{prefix}.{unknown[0]}: unknown key (expected one of {sorted(known)})"
-            )
-        self.data, self.prefix = data, prefix
-
-    def _name(self, key: str) -> str:
-        return f"{self.prefix}.{key}" if self.prefix else key
-
-    def raw(self, key: str, default: Any = ...) -> Any:
-        if key not in self.data or self.data[key] is None:
-            if default is ...:
-                raise ConfigError(f"{self._name(key)}: required key is missing")
-            return default
-        return self.data[key]
-
-    def number(
-        self, key: str, default: Any = ..., *, positive: bool = True, maximum: float = math.inf
-    ) -> Any:
-        """A finite number (YAML 1.1 reads ``1e12``, without a dot, as text: accepted too),
-        positive if ``positive``, at most ``maximum``."""
-        value = self.raw(key, default)
-        if value is None:
-            return None
-        if isinstance(value, str) and _NUMBER_TEXT.fullmatch(value.strip()):
-            value = float(value)
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{self._name(key)}: expected a number, got {value!r}")
-        if not math.isfinite(value):
-            raise ConfigError(f"{self._name(key)}: expected a finite number, got {value!r}")
-        if positive and value <= 0:
-            raise ConfigError(f"{self._name(key)}: expected a positive number, got {value!r}")
-        if value > maximum:
-            raise ConfigError(f"{self._name(key)}: expected a number <= {maximum:g}, got {value!r}")
-        return float(value)
-
-    def integer(
-        self, key: str, default: Any = ..., *, minimum: int = 1, maximum: int = 2**31 - 1
-    ) -> int:
-        value = self.raw(key, default)
-        if isinstance(value, bool) or not isinstance(value, int) or not minimum <= value <= maximum:
-            raise ConfigError(
-                f"{self._name(key)}: expected an integer in [{minimum}, {maximum}], got {value!r}"
-            )
-        return value
-
-    def choice(self, key: str, options: tuple[str, ...], default: Any = ...) -> str:
-        value = self.raw(key, default)
-        if value not in options:
-            raise ConfigError(f"{self._name(key)}: expected one of {list(options)}, got {value!r}")
-        return str(value)
-
-    def raster(self, key: str, base: Path) -> Path | str:
-        """A raster: a local path, or an http(s) URL read window by window (``/vsicurl/``)."""
-        from mars_pairs.fetch.vsi import gdal_path, is_remote, use_remote_defaults
-
-        value = self.raw(key)
-        if isinstance(value, str) and is_remote(value):
-            use_remote_defaults()
-            return gdal_path(value)
-        return self.path(key, base)  # type: ignore[return-value]
-
-    def path(self, key: str, base: Path, default: Any = ...) -> Path | None:
-        value = self.raw(key, default)
-        if value is None:
-            return None
-        if not isinstance(value, str) or not value:
-            raise ConfigError(f"{self._name(key)}: expected a path, got {value!r}")
-        return (base / Path(value).expanduser()).resolve()
-
-
 def _inputs(data: Any, base: Path) -> InputsConfig:
     known = {"labels", "places", "dem", "ortho", "images", "synthetic"}
-    sec = _Section(data, "inputs", known)
+    sec = Section(data, "inputs", known)
     labels = sec.raw("labels")
     if isinstance(labels, str):
         labels = [labels]
@@ -237,7 +154,7 @@ def _inputs(data: Any, base: Path) -> InputsConfig:
         raise ConfigError(f"inputs.labels: expected a glob or a list of globs, got {labels!r}")
     synthetic = None
     if sec.raw("synthetic", None) is not None:
-        syn = _Section(
+        syn = Section(
             sec.raw("synthetic"),
             "inputs.synthetic",
             {"root", "mission", "seed", "stops", "images_per_stop", "size"},
@@ -262,7 +179,7 @@ def _inputs(data: Any, base: Path) -> InputsConfig:
 
 def _splits(data: Any) -> SplitsConfig:
     known = {"style", "block_m", "ratios", "seed", "areas", "guard", "buffer_m", "buffer_policy"}
-    sec = _Section(data, "splits", known)
+    sec = Section(data, "splits", known)
     style = sec.choice("style", SPLIT_STYLES, "same-area")
     only = {"same-area": ("areas",), "cross-area": ("block_m", "ratios")}[style]
     for key in only:
@@ -350,14 +267,14 @@ def _areas(data: Any) -> dict[str, tuple[tuple[float, float, float, float], ...]
 def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConfig:
     """Validate a config mapping (relative paths against ``base``) into a BuildConfig."""
     # "fetch" is read by mars_pairs.fetch.config (mars-pairs fetch), not by the build
-    top = _Section(data, "", {"inputs", "geometry", "chips", "output", "splits", "fetch"})
-    geo = _Section(
+    top = Section(data, "", {"inputs", "geometry", "chips", "output", "splits", "fetch"})
+    geo = Section(
         top.raw("geometry", {}),
         "geometry",
         {"observer_height", "radius", "viewshed", "view_mask", "ray_stride"},
     )
-    chips = _Section(top.raw("chips", {}), "chips", {"size_m", "size_px", "orientation"})
-    out = _Section(top.raw("output"), "output", {"dir", "shard_size", "image_encoding"})
+    chips = Section(top.raw("chips", {}), "chips", {"size_m", "size_px", "orientation"})
+    out = Section(top.raw("output"), "output", {"dir", "shard_size", "image_encoding"})
     return BuildConfig(
         inputs=_inputs(top.raw("inputs"), base),
         geometry=GeometryConfig(

@@ -13,7 +13,7 @@ from mars_pairs.pipeline.footprint import footprint_polygon, view_statistics
 from mars_pairs.pipeline.splitting import split_rule
 from mars_pairs.pipeline.view import View
 from mars_pairs.raster.chips import ChipGrid
-from mars_pairs.store.manifest import footprint_bounds
+from mars_pairs.store.geoparquet import footprint_bounds
 from mars_pairs.store.splits import hilbert_index
 
 

@@ -12,10 +12,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mars_pairs.geometry.frames import M2020_PLACES_CRS, lonlat_to_map
+from mars_pairs.store.geoparquet import geo_metadata
 from mars_pairs.store.manifest import (
     MANIFEST_SCHEMA,
     Manifest,
-    geo_metadata,
     great_circle_m,
     rows_to_table,
     write_parquet_atomic,
