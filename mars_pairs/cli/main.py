@@ -6,10 +6,12 @@ import argparse
 import json
 import math
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
+from mars_pairs.cli.arguments import bounded, count, finite
+from mars_pairs.cli.viewshed import cmd_viewshed
 from mars_pairs.errors import MarsPairsError, UsageError
 from mars_pairs.pipeline.config import MAX_RADIUS_M
 
@@ -144,118 +146,6 @@ def _cmd_synth(args: argparse.Namespace) -> int:
     return 0
 
 
-def _label_viewshed(args: argparse.Namespace, terrain: object) -> int:
-    """``viewshed --label``: the image's view (frustum or the study's band) as a GeoTIFF."""
-    import numpy as np
-
-    from mars_pairs.geometry.places import Places
-    from mars_pairs.pds import read_observation
-    from mars_pairs.pipeline.view import label_view
-    from mars_pairs.raster.viewshed_tiff import NODATA, write_viewshed_geotiff
-
-    obs = read_observation(args.label)
-    pose = Places.from_csv(args.places).locate(obs)
-    view = label_view(obs, pose, terrain, args.radius, args.height, args.mask)  # type: ignore[arg-type]
-    rows, cols = np.indices(view.mask.shape)
-    x, y = view.window.colrow_to_xy(cols, rows)
-    points = np.stack([x, y, view.window.data.astype(np.float64)], axis=-1).reshape(-1, 3)
-    centre = view.camera.map_to_local(view.camera.center_map)
-    local = view.camera.map_to_local(points) - centre
-    far = (np.hypot(local[:, 0], local[:, 1]) > args.radius).reshape(view.mask.shape)
-    codes = np.where(far | ~np.isfinite(view.window.data), NODATA, view.mask).astype(np.uint8)
-    write_viewshed_geotiff(args.out, codes, view.window.transform, view.window.crs)
-    cx, cy, cz = view.camera.center_map
-    print(
-        f"{args.out}: {int((codes == 1).sum())} cells in view ({args.mask} mask) of "
-        f"{codes.size}; camera centre x={cx:.3f} y={cy:.3f} z={cz:.3f} m "
-        f"({view.height:.3f} m above the DEM at the rover; DEM - PLACES {view.dem_offset_m:+.3f} m)"
-    )
-    return 0
-
-
-def _cmd_viewshed(args: argparse.Namespace) -> int:
-    from mars_pairs.raster.terrain import Terrain
-    from mars_pairs.raster.viewshed_tiff import (
-        ViewshedRequest,
-        compute_request,
-        write_viewshed_geotiff,
-    )
-
-    with Terrain.open(args.dem) as terrain:
-        if args.label:
-            if not args.places:
-                raise UsageError("--label needs --places")
-            return _label_viewshed(args, terrain)
-        else:
-            if args.x is None or args.y is None or args.height is None:
-                raise UsageError("without --label, give --x, --y and --height")
-            az = _band(args.az_min, args.az_max, "--az-min/--az-max")
-            el = _band(args.el_min, args.el_max, "--el-min/--el-max")
-            terrain.require_inside(args.x, args.y, "observer")
-            req = ViewshedRequest(
-                args.x, args.y, args.height, args.radius, az, el, height_is_absolute=args.absolute
-            )
-        codes, window = compute_request(terrain, req)
-    write_viewshed_geotiff(args.out, codes, window.transform, window.crs)
-    visible = int((codes == 1).sum())
-    print(
-        f"{args.out}: {visible} visible cells of {codes.size}; observer x={req.x:.3f} "
-        f"y={req.y:.3f} height={req.height:.3f} m; az band {req.az_band}; "
-        f"el band {req.el_band}"
-    )
-    return 0
-
-
-def _finite(text: str) -> float:
-    """argparse type: a finite number."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
-
-
-def _bounded(low: float, high: float, *, open_low: bool = False) -> Callable[[str], float]:
-    """argparse type: a finite number in [low, high] (or (low, high] with ``open_low``)."""
-
-    def parse(text: str) -> float:
-        value = _finite(text)
-        if value < low or value > high or (open_low and value == low):
-            bracket = "(" if open_low else "["
-            raise argparse.ArgumentTypeError(
-                f"expected a number in {bracket}{low:g}, {high:g}], got {text!r}"
-            )
-        return value
-
-    return parse
-
-
-def _count(minimum: int) -> Callable[[str], int]:
-    """argparse type: an integer >= ``minimum``."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {text!r}")
-        return value
-
-    return parse
-
-
-def _band(low: float | None, high: float | None, names: str) -> tuple[float, float] | None:
-    """A (low, high) band from two options given together, or None when both are absent."""
-    if low is None and high is None:
-        return None
-    if low is None or high is None:
-        raise UsageError(f"{names}: give both bounds of the band, in degrees")
-    return (low, high)
-
-
 def _cmd_show(args: argparse.Namespace) -> int:
     from mars_pairs.viz import show_sample
 
@@ -297,9 +187,9 @@ def _cmd_query(args: argparse.Namespace) -> int:
 def _add_build_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", required=True, help="build configuration (YAML)")
     p.add_argument("--out", help="dataset folder (overrides output.dir)")
-    p.add_argument("--workers", type=_count(1), default=1, help="worker processes (default 1)")
+    p.add_argument("--workers", type=count(1), default=1, help="worker processes (default 1)")
     p.add_argument("--resume", action="store_true", help="keep finished shards of a killed build")
-    p.add_argument("--limit", type=_count(1), help="build at most N observations")
+    p.add_argument("--limit", type=count(1), help="build at most N observations")
     p.add_argument("--strict", action="store_true", help="stop at the first failure")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument(
@@ -337,13 +227,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--places", help="PLACES table")
     p.add_argument(
         "--radius",
-        type=_bounded(0.0, MAX_RADIUS_M, open_low=True),
+        type=bounded(0.0, MAX_RADIUS_M, open_low=True),
         default=5000.0,
         help="metres (default 5000)",
     )
     p.add_argument(
         "--height",
-        type=_finite,
+        type=finite,
         help="observer height above the terrain, metres (label default: camera's)",
     )
     p.add_argument("--absolute", action="store_true", help="--height is an absolute elevation")
@@ -353,13 +243,13 @@ def build_parser() -> argparse.ArgumentParser:
         default="frustum",
         help="with --label: frustum = what the image saw (default); band = the study's az/el band",
     )
-    p.add_argument("--x", type=_finite, help="observer x, DEM CRS map units")
-    p.add_argument("--y", type=_finite, help="observer y, DEM CRS map units")
+    p.add_argument("--x", type=finite, help="observer x, DEM CRS map units")
+    p.add_argument("--y", type=finite, help="observer y, DEM CRS map units")
     for name in ("az-min", "az-max"):
-        p.add_argument(f"--{name}", type=_finite, help="degrees clockwise from north")
+        p.add_argument(f"--{name}", type=finite, help="degrees clockwise from north")
     for name in ("el-min", "el-max"):
-        p.add_argument(f"--{name}", type=_bounded(-90, 90), help="degrees up from the horizon")
-    p.set_defaults(func=_cmd_viewshed)
+        p.add_argument(f"--{name}", type=bounded(-90, 90), help="degrees up from the horizon")
+    p.set_defaults(func=cmd_viewshed)
 
     p = sub.add_parser("build", help="build a dataset from a config")
     _add_build_arguments(p)
@@ -379,21 +269,21 @@ def build_parser() -> argparse.ArgumentParser:
     where.add_argument(
         "--bbox",
         nargs=4,
-        type=_finite,
+        type=finite,
         metavar=("W", "S", "E", "N"),
         help="longitude/latitude box, degrees",
     )
     where.add_argument(
         "--bbox-map",
         nargs=4,
-        type=_finite,
+        type=finite,
         metavar=("XMIN", "YMIN", "XMAX", "YMAX"),
         help="box in the dataset CRS, map units",
     )
     where.add_argument(
         "--near",
         nargs=3,
-        type=_finite,
+        type=finite,
         metavar=("LAT", "LON", "RADIUS_M"),
         help="within a great-circle radius (metres) of a point",
     )
@@ -430,10 +320,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("synth", help="generate the synthetic mission (terrain, labels, images)")
     p.add_argument("out", help="output folder")
-    p.add_argument("--seed", type=_count(0), default=0)
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--mission", choices=("m2020", "msl", "both"), default="m2020")
-    p.add_argument("--stops", type=_count(1), help="rover stops (default: the size's, 3 or 8)")
-    p.add_argument("--images-per-stop", type=_count(1), help="default: the size's (4)")
+    p.add_argument("--stops", type=count(1), help="rover stops (default: the size's, 3 or 8)")
+    p.add_argument("--images-per-stop", type=count(1), help="default: the size's (4)")
     p.add_argument("--size", choices=("small", "default"), default="small")
     p.set_defaults(func=_cmd_synth)
     return parser
