@@ -9,10 +9,8 @@ output is the same whatever the worker count.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import multiprocessing as mp
-import platform
 import re
 import time
 from collections import Counter
@@ -22,16 +20,24 @@ from pathlib import Path
 from typing import Any
 
 import pyarrow as pa
-import pyarrow.parquet as pq
 from tqdm import tqdm
 
 from mars_pairs.errors import ConfigError, MarsPairsError
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.context import SampleContext
+from mars_pairs.pipeline.finish import merge_parts, write_dataset_json
+from mars_pairs.pipeline.outputs import (
+    DROPPED_KEY,
+    built_keys,
+    clear_outputs,
+    dropped_count,
+    fingerprint,
+    part_paths,
+    read_stamp,
+)
 from mars_pairs.pipeline.sample import build_sample
-from mars_pairs.pipeline.splitting import split_rule, splits_report
+from mars_pairs.pipeline.splitting import split_rule
 from mars_pairs.pipeline.stages import StageError
-from mars_pairs.store.geoparquet import footprints_bbox, geo_metadata
 from mars_pairs.store.manifest import (
     FAILURE_SCHEMA,
     MANIFEST_SCHEMA,
@@ -40,9 +46,8 @@ from mars_pairs.store.manifest import (
 )
 from mars_pairs.store.shards import ShardWriter, atomic_write_bytes
 from mars_pairs.store.splits import BUFFER
-from mars_pairs.store.wids_index import WIDS_INDEX, write_wids_index
+from mars_pairs.store.wids_index import write_wids_index
 
-_DROPPED_KEY = b"mars_pairs:dropped_in_buffer"
 _CONTEXT: SampleContext | None = None  # one per worker process, set by the pool initializer
 _START_ERROR: str | None = None  # why the worker could not open its context, if it could not
 
@@ -169,14 +174,6 @@ def _chunks(labels: list[Path], size: int) -> list[list[Path]]:
     return [labels[i : i + size] for i in range(0, len(labels), size)]
 
 
-def _part_paths(out: Path, k: int) -> tuple[str, Path, Path]:
-    return (
-        f"shards/shard-{k:06d}.tar",
-        out / "parts" / f"manifest-{k:06d}.parquet",
-        out / "parts" / f"failures-{k:06d}.parquet",
-    )
-
-
 def _results(config: BuildConfig, labels: list[str], workers: int) -> Iterator[tuple[str, Any]]:
     """Results in label order, from a process pool (or this process for one worker).
 
@@ -218,7 +215,7 @@ def _write_chunk(
     """Write chunk k's shard and parts; samples in the split buffer are dropped when the
     config says so (their count goes in the manifest part's metadata)."""
     out = config.output.dir
-    shard_rel, manifest_part, failures_part = _part_paths(out, k)
+    shard_rel, manifest_part, failures_part = part_paths(out, k)
     rows, failures = [], []
     samples = []
     for i, (status, r) in enumerate(results):
@@ -260,7 +257,7 @@ def _write_chunk(
                 rows.append(row)
     write_parquet_atomic(rows_to_table(failures, FAILURE_SCHEMA), failures_part)
     table = rows_to_table(rows, MANIFEST_SCHEMA)
-    table = table.replace_schema_metadata({_DROPPED_KEY: str(dropped).encode()})
+    table = table.replace_schema_metadata({DROPPED_KEY: str(dropped).encode()})
     write_parquet_atomic(table, manifest_part)  # commit marker
     return len(samples)
 
@@ -291,20 +288,20 @@ def run_build(
     chunks = _chunks(labels, config.output.shard_size)
     for leftover in out.rglob(".*.tmp-*"):  # temporary files of a killed build
         leftover.unlink()
-    fingerprint = _fingerprint(config, labels)
+    build_print = fingerprint(config, labels)
     stamp = out / "parts" / "build.json"
-    previous = _read_stamp(stamp)
-    if resume and previous is not None and previous != fingerprint:
+    previous = read_stamp(stamp)
+    if resume and previous is not None and previous != build_print:
         raise ConfigError(
             f"{out}: cannot resume: the config or the label list changed since the "
             "interrupted build; rerun without --resume"
         )
     if not resume or previous is None:  # no stamp: no part can be trusted, resumed or not
-        _clear_outputs(out)
+        clear_outputs(out)
     stamp.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(stamp, json.dumps(fingerprint).encode())
-    todo = [k for k in range(len(chunks)) if not _part_paths(out, k)[1].exists()]
-    seen = _built_keys(out, [k for k in range(len(chunks)) if k not in todo])
+    atomic_write_bytes(stamp, json.dumps(build_print).encode())
+    todo = [k for k in range(len(chunks)) if not part_paths(out, k)[1].exists()]
+    seen = built_keys(out, [k for k in range(len(chunks)) if k not in todo])
     pending = [str(p) for k in todo for p in chunks[k]]
     bar = tqdm(
         total=len(labels),
@@ -330,7 +327,7 @@ def run_build(
         close = getattr(results, "close", None)
         if close:
             close()
-    manifest, failures = _merge(config, len(chunks))
+    manifest, failures = merge_parts(config, len(chunks))
     summary = BuildSummary(
         out_dir=out,
         samples=manifest.num_rows,
@@ -350,123 +347,6 @@ def run_build(
         seconds=time.perf_counter() - start,
         stage_seconds=dict(stage_seconds),
     )
-    _write_dataset_json(config, summary, manifest, _dropped(out, len(chunks)))
+    write_dataset_json(config, summary, manifest, dropped_count(out, len(chunks)))
     write_wids_index(out, manifest)
     return summary
-
-
-def _dropped(out: Path, n_chunks: int) -> int:
-    """Samples dropped in the split buffer, summed over the chunk parts."""
-    total = 0
-    for k in range(n_chunks):
-        meta = pq.read_schema(_part_paths(out, k)[1]).metadata or {}
-        total += int(meta.get(_DROPPED_KEY, b"0"))
-    return total
-
-
-def _fingerprint(config: BuildConfig, labels: list[Path]) -> dict[str, Any]:
-    """What a resumed build must share with the interrupted one."""
-    doc = config.to_dict()
-    doc.pop("source", None)
-    doc["output"].pop("dir", None)
-    names = "\n".join(str(p) for p in labels).encode()
-    return {"config": doc, "labels": hashlib.sha256(names).hexdigest(), "count": len(labels)}
-
-
-def _read_stamp(stamp: Path) -> dict[str, Any] | None:
-    """The fingerprint of the build that wrote the parts; None when absent or damaged."""
-    try:
-        doc = json.loads(stamp.read_bytes())
-    except (OSError, ValueError):
-        return None
-    return doc if isinstance(doc, dict) else None
-
-
-def _built_keys(out: Path, done: list[int]) -> dict[str, str]:
-    """Sample key -> label path of the chunks a resumed build keeps (for duplicate ids)."""
-    seen: dict[str, str] = {}
-    for k in done:
-        part = pq.read_table(_part_paths(out, k)[1], columns=["key", "label_path"])
-        seen.update(zip(part["key"].to_pylist(), part["label_path"].to_pylist(), strict=True))
-    return seen
-
-
-def _clear_outputs(out: Path) -> None:
-    """Remove what an earlier build left, crash-safely: the stamp goes first, so a build
-    killed at any point of the clearing leaves no stamp and its rerun (resumed or not)
-    clears again; then the dataset's own commit marker (manifest.parquet), so no reader
-    sees a manifest whose shards are going; then the chunk commit markers (manifest parts)
-    before the failure parts and shards they vouch for."""
-    for pattern in (
-        "parts/build.json",
-        "manifest.parquet",
-        "dataset.json",
-        WIDS_INDEX,
-        "failures.parquet",
-        "parts/manifest-*.parquet",
-        "parts/*.parquet",
-        "shards/*.tar",
-    ):
-        for stale in sorted(out.glob(pattern)):
-            if stale.is_file():
-                stale.unlink()
-
-
-def _merge(config: BuildConfig, n_chunks: int) -> tuple[pa.Table, pa.Table]:
-    """Concatenate the chunk parts into manifest.parquet (Hilbert order) and failures.parquet."""
-    out = config.output.dir
-    parts = [pq.read_table(_part_paths(out, k)[1]) for k in range(n_chunks)]
-    fails = [pq.read_table(_part_paths(out, k)[2]) for k in range(n_chunks)]
-    manifest = pa.concat_tables(parts) if parts else MANIFEST_SCHEMA.empty_table()
-    manifest = manifest.sort_by([("hilbert", "ascending"), ("key", "ascending")])
-    failures = pa.concat_tables(fails) if fails else FAILURE_SCHEMA.empty_table()
-    crs = _dataset_crs(config)
-    manifest = manifest.replace_schema_metadata(geo_metadata(crs, footprints_bbox(manifest)))
-    write_parquet_atomic(manifest, out / "manifest.parquet", row_group_size=1024)
-    write_parquet_atomic(failures, out / "failures.parquet")
-    return manifest, failures
-
-
-def _dataset_crs(config: BuildConfig) -> str:
-    import rasterio
-
-    with rasterio.open(config.inputs.dem) as src:
-        return src.crs.to_wkt()
-
-
-def _write_dataset_json(
-    config: BuildConfig, summary: BuildSummary, manifest: pa.Table, dropped: int
-) -> None:
-    import numba
-    import numpy
-    import pyarrow
-    import rasterio
-
-    from mars_pairs import __version__
-
-    counts: dict[str, Any] = {"samples": summary.samples, "failures": summary.failures}
-    if manifest.num_rows:
-        counts["by_split"] = dict(Counter(manifest.column("split").to_pylist()))
-        counts["by_mission"] = dict(Counter(manifest.column("mission").to_pylist()))
-    doc = {
-        "config": config.to_dict(),
-        "versions": {
-            "mars_pairs": __version__,
-            "numpy": numpy.__version__,
-            "rasterio": rasterio.__version__,
-            "pyarrow": pyarrow.__version__,
-            "numba": numba.__version__,
-            "python": platform.python_version(),
-        },
-        "crs": _dataset_crs(config),
-        "chip": {
-            "size_m": config.chips.size_m,
-            "size_px": config.chips.size_px,
-            "orientation": config.chips.orientation,
-        },
-        "counts": counts,
-        "splits": splits_report(config, manifest, dropped),
-        "failures_by_reason": summary.failures_by_reason,
-        "build_seconds": round(summary.seconds, 3),
-    }
-    atomic_write_bytes(config.output.dir / "dataset.json", json.dumps(doc, indent=2).encode())
