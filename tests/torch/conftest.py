@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import tarfile
 from pathlib import Path
 from typing import Any
 
@@ -54,3 +55,16 @@ def heading_up_dir(mission_dir: Path, tmp_path_factory: pytest.TempPathFactory) 
         tmp_path_factory.mktemp("built-heading") / "ds",
         chips={"size_m": 96, "size_px": 128, "orientation": "heading-up"},
     )
+
+
+@pytest.fixture(scope="session")
+def members(dataset_dir: Path) -> dict[str, bytes]:
+    """Every tar member's bytes by name, read through tarfile (independent of the manifest)."""
+    found: dict[str, bytes] = {}
+    for shard in sorted((dataset_dir / "shards").glob("*.tar")):
+        with tarfile.open(shard) as tar:
+            for info in tar.getmembers():
+                fh = tar.extractfile(info)
+                assert fh is not None
+                found[info.name] = fh.read()
+    return found

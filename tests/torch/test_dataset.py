@@ -8,7 +8,6 @@ import math
 import re
 import subprocess
 import sys
-import tarfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -18,6 +17,7 @@ import pytest
 import torch
 from PIL import Image
 from torch.utils.data import DataLoader
+from torch_members import all_keys
 
 import mars_pairs.torch.datasets as mpd
 import mars_pairs.torch.streaming as mps
@@ -25,30 +25,6 @@ from mars_pairs import Manifest
 from mars_pairs.torch import MarsPairsDataset, MarsPairsIterableDataset, collate_samples
 
 ROOT = Path(__file__).resolve().parents[2]
-SUFFIX = {
-    "ortho": "ortho.png",
-    "dem": "dem.npy",
-    "viewshed": "viewshed.png",
-    "corr": "corr.npy",
-    "meta": "meta.json",
-}
-
-
-@pytest.fixture(scope="module")
-def members(dataset_dir: Path) -> dict[str, bytes]:
-    """Every tar member's bytes by name, read through tarfile (independent of the manifest)."""
-    found: dict[str, bytes] = {}
-    for shard in sorted((dataset_dir / "shards").glob("*.tar")):
-        with tarfile.open(shard) as tar:
-            for info in tar.getmembers():
-                fh = tar.extractfile(info)
-                assert fh is not None
-                found[info.name] = fh.read()
-    return found
-
-
-def all_keys(root: Path) -> set[str]:
-    return set(Manifest.open(root).to_table(columns=["key"]).column("key").to_pylist())
 
 
 def manifest_keys(root: Path, **filters: Any) -> set[str]:

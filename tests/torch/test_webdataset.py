@@ -3,40 +3,14 @@
 from __future__ import annotations
 
 import json
-import tarfile
 from pathlib import Path
 
 import pytest
 import torch
+from torch_members import SUFFIX, all_keys
 
-from mars_pairs import Manifest
 from mars_pairs.store.wids_index import WIDS_INDEX
 from mars_pairs.torch import ALL_FIELDS, MarsPairsDataset, decode_member
-
-SUFFIX = {
-    "ortho": "ortho.png",
-    "dem": "dem.npy",
-    "viewshed": "viewshed.png",
-    "corr": "corr.npy",
-    "meta": "meta.json",
-}
-
-
-@pytest.fixture(scope="module")
-def members(dataset_dir: Path) -> dict[str, bytes]:
-    """Every tar member's bytes by name, read through tarfile (independent of the manifest)."""
-    found: dict[str, bytes] = {}
-    for shard in sorted((dataset_dir / "shards").glob("*.tar")):
-        with tarfile.open(shard) as tar:
-            for info in tar.getmembers():
-                fh = tar.extractfile(info)
-                assert fh is not None
-                found[info.name] = fh.read()
-    return found
-
-
-def all_keys(root: Path) -> set[str]:
-    return set(Manifest.open(root).to_table(columns=["key"]).column("key").to_pylist())
 
 
 def test_shards_read_with_webdataset(dataset_dir: Path, members: dict[str, bytes]) -> None:
