@@ -58,9 +58,16 @@ from mars_pairs.torch import (  # noqa: E402
     DEFAULT_FIELDS,
     MarsPairsDataset,
     MarsPairsIterableDataset,
+    MarsPairsLoader,
     collate_samples,
 )
-from mars_pairs.torch.transforms import ToFloat  # noqa: E402
+from mars_pairs.torch.transforms import (  # noqa: E402
+    Compose,
+    RandomCrop,
+    RandomFlip,
+    RandomRotate,
+    ToFloat,
+)
 
 
 def demo_dataset(tmp: Path) -> Path:
@@ -132,16 +139,20 @@ def loader_loop(
     context: str = "fork",
     on_batch: Callable[[Any], Any] | None = None,
     collate: Callable | None = collate_samples,
+    loader_class: type = MarsPairsLoader,
 ) -> Callable:
-    """Iterate a DataLoader (one loader reused when ``persistent``, else a fresh one);
-    ``on_batch`` runs on each batch in this process."""
-    kwargs: dict[str, Any] = dict(batch_size=batch, num_workers=workers, collate_fn=collate)
+    """Iterate a loader (one reused when ``persistent``, else a fresh one per epoch);
+    ``on_batch`` runs on each batch in this process. ``MarsPairsLoader`` recycles its
+    workers' shared memory when it collates (``collate=None``: its default)."""
+    kwargs: dict[str, Any] = dict(batch_size=batch, num_workers=workers)
+    if collate is not None or loader_class is DataLoader:
+        kwargs["collate_fn"] = collate
     if workers:
         kwargs.update(multiprocessing_context=context, persistent_workers=persistent)
-    shared = DataLoader(ds, **kwargs) if persistent else None
+    shared = loader_class(ds, **kwargs) if persistent else None
 
     def run() -> int:
-        loader = shared if shared is not None else DataLoader(ds, **kwargs)
+        loader = shared if shared is not None else loader_class(ds, **kwargs)
         n = 0
         for b in loader:
             if on_batch is not None:
@@ -230,28 +241,44 @@ def main() -> int:
         w, bs = args.workers, args.batch_size
         load0 = os.getloadavg()[0]
         to_float = ToFloat()
+        augment = Compose(
+            [
+                RandomCrop(384, target="chip"),
+                RandomFlip(target="ground"),
+                RandomRotate(target="chip", quarter_turns=True),
+            ]
+        )
+        ours = f"`MarsPairsLoader`, {w} workers, persistent"
         loops = {
             "read + decode only (1 process, numpy; the anchor)": decode_only(root, DEFAULT_FIELDS),
             "`MarsPairsDataset[i]` (1 process)": dataset_loop(ds),
-            "DataLoader, 0 workers": loader_loop(ds, 0, bs, False),
-            f"DataLoader, {w} workers, persistent": loader_loop(ds, w, bs, True),
-            f"DataLoader, {w} workers, new loader each epoch (worker start-up included)": (
-                loader_loop(ds, w, bs, False)
+            "DataLoader, 0 workers": loader_loop(ds, 0, bs, False, loader_class=DataLoader),
+            ours: loader_loop(ds, w, bs, True, collate=None),
+            f"{ours}, transform (chip crop 384, ground flip, chip quarter turn)": loader_loop(
+                MarsPairsDataset(root, transform=augment), w, bs, True, collate=None
             ),
-            f"DataLoader, {w} workers, persistent, spawned workers": (
-                loader_loop(ds, w, bs, True, "spawn")
+            f"{ours}, spawned workers": loader_loop(ds, w, bs, True, "spawn", collate=None),
+            f"`MarsPairsLoader`, {w} workers, new loader each epoch (worker start-up included)": (
+                loader_loop(ds, w, bs, False, collate=None)
             ),
-            f"DataLoader, {w} workers, persistent, `image_dtype=torch.float32`": loader_loop(
-                MarsPairsDataset(root, image_dtype=torch.float32), w, bs, True
+            f"{ours}, uint8 + `ToFloat` in the main process": loader_loop(
+                ds, w, bs, True, on_batch=to_float, collate=None
             ),
-            f"DataLoader, {w} workers, persistent, uint8 + `ToFloat` in the main process": (
-                loader_loop(ds, w, bs, True, on_batch=to_float)
+            f"{ours}, `image_dtype=torch.float32`": loader_loop(
+                MarsPairsDataset(root, image_dtype=torch.float32), w, bs, True, collate=None
             ),
-            f"`MarsPairsIterableDataset`, {w} workers, persistent": loader_loop(
-                MarsPairsIterableDataset(root, shuffle_buffer=bs), w, bs, True
+            f"`MarsPairsIterableDataset` through `MarsPairsLoader`, {w} workers, persistent": (
+                loader_loop(
+                    MarsPairsIterableDataset(root, shuffle_buffer=bs), w, bs, True, collate=None
+                )
+            ),
+            f"plain `torch.utils.data.DataLoader` + `collate_samples`, {w} workers, persistent": (
+                loader_loop(ds, w, bs, True, loader_class=DataLoader)
             ),
             f"WebDataset pipeline (`wds.WebDataset` + decode + batched), {w} workers, "
-            "persistent": loader_loop(webdataset_pipeline(root, bs), w, None, True, collate=None),
+            "persistent": loader_loop(
+                webdataset_pipeline(root, bs), w, None, True, collate=None, loader_class=DataLoader
+            ),
         }
         rows = list(rates(loops, args.epochs, args.repeats).items())
         load1 = os.getloadavg()[0]

@@ -1,25 +1,36 @@
-"""Member bytes: PNG and NPY encoding, WebDataset field names."""
+"""Member bytes: PNG and NPY encoding, WebDataset field names.
+
+PNG chips are written with imagecodecs (libpng) at zlib level 1, run-length strategy and the
+Sub filter on every row. Pillow offers no filter choice and tries all five on every row:
+on a 512 x 512 orthoimage chip that took 6.3 ms (142 KiB), libpng with Sub 1.8 ms (144 KiB),
+and the Sub-filtered file decodes in 1.45 ms instead of 2.6 ms with Pillow (load 1). Any PNG
+reader opens the files.
+"""
 
 from __future__ import annotations
 
 import io
 import json
-import zlib
 from typing import Any
 
+import imagecodecs
 import numpy as np
-from PIL import Image
+
+_PNG_LEVEL = 1  # zlib speed
+_PNG_STRATEGY = 3  # zlib Z_RLE
+_PNG_FILTER = 16  # libpng PNG_FILTER_SUB: one filter for every row
 
 
-def _png(arr: np.ndarray) -> bytes:
-    """Lossless PNG. zlib's run-length strategy: on orthoimage chips (texture, few long
-    repeats) ~1.4x faster than level 1 and ~10% smaller, as small as level 9."""
-    buf = io.BytesIO()
-    Image.fromarray(arr).save(buf, format="PNG", compress_type=zlib.Z_RLE)
-    return buf.getvalue()
+def png_bytes(arr: np.ndarray) -> bytes:
+    """Lossless PNG of a uint8 (H, W) or (H, W, 3) array."""
+    data = imagecodecs.png_encode(
+        np.ascontiguousarray(arr), level=_PNG_LEVEL, strategy=_PNG_STRATEGY, filter=_PNG_FILTER
+    )
+    return bytes(data)
 
 
-def _npy(arr: np.ndarray) -> bytes:
+def npy_bytes(arr: np.ndarray) -> bytes:
+    """The array in NumPy's .npy format (no pickle)."""
     buf = io.BytesIO()
     np.save(buf, arr, allow_pickle=False)
     return buf.getvalue()
@@ -30,9 +41,9 @@ def encode_members(
 ) -> dict[str, bytes]:
     """Member bytes, WebDataset field names."""
     return {
-        "ortho.png": _png(chips["ortho"]),
-        "dem.npy": _npy(chips["dem"]),
-        "viewshed.png": _png(chips["viewshed"]),
-        "corr.npy": _npy(corr),
+        "ortho.png": png_bytes(chips["ortho"]),
+        "dem.npy": npy_bytes(chips["dem"]),
+        "viewshed.png": png_bytes(chips["viewshed"]),
+        "corr.npy": npy_bytes(corr),
         "meta.json": json.dumps(meta, sort_keys=True).encode(),
     }

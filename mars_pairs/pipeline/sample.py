@@ -43,7 +43,7 @@ def build_sample(label: Path, ctx: SampleContext) -> Sample:
             obs = ground.observation
         with stage("locate"):
             pose = ctx.places.locate(obs)
-            camera = MapCamera.from_observation(obs, pose, ctx.terrain.crs)
+            camera = MapCamera.from_observation(obs, pose, ctx.crs_wkt)
         view = compute_view(obs, pose, camera, ctx, stage)
         with stage("chips"):
             grid, chips = cut_chips(view, ctx, obs)

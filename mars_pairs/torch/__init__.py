@@ -1,8 +1,10 @@
-"""Torch datasets over a built dataset: map-style and streaming datasets, collate, transforms."""
+"""Torch datasets over a built dataset: map-style and streaming datasets, the loader, collate,
+transforms."""
 
 from mars_pairs.torch.collate import collate_samples
 from mars_pairs.torch.datasets import MarsPairsDataset
 from mars_pairs.torch.decode import ALL_FIELDS, DEFAULT_FIELDS, decode_member
+from mars_pairs.torch.loader import MarsPairsLoader
 from mars_pairs.torch.streaming import MarsPairsIterableDataset
 
 __all__ = [
@@ -10,6 +12,7 @@ __all__ = [
     "DEFAULT_FIELDS",
     "MarsPairsDataset",
     "MarsPairsIterableDataset",
+    "MarsPairsLoader",
     "collate_samples",
     "decode_member",
 ]

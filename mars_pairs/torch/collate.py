@@ -2,22 +2,38 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import torch
 from torch.utils.data import default_collate
 
-from mars_pairs.torch.transport import stacked_base
+from mars_pairs.torch.transport import Layout, stacked_base
 
 
-def collate_samples(batch: Sequence[dict[str, Any]]) -> dict[str, Any]:
+def batch_layout(batch: Sequence[dict[str, Any]]) -> dict[str, tuple[tuple[int, ...], torch.dtype]]:
+    """Field -> (shape, dtype) of the [B, ...] tensor each stackable field collates to."""
+    layout = {}
+    for key in batch[0]:
+        values = [b[key] for b in batch]
+        if key == "meta" or not all(isinstance(v, torch.Tensor) for v in values):
+            continue
+        if len({(v.shape, v.dtype) for v in values}) == 1:
+            layout[key] = ((len(values), *values[0].shape), values[0].dtype)
+    return layout
+
+
+def collate_samples(
+    batch: Sequence[dict[str, Any]], *, into: Mapping[str, torch.Tensor] | None = None
+) -> dict[str, Any]:
     """Stack tensors of a batch; ``meta`` becomes a dict of lists, other values lists.
 
     Rows of one batch buffer (from ``MarsPairsDataset.__getitems__``) are returned as that
     buffer, without a copy; other tensors are stacked with ``default_collate``, which in a
-    DataLoader worker writes the batch straight into shared memory. Tensors whose shapes
-    differ across the batch (ground images without ``ground_size``) stay a list.
+    DataLoader worker writes the batch straight into shared memory. ``into`` (field ->
+    [B, ...] tensor, of :func:`batch_layout`'s shapes) receives the stacked fields instead.
+    Tensors whose shapes differ across the batch (ground images without ``ground_size``)
+    stay a list.
     """
     out: dict[str, Any] = {}
     for key in batch[0]:
@@ -25,16 +41,29 @@ def collate_samples(batch: Sequence[dict[str, Any]]) -> dict[str, Any]:
         if key == "meta":
             out["meta"] = {k: [m[k] for m in values] for k in values[0]}
         elif all(isinstance(v, torch.Tensor) for v in values):
-            out[key] = _collate_tensors(values)
+            target = None if into is None else into.get(key)
+            out[key] = _collate_tensors(values, target)
         else:
             out[key] = values
     return out
 
 
-def _collate_tensors(tensors: list[torch.Tensor]) -> torch.Tensor | list[torch.Tensor]:
-    """One field's [B, ...] batch: the buffer the rows view (no copy), else a stack (into
-    shared memory inside a worker); a list when the shapes differ."""
+def _collate_tensors(
+    tensors: list[torch.Tensor], target: torch.Tensor | None = None
+) -> torch.Tensor | list[torch.Tensor]:
+    """One field's [B, ...] batch: written into ``target`` if given, else the buffer the rows
+    view (no copy), else a stack (into shared memory inside a worker); a list when the
+    shapes differ."""
     if len({t.shape for t in tensors}) > 1:
         return tensors
     base = stacked_base(tensors)
-    return base if base is not None else default_collate(tensors)
+    if target is None:
+        return base if base is not None else default_collate(tensors)
+    if base is not None:
+        target.copy_(base)
+    else:
+        torch.stack(tensors, out=target)
+    return target
+
+
+__all__ = ["Layout", "batch_layout", "collate_samples"]

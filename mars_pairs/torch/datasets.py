@@ -28,7 +28,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import torch
-from torch.utils.data import Dataset, get_worker_info
+from torch.utils.data import Dataset
 
 from mars_pairs.errors import ArgumentError, DatasetError, SampleIndexError, SampleKeyError
 from mars_pairs.store.manifest import SUMMARY_COLUMNS, Manifest
@@ -38,7 +38,6 @@ from mars_pairs.torch.decode import (
     ALL_FIELDS,
     DEFAULT_FIELDS,
     MEMBER_SUFFIXES,
-    TORCH_DTYPES,
     chw_shape,
     decode_raw,
     finish_chw,
@@ -46,7 +45,6 @@ from mars_pairs.torch.decode import (
 )
 from mars_pairs.torch.files import ShardFiles
 from mars_pairs.torch.georef import GEO_COLUMNS, chip_transform, corr_ground_grid
-from mars_pairs.torch.transport import shared_empty
 
 META_COLUMNS = SUMMARY_COLUMNS
 
@@ -303,22 +301,22 @@ class MarsPairsDataset(Dataset):
 
         Members are decoded to compact arrays first; each field whose shapes agree across the
         batch is then converted into one [B, C, H, W] buffer whose rows are the samples'
-        tensors, so ``collate_samples`` hands it on without another copy. Inside a DataLoader
-        worker the buffers are in shared memory.
+        tensors, so ``collate_samples`` hands it on without another copy. The buffers are in
+        this process's memory, also in a DataLoader worker (numpy reuses freed pages; fresh
+        shared memory costs ~1 ms/MB): the worker's collate stage moves the batch to shared
+        memory, into a recycled slot under :class:`~mars_pairs.torch.loader.MarsPairsLoader`.
         """
         checked = [self._checked(i) for i in indices]
         raws = [self._raw(i) for i in checked]
-        in_worker = get_worker_info() is not None
         tensors: list[dict[str, torch.Tensor]] = [{} for _ in raws]
         for name in self.fields:
             shapes = {chw_shape(r[name]) for r in raws}
             dtype = self._dtypes[name]
             if len(shapes) == 1:
                 shape = (len(raws), *shapes.pop())
-                if in_worker:
-                    batch = shared_empty(shape, TORCH_DTYPES[dtype])
-                else:  # numpy reuses freed memory; torch.empty page-faults it in anew
-                    batch = torch.from_numpy(np.empty(shape, dtype=dtype))
+                # private memory, also in a worker: numpy reuses freed pages (fresh shared
+                # memory costs ~1 ms/MB); the collate stage writes the batch into shared memory
+                batch = torch.from_numpy(np.empty(shape, dtype=dtype))
                 for j, r in enumerate(raws):
                     finish_chw(name, r[name], batch[j].numpy())
                     tensors[j][name] = batch[j]

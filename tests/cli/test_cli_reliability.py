@@ -203,11 +203,12 @@ def test_query_refuses_impossible_places(
 
 # -- locate ---------------------------------------------------------------------------------
 def _label_variant(small_mission: Path, tmp_path: Path, old: str, new: str) -> Path:
+    """The first label with every match of the regular expression ``old`` replaced."""
     label = sorted((small_mission / "labels").glob("*.xml"))[0]
-    text = label.read_text()
-    assert old in text
+    text, n = re.subn(old, new, label.read_text())
+    assert n >= 1
     out = tmp_path / label.name
-    out.write_text(text.replace(old, new))
+    out.write_text(text)
     shutil.copy(label.with_suffix(".jpg"), out.with_suffix(".jpg"))
     return out
 
@@ -236,7 +237,9 @@ def test_locate_a_400_digit_pds3_line_count(
 def test_locate_a_1e308_camera_component(
     small_mission: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    label = _label_variant(small_mission, tmp_path, ">1326.686643228432<", ">1e308<")
+    label = _label_variant(  # H's x (its last digits vary with the numpy build)
+        small_mission, tmp_path, r"(<geom:Vector_Horizontal>\s*<geom:x_pixel>)[^<]+", r"\g<1>1e308"
+    )
     places = small_mission / "places" / "best_interp.csv"
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # numpy's overflow RuntimeWarnings fail the test

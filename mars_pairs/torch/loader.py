@@ -1,0 +1,121 @@
+"""MarsPairsLoader: a torch DataLoader whose workers refill the same shared-memory batches.
+
+A plain DataLoader worker puts every batch into new shared memory; creating and filling it
+cost as much as decoding the batch here (see :mod:`mars_pairs.torch.transport`). With
+``MarsPairsLoader`` each worker keeps a few batch slots in shared memory and refills them;
+the loader copies every batch it receives into its own process's memory (one memcpy) and
+hands the slot back. The batches it yields are ordinary tensors that the caller owns: they
+may be kept, modified or sent to a GPU at leisure. Like ``webdataset.WebLoader``, it is a
+``DataLoader`` subclass taking the same arguments.
+
+Slots are used when the loader has workers and collates with :func:`collate_samples` (the
+default); with a ``collate_fn`` of the caller's, it behaves exactly as a DataLoader.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any
+
+import torch
+from torch.utils.data import DataLoader, get_worker_info
+
+from mars_pairs.torch.collate import batch_layout, collate_samples
+from mars_pairs.torch.transport import FREE, BatchSlots, block_views, private_copy
+
+#: the batch key that carries (worker id, slot, layout, block, allocations) to the loader
+SLOT_KEY = "_mars_pairs_slot"
+
+
+class RecyclingCollate:
+    """``collate_samples`` into a worker's recycled shared-memory slot.
+
+    ``flags``: shared uint8 [workers, slots] (FREE / LENT), made by the loader. In the main
+    process (no workers) it is ``collate_samples``.
+    """
+
+    def __init__(self, flags: torch.Tensor) -> None:
+        self.flags = flags
+        self._slots: BatchSlots | None = None  # per process, made on first use
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {"flags": self.flags, "_slots": None}
+
+    def __call__(self, batch: Sequence[dict[str, Any]]) -> dict[str, Any]:
+        info = get_worker_info()
+        if info is None or not batch:
+            return collate_samples(batch)
+        if self._slots is None:
+            self._slots = BatchSlots(self.flags[info.id])
+        layout = batch_layout(batch)
+        taken = self._slots.take(layout) if layout else None
+        if taken is None:  # no free slot: new shared memory, as a plain DataLoader
+            return collate_samples(batch)
+        slot, block = taken
+        out = collate_samples(batch, into=block.views)
+        for key in block.layout:
+            out[key] = None  # travels in the block (one shared storage for the batch)
+        out[SLOT_KEY] = (info.id, slot, block.layout, block.block, self._slots.allocations)
+        return out
+
+
+class MarsPairsLoader(DataLoader):
+    """A ``torch.utils.data.DataLoader`` over a mars-pairs dataset whose workers reuse their
+    shared-memory batch buffers.
+
+    Takes DataLoader's arguments. ``collate_fn`` defaults to :func:`collate_samples`; slots
+    are recycled when ``num_workers > 0`` and no other ``collate_fn`` is given (each worker
+    keeps ``prefetch_factor + 2`` slots). ``recycled`` and ``fresh`` count the batches
+    received through a slot and through new shared memory, ``allocations`` the slot blocks
+    each worker has allocated (a worker reuses them: at most its slot count per layout).
+    """
+
+    def __init__(
+        self,
+        dataset: Any,
+        batch_size: int | None = 1,
+        shuffle: bool | None = None,
+        *,
+        num_workers: int = 0,
+        collate_fn: Callable[[Any], Any] | None = None,
+        prefetch_factor: int | None = None,
+        **kwargs: Any,
+    ) -> None:
+        recycle = num_workers > 0 and collate_fn is None and batch_size is not None
+        self._flags: torch.Tensor | None = None
+        if recycle:
+            slots = (prefetch_factor or 2) + 2
+            self._flags = torch.full((num_workers, slots), FREE, dtype=torch.uint8)
+            self._flags.share_memory_()
+            collate_fn = RecyclingCollate(self._flags)
+        super().__init__(
+            dataset,
+            batch_size,
+            shuffle,
+            num_workers=num_workers,
+            collate_fn=collate_fn or collate_samples,
+            prefetch_factor=prefetch_factor,
+            **kwargs,
+        )
+        self.recycled = 0
+        self.fresh = 0
+        self.allocations: dict[int, int] = {}  # worker id -> slot blocks it has allocated
+
+    def __iter__(self) -> Iterator[Any]:  # type: ignore[override]
+        for batch in super().__iter__():
+            yield self._receive(batch)
+
+    def _receive(self, batch: Any) -> Any:
+        """The caller's copy of a received batch; its slot handed back to the worker."""
+        if not isinstance(batch, dict) or SLOT_KEY not in batch:
+            self.fresh += isinstance(batch, dict)
+            return batch
+        worker, slot, layout, block, allocations = batch.pop(SLOT_KEY)
+        self.allocations[int(worker)] = int(allocations)
+        for key, view in block_views(block, layout).items():
+            # a pinned block is already a copy (pin_memory); a shared one is the worker's slot
+            batch[key] = private_copy(view) if block.is_shared() else view
+        assert self._flags is not None
+        self._flags[int(worker), int(slot)] = FREE
+        self.recycled += 1
+        return batch

@@ -1,0 +1,157 @@
+"""MarsPairsLoader: workers refill their shared-memory slots; the batches it yields are the
+caller's own and equal what a one-process DataLoader gives."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+from torch.utils.data import DataLoader
+
+from mars_pairs.torch import MarsPairsDataset, MarsPairsLoader, collate_samples
+from mars_pairs.torch.transforms import Flip
+from mars_pairs.torch.transport import FREE, LENT, BatchSlots
+
+FIELDS = ("ground", "ortho", "dem", "viewshed", "bounds", "transform", "rotation")
+
+
+def reference(ds: MarsPairsDataset, batch_size: int) -> list[dict]:
+    """Batches built in this process, one sample at a time (no worker, no slot)."""
+    return [
+        collate_samples([ds[i] for i in range(j, min(j + batch_size, len(ds)))])
+        for j in range(0, len(ds), batch_size)
+    ]
+
+
+def assert_same(got: list[dict], want: list[dict]) -> None:
+    assert len(got) == len(want)
+    for g, w in zip(got, want, strict=True):
+        assert g["meta"]["key"] == w["meta"]["key"]
+        for key in FIELDS:
+            assert g[key].dtype == w[key].dtype, key
+            assert torch.equal(g[key], w[key]), key
+
+
+def test_batches_equal_and_slots_reused(dataset_dir: Path) -> None:
+    with MarsPairsDataset(dataset_dir, ground_size=(96, 128)) as ds:
+        want = reference(ds, 2)
+        loader = MarsPairsLoader(ds, batch_size=2, num_workers=2, persistent_workers=True)
+        epochs = [list(loader) for _ in range(4)]  # every batch kept: none may alias another
+    for got in epochs:
+        assert_same(got, want)
+        for batch in got:
+            assert not any(batch[k].is_shared() for k in FIELDS)  # the caller's own memory
+    assert loader.recycled == 4 * len(want) and loader.fresh == 0
+    # 20 batches from 2 workers of 4 slots each: the slots were refilled, not reallocated
+    assert 1 <= sum(loader.allocations.values()) <= 8
+
+
+def test_transforms_keep_slots(dataset_dir: Path) -> None:
+    """A transform replaces the sample's tensors: the collate stage still fills the slots."""
+    transform = Flip("horizontal", target="chip")
+    with MarsPairsDataset(dataset_dir, ground_size=(96, 128), transform=transform) as ds:
+        want = reference(ds, 3)
+        loader = MarsPairsLoader(ds, batch_size=3, num_workers=2)
+        got = list(loader)
+    assert_same(got, want)
+    assert loader.recycled == len(want) and loader.fresh == 0
+
+
+def test_epoch_cut_short_reclaims_slots(dataset_dir: Path) -> None:
+    with MarsPairsDataset(dataset_dir, ground_size=(96, 128)) as ds:
+        want = reference(ds, 1)
+        loader = MarsPairsLoader(ds, batch_size=1, num_workers=2, persistent_workers=True)
+        for _ in range(3):
+            for _batch in loader:  # leaves batches in flight, never received
+                break
+            assert_same(list(loader), want)
+    assert loader.fresh == 0  # lost slots came back (unreclaimed, 9 lost > 8 slots)
+    assert sum(loader.allocations.values()) <= 8
+
+
+def test_spawned_workers(dataset_dir: Path) -> None:
+    with MarsPairsDataset(dataset_dir, ground_size=(96, 128)) as ds:
+        loader = MarsPairsLoader(ds, batch_size=4, num_workers=1, multiprocessing_context="spawn")
+        assert_same(list(loader), reference(ds, 4))
+    assert loader.recycled == 3
+
+
+def test_own_collate_is_plain_dataloader(dataset_dir: Path) -> None:
+    with MarsPairsDataset(dataset_dir, fields=("ortho",)) as ds:
+        loader = MarsPairsLoader(ds, batch_size=4, num_workers=1, collate_fn=len)
+        assert list(loader) == [4, 4, 1]
+        plain = list(DataLoader(ds, batch_size=4, num_workers=1, collate_fn=len))
+    assert plain == [4, 4, 1] and loader.recycled == 0
+
+
+def test_no_workers_no_slots(dataset_dir: Path) -> None:
+    with MarsPairsDataset(dataset_dir, ground_size=(96, 128)) as ds:
+        loader = MarsPairsLoader(ds, batch_size=4)
+        assert_same(list(loader), reference(ds, 4))
+    assert loader.recycled == 0
+
+
+LAYOUT = {"a": ((2, 3), torch.uint8), "b": ((4,), torch.float64)}
+
+
+def test_slots_lend_free_and_run_out() -> None:
+    flags = torch.full((2,), FREE, dtype=torch.uint8)
+    slots = BatchSlots(flags)
+    first = slots.take(LAYOUT)
+    second = slots.take(LAYOUT)
+    assert first is not None and second is not None
+    assert {first[0], second[0]} == {0, 1} and flags.tolist() == [LENT, LENT]
+    assert slots.take(LAYOUT) is None  # both out: the caller goes the plain way
+    flags[first[0]] = FREE
+    again = slots.take(LAYOUT)
+    assert again is not None and again[0] == first[0]
+    assert again[1] is first[1] and slots.allocations == 2  # the same block, refilled
+    views = again[1].views
+    assert views["a"].shape == (2, 3) and views["b"].dtype == torch.float64
+    assert views["b"].data_ptr() % 64 == 0
+
+
+def test_lost_slot_reclaimed_by_a_later_release() -> None:
+    """Batches reach the main process in the order a worker sent them: when a later one is
+    freed, an earlier one still out was lost (its epoch was cut short)."""
+    flags = torch.full((3,), FREE, dtype=torch.uint8)
+    slots = BatchSlots(flags)
+    lost, later, _ = (slots.take(LAYOUT) for _ in range(3))
+    assert lost is not None and later is not None
+    flags[later[0]] = FREE
+    first = slots.take(LAYOUT)  # reclaims ``lost`` on the way, and lends it again
+    second = slots.take(LAYOUT)
+    assert first is not None and second is not None
+    assert (first[0], second[0]) == (lost[0], later[0])
+    assert slots.take(LAYOUT) is None and slots.allocations == 3
+
+
+def test_new_layout_reallocates_a_free_slot() -> None:
+    flags = torch.full((1,), FREE, dtype=torch.uint8)
+    slots = BatchSlots(flags)
+    first = slots.take(LAYOUT)
+    assert first is not None
+    flags[0] = FREE
+    other = slots.take({"a": ((5, 3), torch.uint8)})
+    assert other is not None and other[1] is not first[1] and slots.allocations == 2
+    assert other[1].views["a"].shape == (5, 3)
+
+
+@pytest.mark.parametrize("pin", [False, True])
+def test_pin_memory_flag(dataset_dir: Path, pin: bool) -> None:
+    """pin_memory (a no-op without an accelerator, a copy with one) never yields a slot."""
+    with MarsPairsDataset(dataset_dir, ground_size=(96, 128)) as ds:
+        loader = MarsPairsLoader(ds, batch_size=4, num_workers=1, pin_memory=pin)
+        with pytest.warns(UserWarning) if pin and not torch.cuda.is_available() else _nothing():
+            got = list(loader)
+        assert_same(got, reference(ds, 4))
+    assert all(not b["ground"].is_shared() for b in got)
+
+
+class _nothing:
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(self, *exc: object) -> None:
+        return None
