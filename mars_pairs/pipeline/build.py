@@ -10,22 +10,21 @@ output is the same whatever the worker count.
 from __future__ import annotations
 
 import json
-import multiprocessing as mp
-import re
 import time
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import pyarrow as pa
 from tqdm import tqdm
 
 from mars_pairs.errors import ConfigError, MarsPairsError
+from mars_pairs.pipeline import worker
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.context import SampleContext
 from mars_pairs.pipeline.finish import merge_parts, write_dataset_json
+from mars_pairs.pipeline.local_pool import LocalPool
 from mars_pairs.pipeline.outputs import (
     DROPPED_KEY,
     built_keys,
@@ -35,9 +34,8 @@ from mars_pairs.pipeline.outputs import (
     part_paths,
     read_stamp,
 )
-from mars_pairs.pipeline.sample import build_sample
 from mars_pairs.pipeline.splitting import split_rule
-from mars_pairs.pipeline.stages import StageError
+from mars_pairs.pipeline.worker import WorkerStartError  # noqa: F401  (re-exported)
 from mars_pairs.store.manifest import (
     FAILURE_SCHEMA,
     MANIFEST_SCHEMA,
@@ -47,13 +45,6 @@ from mars_pairs.store.manifest import (
 from mars_pairs.store.shards import ShardWriter, atomic_write_bytes
 from mars_pairs.store.splits import BUFFER
 from mars_pairs.store.wids_index import write_wids_index
-
-_CONTEXT: SampleContext | None = None  # one per worker process, set by the pool initializer
-_START_ERROR: str | None = None  # why the worker could not open its context, if it could not
-
-#: The longest sample key: ``<key>.<member>`` must fit tar's 100-byte USTAR name field.
-MAX_KEY_LENGTH = 80
-_KEY = re.compile(r"[a-z0-9_\-]+", re.ASCII)
 
 
 @dataclass(frozen=True)
@@ -88,10 +79,6 @@ class BuildError(MarsPairsError):
     """A strict build stopped at its first failure."""
 
 
-class WorkerStartError(MarsPairsError):
-    """A worker could not open the build's inputs (the message is the worker's error)."""
-
-
 def check_inputs(config: BuildConfig) -> list[Path]:
     """The labels to build, after checking every input opens; ConfigError names the key."""
     import rasterio
@@ -114,90 +101,19 @@ def check_inputs(config: BuildConfig) -> list[Path]:
     return labels
 
 
-def _init_worker(config: BuildConfig) -> None:
-    """Open the worker's context. It never raises: a pool respawns workers whose initializer
-    raised, for ever; the error is kept and reported by the worker's first task instead."""
-    global _CONTEXT, _START_ERROR
-    try:
-        _CONTEXT = SampleContext.open(config)
-    except Exception as exc:
-        own = isinstance(exc, MarsPairsError)
-        _START_ERROR = str(exc) if own else f"{type(exc).__name__}: {exc}"
-
-
-def _work(label: str) -> tuple[str, Any]:
-    """Build one sample in a worker: ("ok", Sample), ("fail", failure row), or ("start",
-    message) when the worker could not start."""
-    if _CONTEXT is None:
-        return "start", _START_ERROR or "worker context not opened"
-    try:
-        sample = build_sample(Path(label), _CONTEXT)
-        _check_record(sample)
-        return "ok", sample
-    except StageError as exc:
-        return "fail", _failure_row(label, exc.stage, exc.error)
-    except Exception as exc:
-        return "fail", _failure_row(label, "internal", exc)
-
-
-def _check_record(sample: Any) -> None:
-    """StageError("record") unless the sample's key makes valid tar member names and its row
-    fits the manifest schema (a sol too large for int32, a key with '/', a 300-char id)."""
-    key = sample.key
-    try:
-        if not _KEY.fullmatch(key) or len(key) > MAX_KEY_LENGTH:
-            raise ValueError(
-                f"sample key {key[:100]!r} (from the product id) must be 1 to {MAX_KEY_LENGTH} "
-                "characters of a-z, 0-9, '_' and '-'"
-            )
-        for f in MANIFEST_SCHEMA:  # column by column, to name the one at fault
-            try:
-                pa.array([sample.row.get(f.name)], type=f.type)
-            except (ValueError, TypeError, OverflowError, pa.ArrowException) as exc:
-                value = repr(sample.row.get(f.name))[:60]
-                raise ValueError(f"{f.name}: {value} does not fit {f.type}: {exc}") from None
-    except ValueError as exc:
-        raise StageError("record", exc) from None
-
-
-def _failure_row(label: str, stage: str, error: BaseException) -> dict[str, Any]:
-    return {
-        "product_id": Path(label).stem.upper(),
-        "path": label,
-        "stage": stage,
-        "error_type": type(error).__name__,
-        "message": str(error),
-    }
-
-
 def _chunks(labels: list[Path], size: int) -> list[list[Path]]:
     return [labels[i : i + size] for i in range(0, len(labels), size)]
 
 
-def _results(config: BuildConfig, labels: list[str], workers: int) -> Iterator[tuple[str, Any]]:
-    """Results in label order, from a process pool (or this process for one worker).
-
-    A worker that cannot start (a PLACES table without a column, an unreadable raster) fails
-    the build once with WorkerStartError, whatever the worker count."""
-    if not labels:
-        return
-    if workers <= 1:
-        global _CONTEXT
-        context = SampleContext.open(config)  # its error is the build's, as it is
-        _CONTEXT = context
-        try:
-            yield from map(_work, labels)
-        finally:
-            _CONTEXT = None
-            context.close()
-        return
-    # spawn, not fork: a parent that already ran numba's OpenMP threads cannot fork safely
-    ctx = mp.get_context("spawn")
-    with ctx.Pool(workers, initializer=_init_worker, initargs=(config,)) as pool:
-        for status, result in pool.imap(_work, labels, chunksize=1):
-            if status == "start":
-                raise WorkerStartError(result)
-            yield status, result
+def _in_process(config: BuildConfig, labels: Iterable[str]) -> Iterator[tuple[str, Any]]:
+    """Results in label order, built in this process (one worker)."""
+    context = SampleContext.open(config)  # its error is the build's, as it is
+    worker.use_context(context)
+    try:
+        yield from map(worker.work, labels)
+    finally:
+        worker.use_context(None)
+        context.close()
 
 
 class DuplicateKeyError(MarsPairsError):
@@ -224,7 +140,7 @@ def _write_chunk(
         label = r.row["label_path"]
         if r.key in seen:
             error = DuplicateKeyError(f"{label}: key {r.key}: already built from {seen[r.key]}")
-            results[i] = ("fail", _failure_row(label, "record", error))
+            results[i] = ("fail", worker.failure_row(label, "record", error))
             continue
         seen[r.key] = label
         samples.append(r)
@@ -278,11 +194,31 @@ def run_build(
     ``results(config, chunks)`` method (``pipeline.dask_engine.DaskEngine``).
     """
     start = time.perf_counter()
-    out = config.output.dir
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ConfigError(f"--workers: expected an integer >= 1, got {workers!r}")
     if limit is not None and (isinstance(limit, bool) or not isinstance(limit, int) or limit < 1):
         raise ConfigError(f"--limit: expected an integer >= 1, got {limit!r}")
+    # the workers start now: their imports and raster opening overlap the planning below
+    pool = LocalPool(config, workers) if engine is None and workers > 1 else None
+    try:
+        return _run(config, start, resume, limit, strict, progress, engine, pool)
+    finally:
+        if pool is not None:
+            pool.close()
+
+
+def _run(
+    config: BuildConfig,
+    start: float,
+    resume: bool,
+    limit: int | None,
+    strict: bool,
+    progress: bool,
+    engine: Any,
+    pool: LocalPool | None,
+) -> BuildSummary:
+    """run_build's work, its arguments checked and its workers starting."""
+    out = config.output.dir
     labels = check_inputs(config)[:limit]
     out.mkdir(parents=True, exist_ok=True)
     chunks = _chunks(labels, config.output.shard_size)
@@ -311,7 +247,7 @@ def run_build(
         desc="build",
     )
     if engine is None:
-        results = _results(config, pending, workers)
+        results = pool.results(pending) if pool is not None else _in_process(config, pending)
     else:  # one task per chunk, results in label order as the pool's
         results = engine.results(config, [[str(p) for p in chunks[k]] for k in todo])
     stage_seconds: Counter[str] = Counter()

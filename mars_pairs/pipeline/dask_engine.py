@@ -4,8 +4,8 @@
 cluster: an existing one (``scheduler="tcp://HOST:PORT"``) or a ``LocalCluster`` of
 ``workers`` processes with one thread each. A task receives the build config (paths or
 GDAL URLs, never open handles) and the label paths of one chunk, and returns the chunk's
-results: the very ``_work`` results the local engine's pool returns, built by the very
-worker initializer (``build._init_worker``) in each Dask worker process, once (a worker
+results: the very ``worker.work`` results the local engine's pool returns, built by the very
+worker initializer (``worker.open_context``) in each Dask worker process, once (a worker
 plugin opens the rasters and builds one throw-away sample of the first chunk's first
 label so the numba kernels are loaded before the first task; a task that lands on a
 worker whose context is for another config reopens it).
@@ -47,25 +47,20 @@ def build_chunk(config: BuildConfig, labels: Sequence[str]) -> list[tuple[str, A
     Runs in a Dask worker process; opens the worker's context for ``config`` unless it is
     already open for it.
     """
-    from mars_pairs.pipeline import build
+    from mars_pairs.pipeline import worker
 
     with _LOCK:
-        context = build._CONTEXT
-        if context is None or context.config != config:
-            if context is not None:
-                context.close()
-            build._init_worker(config)
-        return [build._work(label) for label in labels]
+        if worker.current_config() != config:
+            worker.open_context(config)
+        return [worker.work(label) for label in labels]
 
 
 def close_context() -> None:
     """Close this process's build context, if open (the worker plugin's teardown)."""
-    from mars_pairs.pipeline import build
+    from mars_pairs.pipeline import worker
 
     with _LOCK:
-        if build._CONTEXT is not None:
-            build._CONTEXT.close()
-            build._CONTEXT = None
+        worker.close_context()
 
 
 def _plugin(config: BuildConfig, warm_label: str | None) -> Any:
@@ -100,7 +95,7 @@ class DaskEngine:
         self, config: BuildConfig, chunks: Sequence[Sequence[str]]
     ) -> Iterator[tuple[str, Any]]:
         """Every label's result, chunk after chunk, in order (as the local engine's)."""
-        from mars_pairs.pipeline.build import WorkerStartError
+        from mars_pairs.pipeline.worker import WorkerStartError
 
         if not chunks:
             return

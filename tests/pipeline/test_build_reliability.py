@@ -18,10 +18,11 @@ import yaml
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline.build import _check_record, run_build
+from mars_pairs.pipeline.build import run_build
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.pipeline.sample import Sample
 from mars_pairs.pipeline.stages import StageError
+from mars_pairs.pipeline.worker import check_record
 from mars_pairs.store.manifest import FAILURE_SCHEMA, rows_to_table, write_parquet_atomic
 from mars_pairs.store.shards import ShardWriter, atomic_write_bytes
 
@@ -128,9 +129,9 @@ def test_rows_the_shard_or_manifest_cannot_hold_fail_at_record(
     """Whatever a label reader lets through, a key tar cannot name or a value the manifest
     cannot hold is a 'record' failure of that sample, not a crashed chunk."""
     with pytest.raises(StageError) as exc:
-        _check_record(Sample(key, {"key": key, **row}))
+        check_record(Sample(key, {"key": key, **row}))
     assert exc.value.stage == "record" and needle in str(exc.value.error)
-    _check_record(Sample("m2020_ok-1", {"key": "m2020_ok-1", "sol": 52}))
+    check_record(Sample("m2020_ok-1", {"key": "m2020_ok-1", "sol": 52}))
 
 
 def test_a_duplicate_product_id_is_a_failure_row_naming_the_first(bad_labels_build: Path) -> None:
