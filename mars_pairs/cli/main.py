@@ -98,7 +98,9 @@ def _ensure_synthetic(config: object) -> None:
     """Generate the config's synthetic mission when its files are absent (the demo)."""
     spec = config.inputs.synthetic  # type: ignore[attr-defined]
     inputs = config.inputs  # type: ignore[attr-defined]
-    if spec is None or (inputs.dem.exists() and inputs.places.exists() and inputs.label_paths()):
+    if spec is None:
+        return
+    if inputs.dem.exists() and inputs.places.exists() and next(inputs.iter_label_paths(), None):
         return
     from mars_pairs.synth import generate_mission
 
