@@ -121,7 +121,9 @@ class _Pattern:
     def _walk(
         self, folder: str, states: frozenset[int], ancestors: tuple[tuple[int, int], ...]
     ) -> Iterator[str]:
-        for name, is_dir in self._names(folder, states):
+        names, dirs = self._names(folder, states)
+        for name in names:
+            is_dir = name in dirs
             final, after = self._step(states, name, is_dir)
             path = _join(folder, name)
             if final:
@@ -145,28 +147,44 @@ class _Pattern:
         ident = (st.st_dev, st.st_ino)
         return None if ident in ancestors else (*ancestors, ident)
 
-    def _names(self, folder: str, states: frozenset[int]) -> list[tuple[str, bool]]:
-        """The sorted (name, is folder) candidates in ``folder``: its listing when a state is a
-        wildcard or ``**``, else the literal names that exist (checked, like glob, by lstat,
-        so ``..`` works). Unreadable folders give nothing, as in glob."""
-        listed: dict[str, bool] = {}
+    def _names(self, folder: str, states: frozenset[int]) -> tuple[list[str], set[str]]:
+        """The sorted names in ``folder`` that match or lead to a match, and which of them
+        are folders: its listing when a state is a wildcard or ``**``, plus the literal names
+        that exist (checked, like glob, by lstat, so ``..`` works). Only these names are
+        kept, so a folder's other files (the images beside the labels) cost no memory.
+        Unreadable folders give nothing, as in glob."""
+        names: list[str] = []
+        dirs: set[str] = set()
         if any(self.parts[i].match is not None or self.parts[i].recursive for i in states):
             try:
                 with os.scandir(folder or os.curdir) as entries:
                     for entry in entries:
                         try:
-                            listed[entry.name] = entry.is_dir()
+                            is_dir = entry.is_dir()
                         except OSError:
                             continue
+                        final, after = self._step(states, entry.name, is_dir)
+                        if final or (after and is_dir):
+                            names.append(entry.name)
+                            if is_dir:
+                                dirs.add(entry.name)
             except OSError:
-                return []
-        for i in states:
-            part = self.parts[i]
-            if part.match is None and not part.recursive and part.text not in listed:
-                path = _join(folder, part.text)
-                if os.path.lexists(path):
-                    listed[part.text] = os.path.isdir(path)
-        return sorted(listed.items())
+                return [], set()
+        literals = [
+            self.parts[i].text
+            for i in states
+            if self.parts[i].match is None and not self.parts[i].recursive
+        ]
+        if literals:
+            present = set(names)
+            for name in dict.fromkeys(literals):
+                path = _join(folder, name)
+                if name not in present and os.path.lexists(path):
+                    names.append(name)
+                    if os.path.isdir(path):
+                        dirs.add(name)
+        names.sort()
+        return names, dirs
 
     def _step(self, states: frozenset[int], name: str, is_dir: bool) -> tuple[bool, frozenset[int]]:
         """Whether ``name`` in a folder reached with ``states`` matches the whole pattern, and

@@ -15,9 +15,11 @@ from mars_pairs.pipeline.label_list import iter_matches
 NAMES = ("a", "a-b", "a.b", "a_b", "a0", "a10", "a9", "B", "-z", ".hidden", "x.xml", "x.XML")
 
 
-def _tree(root: Path) -> Path:
+@pytest.fixture(scope="module")
+def tree(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A tree where the order matters: the same names as folders at three depths, files in
     each, a hidden folder with labels, a symlinked folder and a broken symlink."""
+    root = tmp_path_factory.mktemp("tree")
     for top in NAMES:
         for mid in ("", *NAMES[:5]):
             folder = root / top / mid
@@ -60,24 +62,24 @@ PATTERNS = [
 
 @pytest.mark.parametrize("pattern", PATTERNS)
 def test_the_stream_is_sorted_glob_relative_and_absolute(
-    pattern: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    pattern: str, tree: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    root = _tree(tmp_path)
+    root = tree
     absolute = str(root / pattern)
     assert list(iter_matches([absolute])) == _sorted_glob([absolute])
     monkeypatch.chdir(root)
     assert list(iter_matches([pattern])) == _sorted_glob([pattern])
 
 
-def test_the_order_is_by_path_components_not_by_string(tmp_path: Path) -> None:
-    root = _tree(tmp_path)
+def test_the_order_is_by_path_components_not_by_string(tree: Path) -> None:
+    root = tree
     found = list(iter_matches([str(root / "*" / "f.xml")]))
     assert found.index(str(root / "a" / "f.xml")) < found.index(str(root / "a-b" / "f.xml"))
     assert found != sorted(found)  # as strings, "a-b/f.xml" < "a/f.xml"
 
 
-def test_overlapping_patterns_give_each_path_once(tmp_path: Path) -> None:
-    root = _tree(tmp_path)
+def test_overlapping_patterns_give_each_path_once(tree: Path) -> None:
+    root = tree
     patterns = [str(root / p) for p in ("**/*.xml", "a*/*.xml", "a/f.xml", "*/a*/f*.xml")]
     found = list(iter_matches(patterns))
     assert len(found) == len(set(found))
