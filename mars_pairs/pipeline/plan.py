@@ -88,7 +88,7 @@ class BuildPlan:
         return "\n".join(
             [
                 f"dry run: nothing written to {self.out_dir}",
-                f"labels: {self.labels}   listed in {self.seconds:.2f} s",
+                f"labels: {self.labels}   planned in {self.seconds:.2f} s",
                 f"chunks: {self.chunks} of up to {self.chunk_size} labels (output.shard_size)",
                 f"chunks done: {self.chunks_done} ({done})",
                 f"samples to build: {self.labels_to_build} (at most: one per label of the "
