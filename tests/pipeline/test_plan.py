@@ -160,3 +160,20 @@ def test_engines_get_the_chunks_lazily(tmp_path: Path, monkeypatch: pytest.Monke
     again = run_build(config, resume=True, progress=False)
     assert (again.chunks_built, again.chunks_resumed, again.failures) == (1, 3, 10)
     assert len(seen) == 1
+
+
+def test_a_label_list_that_changes_during_the_build_is_refused(tmp_path: Path) -> None:
+    pattern = write_label_tree(tmp_path / "in", 10, per_dir=3)
+    config = plan_config(tmp_path / "in", pattern, tmp_path / "ds", shard_size=3)
+    late = tmp_path / "in" / "sol" / "00003" / "ids" / "ZLF_00003_9999.xml"
+
+    class Engine:
+        def results(self, config: Any, chunks: Iterable[list[str]]) -> Iterator[Any]:
+            for chunk in chunks:
+                late.touch()  # a label appears in a folder the second pass has not listed
+                yield from _failing(chunk)
+
+    with pytest.raises(ConfigError, match=r"inputs\.labels: .*10 labels listed, then 11"):
+        run_build(config, engine=Engine(), progress=False)
+    with pytest.raises(ConfigError, match="cannot resume"):
+        run_build(config, resume=True, progress=False)
