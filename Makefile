@@ -32,6 +32,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_viewshed.py
 	$(PY) benchmarks/bench_build.py
 	$(PY) benchmarks/bench_loader.py
+	$(PY) benchmarks/bench_plan.py
 
 clean:
 	rm -rf out .pytest_cache

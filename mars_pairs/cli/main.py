@@ -64,6 +64,11 @@ def _cmd_build(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     if args.out:
         config = replace(config, output=replace(config.output, dir=Path(args.out).resolve()))
+    if args.dry_run:  # lists, chunks and checks; writes nothing (nor a synthetic mission)
+        from mars_pairs.pipeline.plan import plan_build
+
+        print(plan_build(config, resume=args.resume, limit=args.limit).format())
+        return 0
     _ensure_synthetic(config)
     engine = _engine(args)
     try:
@@ -98,7 +103,9 @@ def _ensure_synthetic(config: object) -> None:
     """Generate the config's synthetic mission when its files are absent (the demo)."""
     spec = config.inputs.synthetic  # type: ignore[attr-defined]
     inputs = config.inputs  # type: ignore[attr-defined]
-    if spec is None or (inputs.dem.exists() and inputs.places.exists() and inputs.label_paths()):
+    if spec is None:
+        return
+    if inputs.dem.exists() and inputs.places.exists() and next(inputs.iter_label_paths(), None):
         return
     from mars_pairs.synth import generate_mission
 
@@ -192,6 +199,12 @@ def _add_build_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--limit", type=count(1), help="build at most N observations")
     p.add_argument("--strict", action="store_true", help="stop at the first failure")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="check the config and inputs, list and chunk the labels, print the plan (labels, "
+        "chunks, chunks done with --resume, samples to build); write nothing",
+    )
     p.add_argument(
         "--engine",
         choices=("local", "dask"),

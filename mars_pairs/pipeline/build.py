@@ -1,19 +1,23 @@
 """The dataset build: labels -> samples -> shards + manifest, parallel, atomic and resumable.
 
-Labels are sorted and cut into chunks of ``shard_size``; chunk k becomes
+Labels are streamed in one total order (``pipeline.label_list``) and cut into chunks of
+``shard_size`` (``pipeline.plan``); chunk k becomes
 ``shards/shard-{k:06d}.tar`` plus ``parts/manifest-{k:06d}.parquet`` and
 ``parts/failures-{k:06d}.parquet``. The manifest part is renamed into place last and marks the
 chunk done, so a killed build rerun with ``resume`` redoes only unfinished chunks, and the
-output is the same whatever the worker count.
+output is the same whatever the worker count. The labels are never held: a planning pass
+counts them and sums their fingerprint (the stamp), the build pass streams them again to the
+engine, chunk by chunk.
 """
 
 from __future__ import annotations
 
 import json
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
+from itertools import chain
 from pathlib import Path
 from typing import Any
 
@@ -27,14 +31,14 @@ from mars_pairs.pipeline.finish import merge_parts, write_dataset_json
 from mars_pairs.pipeline.local_pool import LocalPool
 from mars_pairs.pipeline.outputs import (
     DROPPED_KEY,
+    LabelDigest,
     built_keys,
     clear_outputs,
     dropped_count,
-    fingerprint,
     part_paths,
-    read_stamp,
+    stamp_path,
 )
-from mars_pairs.pipeline.splitting import split_rule
+from mars_pairs.pipeline.plan import chunks_of, is_done, labels_of, plan_build
 from mars_pairs.pipeline.worker import WorkerStartError  # noqa: F401  (re-exported)
 from mars_pairs.store.manifest import (
     FAILURE_SCHEMA,
@@ -77,32 +81,6 @@ class BuildSummary:
 
 class BuildError(MarsPairsError):
     """A strict build stopped at its first failure."""
-
-
-def check_inputs(config: BuildConfig) -> list[Path]:
-    """The labels to build, after checking every input opens; ConfigError names the key."""
-    import rasterio
-
-    labels = config.inputs.label_paths()
-    if not labels:
-        raise ConfigError(f"inputs.labels: no file matches {list(config.inputs.labels)}")
-    if not config.inputs.places.is_file():
-        raise ConfigError(f"inputs.places: no such file {config.inputs.places}")
-    for key in ("dem", "ortho"):
-        path = getattr(config.inputs, key)
-        try:
-            with rasterio.open(path) as src:
-                if src.crs is None:
-                    raise ConfigError(f"inputs.{key}: {path} has no CRS")
-        except rasterio.errors.RasterioIOError as exc:
-            raise ConfigError(f"inputs.{key}: cannot open {path}: {exc}") from None
-    with rasterio.open(config.inputs.dem) as src:  # a split config error stops it here
-        split_rule(config, src.crs.to_wkt(), tuple(src.bounds), src.res)
-    return labels
-
-
-def _chunks(labels: list[Path], size: int) -> list[list[Path]]:
-    return [labels[i : i + size] for i in range(0, len(labels), size)]
 
 
 def _in_process(config: BuildConfig, labels: Iterable[str]) -> Iterator[tuple[str, Any]]:
@@ -178,6 +156,32 @@ def _write_chunk(
     return len(samples)
 
 
+def _chunk_results(
+    config: BuildConfig,
+    todo: Iterator[tuple[int, list[str]]],
+    handed: deque[tuple[int, int]],
+    pool: LocalPool | None,
+    engine: Any,
+) -> Iterator[tuple[str, Any]]:
+    """Every result of the chunks ``todo`` ((k, labels), streamed), in order, from the local
+    pool (this process when None) or ``engine``; each chunk's (k, length) goes into
+    ``handed`` as the engine takes it, before any of its results. No cluster starts when
+    there is nothing to build."""
+    first = next(todo, None)
+    if first is None:
+        return iter(())
+
+    def taken() -> Iterator[list[str]]:
+        for k, labels in chain([first], todo):
+            handed.append((k, len(labels)))
+            yield labels
+
+    if engine is None:
+        labels = chain.from_iterable(taken())
+        return pool.results(labels) if pool is not None else _in_process(config, labels)
+    return engine.results(config, taken())  # one task per chunk, results in label order
+
+
 def run_build(
     config: BuildConfig,
     *,
@@ -196,9 +200,7 @@ def run_build(
     start = time.perf_counter()
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ConfigError(f"--workers: expected an integer >= 1, got {workers!r}")
-    if limit is not None and (isinstance(limit, bool) or not isinstance(limit, int) or limit < 1):
-        raise ConfigError(f"--limit: expected an integer >= 1, got {limit!r}")
-    # the workers start now: their imports and raster opening overlap the planning below
+    # the workers start now: their imports and raster opening overlap the planning
     pool = LocalPool(config, workers) if engine is None and workers > 1 else None
     try:
         return _run(config, start, resume, limit, strict, progress, engine, pool)
@@ -219,51 +221,52 @@ def _run(
 ) -> BuildSummary:
     """run_build's work, its arguments checked and its workers starting."""
     out = config.output.dir
-    labels = check_inputs(config)[:limit]
+    plan = plan_build(config, resume=resume, limit=limit)  # checks; the labels' first pass
     out.mkdir(parents=True, exist_ok=True)
-    chunks = _chunks(labels, config.output.shard_size)
     for leftover in out.rglob(".*.tmp-*"):  # temporary files of a killed build
         leftover.unlink()
-    build_print = fingerprint(config, labels)
-    stamp = out / "parts" / "build.json"
-    previous = read_stamp(stamp)
-    if resume and previous is not None and previous != build_print:
-        raise ConfigError(
-            f"{out}: cannot resume: the config or the label list changed since the "
-            "interrupted build; rerun without --resume"
-        )
-    if not resume or previous is None:  # no stamp: no part can be trusted, resumed or not
+    if plan.clears:
         clear_outputs(out)
+    stamp = stamp_path(out)
     stamp.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(stamp, json.dumps(build_print).encode())
-    todo = [k for k in range(len(chunks)) if not part_paths(out, k)[1].exists()]
-    seen = built_keys(out, [k for k in range(len(chunks)) if k not in todo])
-    pending = [str(p) for k in todo for p in chunks[k]]
+    atomic_write_bytes(stamp, json.dumps(plan.fingerprint).encode())
+    seen = built_keys(out, (k for k in range(plan.chunks) if is_done(out, k)))
+    digest = LabelDigest()  # the second pass must list what the first did
+    chunks = enumerate(chunks_of(digest.tally(labels_of(config, limit)), plan.chunk_size))
+    handed: deque[tuple[int, int]] = deque()
+    todo = ((k, labels) for k, labels in chunks if not is_done(out, k))
+    results = _chunk_results(config, todo, handed, pool, engine)
     bar = tqdm(
-        total=len(labels),
-        initial=len(labels) - len(pending),
+        total=plan.labels,
+        initial=plan.labels - plan.labels_to_build,
         unit="img",
         disable=not progress,
         desc="build",
     )
-    if engine is None:
-        results = pool.results(pending) if pool is not None else _in_process(config, pending)
-    else:  # one task per chunk, results in label order as the pool's
-        results = engine.results(config, [[str(p) for p in chunks[k]] for k in todo])
     stage_seconds: Counter[str] = Counter()
+    built = 0
     try:
-        for k in todo:
-            batch = []
-            for _ in chunks[k]:
+        for first in results:
+            k, length = handed.popleft()
+            batch = [first]
+            bar.update(1)
+            for _ in range(length - 1):
                 batch.append(next(results))
                 bar.update(1)
             _write_chunk(config, k, batch, strict, stage_seconds, seen)
+            built += 1
     finally:
         bar.close()
         close = getattr(results, "close", None)
         if close:
             close()
-    manifest, failures = merge_parts(config, len(chunks))
+    listed = plan.fingerprint
+    if (digest.count, digest.hexdigest()) != (listed["count"], listed["labels"]):
+        raise ConfigError(
+            f"inputs.labels: the matching files changed during the build ({listed['count']} "
+            f"labels listed, then {digest.count}); rerun the build without --resume"
+        )
+    manifest, failures = merge_parts(config, plan.chunks)
     summary = BuildSummary(
         out_dir=out,
         samples=manifest.num_rows,
@@ -278,11 +281,11 @@ def _run(
                 )
             )
         ),
-        chunks_built=len(todo),
-        chunks_resumed=len(chunks) - len(todo),
+        chunks_built=built,
+        chunks_resumed=plan.chunks - built,
         seconds=time.perf_counter() - start,
         stage_seconds=dict(stage_seconds),
     )
-    write_dataset_json(config, summary, manifest, dropped_count(out, len(chunks)))
+    write_dataset_json(config, summary, manifest, dropped_count(out, plan.chunks))
     write_wids_index(out, manifest)
     return summary

@@ -6,7 +6,7 @@ the key (``geometry.radius``) and what was expected.
 
 from __future__ import annotations
 
-import glob
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -15,6 +15,7 @@ import yaml
 
 from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.config_section import Section
+from mars_pairs.pipeline.label_list import iter_matches
 
 VIEWSHED_MODES = ("wedge", "raycast", "both")
 #: View masks: "frustum" (default) = cells visible from the camera centre whose terrain point
@@ -59,10 +60,15 @@ class InputsConfig:
     images: Path | None = None  # a folder to look for images in, besides the label's folder
     synthetic: SyntheticSpec | None = None
 
+    def iter_label_paths(self) -> Iterator[str]:
+        """Every label the globs match, once, in ``Path`` order, streamed: memory bounded by
+        the largest folder, not the label count (``pipeline.label_list``)."""
+        return iter_matches(self.labels)
+
     def label_paths(self) -> list[Path]:
-        """Every label the globs match, sorted and de-duplicated."""
-        found = {Path(p) for pattern in self.labels for p in glob.glob(pattern, recursive=True)}
-        return sorted(found)
+        """Every label the globs match, sorted and de-duplicated, as a list (the build streams
+        ``iter_label_paths`` instead)."""
+        return [Path(p) for p in iter_matches(self.labels)]
 
 
 @dataclass(frozen=True)

@@ -30,8 +30,9 @@ import sys
 import threading
 import uuid
 from collections import deque
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
+from itertools import chain
 from typing import Any
 
 from mars_pairs.errors import ConfigError
@@ -92,21 +93,27 @@ class DaskEngine:
     announce: bool = True  # print the dashboard address on stderr
 
     def results(
-        self, config: BuildConfig, chunks: Sequence[Sequence[str]]
+        self, config: BuildConfig, chunks: Iterable[Sequence[str]]
     ) -> Iterator[tuple[str, Any]]:
-        """Every label's result, chunk after chunk, in order (as the local engine's)."""
+        """Every label's result, chunk after chunk, in order (as the local engine's).
+
+        ``chunks`` may be a lazy iterator: it is pulled one chunk at a time as the window
+        frees, never listed; no cluster starts when it is empty."""
         from mars_pairs.pipeline.worker import WorkerStartError
 
-        if not chunks:
+        pending = iter(chunks)
+        first = next(pending, None)
+        if first is None:
             return
         with self._client() as client:
             if self.announce:
                 print(f"dask dashboard: {client.dashboard_link}", file=sys.stderr, flush=True)
-            client.register_plugin(_plugin(config, chunks[0][0]), name=PLUGIN_NAME)
+            warm = first[0] if len(first) else None
+            client.register_plugin(_plugin(config, warm), name=PLUGIN_NAME)
             threads = sum(client.nthreads().values()) or 1
             window = self.window or 2 * threads + 2
             run = uuid.uuid4().hex[:8]
-            todo = iter(enumerate(chunks))
+            todo = enumerate(chain([first], pending))
             flight: deque[Any] = deque()
 
             def submit() -> None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +28,11 @@ def part_paths(out: Path, k: int) -> tuple[str, Path, Path]:
     )
 
 
+def stamp_path(out: Path) -> Path:
+    """The build stamp: the fingerprint of the build that wrote the parts."""
+    return out / "parts" / "build.json"
+
+
 def dropped_count(out: Path, n_chunks: int) -> int:
     """Samples dropped in the split buffer, summed over the chunk parts."""
     total = 0
@@ -36,13 +42,45 @@ def dropped_count(out: Path, n_chunks: int) -> int:
     return total
 
 
-def fingerprint(config: BuildConfig, labels: list[Path]) -> dict[str, Any]:
-    """What a resumed build must share with the interrupted one."""
+class LabelDigest:
+    """The sha256 of the label names joined by newlines, and their count, fed one name at a
+    time: the digest of ``"\n".join(names).encode()`` without holding the names."""
+
+    def __init__(self) -> None:
+        self._sha = hashlib.sha256()
+        self.count = 0
+
+    def add(self, name: str) -> None:
+        if self.count:
+            self._sha.update(b"\n")
+        self._sha.update(name.encode())
+        self.count += 1
+
+    def tally(self, names: Iterable[str]) -> Iterator[str]:
+        """``names`` unchanged, each added to the digest as it passes."""
+        for name in names:
+            self.add(name)
+            yield name
+
+    def hexdigest(self) -> str:
+        return self._sha.hexdigest()
+
+
+def fingerprint(config: BuildConfig, labels: Iterable[str | Path]) -> dict[str, Any]:
+    """What a resumed build must share with the interrupted one: the config (without its
+    source and output folder) and the label list's digest and count, in one streaming pass."""
+    digest = LabelDigest()
+    for label in labels:
+        digest.add(str(label))
+    return stamp_of(config, digest)
+
+
+def stamp_of(config: BuildConfig, digest: LabelDigest) -> dict[str, Any]:
+    """The fingerprint of ``config`` with the label list that ``digest`` summed."""
     doc = config.to_dict()
     doc.pop("source", None)
     doc["output"].pop("dir", None)
-    names = "\n".join(str(p) for p in labels).encode()
-    return {"config": doc, "labels": hashlib.sha256(names).hexdigest(), "count": len(labels)}
+    return {"config": doc, "labels": digest.hexdigest(), "count": digest.count}
 
 
 def read_stamp(stamp: Path) -> dict[str, Any] | None:
@@ -54,7 +92,7 @@ def read_stamp(stamp: Path) -> dict[str, Any] | None:
     return doc if isinstance(doc, dict) else None
 
 
-def built_keys(out: Path, done: list[int]) -> dict[str, str]:
+def built_keys(out: Path, done: Iterable[int]) -> dict[str, str]:
     """Sample key -> label path of the chunks a resumed build keeps (for duplicate ids)."""
     seen: dict[str, str] = {}
     for k in done:

@@ -1,0 +1,52 @@
+"""The local pool: results in label order, a bounded window of labels in flight, workers
+forked from a server that preloaded the build's modules."""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+from collections.abc import Iterator
+from pathlib import Path
+
+from mars_pairs.pipeline.config import parse_config
+from mars_pairs.pipeline.local_pool import LocalPool, worker_context
+
+
+def _config(mission: Path, out: Path):
+    return parse_config(
+        {
+            "inputs": {
+                "labels": str(mission / "labels" / "*.xml"),
+                "places": str(mission / "places" / "best_interp.csv"),
+                "dem": str(mission / "orbital" / "dem.tif"),
+                "ortho": str(mission / "orbital" / "ortho.tif"),
+            },
+            "geometry": {"radius": 200, "ray_stride": 64},
+            "chips": {"size_m": 32, "size_px": 16},
+            "output": {"dir": str(out)},
+        },
+        mission,
+    )
+
+
+def test_results_in_order_with_a_bounded_window(small_mission: Path, tmp_path: Path) -> None:
+    pulled: list[str] = []
+
+    def labels() -> Iterator[str]:  # 200 labels that fail at once (no such file)
+        for i in range(200):
+            pulled.append(label := str(tmp_path / f"missing_{i:03d}.xml"))
+            yield label
+
+    with LocalPool(_config(small_mission, tmp_path / "ds"), workers=2, window=6) as pool:
+        got = []
+        for status, row in pool.results(labels()):
+            got.append((status, row["path"]))
+            assert len(pulled) - len(got) <= 6  # never more than the window ahead
+    assert got == [("fail", p) for p in pulled] and len(got) == 200
+
+
+def test_workers_come_from_a_fork_server_where_there_is_one() -> None:
+    ctx = worker_context()
+    if "forkserver" in mp.get_all_start_methods():
+        assert ctx.get_start_method() == "forkserver"
+    else:
+        assert ctx.get_start_method() == "spawn"
