@@ -202,11 +202,10 @@ def run_build(
         raise ConfigError(f"--workers: expected an integer >= 1, got {workers!r}")
     # the workers start now: their imports and raster opening overlap the planning
     pool = LocalPool(config, workers) if engine is None and workers > 1 else None
-    try:
+    if pool is None:
         return _run(config, start, resume, limit, strict, progress, engine, pool)
-    finally:
-        if pool is not None:
-            pool.close()
+    with pool:
+        return _run(config, start, resume, limit, strict, progress, engine, pool)
 
 
 def _run(

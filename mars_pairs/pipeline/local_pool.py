@@ -60,13 +60,17 @@ class LocalPool:
                 raise worker.WorkerStartError(result)
             yield status, result
 
-    def close(self) -> None:
-        """Stop the workers (what is in flight is dropped)."""
-        self._pool.terminate()
+    def close(self, abort: bool = False) -> None:
+        """Let the workers finish and exit; with ``abort``, kill them (what is in flight is
+        dropped)."""
+        if abort:
+            self._pool.terminate()
+        else:
+            self._pool.close()
         self._pool.join()
 
     def __enter__(self) -> LocalPool:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        self.close(abort=exc_type is not None)

@@ -90,12 +90,16 @@ def check_record(sample: Sample) -> None:
                 f"sample key {key[:100]!r} (from the product id) must be 1 to {MAX_KEY_LENGTH} "
                 "characters of a-z, 0-9, '_' and '-'"
             )
-        for f in MANIFEST_SCHEMA:  # column by column, to name the one at fault
-            try:
-                pa.array([sample.row.get(f.name)], type=f.type)
-            except (ValueError, TypeError, OverflowError, pa.ArrowException) as exc:
-                value = repr(sample.row.get(f.name))[:60]
-                raise ValueError(f"{f.name}: {value} does not fit {f.type}: {exc}") from None
+        try:  # the whole row at once (0.3 ms; column by column takes 3 ms)
+            pa.RecordBatch.from_pylist([sample.row], schema=MANIFEST_SCHEMA)
+        except (ValueError, TypeError, OverflowError, pa.ArrowException) as whole:
+            for f in MANIFEST_SCHEMA:  # column by column, to name the one at fault
+                try:
+                    pa.array([sample.row.get(f.name)], type=f.type)
+                except (ValueError, TypeError, OverflowError, pa.ArrowException) as exc:
+                    value = repr(sample.row.get(f.name))[:60]
+                    raise ValueError(f"{f.name}: {value} does not fit {f.type}: {exc}") from None
+            raise ValueError(f"the manifest row does not fit its schema: {whole}") from None
     except ValueError as exc:
         raise StageError("record", exc) from None
 

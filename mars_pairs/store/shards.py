@@ -58,6 +58,9 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
     os.replace(tmp, path)
 
 
+_COPY_BUFFER = 64 << 20
+
+
 class ShardWriter:
     """Writes one tar shard of samples: ``<key>.<field>`` members, deterministic headers.
 
@@ -75,7 +78,10 @@ class ShardWriter:
         self._tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
         self._fh = open(self._tmp, "wb")  # noqa: SIM115 - closed in close()
         self._tar = tarfile.open(  # noqa: SIM115 - closed in close()
-            fileobj=self._fh, mode="w", format=tarfile.USTAR_FORMAT
+            fileobj=self._fh,
+            mode="w",
+            format=tarfile.USTAR_FORMAT,
+            copybufsize=_COPY_BUFFER,  # a member in one write, not 16 KiB pieces
         )
         self.count = 0
 
