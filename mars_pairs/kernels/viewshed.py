@@ -210,10 +210,13 @@ def _march(flat, out, geo, umaj, sgn, k, big_p, s0, s1, off_m, st, s_hi, s_j):
     o_off = abs(c_maj - o_maj)
     gain = _ERR_GAIN * off_m
     # steps whose sample and owned cell lie strictly inside the minor range: no bounds checks
-    s_in = last
-    if k != 0:
+    # (0 < c_min + k s / P < n_min - 1, in integers: a float bound let an exact k s = room P
+    # through, and the sample's neighbour was read one line past the grid)
+    if k == 0:
+        s_in = last if c_min < n_min - 1 else 0
+    else:
         room = (n_min - 1 - c_min) if k > 0 else c_min
-        s_in = min(last, math.ceil(room / (abs(k) * inv_p)) - 1)
+        s_in = min(last, (room * big_p - 1) // abs(k))
     for s in range(s0 + 1, last + 1):
         major = c_maj + sgn * s
         dmaj = (major - o_maj) * sc_maj
