@@ -26,7 +26,6 @@ its tasks elsewhere (``distributed.scheduler.allowed-failures`` deaths per task,
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import sys
 import threading
 import uuid
@@ -65,28 +64,6 @@ def close_context() -> None:
         worker.close_context()
 
 
-def reuse_freed_memory() -> bool:
-    """Let this process's allocator reuse freed memory (glibc only; True if it did).
-
-    Dask starts its workers with ``MALLOC_TRIM_THRESHOLD_=65536`` (to hand freed memory back
-    to the OS), which also turns off glibc's sliding mmap threshold: every array over 128 KiB
-    is then mapped and faulted in anew. A sample allocates tens of MB of windows, masks and
-    chips, and on the build VM a chunk of 16 samples took 0.64 s on such a worker against 0.31
-    s without the variable (load 1). Arrays under 32 MiB come from the heap again; the heap
-    is trimmed above 256 MiB free.
-    """
-    if not sys.platform.startswith("linux"):
-        return False
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-    except OSError:  # not glibc (musl, ...)
-        return False
-    m_trim_threshold, m_mmap_threshold = -1, -3  # <malloc.h>
-    return bool(libc.mallopt(m_mmap_threshold, 32 << 20)) and bool(
-        libc.mallopt(m_trim_threshold, 256 << 20)
-    )
-
-
 def _plugin(config: BuildConfig, warm_label: str | None) -> Any:
     """A worker plugin that opens the context and warms the kernels when a worker starts,
     including a worker that replaces a dead one."""
@@ -98,7 +75,6 @@ def _plugin(config: BuildConfig, warm_label: str | None) -> Any:
             self.warm_label = warm_label
 
         def setup(self, worker: Any) -> None:
-            reuse_freed_memory()
             build_chunk(self.config, [self.warm_label] if self.warm_label else [])
 
         def teardown(self, worker: Any) -> None:
@@ -184,7 +160,7 @@ class DaskEngine:
             return
         import dask
 
-        # workers without Dask's MALLOC_TRIM_THRESHOLD_ (see reuse_freed_memory)
+        # workers without Dask's MALLOC_TRIM_THRESHOLD_ (see mars_pairs.allocator)
         with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
             cluster = LocalCluster(
                 n_workers=self.workers,

@@ -13,6 +13,7 @@ from typing import Any
 
 import pyarrow as pa
 
+from mars_pairs.allocator import reuse_freed_memory
 from mars_pairs.errors import MarsPairsError
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.context import SampleContext
@@ -38,6 +39,7 @@ def open_context(config: BuildConfig) -> None:
     initializer raised, for ever; the error is kept and reported by the first task."""
     global _CONTEXT, _START_ERROR
     close_context()
+    reuse_freed_memory()  # a worker process: keep freed blocks for the next sample
     try:
         _CONTEXT = SampleContext.open(config)
         _START_ERROR = None

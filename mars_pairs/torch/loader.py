@@ -3,13 +3,15 @@
 A plain DataLoader worker puts every batch into new shared memory; creating and filling it
 cost as much as decoding the batch here (see :mod:`mars_pairs.torch.transport`). With
 ``MarsPairsLoader`` each worker keeps a few batch slots in shared memory and refills them;
-the loader copies every batch it receives into its own process's memory (one memcpy) and
-hands the slot back. The batches it yields are ordinary tensors that the caller owns: they
-may be kept, modified or sent to a GPU at leisure. Like ``webdataset.WebLoader``, it is a
-``DataLoader`` subclass taking the same arguments.
+the loader copies every batch it receives into its own process's memory (one memcpy, into
+pages it reuses once the caller drops a batch) and hands the slot back. The batches it
+yields are ordinary tensors that the caller owns: they may be kept, modified or sent to a
+GPU at leisure. Like ``webdataset.WebLoader``, it is a ``DataLoader`` subclass taking the
+same arguments.
 
 Slots are used when the loader has workers and collates with :func:`collate_samples` (the
-default); with a ``collate_fn`` of the caller's, it behaves exactly as a DataLoader.
+default); with a ``collate_fn`` of the caller's, it behaves as a DataLoader. Its workers
+keep the memory they free for the next batch (:mod:`mars_pairs.allocator`).
 """
 
 from __future__ import annotations
@@ -20,8 +22,9 @@ from typing import Any
 import torch
 from torch.utils.data import DataLoader, get_worker_info
 
+from mars_pairs.allocator import reuse_freed_memory
 from mars_pairs.torch.collate import batch_layout, collate_samples
-from mars_pairs.torch.transport import FREE, BatchSlots, block_views, private_copy
+from mars_pairs.torch.transport import FREE, BatchSlots, WarmBuffers, block_views
 
 #: the batch key that carries (worker id, slot, layout, block, allocations) to the loader
 SLOT_KEY = "_mars_pairs_slot"
@@ -59,15 +62,29 @@ class RecyclingCollate:
         return out
 
 
+class WorkerInit:
+    """A loader worker's start: keep freed memory for the next batch (see
+    :mod:`mars_pairs.allocator`), then the caller's ``worker_init_fn``."""
+
+    def __init__(self, then: Callable[[int], None] | None) -> None:
+        self.then = then
+
+    def __call__(self, worker_id: int) -> None:
+        reuse_freed_memory()
+        if self.then is not None:
+            self.then(worker_id)
+
+
 class MarsPairsLoader(DataLoader):
     """A ``torch.utils.data.DataLoader`` over a mars-pairs dataset whose workers reuse their
     shared-memory batch buffers.
 
     Takes DataLoader's arguments. ``collate_fn`` defaults to :func:`collate_samples`; slots
     are recycled when ``num_workers > 0`` and no other ``collate_fn`` is given (each worker
-    keeps ``prefetch_factor + 2`` slots). ``recycled`` and ``fresh`` count the batches
-    received through a slot and through new shared memory, ``allocations`` the slot blocks
-    each worker has allocated (a worker reuses them: at most its slot count per layout).
+    keeps up to ``2 * prefetch_factor + 2`` slots, allocated as needed). A received batch is
+    copied into this process's memory, reused once the caller drops the batch's tensors.
+    ``recycled`` and ``fresh`` count the batches received through a slot and through new
+    shared memory, ``allocations`` the slot blocks each worker has allocated.
     """
 
     def __init__(
@@ -79,12 +96,14 @@ class MarsPairsLoader(DataLoader):
         num_workers: int = 0,
         collate_fn: Callable[[Any], Any] | None = None,
         prefetch_factor: int | None = None,
+        worker_init_fn: Callable[[int], None] | None = None,
         **kwargs: Any,
     ) -> None:
         recycle = num_workers > 0 and collate_fn is None and batch_size is not None
         self._flags: torch.Tensor | None = None
         if recycle:
-            slots = (prefetch_factor or 2) + 2
+            # in flight (prefetch) + lost when an epoch is cut short (prefetch) + being built
+            slots = 2 * (prefetch_factor or 2) + 2
             self._flags = torch.full((num_workers, slots), FREE, dtype=torch.uint8)
             self._flags.share_memory_()
             collate_fn = RecyclingCollate(self._flags)
@@ -95,11 +114,13 @@ class MarsPairsLoader(DataLoader):
             num_workers=num_workers,
             collate_fn=collate_fn or collate_samples,
             prefetch_factor=prefetch_factor,
+            worker_init_fn=WorkerInit(worker_init_fn) if num_workers > 0 else worker_init_fn,
             **kwargs,
         )
         self.recycled = 0
         self.fresh = 0
         self.allocations: dict[int, int] = {}  # worker id -> slot blocks it has allocated
+        self._warm = WarmBuffers(keep=2 * (prefetch_factor or 2) + 2)
 
     def __iter__(self) -> Iterator[Any]:  # type: ignore[override]
         for batch in super().__iter__():
@@ -112,9 +133,9 @@ class MarsPairsLoader(DataLoader):
             return batch
         worker, slot, layout, block, allocations = batch.pop(SLOT_KEY)
         self.allocations[int(worker)] = int(allocations)
-        for key, view in block_views(block, layout).items():
-            # a pinned block is already a copy (pin_memory); a shared one is the worker's slot
-            batch[key] = private_copy(view) if block.is_shared() else view
+        # a pinned block is already a copy (pin_memory); a shared one is the worker's slot
+        mine = self._warm.copy(block) if block.is_shared() else block
+        batch.update(block_views(mine, layout))
         assert self._flags is not None
         self._flags[int(worker), int(slot)] = FREE
         self.recycled += 1

@@ -12,6 +12,7 @@ DataLoader's own pickling of shared tensors.
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -139,9 +140,35 @@ def _itemsize(dtype: torch.dtype) -> int:
     return torch.empty(0, dtype=dtype).element_size()
 
 
-def private_copy(tensor: torch.Tensor) -> torch.Tensor:
-    """A copy of ``tensor`` in this process's own memory (numpy's allocator reuses freed
-    pages; a fresh torch.empty faults them in anew)."""
-    out = np.empty(tuple(tensor.shape), dtype=tensor.numpy().dtype)
-    np.copyto(out, tensor.numpy())
-    return torch.from_numpy(out)
+class WarmBuffers:
+    """Memory this process reuses for the batches it copies out of worker slots.
+
+    A received batch is copied into a buffer from here; its tensors keep the buffer while
+    any of them (or a view) lives, and the buffer comes back for a later batch when the last
+    one is gone: a training loop that drops each batch refills the same pages (~0.05 ms per
+    MB) instead of faulting in fresh ones (~1 ms per MB on a VM); a caller who keeps batches
+    only makes the cache allocate more. At most ``keep`` free buffers are kept.
+    """
+
+    def __init__(self, keep: int = 8) -> None:
+        self.keep = keep
+        self._free: list[np.ndarray] = []
+        self.allocations = 0
+
+    def copy(self, block: torch.Tensor) -> torch.Tensor:
+        """A uint8 tensor equal to ``block`` (1-D, uint8) in a reused buffer."""
+        n = block.numel()
+        raw = next((b for b in self._free if b.size == n), None)
+        if raw is None:
+            raw = np.empty(n, dtype=np.uint8)
+            self.allocations += 1
+        else:
+            self._free.remove(raw)
+        lease = raw.view()  # a new array object: when it dies, every tensor of it is gone
+        weakref.finalize(lease, self._give_back, raw)
+        np.copyto(lease, block.numpy())
+        return torch.from_numpy(lease)
+
+    def _give_back(self, raw: np.ndarray) -> None:
+        if len(self._free) < self.keep:
+            self._free.append(raw)

@@ -3,6 +3,7 @@ caller's own and equal what a one-process DataLoader gives."""
 
 from __future__ import annotations
 
+import gc
 from pathlib import Path
 
 import pytest
@@ -11,7 +12,7 @@ from torch.utils.data import DataLoader
 
 from mars_pairs.torch import MarsPairsDataset, MarsPairsLoader, collate_samples
 from mars_pairs.torch.transforms import Flip
-from mars_pairs.torch.transport import FREE, LENT, BatchSlots
+from mars_pairs.torch.transport import FREE, LENT, BatchSlots, WarmBuffers
 
 FIELDS = ("ground", "ortho", "dem", "viewshed", "bounds", "transform", "rotation")
 
@@ -43,7 +44,7 @@ def test_batches_equal_and_slots_reused(dataset_dir: Path) -> None:
         for batch in got:
             assert not any(batch[k].is_shared() for k in FIELDS)  # the caller's own memory
     assert loader.recycled == 4 * len(want) and loader.fresh == 0
-    # 20 batches from 2 workers of 4 slots each: the slots were refilled, not reallocated
+    # 20 batches from 2 workers: a few slots each, refilled, not reallocated
     assert 1 <= sum(loader.allocations.values()) <= 8
 
 
@@ -62,12 +63,12 @@ def test_epoch_cut_short_reclaims_slots(dataset_dir: Path) -> None:
     with MarsPairsDataset(dataset_dir, ground_size=(96, 128)) as ds:
         want = reference(ds, 1)
         loader = MarsPairsLoader(ds, batch_size=1, num_workers=2, persistent_workers=True)
-        for _ in range(3):
+        for _ in range(5):
             for _batch in loader:  # leaves batches in flight, never received
                 break
             assert_same(list(loader), want)
-    assert loader.fresh == 0  # lost slots came back (unreclaimed, 9 lost > 8 slots)
-    assert sum(loader.allocations.values()) <= 8
+    assert loader.fresh == 0  # lost slots came back (~2 a worker a round, 6 slots a worker)
+    assert sum(loader.allocations.values()) <= 12
 
 
 def test_spawned_workers(dataset_dir: Path) -> None:
@@ -155,3 +156,19 @@ class _nothing:
 
     def __exit__(self, *exc: object) -> None:
         return None
+
+
+def test_warm_buffers_come_back_only_when_every_view_is_gone() -> None:
+    warm = WarmBuffers(keep=4)
+    block = torch.arange(64, dtype=torch.uint8)
+    first = warm.copy(block)
+    view = first[8:16].view(torch.float64)  # a field of the batch, as the loader makes them
+    del first
+    gc.collect()
+    second = warm.copy(block * 2)  # ``view`` still holds the first buffer: a new one
+    assert warm.allocations == 2
+    assert torch.equal(view, block[8:16].view(torch.float64))
+    del view, second
+    gc.collect()
+    third = warm.copy(block)
+    assert warm.allocations == 2 and torch.equal(third, block)  # refilled, not allocated
