@@ -15,6 +15,7 @@ import pyarrow as pa
 
 from mars_pairs.allocator import reuse_freed_memory
 from mars_pairs.errors import MarsPairsError
+from mars_pairs.kernels.warm import warm_kernels
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.context import SampleContext
 from mars_pairs.pipeline.sample import Sample, build_sample
@@ -46,6 +47,8 @@ def open_context(config: BuildConfig) -> None:
     except Exception as exc:
         own = isinstance(exc, MarsPairsError)
         _START_ERROR = str(exc) if own else f"{type(exc).__name__}: {exc}"
+        return
+    warm_kernels()  # while the driver still plans: the first sample no longer loads them
 
 
 def use_context(context: SampleContext | None) -> None:
