@@ -9,7 +9,8 @@ chip, so every pair from the same position counts as a positive (multi-positive 
 
 The dataset's transforms resize the chips and make float32 images; the dataset is small, so
 it is decoded once and kept in memory (for a large dataset, give the augmentations to
-``MarsPairsDataset(transform=...)`` and iterate a DataLoader). Every training step augments
+``MarsPairsDataset(transform=...)`` and iterate a ``mars_pairs.torch.MarsPairsLoader``, a
+DataLoader whose workers reuse their shared memory). Every training step augments
 its samples with transforms that keep the pairing (``mars_pairs.torch.transforms``: a random
 chip crop, which moves the chip's georeferencing and keypoints with it, and colour jitter of
 the ground image); ``--plot PNG`` writes ``MarsPairsDataset.plot`` of an augmented sample.
