@@ -9,6 +9,8 @@
   unsafe. Where there is no fork server (Windows), workers are spawned.
 - At most ``window`` labels are in flight (4 per worker): the driver's memory does not grow
   with the label count, and results come back in label order.
+- A worker that dies (killed, out of memory, a crash) fails the build at once, naming a
+  label in flight; the chunks already written stay, and ``--resume`` goes on from there.
 """
 
 from __future__ import annotations
@@ -16,10 +18,13 @@ from __future__ import annotations
 import multiprocessing as mp
 from collections import deque
 from collections.abc import Iterable, Iterator
+from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from itertools import islice
 from multiprocessing.context import BaseContext
 from typing import Any
 
+from mars_pairs.errors import MarsPairsError
 from mars_pairs.pipeline import worker
 from mars_pairs.pipeline.config import BuildConfig
 
@@ -35,42 +40,65 @@ def worker_context() -> BaseContext:
     return ctx
 
 
+class WorkerDiedError(MarsPairsError):
+    """A build worker process died (killed, out of memory, crashed) with samples in flight."""
+
+
 class LocalPool:
-    """``workers`` processes building samples for ``config``; a context manager."""
+    """``workers`` processes building samples for ``config``; a context manager.
+
+    A ``concurrent.futures`` process pool: a worker that dies fails the build with
+    WorkerDiedError (rerun with ``--resume``) where ``multiprocessing.Pool`` would wait for
+    its lost task for ever.
+    """
 
     def __init__(self, config: BuildConfig, workers: int, window: int = 0) -> None:
         self.workers = workers
         self.window = window or 4 * workers
-        self._pool = worker_context().Pool(
-            workers, initializer=worker.open_context, initargs=(config,)
+        self._pool = ProcessPoolExecutor(
+            workers,
+            mp_context=worker_context(),
+            initializer=worker.open_context,
+            initargs=(config,),
         )
+        for _ in range(workers):  # start them all now (the pool starts one per task)
+            self._pool.submit(_started)
 
     def results(self, labels: Iterable[str]) -> Iterator[tuple[str, Any]]:
         """Every label's result, in order; WorkerStartError (once) if a worker could not
-        open the inputs."""
+        open the inputs, WorkerDiedError if one died."""
         todo = iter(labels)
-        flight: deque[Any] = deque(
-            self._pool.apply_async(worker.work, (label,)) for label in islice(todo, self.window)
-        )
+        flight: deque[tuple[str, Future]] = deque()
+
+        def submit(count: int) -> None:
+            for label in islice(todo, count):
+                flight.append((label, self._pool.submit(worker.work, label)))
+
+        submit(self.window)
         while flight:
-            status, result = flight.popleft().get()
-            for label in islice(todo, 1):
-                flight.append(self._pool.apply_async(worker.work, (label,)))
+            label, future = flight.popleft()
+            try:
+                status, result = future.result()
+            except BrokenProcessPool:
+                raise WorkerDiedError(
+                    f"a build worker process died (killed, out of memory or crashed) while "
+                    f"{label} or a label near it was in flight; rerun with --resume"
+                ) from None
+            submit(1)
             if status == "start":
                 raise worker.WorkerStartError(result)
             yield status, result
 
     def close(self, abort: bool = False) -> None:
-        """Let the workers finish and exit; with ``abort``, kill them (what is in flight is
-        dropped)."""
-        if abort:
-            self._pool.terminate()
-        else:
-            self._pool.close()
-        self._pool.join()
+        """Let the workers finish and exit; with ``abort``, drop what is queued."""
+        self._pool.shutdown(wait=True, cancel_futures=abort)
 
     def __enter__(self) -> LocalPool:
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
         self.close(abort=exc_type is not None)
+
+
+def _started() -> None:
+    """A task that only makes the pool start a worker (which opens its context)."""

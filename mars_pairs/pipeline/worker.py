@@ -7,6 +7,7 @@ when the process could not open its context.
 
 from __future__ import annotations
 
+import contextlib
 import re
 from pathlib import Path
 from typing import Any
@@ -48,7 +49,10 @@ def open_context(config: BuildConfig) -> None:
         own = isinstance(exc, MarsPairsError)
         _START_ERROR = str(exc) if own else f"{type(exc).__name__}: {exc}"
         return
-    warm_kernels()  # while the driver still plans: the first sample no longer loads them
+    # while the driver still plans: the first sample no longer loads them (only a head
+    # start: if it fails, the first sample loads what is missing)
+    with contextlib.suppress(Exception):
+        warm_kernels()
 
 
 def use_context(context: SampleContext | None) -> None:

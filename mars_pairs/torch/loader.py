@@ -16,7 +16,7 @@ keep the memory they free for the next batch (:mod:`mars_pairs.allocator`).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import torch
@@ -75,16 +75,23 @@ class WorkerInit:
             self.then(worker_id)
 
 
+def _slot_count(prefetch_factor: int | None) -> int:
+    """Slots a worker may need: in flight (prefetch), lost when an epoch is cut short
+    (prefetch), and the one being built."""
+    return 2 * (prefetch_factor or 2) + 2
+
+
 class MarsPairsLoader(DataLoader):
     """A ``torch.utils.data.DataLoader`` over a mars-pairs dataset whose workers reuse their
     shared-memory batch buffers.
 
     Takes DataLoader's arguments. ``collate_fn`` defaults to :func:`collate_samples`; slots
-    are recycled when ``num_workers > 0`` and no other ``collate_fn`` is given (each worker
-    keeps up to ``2 * prefetch_factor + 2`` slots, allocated as needed). A received batch is
-    copied into this process's memory, reused once the caller drops the batch's tensors.
-    ``recycled`` and ``fresh`` count the batches received through a slot and through new
-    shared memory, ``allocations`` the slot blocks each worker has allocated.
+    are recycled when ``num_workers > 0``, batches are made (``batch_size`` not None) and the
+    collate function is :func:`collate_samples` (each worker keeps up to
+    ``2 * prefetch_factor + 2`` slots, allocated as needed; every iterator has its own). A
+    received batch is copied into this process's memory, reused once the caller drops the
+    batch's tensors. ``recycled`` and ``fresh`` count the batches received through a slot
+    and through new shared memory, ``allocations`` the slot blocks each worker has allocated.
     """
 
     def __init__(
@@ -99,20 +106,14 @@ class MarsPairsLoader(DataLoader):
         worker_init_fn: Callable[[int], None] | None = None,
         **kwargs: Any,
     ) -> None:
-        recycle = num_workers > 0 and collate_fn is None and batch_size is not None
-        self._flags: torch.Tensor | None = None
-        if recycle:
-            # in flight (prefetch) + lost when an epoch is cut short (prefetch) + being built
-            slots = 2 * (prefetch_factor or 2) + 2
-            self._flags = torch.full((num_workers, slots), FREE, dtype=torch.uint8)
-            self._flags.share_memory_()
-            collate_fn = RecyclingCollate(self._flags)
+        if collate_fn is None and batch_size is not None:
+            collate_fn = collate_samples
         super().__init__(
             dataset,
             batch_size,
             shuffle,
             num_workers=num_workers,
-            collate_fn=collate_fn or collate_samples,
+            collate_fn=collate_fn,
             prefetch_factor=prefetch_factor,
             worker_init_fn=WorkerInit(worker_init_fn) if num_workers > 0 else worker_init_fn,
             **kwargs,
@@ -120,15 +121,36 @@ class MarsPairsLoader(DataLoader):
         self.recycled = 0
         self.fresh = 0
         self.allocations: dict[int, int] = {}  # worker id -> slot blocks it has allocated
-        self._warm = WarmBuffers(keep=2 * (prefetch_factor or 2) + 2)
+        self._warm = WarmBuffers(keep=_slot_count(prefetch_factor))
 
-    def __iter__(self) -> Iterator[Any]:  # type: ignore[override]
-        for batch in super().__iter__():
-            yield self._receive(batch)
+    @property
+    def recycles(self) -> bool:
+        """Whether this loader's workers recycle their batch slots."""
+        return self.num_workers > 0 and self.collate_fn is collate_samples
 
-    def _receive(self, batch: Any) -> Any:
+    def _get_iterator(self) -> Any:
+        """torch's iterator, its workers collating into slots freed through flags of its own
+        (two iterators alive at once never share a slot)."""
+        if not self.recycles:
+            return super()._get_iterator()
+        flags = torch.full((self.num_workers, _slot_count(self.prefetch_factor)), FREE,
+                           dtype=torch.uint8)  # fmt: skip
+        flags.share_memory_()
+        plain = self.collate_fn
+        self.collate_fn = RecyclingCollate(flags)  # read when the workers start, just below
+        try:
+            inner = super()._get_iterator()
+        finally:
+            self.collate_fn = plain
+        inner._mars_pairs_flags = flags
+        return inner
+
+    def __iter__(self) -> LoaderIterator:  # type: ignore[override]
+        return LoaderIterator(self, super().__iter__())
+
+    def _receive(self, batch: Any, flags: torch.Tensor | None) -> Any:
         """The caller's copy of a received batch; its slot handed back to the worker."""
-        if not isinstance(batch, dict) or SLOT_KEY not in batch:
+        if not isinstance(batch, dict) or SLOT_KEY not in batch or flags is None:
             self.fresh += isinstance(batch, dict)
             return batch
         worker, slot, layout, block, allocations = batch.pop(SLOT_KEY)
@@ -136,7 +158,26 @@ class MarsPairsLoader(DataLoader):
         # a pinned block is already a copy (pin_memory); a shared one is the worker's slot
         mine = self._warm.copy(block) if block.is_shared() else block
         batch.update(block_views(mine, layout))
-        assert self._flags is not None
-        self._flags[int(worker), int(slot)] = FREE
+        flags[int(worker), int(slot)] = FREE
         self.recycled += 1
         return batch
+
+
+class LoaderIterator:
+    """An iterator of a :class:`MarsPairsLoader`: torch's, each batch copied out of its slot.
+
+    Like torch's, it goes on after a worker's exception is raised (the next batch follows)."""
+
+    def __init__(self, loader: MarsPairsLoader, inner: Any) -> None:
+        self._loader = loader
+        self._inner = inner
+
+    def __iter__(self) -> LoaderIterator:
+        return self
+
+    def __next__(self) -> Any:
+        batch = next(self._inner)
+        return self._loader._receive(batch, getattr(self._inner, "_mars_pairs_flags", None))
+
+    def __len__(self) -> int:
+        return len(self._inner)

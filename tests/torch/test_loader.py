@@ -172,3 +172,63 @@ def test_warm_buffers_come_back_only_when_every_view_is_gone() -> None:
     gc.collect()
     third = warm.copy(block)
     assert warm.allocations == 2 and torch.equal(third, block)  # refilled, not allocated
+
+
+class Numbers(torch.utils.data.Dataset):
+    """Sample i: {"x": [4] float64 of i, "y": [2, 3] uint8 of i}; sample ``bad`` raises."""
+
+    def __init__(self, n: int, bad: int | None = None) -> None:
+        self.n, self.bad = n, bad
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __getitem__(self, i: int) -> dict:
+        if i == self.bad:
+            raise ValueError(f"sample {i} is broken")
+        return {"x": torch.full((4,), float(i)), "y": torch.full((2, 3), i, dtype=torch.uint8)}
+
+
+def test_two_live_iterators_never_share_a_slot() -> None:
+    """Each iterator has its own workers and flags: freeing a slot of one never lets the
+    other's worker overwrite a batch not yet copied out."""
+    loader = MarsPairsLoader(Numbers(96), batch_size=2, num_workers=2)
+    for a, b in zip(loader, loader, strict=True):
+        assert torch.equal(a["x"], b["x"]) and torch.equal(a["y"], b["y"])
+    first, second = iter(loader), iter(loader)
+    got = [next(first), next(second), next(second), next(first)]
+    assert [int(b["x"][0, 0]) for b in got] == [0, 0, 2, 2]
+
+
+def test_a_worker_error_is_raised_and_the_epoch_goes_on() -> None:
+    loader = MarsPairsLoader(Numbers(10, bad=5), batch_size=2, num_workers=2)
+    it = iter(loader)
+    assert len(it) == 5
+    got, errors = [], 0
+    while True:
+        try:
+            got.append(int(next(it)["x"][0, 0]))
+        except ValueError as exc:
+            errors += 1
+            assert "sample 5 is broken" in str(exc)
+        except StopIteration:
+            break
+    assert got == [0, 2, 6, 8] and errors == 1  # as a plain DataLoader
+
+
+def test_unbatched_loading_is_a_dataloaders() -> None:
+    loader = MarsPairsLoader(Numbers(4), batch_size=None, num_workers=1)
+    assert [int(s["x"][0]) for s in loader] == [0, 1, 2, 3] and loader.recycled == 0
+
+
+def test_its_collate_fn_in_another_loader_gives_plain_batches() -> None:
+    """Wrappers (Accelerate, Lightning) rebuild loaders from ``collate_fn``: it is the plain
+    ``collate_samples``, never a slot-filling one."""
+    loader = MarsPairsLoader(Numbers(8), batch_size=4, num_workers=1)
+    assert loader.collate_fn is collate_samples
+    batches = list(
+        DataLoader(Numbers(8), batch_size=4, num_workers=1, collate_fn=loader.collate_fn)
+    )
+    assert [sorted(b) for b in batches] == [["x", "y"], ["x", "y"]]
+    again = MarsPairsLoader(Numbers(8), batch_size=4, num_workers=1, collate_fn=loader.collate_fn)
+    assert [int(b["x"][3, 0]) for b in again] == [3, 7] and again.recycled == 2
