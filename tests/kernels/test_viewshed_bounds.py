@@ -25,9 +25,9 @@ def rough_dem(seed: int) -> np.ndarray:
     return (rng.normal(0.0, 1.5, (N, N)).cumsum(axis=0) * 0.3).astype(np.float32)
 
 
-def viewshed(dem: np.ndarray, col: float, row: float, az_band) -> np.ndarray:
+def viewshed(dem: np.ndarray, col: float, row: float, az_band, radius: float = 60.0) -> np.ndarray:
     x, y = TRANSFORM * (col + 0.5, row + 0.5)
-    return compute_viewshed((dem, TRANSFORM), x, y, height=1.5, radius=60.0, az_band=az_band)
+    return compute_viewshed((dem, TRANSFORM), x, y, height=1.5, radius=radius, az_band=az_band)
 
 
 @pytest.fixture
@@ -72,3 +72,22 @@ def test_no_index_leaves_the_grid(as_python, seed: int, col: float, row: float, 
     both = np.count_nonzero((checked == 1) & (compiled == 1))
     either = np.count_nonzero((checked == 1) | (compiled == 1))
     assert both / either >= 0.99  # 1.0 on every case here
+
+
+QUADRANTS = [(0.0, 90.0), (90.0, 180.0), (180.0, 270.0), (270.0, 360.0)]
+
+
+@pytest.mark.parametrize("az_band", QUADRANTS)
+@pytest.mark.parametrize(("col", "row"), [(5.0, 28.0), (28.0, 5.0), (34.0, 11.0), (11.0, 34.0)])
+def test_rays_whose_step_lands_exactly_on_the_last_line(as_python, az_band, col, row) -> None:
+    """Radius 20 cells: rays of resolution P = 21; the observer 11 lines from one edge and
+    more than 21 from the opposite one. A ray with minor step k = 11 reaches the last line
+    exactly at step 21 (11 * 21 = 21 * 11), where the float bound rounded up; rows and
+    columns as the minor axis, both directions."""
+    dem = rough_dem(8)
+    compiled = viewshed(dem, col, row, az_band, radius=20.0)
+    as_python()
+    checked = viewshed(dem, col, row, az_band, radius=20.0)
+    assert compiled.sum() > 0
+    both = np.count_nonzero((checked == 1) & (compiled == 1))
+    assert both / np.count_nonzero((checked == 1) | (compiled == 1)) >= 0.99
