@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 from collections import deque
 from collections.abc import Iterable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -59,7 +60,7 @@ class LocalPool:
             workers,
             mp_context=worker_context(),
             initializer=worker.open_context,
-            initargs=(config,),
+            initargs=(config, dict(os.environ)),  # this build's environment, not the server's
         )
         for _ in range(workers):  # start them all now (the pool starts one per task)
             self._pool.submit(_started)

@@ -7,25 +7,9 @@ import multiprocessing as mp
 from collections.abc import Iterator
 from pathlib import Path
 
-from mars_pairs.pipeline.config import parse_config
+from mission_config import cheap_config
+
 from mars_pairs.pipeline.local_pool import LocalPool, worker_context
-
-
-def _config(mission: Path, out: Path):
-    return parse_config(
-        {
-            "inputs": {
-                "labels": str(mission / "labels" / "*.xml"),
-                "places": str(mission / "places" / "best_interp.csv"),
-                "dem": str(mission / "orbital" / "dem.tif"),
-                "ortho": str(mission / "orbital" / "ortho.tif"),
-            },
-            "geometry": {"radius": 200, "ray_stride": 64},
-            "chips": {"size_m": 32, "size_px": 16},
-            "output": {"dir": str(out)},
-        },
-        mission,
-    )
 
 
 def test_results_in_order_with_a_bounded_window(small_mission: Path, tmp_path: Path) -> None:
@@ -36,7 +20,7 @@ def test_results_in_order_with_a_bounded_window(small_mission: Path, tmp_path: P
             pulled.append(label := str(tmp_path / f"missing_{i:03d}.xml"))
             yield label
 
-    with LocalPool(_config(small_mission, tmp_path / "ds"), workers=2, window=6) as pool:
+    with LocalPool(cheap_config(small_mission, tmp_path / "ds"), workers=2, window=6) as pool:
         got = []
         for status, row in pool.results(labels()):
             got.append((status, row["path"]))
@@ -50,3 +34,23 @@ def test_workers_come_from_a_fork_server_where_there_is_one() -> None:
         assert ctx.get_start_method() == "forkserver"
     else:
         assert ctx.get_start_method() == "spawn"
+
+
+def _environ(name: str) -> str | None:
+    import os
+
+    return os.environ.get(name)
+
+
+def test_workers_see_the_environment_of_the_build_not_of_the_fork_server(
+    small_mission: Path, tmp_path: Path, monkeypatch
+) -> None:
+    """GDAL and AWS options set after a first build (a notebook) reach the next build's
+    workers, though the fork server started before."""
+    config = cheap_config(small_mission, tmp_path / "ds")
+    with LocalPool(config, workers=1) as pool:  # starts the server if not running
+        pool._pool.submit(_environ, "MARS_PAIRS_TEST_OPTION").result()
+    monkeypatch.setenv("MARS_PAIRS_TEST_OPTION", "set-later")
+    with LocalPool(config, workers=1) as pool:
+        seen = pool._pool.submit(_environ, "MARS_PAIRS_TEST_OPTION").result()
+    assert seen == "set-later"

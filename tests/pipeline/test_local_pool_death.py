@@ -11,29 +11,11 @@ import time
 from pathlib import Path
 
 import pytest
+from mission_config import cheap_config
 
 from mars_pairs.pipeline import local_pool
 from mars_pairs.pipeline.build import run_build
-from mars_pairs.pipeline.config import parse_config
 from mars_pairs.pipeline.local_pool import WorkerDiedError
-
-
-def _config(mission: Path, out: Path):
-    return parse_config(
-        {
-            "inputs": {
-                "labels": str(mission / "labels" / "*.xml"),
-                "places": str(mission / "places" / "best_interp.csv"),
-                "dem": str(mission / "orbital" / "dem.tif"),
-                "ortho": str(mission / "orbital" / "ortho.tif"),
-            },
-            "geometry": {"radius": 300, "ray_stride": 32},
-            "chips": {"size_m": 64, "size_px": 64},
-            "output": {"dir": str(out), "shard_size": 1},
-            "splits": {"block_m": 100},
-        },
-        mission,
-    )
 
 
 def _digest(root: Path) -> dict[str, str]:
@@ -67,13 +49,24 @@ def test_a_killed_worker_fails_the_build_and_resume_finishes_it(
     killer.start()
     start = time.perf_counter()
     with pytest.raises(WorkerDiedError, match="rerun with --resume"):
-        run_build(_config(small_mission, tmp_path / "ds"), workers=2, progress=False)
+        run_build(
+            cheap_config(small_mission, tmp_path / "ds", output={"shard_size": 1}),
+            workers=2,
+            progress=False,
+        )
     killer.join()
     assert time.perf_counter() - start < 60  # failed, not hung
     monkeypatch.undo()
     resumed = run_build(
-        _config(small_mission, tmp_path / "ds"), workers=2, resume=True, progress=False
+        cheap_config(small_mission, tmp_path / "ds", output={"shard_size": 1}),
+        workers=2,
+        resume=True,
+        progress=False,
     )
-    clean = run_build(_config(small_mission, tmp_path / "clean"), workers=1, progress=False)
+    clean = run_build(
+        cheap_config(small_mission, tmp_path / "clean", output={"shard_size": 1}),
+        workers=1,
+        progress=False,
+    )
     assert resumed.samples == clean.samples > 0
     assert _digest(tmp_path / "ds") == _digest(tmp_path / "clean")
