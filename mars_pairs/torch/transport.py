@@ -59,6 +59,10 @@ class BatchSlots:
     lent after it is freed: the main process receives a worker's batches in the order the
     worker sent them. With no slot free, :meth:`take` returns None and the batch goes the
     plain DataLoader way (new shared memory).
+
+    The flags are plain loads and stores, no fence: on x86 (total store order) the main
+    process's FREE is seen only after its copy's reads; on weakly ordered CPUs (aarch64) the
+    copy ends long before the worker next looks (it does so when it starts another batch).
     """
 
     def __init__(self, flags: torch.Tensor) -> None:
