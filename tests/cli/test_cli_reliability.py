@@ -16,6 +16,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 import yaml
+from mission_inputs import mission_inputs
 
 from mars_pairs.cli.main import main
 from mars_pairs.pipeline.build import run_build
@@ -26,12 +27,7 @@ from mars_pairs.pipeline.config import load_config
 def built(small_mission: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     tmp = tmp_path_factory.mktemp("built")
     doc = {
-        "inputs": {
-            "labels": str(small_mission / "labels" / "*.xml"),
-            "places": str(small_mission / "places" / "best_interp.csv"),
-            "dem": str(small_mission / "orbital" / "dem.tif"),
-            "ortho": str(small_mission / "orbital" / "ortho.tif"),
-        },
+        "inputs": mission_inputs(small_mission),
         "geometry": {"radius": 300, "ray_stride": 32},
         "chips": {"size_m": 64, "size_px": 32},
         "output": {"dir": str(tmp / "ds"), "shard_size": 2},

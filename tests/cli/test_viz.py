@@ -12,6 +12,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import yaml
+from mission_inputs import mission_inputs
 from PIL import Image
 from pyproj import CRS
 
@@ -31,12 +32,7 @@ def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     mission = tmp / "mission"
     generate_mission(mission, seed=5, mission="m2020", stops=2, images_per_stop=2, size="small")
     doc = {
-        "inputs": {
-            "labels": str(mission / "labels" / "*.xml"),
-            "places": str(mission / "places" / "best_interp.csv"),
-            "dem": str(mission / "orbital" / "dem.tif"),
-            "ortho": str(mission / "orbital" / "ortho.tif"),
-        },
+        "inputs": mission_inputs(mission),
         "geometry": {"radius": 400, "ray_stride": 16},
         "chips": {"size_m": 128, "size_px": 128},
         "output": {"dir": str(tmp / "ds"), "shard_size": 2},

@@ -15,6 +15,7 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 import yaml
+from mission_inputs import mission_inputs
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
@@ -34,12 +35,7 @@ def mission(small_mission: Path) -> Path:
 
 def write_config(path: Path, mission: Path, out: Path, labels: Path, places: Path) -> Path:
     doc = {
-        "inputs": {
-            "labels": str(labels / "*.xml"),
-            "places": str(places),
-            "dem": str(mission / "orbital" / "dem.tif"),
-            "ortho": str(mission / "orbital" / "ortho.tif"),
-        },
+        "inputs": mission_inputs(mission, labels=labels / "*.xml", places=places),
         "geometry": {"radius": 300, "ray_stride": 32},
         "chips": {"size_m": 64, "size_px": 32},
         "output": {"dir": str(out), "shard_size": 2},

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from mission_inputs import mission_inputs
 
 from mars_pairs.cli.main import main
 from mars_pairs.pipeline.build import WorkerStartError, run_build
@@ -19,6 +20,7 @@ from mars_pairs.pipeline.config import load_config
 from mars_pairs.synth import generate_mission
 
 distributed = pytest.importorskip("distributed", reason="the dask extra is not installed")
+
 from mars_pairs.pipeline.dask_engine import DaskEngine  # noqa: E402
 
 
@@ -44,12 +46,7 @@ def cluster():
 
 def config(tmp: Path, mission: Path, out: str, shard_size: int = 2) -> Path:
     doc = {
-        "inputs": {
-            "labels": str(mission / "labels" / "*.xml"),
-            "places": str(mission / "places" / "best_interp.csv"),
-            "dem": str(mission / "orbital" / "dem.tif"),
-            "ortho": str(mission / "orbital" / "ortho.tif"),
-        },
+        "inputs": mission_inputs(mission),
         "geometry": {"radius": 600, "ray_stride": 16},
         "chips": {"size_m": 128, "size_px": 128},
         "output": {"dir": str(tmp / out), "shard_size": shard_size},

@@ -13,6 +13,7 @@ from typing import Any
 
 import pytest
 import yaml
+from mission_inputs import mission_inputs
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
@@ -85,12 +86,7 @@ def test_planning_memory_is_flat_in_the_label_count(tmp_path: Path) -> None:
 
 def _cheap_config(path: Path, mission: Path, out: Path) -> Path:
     doc = {
-        "inputs": {
-            "labels": str(mission / "labels" / "*.xml"),
-            "places": str(mission / "places" / "best_interp.csv"),
-            "dem": str(mission / "orbital" / "dem.tif"),
-            "ortho": str(mission / "orbital" / "ortho.tif"),
-        },
+        "inputs": mission_inputs(mission),
         "geometry": {"radius": 200, "ray_stride": 64},
         "chips": {"size_m": 32, "size_px": 16},
         "output": {"dir": str(out), "shard_size": 1},

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from mission_inputs import mission_inputs
 
 from mars_pairs.pipeline.build import run_build
 from mars_pairs.pipeline.config import parse_config
@@ -23,12 +24,7 @@ def mission_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def build(mission: Path, out: Path, **sections: Any) -> Path:
     doc: dict[str, Any] = {
-        "inputs": {
-            "labels": str(mission / "labels" / "*.xml"),
-            "places": str(mission / "places" / "best_interp.csv"),
-            "dem": str(mission / "orbital" / "dem.tif"),
-            "ortho": str(mission / "orbital" / "ortho.tif"),
-        },
+        "inputs": mission_inputs(mission),
         "geometry": {"radius": 600, "ray_stride": 16},
         "chips": {"size_m": 128, "size_px": 128},
         "output": {"dir": str(out), "shard_size": 3},
