@@ -6,9 +6,8 @@ cluster: an existing one (``scheduler="tcp://HOST:PORT"``) or a ``LocalCluster``
 GDAL URLs, never open handles) and the label paths of one chunk, and returns the chunk's
 results: the very ``worker.work`` results the local engine's pool returns, built by the very
 worker initializer (``worker.open_context``) in each Dask worker process, once (a worker
-plugin opens the rasters and builds one throw-away sample of the first chunk's first
-label so the numba kernels are loaded before the first task; a task that lands on a
-worker whose context is for another config reopens it).
+plugin opens the rasters and loads the numba kernels before the first task; a task that
+lands on a worker whose context is for another config reopens it).
 
 The driver keeps at most ``window`` chunks in flight and writes them in chunk order with
 the local engine's writer, so the shards, parts and manifest are byte-identical to the
@@ -64,18 +63,17 @@ def close_context() -> None:
         worker.close_context()
 
 
-def _plugin(config: BuildConfig, warm_label: str | None) -> Any:
-    """A worker plugin that opens the context and warms the kernels when a worker starts,
-    including a worker that replaces a dead one."""
+def _plugin(config: BuildConfig) -> Any:
+    """A worker plugin that opens the context (which loads the kernels) when a worker
+    starts, including a worker that replaces a dead one."""
     from distributed.diagnostics.plugin import WorkerPlugin
 
     class WarmWorker(WorkerPlugin):
         def __init__(self) -> None:
             self.config = config
-            self.warm_label = warm_label
 
         def setup(self, worker: Any) -> None:
-            build_chunk(self.config, [self.warm_label] if self.warm_label else [])
+            build_chunk(self.config, [])
 
         def teardown(self, worker: Any) -> None:
             close_context()
@@ -108,8 +106,7 @@ class DaskEngine:
         with self._client() as client:
             if self.announce:
                 print(f"dask dashboard: {client.dashboard_link}", file=sys.stderr, flush=True)
-            warm = first[0] if len(first) else None
-            client.register_plugin(_plugin(config, warm), name=PLUGIN_NAME)
+            client.register_plugin(_plugin(config), name=PLUGIN_NAME)
             threads = sum(client.nthreads().values()) or 1
             window = self.window or 2 * threads + 2
             run = uuid.uuid4().hex[:8]

@@ -8,7 +8,7 @@ from typing import Any
 import torch
 from torch.utils.data import default_collate
 
-from mars_pairs.torch.transport import Layout, stacked_base
+from mars_pairs.torch.transport import stacked_base
 
 
 def batch_layout(batch: Sequence[dict[str, Any]]) -> dict[str, tuple[tuple[int, ...], torch.dtype]]:
@@ -64,6 +64,3 @@ def _collate_tensors(
     else:
         torch.stack(tensors, out=target)
     return target
-
-
-__all__ = ["Layout", "batch_layout", "collate_samples"]

@@ -121,7 +121,7 @@ class SlotBlock:
         size = 0
         for key, (shape, dtype) in layout.items():
             placed[key] = (size, tuple(shape), dtype)
-            nbytes = int(np.prod(shape, dtype=np.int64)) * _itemsize(dtype)
+            nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
             size += -(-nbytes // _ALIGN) * _ALIGN
         return cls(shared_empty((max(size, 1),), torch.uint8), placed)
 
@@ -135,13 +135,9 @@ def block_views(block: torch.Tensor, layout: BlockLayout) -> dict[str, torch.Ten
     """The typed field tensors that ``layout`` places in a uint8 ``block`` (views)."""
     views = {}
     for key, (offset, shape, dtype) in layout.items():
-        nbytes = int(np.prod(shape, dtype=np.int64)) * _itemsize(dtype)
+        nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
         views[key] = block[offset : offset + nbytes].view(dtype).view(shape)
     return views
-
-
-def _itemsize(dtype: torch.dtype) -> int:
-    return torch.empty(0, dtype=dtype).element_size()
 
 
 class WarmBuffers:
@@ -162,12 +158,12 @@ class WarmBuffers:
     def copy(self, block: torch.Tensor) -> torch.Tensor:
         """A uint8 tensor equal to ``block`` (1-D, uint8) in a reused buffer."""
         n = block.numel()
-        raw = next((b for b in self._free if b.size == n), None)
-        if raw is None:
+        index = next((i for i, b in enumerate(self._free) if b.size == n), None)
+        if index is None:
             raw = np.empty(n, dtype=np.uint8)
             self.allocations += 1
-        else:
-            self._free.remove(raw)
+        else:  # (by position: list.remove would compare arrays element by element)
+            raw = self._free.pop(index)
         lease = raw.view()  # a new array object: when it dies, every tensor of it is gone
         weakref.finalize(lease, self._give_back, raw)
         np.copyto(lease, block.numpy())

@@ -232,3 +232,16 @@ def test_its_collate_fn_in_another_loader_gives_plain_batches() -> None:
     assert [sorted(b) for b in batches] == [["x", "y"], ["x", "y"]]
     again = MarsPairsLoader(Numbers(8), batch_size=4, num_workers=1, collate_fn=loader.collate_fn)
     assert [int(b["x"][3, 0]) for b in again] == [3, 7] and again.recycled == 2
+
+
+def test_warm_buffers_of_several_sizes() -> None:
+    """Batches of two layouts (a last, shorter batch): each size comes back to its own."""
+    warm = WarmBuffers(keep=4)
+    big, small = (
+        warm.copy(torch.zeros(64, dtype=torch.uint8)),
+        warm.copy(torch.ones(32, dtype=torch.uint8)),
+    )
+    del big, small
+    gc.collect()
+    again = warm.copy(torch.full((32,), 7, dtype=torch.uint8))  # the second free buffer
+    assert warm.allocations == 2 and int(again[0]) == 7
