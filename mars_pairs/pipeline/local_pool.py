@@ -75,20 +75,21 @@ class LocalPool:
             for label in islice(todo, count):
                 flight.append((label, self._pool.submit(worker.work, label)))
 
-        submit(self.window)
-        while flight:
-            label, future = flight.popleft()
-            try:
+        label = "the first label"
+        try:  # a dead worker breaks the pool: submitting raises as well as waiting
+            submit(self.window)
+            while flight:
+                label, future = flight.popleft()
                 status, result = future.result()
-            except BrokenProcessPool:
-                raise WorkerDiedError(
-                    f"a build worker process died (killed, out of memory or crashed) while "
-                    f"{label} or a label near it was in flight; rerun with --resume"
-                ) from None
-            submit(1)
-            if status == "start":
-                raise worker.WorkerStartError(result)
-            yield status, result
+                submit(1)
+                if status == "start":
+                    raise worker.WorkerStartError(result)
+                yield status, result
+        except BrokenProcessPool:
+            raise WorkerDiedError(
+                f"a build worker process died (killed, out of memory or crashed) while "
+                f"{label} or a label near it was in flight; rerun with --resume"
+            ) from None
 
     def close(self, abort: bool = False) -> None:
         """Let the workers finish and exit; with ``abort``, drop what is queued."""

@@ -1,12 +1,13 @@
-"""A build worker that dies mid-build fails the build at once (no hang), naming a label in
-flight; a rerun with --resume finishes it with the same bytes as an undisturbed build."""
+"""A build worker that dies fails the build at once with WorkerDiedError (no hang, no raw
+BrokenProcessPool), naming a label in flight; a rerun with --resume finishes it with the same
+bytes as an undisturbed build. The worker is killed after the pool starts and before its
+work is handed out, so the test never races the 4-image build."""
 
 from __future__ import annotations
 
 import hashlib
 import os
 import signal
-import threading
 import time
 from pathlib import Path
 
@@ -29,24 +30,20 @@ def _digest(root: Path) -> dict[str, str]:
 def test_a_killed_worker_fails_the_build_and_resume_finishes_it(
     small_mission: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    pools: list[local_pool.LocalPool] = []
-    init = local_pool.LocalPool.__init__
+    results = local_pool.LocalPool.results
 
-    def keep(self, *args, **kwargs):  # the test's handle on the pool's processes
-        init(self, *args, **kwargs)
-        pools.append(self)
-
-    monkeypatch.setattr(local_pool.LocalPool, "__init__", keep)
-
-    def kill_one() -> None:
-        while not pools or not pools[0]._pool._processes:
-            time.sleep(0.01)
-        time.sleep(0.3)
-        pid = next(iter(pools[0]._pool._processes))
+    def kill_a_worker_first(self, labels):  # the pool's processes are up, its work not begun
+        pid = next(iter(self._pool._processes))
         os.kill(pid, signal.SIGKILL)
+        while True:  # until it is gone (the fork server reaps it)
+            try:
+                os.kill(pid, 0)
+            except ProcessLookupError:
+                break
+            time.sleep(0.01)
+        yield from results(self, labels)
 
-    killer = threading.Thread(target=kill_one)
-    killer.start()
+    monkeypatch.setattr(local_pool.LocalPool, "results", kill_a_worker_first)
     start = time.perf_counter()
     with pytest.raises(WorkerDiedError, match="rerun with --resume"):
         run_build(
@@ -54,7 +51,6 @@ def test_a_killed_worker_fails_the_build_and_resume_finishes_it(
             workers=2,
             progress=False,
         )
-    killer.join()
     assert time.perf_counter() - start < 60  # failed, not hung
     monkeypatch.undo()
     resumed = run_build(
