@@ -264,8 +264,14 @@ def _collection_label(rows: int, size: int, name: str) -> bytes:
 
 
 # -- orbital maps --------------------------------------------------------------------------
-def _terrain(seed: int, n: int, res_m: float, factor: int, anchors: list[tuple[float, float, float]],
-             origin: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+def _terrain(
+    seed: int,
+    n: int,
+    res_m: float,
+    factor: int,
+    anchors: list[tuple[float, float, float]],
+    origin: tuple[float, float],
+) -> tuple[np.ndarray, np.ndarray]:
     """A synthetic DEM (n x n at res_m, row 0 north, upper left ``origin`` in map metres)
     moved so that it passes through each anchor (x, y, elevation m) by a least-squares plane,
     and its ortho at res_m / factor."""
@@ -294,7 +300,9 @@ def _write(path: Path, driver: str, data: np.ndarray, crs: str, origin: tuple[fl
         ds.write(data, 1)
 
 
-def _crop_origin(xs: list[float], ys: list[float], grid: tuple[float, float], res: float) -> tuple[float, float]:  # fmt: skip
+def _crop_origin(
+    xs: list[float], ys: list[float], grid: tuple[float, float], res: float
+) -> tuple[float, float]:
     """Upper left of a CROP_M square centred on the positions, snapped to the map grid."""
     cx, cy = (min(xs) + max(xs)) / 2, (min(ys) + max(ys)) / 2
     step = res * 4  # on both the DEM and the 4x finer map grid
