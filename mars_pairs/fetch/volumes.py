@@ -6,16 +6,17 @@ yukiitohand/msl_toolbox). The ranges overlap, so a sol's products lie in every v
 range covers it (sol 1429: MSLMST_0014 and MSLMST_0015 by the table; MSLMST_0013 ends at sol
 1417). When ``fetch.products.volumes`` is absent, these are the volumes read.
 
-Refreshing the table (when the archive adds volumes): for each volume fetch
-``<volume>/INDEX/RDRINDEX.LBL`` + ``.TAB`` (``pds3_index.index_files``), read it with
-``pds3_index.read_index_table``, take ``sol_range_of_index`` and write all rows with
-``write_volume_ranges`` over the shipped file, its origin as the ``comment``.
+Refreshing the table (when the archive adds volumes): ``ranges_from_archive`` fetches each
+volume's ``INDEX/RDRINDEX.LBL`` + ``.TAB`` and takes its first and last sol
+(``sol_range_of_index``); ``write_volume_ranges`` writes the rows over the shipped file, their
+origin as the ``comment``.
 """
 
 from __future__ import annotations
 
 import csv
 import io
+from collections.abc import Iterable
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -99,6 +100,26 @@ def sol_range_of_index(table: Any, volume: str) -> VolumeRange:
     if not sols:
         raise FetchError(volume, f"the index column {name} holds no sol")
     return VolumeRange(volume, min(sols), max(sols))
+
+
+def ranges_from_archive(
+    archive: str, volumes: Iterable[str], dl: Any, index: str = "RDRINDEX"
+) -> list[VolumeRange]:
+    """Each volume's sol range read from its own index (fetched into ``dl``'s cache).
+
+    ``archive`` is the root URL of the volumes (e.g. ``.../img/data/msl``), ``dl`` a
+    ``download.Downloader``; each index is ~75 MB for the real volumes."""
+    from mars_pairs.fetch.cache import join_url
+    from mars_pairs.fetch.download import RemoteFile
+    from mars_pairs.fetch.pds3_index import index_files, read_index_table
+
+    out = []
+    for volume in volumes:
+        lbl, tab = index_files(volume, index)
+        for rel in (lbl, tab):
+            dl.fetch(RemoteFile(rel, join_url(archive, rel)))
+        out.append(sol_range_of_index(read_index_table(dl.cache.path(lbl)), volume))
+    return out
 
 
 def write_volume_ranges(rows: list[VolumeRange], path: str | Path, comment: str = "") -> None:

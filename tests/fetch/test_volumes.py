@@ -21,6 +21,7 @@ from mars_pairs.fetch.run import FAILURES, SKIPPED, fetch_products
 from mars_pairs.fetch.volumes import (
     VolumeRange,
     load_volume_ranges,
+    ranges_from_archive,
     shipped_table,
     sol_range_of_index,
     volumes_for_sols,
@@ -157,6 +158,17 @@ def test_filters_at_the_index_and_the_label_are_counted_by_reason(volumes_14_15,
     assert reasons == {"sol outside [1429, 1429]": "skipped 2", "site not in [999]": "skipped 2"}
     assert {s.stage for s in report.skipped if s.reason.startswith("site")} == {"label"}
     assert report.selected == 0 and not report.failures
+
+
+def test_the_table_is_refreshed_from_the_volumes_own_indexes(volumes_14_15, tmp_path):
+    from mars_pairs.fetch.cache import Cache
+    from mars_pairs.fetch.download import Downloader
+
+    archive, _ = volumes_14_15
+    with ArchiveServer(archive.root) as srv:
+        dl = Downloader(Cache(tmp_path / "cache"))
+        rows = ranges_from_archive(f"{srv.url}/msl", ["MSLMST_0014", "MSLMST_0015"], dl)
+    assert rows == [VolumeRange("MSLMST_0014", 1429, 1430), VolumeRange("MSLMST_0015", 1429, 1430)]
 
 
 def test_configs_choose_msl_volumes_by_sols_and_validate_thumbnails(tmp_path):
