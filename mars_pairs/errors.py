@@ -34,6 +34,11 @@ class TerrainError(MarsPairsError):
     """A DEM or orthoimage cannot serve a request (no CRS, observer off the raster, nodata)."""
 
 
+class CoverageError(TerrainError):
+    """An orbital chip has too little data (``chips.min_coverage``): the message names the
+    raster, its extent and the chip's bounds."""
+
+
 class ConfigError(MarsPairsError):
     """A build configuration is invalid; the message names the key and what was expected."""
 

@@ -4,8 +4,12 @@ Products: the index files are fetched first (PDS3 ``INDEX/<index>.LBL`` + ``.TAB
 PDS4 collection label + inventory), filtered on what they list, then each product's label is
 fetched and read (image file, its size and MD5, site/drive where the index lacks them),
 filtered again, and its image fetched. ``workers`` products go at once; a tqdm bar counts
-them. A product that fails (404, retries exhausted, bad label, MD5) becomes one failure row
-in ``<cache>/fetch_failures.parquet`` and one line on stderr naming the URL; the rest go on.
+them. A product that fails (404, retries exhausted, bad label, MD5), or an index row that
+cannot be read (a path escaping the archive, a VID naming no file), becomes one failure row
+in ``<cache>/fetch_failures.parquet`` and one line on stderr naming the URL (and the row);
+the rest go on. A product left out on purpose (a filter, a thumbnail, a secondary member, an
+older version, another camera) is one row of ``<cache>/fetch_skipped.parquet`` and is counted
+by reason in the summary.
 """
 
 from __future__ import annotations
@@ -30,25 +34,25 @@ from mars_pairs.fetch.pds4_inventory import (
     inventory_of,
     products_from_inventory,
 )
-from mars_pairs.fetch.products import Product, ProductFilter, with_label_facts
+from mars_pairs.fetch.products import (
+    Failure,
+    Listing,
+    Product,
+    ProductFilter,
+    Skipped,
+    newest_only,
+    skip_counts,
+    with_label_facts,
+)
+from mars_pairs.fetch.volumes import volumes_for_sols
 
 FAILURES = "fetch_failures.parquet"
-
-
-@dataclass(frozen=True)
-class Failure:
-    """One product (or file) that could not be fetched."""
-
-    product_id: str
-    url: str
-    stage: str  # index | label | image
-    error: str
-    message: str
+SKIPPED = "fetch_skipped.parquet"
 
 
 @dataclass
 class ProductsReport:
-    """What a products run found and moved."""
+    """What a products run found and moved, and what it left out (``skipped``, by reason)."""
 
     listed: int = 0  # products the index lists that pass the index-level filters
     selected: int = 0  # after the label-level filters
@@ -59,36 +63,53 @@ class ProductsReport:
     bytes_received: int = 0
     failures: list[Failure] = field(default_factory=list)
     products: list[Product] = field(default_factory=list)
+    skipped: list[Skipped] = field(default_factory=list)
 
     def format(self, dry_run: bool) -> str:
-        """Human summary lines."""
+        """Human summary: one line, then one line per reason products were skipped."""
+        tail = f"{len(self.failures)} failures, {len(self.skipped)} skipped"
         if dry_run:
-            return (
+            head = (
                 f"dry run: {self.selected} products ({self.listed} listed), "
                 f"{self.image_bytes} image bytes, {self.to_fetch_bytes} not yet in the cache; "
-                f"{len(self.failures)} failures"
+                + tail
             )
-        return (
-            f"{self.selected} products ({self.listed} listed): {self.downloaded} files "
-            f"downloaded ({self.bytes_received} bytes), {self.cached} already cached, "
-            f"{len(self.failures)} failures"
-        )
+        else:
+            head = (
+                f"{self.selected} products ({self.listed} listed): {self.downloaded} files "
+                f"downloaded ({self.bytes_received} bytes), {self.cached} already cached, " + tail
+            )
+        lines = [head] + [f"  skipped {n}: {why}" for why, n in skip_counts(self.skipped)]
+        return "\n".join(lines)
 
 
 # -- listing -------------------------------------------------------------------------------
-def list_products(spec: ProductsSpec, dl: Downloader) -> list[Product]:
-    """Fetch the index files and list the products passing the index-level filters."""
-    found: list[Product] = []
+def list_products(spec: ProductsSpec, dl: Downloader) -> Listing:
+    """Fetch the index files and list the products passing the index-level filters.
+
+    msl: the indexes of ``spec.volumes`` (default: every volume whose range in the sol-range
+    table meets the filter's sols); one product per id, the newest version then the newest
+    volume winning. m2020: the collection's inventory. The products the listing or the
+    filters leave out are in ``skipped``, unreadable rows in ``failures``."""
+    out = Listing()
     if spec.mission == "msl":
-        for volume in spec.volumes:
+        volumes = spec.volumes
+        if not volumes:
+            if spec.filters.sols is None:
+                raise FetchError("fetch.products.volumes", "no volumes and no sols to choose them")
+            volumes = volumes_for_sols(spec.filters.sols)
+        for volume in volumes:
             lbl, tab = index_files(volume, spec.index)
             for rel in (lbl, tab):
                 dl.fetch(RemoteFile(rel, join_url(spec.archive, rel)))
             label_path = dl.cache.path(lbl)
             table = read_index_table(label_path)
-            found.extend(
-                products_from_index(table, volume, spec.archive, str(label_path), spec.mission)
-            )
+            out.extend(
+                products_from_index(table, volume, spec.archive, str(label_path), spec.mission,
+                                    index_url=join_url(spec.archive, tab))
+            )  # fmt: skip
+        out.products, older = newest_only(out.products)
+        out.skipped.extend(older)
     else:
         bundle = archive_path(spec.bundle or "", where="fetch.products.bundle")
         coll = bundle / archive_path(spec.collection, where="fetch.products.collection")
@@ -96,27 +117,36 @@ def list_products(spec: ProductsSpec, dl: Downloader) -> list[Product]:
         coll_path = dl.cache.path(coll)
         inv = inventory_of(coll_path, coll)
         dl.fetch(RemoteFile(inv, join_url(spec.archive, inv)))
-        found.extend(
+        out.extend(
             products_from_inventory(
                 dl.cache.path(inv),
                 inventory_delimiter(coll_path),
                 bundle,
                 spec.label_path,
                 spec.archive,
+                inventory_url=join_url(spec.archive, inv),
             )
         )
-    unique = {p.label.rel: p for p in found}
-    return [p for p in unique.values() if spec.filters.wants(p, unknown_ok=True)]
+    kept = []
+    for p in out.products:
+        why = spec.filters.why_not(p, unknown_ok=True)
+        if why is None:
+            kept.append(p)
+        else:
+            out.skipped.append(Skipped(p.product_id, p.label.url, "index", *why))
+    out.products = kept
+    return out
 
 
 # -- one product ---------------------------------------------------------------------------
 @dataclass(frozen=True)
 class _Outcome:
-    product: Product | None  # None: filtered out by its label
+    product: Product | None  # None: filtered out by its label (``skipped``) or failed
     files: tuple[str, ...]  # statuses of the files fetched ("cached", "downloaded", ...)
     received: int
     to_fetch: int
     failure: Failure | None = None
+    skipped: Skipped | None = None
 
 
 def _one(
@@ -126,8 +156,10 @@ def _one(
     try:
         got = dl.fetch(p.label)
         p = with_label_facts(p, got.path, spec.archive)
-        if not filt.wants(p, unknown_ok=False):
-            return _Outcome(None, (got.status,), got.bytes_received, 0)
+        why = filt.why_not(p, unknown_ok=False)
+        if why is not None:
+            skip = Skipped(p.product_id, p.label.url, "label", *why)
+            return _Outcome(None, (got.status,), got.bytes_received, 0, skipped=skip)
         assert p.image is not None
         stage, url = "image", p.image.url
         target = dl.cache.path(p.image.rel, where=url)
@@ -164,8 +196,13 @@ def fetch_products(
     cache = Cache(cfg.cache)
     dl = Downloader(cache, cfg.policy)
     report = ProductsReport()
-    listed = list_products(spec, dl)
+    listing = list_products(spec, dl)
+    listed = listing.products
     report.listed = len(listed)
+    report.skipped.extend(listing.skipped)
+    report.failures.extend(listing.failures)
+    for failure in listing.failures:
+        tqdm.write(f"mars-pairs fetch: {failure.url}: {failure.message}", file=sys.stderr)
     bar = tqdm(total=len(listed), unit="product", disable=not progress, file=sys.stderr)
     with ThreadPoolExecutor(max_workers=cfg.policy.workers) as pool:
         futures = [pool.submit(_one, p, spec, dl, spec.filters, dry_run) for p in listed]
@@ -181,6 +218,8 @@ def fetch_products(
             report.downloaded += sum(s in ("downloaded", "resumed") for s in out.files)
             report.cached += sum(s == "cached" for s in out.files)
             report.bytes_received += out.received
+            if out.skipped is not None:
+                report.skipped.append(out.skipped)
             if out.product is not None:
                 report.products.append(out.product)
                 report.selected += 1
@@ -189,7 +228,9 @@ def fetch_products(
     bar.close()
     report.products.sort(key=lambda p: str(p.label.rel))
     report.failures.sort(key=lambda f: (f.product_id, f.stage))
+    report.skipped.sort(key=lambda s: (s.reason, s.product_id))
     write_failures(cache, report.failures)
+    write_skipped(cache, report.skipped)
     return report
 
 
@@ -200,6 +241,21 @@ def write_failures(cache: Cache, failures: list[Failure]) -> Path:
     sink = pa.BufferOutputStream()
     pq.write_table(table, sink)
     target = cache.path(FAILURES)
+    atomic_write(target, sink.getvalue().to_pybytes())
+    return target
+
+
+def write_skipped(cache: Cache, skipped: list[Skipped]) -> Path:
+    """``<cache>/fetch_skipped.parquet``: one row per product or index row left out on
+    purpose (columns product_id, url, stage, reason, detail; atomic, rewritten each run).
+
+    Kept apart from ``fetch_failures.parquet`` so that an empty failures file still means
+    "everything chosen was fetched" and a rerun retries failures, not choices."""
+    cols = ("product_id", "url", "stage", "reason", "detail")
+    table = pa.table({c: pa.array([getattr(s, c) for s in skipped], pa.string()) for c in cols})
+    sink = pa.BufferOutputStream()
+    pq.write_table(table, sink)
+    target = cache.path(SKIPPED)
     atomic_write(target, sink.getvalue().to_pybytes())
     return target
 

@@ -8,6 +8,7 @@ import shapely
 
 from mars_pairs.geometry.places import Pose
 from mars_pairs.pds.observation import Observation
+from mars_pairs.pipeline.chips import ChipCoverage
 from mars_pairs.pipeline.context import SampleContext
 from mars_pairs.pipeline.footprint import footprint_polygon, view_statistics
 from mars_pairs.pipeline.splitting import split_rule
@@ -23,9 +24,15 @@ def sample_key(obs: Observation) -> str:
 
 
 def manifest_row(
-    obs: Observation, pose: Pose, view: View, grid: ChipGrid, ctx: SampleContext
+    obs: Observation,
+    pose: Pose,
+    view: View,
+    grid: ChipGrid,
+    ctx: SampleContext,
+    cover: ChipCoverage,
 ) -> dict[str, Any]:
-    """The manifest row (member locations are added when the shard is written)."""
+    """The manifest row (member locations are added when the shard is written); ``cover``:
+    the chips' coverage fractions."""
     cfg = ctx.config
     rover_x, rover_y = (float(v) for v in view.camera.origin_map[:2])
     az, el = view.camera.pointing_az_el()
@@ -52,6 +59,7 @@ def manifest_row(
         "bbox": footprint_bounds(footprint),
         "chip_xmin": xmin, "chip_ymin": ymin, "chip_xmax": xmax, "chip_ymax": ymax,
         "chip_rotation_deg": grid.rotation_deg, "split": split, "hilbert": hilbert,
+        "ortho_coverage": cover.ortho, "dem_coverage": cover.dem,
     }  # fmt: skip
 
 

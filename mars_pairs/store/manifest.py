@@ -62,6 +62,8 @@ _FIELDS: list[tuple[str, pa.DataType]] = [
     ("chip_xmax", pa.float64()),
     ("chip_ymax", pa.float64()),
     ("chip_rotation_deg", pa.float64()),  # 0 north-up; heading-up: the camera azimuth
+    ("ortho_coverage", pa.float64()),  # fraction 0..1 of the ortho chip's pixels with data
+    ("dem_coverage", pa.float64()),  # fraction 0..1 of the DEM chip's pixels with data
     ("split", pa.string()),
     ("hilbert", pa.int64()),
     ("ground_member", pa.string()),  # e.g. "ground.jpg"
@@ -76,8 +78,15 @@ for _m in MEMBERS:
 
 MANIFEST_SCHEMA = pa.schema(_FIELDS)
 
-#: The columns every reader may rely on (the checksums are absent from older datasets).
-CORE_COLUMNS = tuple(f.name for f in MANIFEST_SCHEMA if not f.name.endswith("_crc32c"))
+#: Columns absent from datasets built before they were added.
+COVERAGE_COLUMNS = ("ortho_coverage", "dem_coverage")
+
+#: The columns every reader may rely on (checksums and coverage are absent from older datasets).
+CORE_COLUMNS = tuple(
+    f.name
+    for f in MANIFEST_SCHEMA
+    if not f.name.endswith("_crc32c") and f.name not in COVERAGE_COLUMNS
+)
 
 #: The plain per-sample attributes that readers pass on (dataset meta, GeoPackage attributes).
 SUMMARY_COLUMNS = (

@@ -186,8 +186,12 @@ def test_index_entries_that_escape_the_cache_are_refused(archive, server, tmp_pa
            "IMAGE_ID": "X"}  # fmt: skip
     fetch_archive.write_pds3_index(vol, [row])
     cfg = load_fetch_config(write_config(tmp_path, server.url, "msl", volumes=["MSLMST_0666"]))
-    with pytest.raises(FetchError, match="escapes the archive root"):
-        fetch_products(cfg, progress=False)
+    report = fetch_products(cfg, progress=False)  # one failure row naming the row, no abort
+    assert report.selected == 0 and [f.stage for f in report.failures] == ["index"]
+    assert "row 1: refused path '../../../../tmp/x.LBL' (escapes the archive root)" in (
+        report.failures[0].message
+    )
+    assert not (tmp_path / "tmp").exists() and not (cfg.cache.parent / "tmp" / "x.LBL").exists()
 
 
 def test_config_errors_name_the_key(tmp_path):

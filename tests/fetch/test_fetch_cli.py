@@ -37,7 +37,7 @@ def test_dry_run_prints_count_and_bytes(archive, tmp_path, capsys):
     assert status == 0
     assert capsys.readouterr().out.strip() == (
         f"dry run: 4 products (4 listed), {sizes} image bytes, {sizes} not yet in the cache; "
-        "0 failures"
+        "0 failures, 1 skipped\n  skipped 1: secondary member"  # the inventory's S row
     )
 
 
