@@ -215,9 +215,7 @@ def _orbital(data: Any, base: Path) -> OrbitalSpec:
     return OrbitalSpec(rasters["dem"], rasters["ortho"], margin, max_cells)  # type: ignore[arg-type]
 
 
-def parse_fetch(
-    data: Any, base: Path, radius_m: float, chip_size_m: float = 256.0
-) -> FetchConfig:
+def parse_fetch(data: Any, base: Path, radius_m: float, chip_size_m: float = 256.0) -> FetchConfig:
     """Validate a ``fetch:`` mapping (relative paths against ``base``)."""
     known = {"cache", "retries", "backoff_s", "timeout_s", "workers", "products", "places",
              "orbital"}  # fmt: skip

@@ -247,7 +247,8 @@ class OrbitalPlan:
                 names = [self.positions.names[i] for i in plan.off_raster if self.positions.names]
                 lines.append(
                     f"  {len(plan.off_raster)} positions off the {plan.kind} raster (left out): "
-                    + ", ".join(names[:10]) + (" ..." if len(names) > 10 else "")
+                    + ", ".join(names[:10])
+                    + (" ..." if len(names) > 10 else "")
                 )
         return lines
 
@@ -302,7 +303,13 @@ def plan_orbital(
         limit = cfg.orbital.max_cells
         plans.append(
             plan_windows(
-                pos.x, pos.y, pos.crs, info.grid, reach[kind], kind=kind, source=source,
+                pos.x,
+                pos.y,
+                pos.crs,
+                info.grid,
+                reach[kind],
+                kind=kind,
+                source=source,
                 max_cells=limit,
             )
         )

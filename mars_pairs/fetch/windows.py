@@ -16,10 +16,11 @@ Frames and units:
 - Windows are (col_off, row_off, width, height) in source pixels; bounds in raster CRS units.
 
 Clustering: positions are taken in table order (a traverse) and each box joins the running
-window while the union costs no more cells than the two apart (``cells(a | b) <= cells(a) +
-cells(b)``) and stays within ``max_cells``; the windows are then merged pairwise by the same
-rule, best saving first. A straight drive becomes one window, a winding 20 km traverse a chain
-of windows along it, never one bounding box over the whole traverse.
+window while the window stays within ``FILL`` times the area the positions' boxes cover and
+within ``max_cells``; the windows are then merged pairwise by the same rule (near or
+overlapping windows, a return to a place), best fill first. A straight drive becomes one
+window, a diagonal 20 km traverse a chain of windows along it, never one bounding box over
+the whole traverse.
 
 A window above ``max_cells`` (one position's box alone) is planned but not accepted; the error
 names the config key ``fetch.orbital.max_cells``.
@@ -28,6 +29,7 @@ names the config key ``fetch.orbital.max_cells``.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,6 +44,7 @@ CHIP_REACH = math.sqrt(0.5)  # half-diagonal of a square chip of side 1: any hea
 PAD_CELLS = 3  # the build reads radius + 3 cells around the observer (view.py, terrain.py)
 MAX_CELLS = 200_000_000  # default fetch.orbital.max_cells: 800 MB of float32 per window
 MAX_CELLS_KEY = "fetch.orbital.max_cells"
+FILL = 1.5  # a window may hold up to 1.5 x the cells its positions' reach covers
 
 
 @dataclass(frozen=True)
@@ -89,7 +92,9 @@ class PlannedWindow:
         left, bottom, right, top = self.bounds
         verdict = "accepted" if self.accepted else f"REJECTED: above {MAX_CELLS_KEY}"
         crs = CRS.from_user_input(self.crs)
-        name = crs.to_proj4() if crs.to_proj4() else crs.name
+        with warnings.catch_warnings():  # WKT -> PROJ string, for a one-line CRS
+            warnings.simplefilter("ignore", UserWarning)
+            name = crs.to_proj4() or crs.name
         return (
             f"{self.kind} {self.width} x {self.height} = {self.cells} cells "
             f"(max_cells {self.max_cells}: {verdict}); {self.positions} positions; "
@@ -184,34 +189,44 @@ def _union(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.concatenate([lo, np.maximum(a[..., 2:], b[..., 2:])], -1)
 
 
+def _overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    w = np.minimum(a[..., 2], b[..., 2]) - np.maximum(a[..., 0], b[..., 0])
+    h = np.minimum(a[..., 3], b[..., 3]) - np.maximum(a[..., 1], b[..., 1])
+    return np.maximum(w, 0) * np.maximum(h, 0)
+
+
 def cluster_boxes(boxes: np.ndarray, max_cells: int) -> list[tuple[np.ndarray, int]]:
     """Merge integer pixel boxes (in traverse order) into windows; (box, positions) each.
 
-    Two boxes merge when their union has no more cells than both apart and at most
-    ``max_cells``: first along the traverse, then pairwise, largest saving first.
+    A window's *need* is the area its positions' boxes cover (tracked as each box's cells less
+    its overlap with the box before it, or with the other window when two merge). Two windows
+    merge when the bounding box of both is at most ``FILL`` times their joint need and at most
+    ``max_cells``: first along the traverse, then pairwise, best fill first.
     """
-    runs: list[list] = []  # [box, count]
+    runs: list[list] = []  # [box, need, count, last box]
     for b in boxes:
         if runs:
-            cur = runs[-1][0]
+            cur, need, count, last = runs[-1]
             u = _union(cur, b)
-            if _cells(u) <= _cells(cur) + _cells(b) and _cells(u) <= max_cells:
-                runs[-1] = [u, runs[-1][1] + 1]
+            joint = need + _cells(b) - _overlap(last, b)
+            if _cells(u) <= FILL * joint and _cells(u) <= max_cells:
+                runs[-1] = [u, joint, count + 1, b]
                 continue
-        runs.append([b.copy(), 1])
+        runs.append([b.copy(), _cells(b), 1, b])
     while len(runs) > 1:
         arr = np.stack([r[0] for r in runs])
+        need = np.array([r[1] for r in runs], dtype=float)
         u = _union(arr[:, None, :], arr[None, :, :])
-        saving = _cells(arr)[:, None] + _cells(arr)[None, :] - _cells(u)
-        saving = saving.astype(float)
-        saving[np.tril_indices(len(runs))] = -np.inf
-        saving[_cells(u) > max_cells] = -np.inf
-        i, j = np.unravel_index(int(np.argmax(saving)), saving.shape)
-        if saving[i, j] < 0:
+        joint = need[:, None] + need[None, :] - _overlap(arr[:, None, :], arr[None, :, :])
+        ratio = _cells(u) / np.maximum(joint, 1.0)
+        ratio[np.tril_indices(len(runs))] = np.inf
+        ratio[_cells(u) > max_cells] = np.inf
+        i, j = np.unravel_index(int(np.argmin(ratio)), ratio.shape)
+        if ratio[i, j] > FILL:
             break
-        runs[i] = [u[i, j], runs[i][1] + runs[j][1]]
+        runs[i] = [u[i, j], joint[i, j], runs[i][2] + runs[j][2], runs[i][3]]
         del runs[j]
-    return [(r[0], int(r[1])) for r in runs]
+    return [(r[0], int(r[2])) for r in runs]
 
 
 def plan_windows(
