@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import warnings
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -198,7 +199,9 @@ def open_source(source: str) -> Iterator[tuple[str, rasterio.io.DatasetReader]]:
     with remote_env():
         for path in _candidates(source):
             try:
-                ds = rasterio.open(gdal_path(path))
+                with warnings.catch_warnings():  # no georeferencing: the next candidate
+                    warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+                    ds = rasterio.open(gdal_path(path))
             except rasterio.errors.RasterioIOError as exc:
                 tried.append(f"{path}: {str(exc).splitlines()[0][:160]}")
                 continue
