@@ -24,7 +24,7 @@ from mars_pairs.fetch.config import load_fetch_config
 from mars_pairs.fetch.orbital import cut_planned, source_info, write_vrt
 from mars_pairs.fetch.run import fetch_orbital, plan_orbital
 from mars_pairs.fetch.windows import plan_windows
-from mars_pairs.geometry.places import M2020_PLACES_CRS
+from mars_pairs.geometry.places import M2020_PLACES_CRS, MSL_PLACES_CRS
 from mars_pairs.raster.terrain import Terrain
 
 R = 3_396_190.0
@@ -279,6 +279,12 @@ def test_fetch_orbital_dry_run_prints_windows_and_writes_nothing(maps, tmp_path,
         assert len(dem_lines) == 2 and len(ortho_lines) == 2, out
         assert all("accepted" in ln and "+lat_ts=18.4663" in ln for ln in dem_lines)
         assert "dry run: 3 rover positions" in out
+        # fetch all --dry-run: the PLACES URL and the same windows, still nothing written
+        assert main(["fetch", "all", "--config", str(config), "--dry-run", "--quiet"]) == 0
+        out = capsys.readouterr().out
+        assert f"dry run: {srv.url}/{BUNDLE}/data_localizations/best_interp.csv -> " in out
+        assert "not yet in the cache" in out and out.count("accepted") == 4
+        assert not (tmp_path / "cache").exists()
         # the same plan, fetched: two windows each, and the VRTs naming them
         assert main(["fetch", "orbital", "--config", str(config), "--quiet"]) == 0
         cache = tmp_path / "cache" / "orbital"
@@ -310,3 +316,39 @@ def test_fetch_orbital_dry_run_prints_windows_and_writes_nothing(maps, tmp_path,
             win = rasterio.windows.from_bounds(*p.bounds, transform=vrt.transform)
             src = rasterio.windows.from_bounds(*p.bounds, transform=ref.transform)
             assert np.array_equal(vrt.read(1, window=win), ref.read(1, window=src))
+
+
+def test_a_pds3_img_is_read_through_its_detached_lbl(tmp_path):
+    """Curiosity's MSLPLC_1XXX/DATA/MAPS/msl_orbital_dem.img: raw pixels, a detached PDS3
+    label (msl_orbital_dem.lbl, as msl_toolbox reads it) with an IMAGE_MAP_PROJECTION."""
+    x0, y0 = 8_141_036.5, -271_512.1  # the real map's upper left (real-archive README)
+    data = (np.arange(120 * 100, dtype="<f4").reshape(120, 100) - 4400.0).astype("<f4")
+    folder = tmp_path / "MSLPLC_1XXX" / "DATA" / "MAPS"
+    folder.mkdir(parents=True)
+    data.tofile(folder / "msl_orbital_dem.img")
+    # GDAL's PDS driver: upper left x = -(SAMPLE_PROJECTION_OFFSET + 0.5) * MAP_SCALE, y alike
+    (folder / "msl_orbital_dem.lbl").write_text(
+        "PDS_VERSION_ID = PDS3\nRECORD_TYPE = FIXED_LENGTH\nRECORD_BYTES = 400\n"
+        'FILE_RECORDS = 120\n^IMAGE = ("msl_orbital_dem.img", 1)\n'
+        "OBJECT = IMAGE_MAP_PROJECTION\n  MAP_PROJECTION_TYPE = EQUIRECTANGULAR\n"
+        "  A_AXIS_RADIUS = 3396.19 <KM>\n  B_AXIS_RADIUS = 3396.19 <KM>\n"
+        "  C_AXIS_RADIUS = 3396.19 <KM>\n  COORDINATE_SYSTEM_NAME = PLANETOCENTRIC\n"
+        "  POSITIVE_LONGITUDE_DIRECTION = EAST\n  CENTER_LATITUDE = 0.0 <DEG>\n"
+        "  CENTER_LONGITUDE = 0.0 <DEG>\n  LINE_FIRST_PIXEL = 1\n  LINE_LAST_PIXEL = 120\n"
+        "  SAMPLE_FIRST_PIXEL = 1\n  SAMPLE_LAST_PIXEL = 100\n  MAP_SCALE = 1.0 <METERS/PIXEL>\n"
+        f"  LINE_PROJECTION_OFFSET = {y0 - 0.5}\n  SAMPLE_PROJECTION_OFFSET = {-x0 - 0.5}\n"
+        "END_OBJECT = IMAGE_MAP_PROJECTION\nOBJECT = IMAGE\n  LINES = 120\n  LINE_SAMPLES = 100\n"
+        "  SAMPLE_TYPE = PC_REAL\n  SAMPLE_BITS = 32\n  BANDS = 1\n"
+        "  BAND_STORAGE_TYPE = BAND_SEQUENTIAL\nEND_OBJECT = IMAGE\nEND\n"
+    )
+    info = source_info(str(folder / "msl_orbital_dem.img"))
+    assert info.opened.endswith("msl_orbital_dem.lbl") and info.driver == "PDS"
+    assert info.grid.transform.almost_equals(Affine(1.0, 0, x0, 0, -1.0, y0))
+    assert CRS.from_user_input(info.crs).equals(CRS.from_user_input(MSL_PLACES_CRS))
+    x, y = np.array([x0 + 50.0]), np.array([y0 - 60.0])
+    (win,) = plan_windows(x, y, MSL_PLACES_CRS, info.grid, 20.0, kind="dem", source="s").windows
+    res = cut_planned(win, info, tmp_path / "dem.tif")
+    with rasterio.open(res.path) as got:
+        r0, c0 = win.row_off, win.col_off
+        assert np.array_equal(got.read(1), data[r0 : r0 + win.height, c0 : c0 + win.width])
+        assert got.transform.almost_equals(Affine(1.0, 0, x0 + c0, 0, -1.0, y0 - r0))
