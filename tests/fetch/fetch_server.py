@@ -12,7 +12,8 @@ Content-Range, 416). Faults are queued per path and used one per request:
     "html"           200 with ``Content-Type: text/html`` and an HTML error page (a proxy's)
     "html-as-file"   that HTML page with the Content-Type the file itself would have
     "short"          200 with the first half of the file and a Content-Length matching that
-                     half (a cut body that looks complete); ignores Range and validators
+                     half (a cut body that looks complete); ignores Range and validators;
+                     "short:N" sends the first N bytes instead
 
 ``replace(rel, data)`` puts new content at a path between requests, moving its modification
 time on (so its ETag and Last-Modified change, as an archive's re-release would).
@@ -137,7 +138,7 @@ class ArchiveServer:
             path = safe_join(str(self.root), req.path.lstrip("/"))
             if path is None or not Path(path).is_file():
                 resp = NotFound()
-            elif fault in ("html", "html-as-file", "short"):
+            elif fault in ("html", "html-as-file") or (fault or "").startswith("short"):
                 resp = self._bad_200(Path(path), fault)
             else:
                 served = (
@@ -181,9 +182,10 @@ class ArchiveServer:
     def _bad_200(path: Path, fault: str) -> Response:
         """A 200 that is not the file: an HTML error page, or the first half of the file."""
         own = mimetypes.guess_type(path.name)[0] or "application/octet-stream"  # as send_file
-        if fault == "short":
+        if fault.startswith("short"):
             data = path.read_bytes()
-            return Response(data[: len(data) // 2], status=200, mimetype=own)
+            cut = int(fault.split(":")[1]) if ":" in fault else len(data) // 2
+            return Response(data[:cut], status=200, mimetype=own)
         page = (
             "<!DOCTYPE html>\n<html><head><title>Service Unavailable</title></head>\n"
             "<body><h1>The archive is down for maintenance</h1></body></html>\n"
