@@ -15,7 +15,9 @@ Validators (ETag, Last-Modified) are kept beside the files as ``<name>.meta.json
 - revalidation: a ``mutable`` file (archive tables: indexes, inventories, collection labels,
   PLACES) is asked for on every fetch with ``If-None-Match`` / ``If-Modified-Since`` from its
   ``<name>.meta.json``; 304 keeps the cached file, 200 replaces it (checked, atomically).
-  Products (labels, images) are immutable: once in the cache they are not requested again.
+  Products (labels, images) are immutable: once in the cache they are not requested again;
+  a cached one failing ``validate.quick_check`` (an HTML page, a JPEG without its end marker,
+  a cut label: what older releases could keep) is removed and fetched again.
 
 Retries: urllib3's ``Retry`` on the session retries connection errors, read timeouts before
 the headers and 429/5xx statuses with exponential backoff; failures inside the body (truncated
@@ -41,7 +43,13 @@ from urllib3.util.retry import Retry
 
 from mars_pairs.errors import FetchError
 from mars_pairs.fetch.cache import Cache, atomic_write
-from mars_pairs.fetch.validate import ContentError, check_content_type, check_file, kind_of
+from mars_pairs.fetch.validate import (
+    ContentError,
+    check_content_type,
+    check_file,
+    kind_of,
+    quick_check,
+)
 
 _CONTENT_RANGE = re.compile(r"bytes (\d+)-(\d+)/(\d+|\*)")
 USER_AGENT = "mars-pairs-fetch/0.1"
@@ -226,7 +234,11 @@ class Downloader:
         known: Validator | None = None
         if target.is_file() and (remote.size is None or target.stat().st_size == remote.size):
             if not remote.mutable:
-                return FetchResult(remote, target, "cached", 0)
+                try:
+                    quick_check(target, remote.file_kind, where=remote.url)
+                    return FetchResult(remote, target, "cached", 0)
+                except ContentError:
+                    target.unlink()  # damaged in the cache (e.g. kept by an older release)
             known = Validator.read(meta, remote.url)
             if known is not None and known.size != target.stat().st_size:
                 known = None  # the cached file is not the one the validator describes

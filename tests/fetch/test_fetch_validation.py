@@ -253,6 +253,25 @@ def test_products_stay_cached_without_a_request(archive, server, tmp_path):
     assert not list(cfg.cache.rglob("*.jpg.meta.json"))  # products carry no validator files
 
 
+def test_damaged_products_in_the_cache_are_fetched_again(archive, server, tmp_path):
+    """An HTML page under a label's name and a JPEG without its end (what an older release
+    could keep) are refetched on the next run; the healthy products are not requested."""
+    cfg = load_fetch_config(write_config(tmp_path, server.url, "msl"))
+    fetch_products(cfg, progress=False)
+    label = archive.msl_labels[0].relative_to(archive.root / "msl")
+    image = archive.msl_labels[1].with_suffix(".jpg").relative_to(archive.root / "msl")
+    (cfg.cache / label).write_bytes(b"<html><body>Service Unavailable</body></html>")
+    whole = (cfg.cache / image).read_bytes()
+    (cfg.cache / image).write_bytes(whole[: len(whole) // 2])
+    server.reset_log()
+    report = fetch_products(cfg, progress=False)
+    assert report.selected == 4 and not report.failures and report.downloaded == 2
+    fetched = sorted(e.path for e in server.log if e.method == "GET" and e.status == 200)
+    assert fetched == sorted([f"/msl/{label}", f"/msl/{image}"])
+    assert (cfg.cache / image).read_bytes() == whole
+    assert (cfg.cache / label).read_bytes() == archive.msl_labels[0].read_bytes()
+
+
 def test_a_changed_inventory_is_refetched_and_checked_against_its_collection_label(
     archive, tmp_path
 ):
