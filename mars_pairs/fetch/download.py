@@ -239,9 +239,10 @@ class Downloader:
                     return FetchResult(remote, target, "cached", 0)
                 except ContentError:
                     target.unlink()  # damaged in the cache (e.g. kept by an older release)
-            known = Validator.read(meta, remote.url)
-            if known is not None and known.size != target.stat().st_size:
-                known = None  # the cached file is not the one the validator describes
+            else:
+                known = Validator.read(meta, remote.url)
+                if known is not None and known.size != target.stat().st_size:
+                    known = None  # the cached file is not the one the validator describes
         target.parent.mkdir(parents=True, exist_ok=True)
         part = target.with_name(target.name + ".part")
         for path in (part, sidecar(part), meta):

@@ -83,9 +83,9 @@ def list_products(spec: ProductsSpec, dl: Downloader) -> list[Product]:
         for volume in spec.volumes:
             lbl, tab = index_files(volume, spec.index)
             dl.fetch(RemoteFile(lbl, join_url(spec.archive, lbl), mutable=True))
-            label = dl.cache.path(lbl)
-            dl.fetch(RemoteFile(tab, join_url(spec.archive, tab), mutable=True, label=label))
             label_path = dl.cache.path(lbl)
+            tab_url = join_url(spec.archive, tab)
+            dl.fetch(RemoteFile(tab, tab_url, mutable=True, label=label_path))
             table = read_index_table(label_path)
             found.extend(
                 products_from_index(table, volume, spec.archive, str(label_path), spec.mission)
