@@ -44,6 +44,7 @@ from urllib3.util.retry import Retry
 from mars_pairs.errors import FetchError
 from mars_pairs.fetch.cache import Cache, atomic_write
 from mars_pairs.fetch.validate import (
+    KINDS,
     ContentError,
     check_content_type,
     check_file,
@@ -70,6 +71,10 @@ class RemoteFile:
     #: the local label describing this file (a PDS3 index label for its table, a product
     #: label for its image, the collection label for its inventory), for the content check
     label: Path | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind is not None and self.kind not in KINDS:
+            raise ValueError(f"{self.url}: unknown file kind {self.kind!r}; one of {KINDS}")
 
     @property
     def file_kind(self) -> str:
