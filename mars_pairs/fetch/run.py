@@ -100,9 +100,10 @@ def list_products(spec: ProductsSpec, dl: Downloader) -> Listing:
             volumes = volumes_for_sols(spec.filters.sols)
         for volume in volumes:
             lbl, tab = index_files(volume, spec.index)
-            for rel in (lbl, tab):
-                dl.fetch(RemoteFile(rel, join_url(spec.archive, rel)))
+            dl.fetch(RemoteFile(lbl, join_url(spec.archive, lbl), mutable=True))
             label_path = dl.cache.path(lbl)
+            tab_url = join_url(spec.archive, tab)
+            dl.fetch(RemoteFile(tab, tab_url, mutable=True, label=label_path))
             table = read_index_table(label_path)
             out.extend(
                 products_from_index(table, volume, spec.archive, str(label_path), spec.mission,
@@ -113,10 +114,11 @@ def list_products(spec: ProductsSpec, dl: Downloader) -> Listing:
     else:
         bundle = archive_path(spec.bundle or "", where="fetch.products.bundle")
         coll = bundle / archive_path(spec.collection, where="fetch.products.collection")
-        dl.fetch(RemoteFile(coll, join_url(spec.archive, coll)))
+        dl.fetch(RemoteFile(coll, join_url(spec.archive, coll), mutable=True))
         coll_path = dl.cache.path(coll)
         inv = inventory_of(coll_path, coll)
-        dl.fetch(RemoteFile(inv, join_url(spec.archive, inv)))
+        url = join_url(spec.archive, inv)
+        dl.fetch(RemoteFile(inv, url, kind="inventory", mutable=True, label=coll_path))
         out.extend(
             products_from_inventory(
                 dl.cache.path(inv),
@@ -169,7 +171,7 @@ def _one(
             if p.image.size is None and size is not None:
                 p = replace(p, image=replace(p.image, size=size))
             return _Outcome(p, (got.status,), got.bytes_received, 0 if cached else (size or 0))
-        img = dl.fetch(p.image)
+        img = dl.fetch(replace(p.image, label=got.path))  # the label tells what it must be
         if p.image.size is None:
             p = replace(p, image=replace(p.image, size=img.path.stat().st_size))
         return _Outcome(p, (got.status, img.status), got.bytes_received + img.bytes_received, 0)
@@ -261,18 +263,24 @@ def write_skipped(cache: Cache, skipped: list[Skipped]) -> Path:
 
 
 # -- single files --------------------------------------------------------------------------
-def fetch_remote(cfg: FetchConfig, spec: RemoteSpec) -> Path:
-    """One archive file (e.g. the PLACES table) into the cache; its path there."""
+def fetch_remote(
+    cfg: FetchConfig, spec: RemoteSpec, *, kind: str | None = None, mutable: bool = False
+) -> Path:
+    """One archive file (e.g. the PLACES table) into the cache; its path there.
+
+    ``kind``: what it must be (``validate.KINDS``; None: by its name); ``mutable``: revalidate
+    it on every fetch (an archive table that changes between releases)."""
     rel = archive_path(spec.path, where="fetch.places.path")
     dl = Downloader(Cache(cfg.cache), cfg.policy)
-    return dl.fetch(RemoteFile(PurePosixPath(rel), join_url(spec.archive, rel))).path
+    remote = RemoteFile(PurePosixPath(rel), join_url(spec.archive, rel), kind=kind, mutable=mutable)
+    return dl.fetch(remote).path
 
 
 def fetch_places(cfg: FetchConfig) -> Path:
     """The configured PLACES table, in the cache."""
     if cfg.places is None:
         raise FetchError("fetch.places", "the config has no fetch.places section")
-    return fetch_remote(cfg, cfg.places)
+    return fetch_remote(cfg, cfg.places, kind="places", mutable=True)
 
 
 def fetch_orbital(
