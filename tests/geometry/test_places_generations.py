@@ -280,3 +280,12 @@ def test_missing_columns_are_named_with_the_file(tmp_path: Path) -> None:
     mixed = _write(tmp_path / "mixed.csv", [c.title() for c in HEADER_22], rows)
     pose = Places.from_csv(mixed).rover_pose(1, 0, 0)
     assert pose is not None and pose.attitude_source == "places"
+
+
+def test_fetch_reads_the_rover_positions_of_an_upper_case_table(tmp_path: Path) -> None:
+    from mars_pairs.fetch.orbital import rover_positions
+
+    new, old, real = _tables_from_rover_positions(tmp_path)
+    a, b = rover_positions(new, sites=(56,)), rover_positions(old, sites=(56,))
+    assert a.crs == b.crs and len(b.x) == len(a.x) >= 2
+    assert real["easting"] in b.x.tolist() and real["northing"] in b.y.tolist()
