@@ -33,7 +33,7 @@ MISSING = -9999.0
 #: ROLL, PITCH, YAW, SCLK, SOL (26 - 4 = 22; pose kept, the archive README naming it
 #: "FRAME ... YAW, SCLK, SOL"). ``pose`` is optional (tables of this shape without it, e.g.
 #: ../shared/real-gale/rover_positions.csv, are looked up by site and drive).
-CORE_COLUMNS = (
+REQUIRED_COLUMNS = (
     "frame",
     "site",
     "drive",
@@ -49,7 +49,7 @@ RPY_COLUMNS = ("roll", "pitch", "yaw")
 
 #: ``Pose.match``: which PLACES row (or fallback) gave the position.
 MATCH_POSE = "site-drive-pose"  # the row of the label's site, drive and pose
-MATCH_SITE_DRIVE = "site-drive"  # the (site, drive) row; the table or the label has no pose
+MATCH_SITE_DRIVE = "site-drive"  # the (site, drive) row for any pose, or the label has none
 MATCH_EARLIER = "earlier-pose"  # the label's pose is absent: the highest pose below it
 MATCH_LATER = "later-pose"  # no pose at or below the label's: the lowest above it
 MATCH_LABEL = "label-offset"  # no ROVER row: the label's offset from the PLACES SITE origin
@@ -107,7 +107,7 @@ def infer_places_crs(easting: float, longitude_deg: float) -> str:
 class Places:
     """A PLACES localization table: SITE origins and localized ROVER positions.
 
-    Columns are read by name, case-insensitively (``CORE_COLUMNS``, then the attitude: the
+    Columns are read by name, case-insensitively (``REQUIRED_COLUMNS``, then the attitude: the
     quaternion columns, else roll/pitch/yaw). ROVER rows are keyed by (site, drive, pose); a
     table without a pose column keys them by (site, drive).
 
@@ -121,7 +121,7 @@ class Places:
         twice = sorted({n for n in names if names.count(n) > 1})
         if twice:
             raise PlacesError(f"{path}: column(s) {', '.join(twice)} appear twice (any case)")
-        missing = [c for c in CORE_COLUMNS if c not in names]
+        missing = [c for c in REQUIRED_COLUMNS if c not in names]
         if missing:
             raise PlacesError(f"{path}: missing column(s) {', '.join(missing)}")
         self._cols = {n: table.column(i).to_pylist() for i, n in enumerate(names)}
