@@ -65,7 +65,8 @@ def rover_positions(
     from mars_pairs.geometry.places import MISSING, infer_places_crs
 
     try:
-        table = pacsv.read_csv(places_csv).to_pydict()
+        raw = pacsv.read_csv(places_csv).to_pydict()
+        table = {str(k).strip().lower(): v for k, v in raw.items()}  # PDS3-era: upper case
     except (OSError, ValueError) as exc:
         raise FetchError(places_csv, f"unreadable PLACES table: {exc}") from None
     for col in ("frame", "site", "easting", "northing", "longitude"):

@@ -43,13 +43,17 @@ _FIELDS: list[tuple[str, pa.DataType]] = [
     ("easting", pa.float64()),  # dataset CRS, map units
     ("northing", pa.float64()),
     ("elevation_m", pa.float64()),  # metres above the areoid (was "elevation", see columns.py)
-    ("azimuth_deg", pa.float64()),  # camera axis, clockwise from north
-    ("elevation_deg", pa.float64()),  # camera axis, up from the horizon
+    ("azimuth_deg", pa.float64()),  # image centre ray, SITE_FRAME, clockwise from true north
+    ("elevation_deg", pa.float64()),  # image centre ray, SITE_FRAME, up from the horizon
+    ("label_azimuth_deg", pa.float64()),  # the label's derived pointing (null: none)
+    ("label_elevation_deg", pa.float64()),
     ("hfov_deg", pa.float64()),
     ("vfov_deg", pa.float64()),
     ("width", pa.int32()),
     ("height", pa.int32()),
     ("localization", pa.string()),  # places | label
+    ("places_pose", pa.int32()),  # the PLACES row's pose (-1: every pose; null: none)
+    ("places_match", pa.string()),  # geometry.places MATCH_*: site-drive-pose, earlier-pose, ...
     ("dem_offset_m", pa.float64()),  # DEM at the rover origin - PLACES elevation (rover moved)
     ("viewshed_area_m2", pa.float64()),
     ("visible_cells", pa.int64()),
@@ -78,14 +82,22 @@ for _m in MEMBERS:
 
 MANIFEST_SCHEMA = pa.schema(_FIELDS)
 
-#: Columns absent from datasets built before they were added.
+#: Columns added after the first datasets: absent from older manifests, so not required.
 COVERAGE_COLUMNS = ("ortho_coverage", "dem_coverage")
+POINTING_PLACES_COLUMNS = (
+    "label_azimuth_deg",
+    "label_elevation_deg",
+    "places_pose",
+    "places_match",
+)
+OPTIONAL_COLUMNS = COVERAGE_COLUMNS + POINTING_PLACES_COLUMNS
 
-#: The columns every reader may rely on (checksums and coverage are absent from older datasets).
+#: The columns every reader may rely on (checksums and later columns are absent from older
+#: datasets).
 CORE_COLUMNS = tuple(
     f.name
     for f in MANIFEST_SCHEMA
-    if not f.name.endswith("_crc32c") and f.name not in COVERAGE_COLUMNS
+    if not f.name.endswith("_crc32c") and f.name not in OPTIONAL_COLUMNS
 )
 
 #: The plain per-sample attributes that readers pass on (dataset meta, GeoPackage attributes).
