@@ -41,9 +41,8 @@ def read_dataset_info(root: str | Path) -> DatasetInfo:
     try:
         doc = json.loads(path.read_text())
     except FileNotFoundError:
-        raise DatasetError(
-            path, None, "missing (it holds the ray stride, CRS and chip size: rebuild or restore it)"
-        ) from None
+        reason = "missing (it holds the ray stride, CRS and chip size: rebuild or restore it)"
+        raise DatasetError(path, None, reason) from None
     except (OSError, ValueError) as exc:
         raise DatasetError(path, None, f"unreadable: {exc}") from None
     if not isinstance(doc, dict):
@@ -53,7 +52,8 @@ def read_dataset_info(root: str | Path) -> DatasetInfo:
         value = value.get(part) if isinstance(value, dict) else None
     stride = _positive_int(value)
     if stride is None:
-        raise DatasetError(path, ".".join(RAY_STRIDE), f"expected a positive integer, got {value!r}")
+        reason = f"expected a positive integer, got {value!r}"
+        raise DatasetError(path, ".".join(RAY_STRIDE), reason)
     chip = doc.get("chip")
     size_px = chip.get("size_px") if isinstance(chip, dict) else None
     if size_px is not None and _positive_int(size_px) is None:

@@ -46,7 +46,8 @@ def shard_path(root: Path, shard: str, member: str | None = None) -> Path:
     path = Path(root) / shard
     resolved = path.resolve()
     if not resolved.is_relative_to(Path(root).resolve()):
-        raise DatasetError(path, member, f"shard path resolves outside the dataset folder, to {resolved}")
+        reason = f"shard path resolves outside the dataset folder, to {resolved}"
+        raise DatasetError(path, member, reason)
     mode = os.stat(resolved).st_mode
     if not stat.S_ISREG(mode):
         raise DatasetError(path, member, "shard path is not a regular file")

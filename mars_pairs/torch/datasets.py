@@ -182,8 +182,7 @@ class MarsPairsDataset(Dataset):
             table["ground_member"].combine_chunks() if "ground_member" in names else None
         )
         self._crc = {
-            m: table[f"{m}_crc32c"].fill_null(-1).to_numpy().astype(np.int64)
-            for m in crc_fields
+            m: table[f"{m}_crc32c"].fill_null(-1).to_numpy().astype(np.int64) for m in crc_fields
         }
         self._files = ShardFiles(self.root)
 
