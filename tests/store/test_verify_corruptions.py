@@ -13,7 +13,7 @@ from mars_pairs.errors import ArgumentError, DatasetError
 from mars_pairs.store.dataset_info import read_dataset_info
 from mars_pairs.store.filter_args import strings
 from mars_pairs.store.integrity import BLOCK, MemberSpec, check_member, shard_path
-from mars_pairs.store.shards import ShardWriter
+from mars_pairs.store.shards import MemberLocation, ShardWriter, read_member
 
 MEMBERS = {"ground.jpg": b"J" * 700, "ortho.png": b"P" * 300, "meta.json": b'{"a": 1}'}
 
@@ -155,3 +155,21 @@ def test_an_empty_list_of_values_is_an_argument_error() -> None:
     with pytest.raises(ArgumentError, match="split: expected a string or a non-empty list"):
         strings([], "split")
     assert strings(("train",), "split") == ["train"]
+
+
+def test_read_member_stays_inside_the_dataset_and_the_shard(shard: tuple[Path, dict]) -> None:
+    root, specs = shard
+    meta = specs["a"]["meta"]
+    assert (
+        read_member(root, MemberLocation("shards/s.tar", meta.offset, meta.size))
+        == (MEMBERS["meta.json"])
+    )
+    cases = {
+        "../../etc/passwd": (meta.offset, "leaves the dataset folder"),
+        "/dev/zero": (meta.offset, "is absolute"),
+        "shards/s.tar": (1 << 60, "past the end of the shard"),
+    }
+    for path, (size, reason) in cases.items():
+        with pytest.raises(DatasetError, match=reason) as err:
+            read_member(root, MemberLocation(path, meta.offset, size), name="a.meta.json")
+        assert err.value.shard == path and err.value.member == "a.meta.json"
