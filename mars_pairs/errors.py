@@ -57,6 +57,11 @@ class DatasetError(MarsPairsError):
         where = f"{self.shard}: {member}" if member else self.shard
         super().__init__(f"{where}: {self.reason}")
 
+    def __reduce__(self) -> tuple[type, tuple[object, ...]]:  # pickles with its fields
+        if self.shard or self.member is not None:
+            return type(self), (self.shard, self.member, self.reason)
+        return type(self), (self.reason,)
+
 
 class FetchError(MarsPairsError):
     """A download or archive index failed; the message names the URL (or index file) at fault."""

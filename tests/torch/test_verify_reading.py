@@ -4,7 +4,7 @@ the dataset, through DataLoader workers and in ``mars-pairs verify`` (exit 2).""
 
 from __future__ import annotations
 
-import os
+import pickle
 import shutil
 import tarfile
 import weakref
@@ -20,7 +20,7 @@ from torch.utils.data import DataLoader
 
 from mars_pairs import Manifest
 from mars_pairs.cli.main import main
-from mars_pairs.errors import ArgumentError, DatasetError, MarsPairsError
+from mars_pairs.errors import ArgumentError, DatasetError, MarsPairsError, MissingMemberError
 from mars_pairs.torch import ALL_FIELDS, MarsPairsDataset, MarsPairsIterableDataset, MarsPairsLoader
 
 ROW, OTHER = 4, 7  # the damaged sample's manifest row (read first), and a later one's
@@ -267,4 +267,12 @@ def test_dataset_error_survives_reconstruction_from_its_message() -> None:
     again = type(err)(str(err))
     assert isinstance(again, DatasetError) and str(again) == str(err)
     assert again.reason == str(err) and again.member is None
-    assert os.fspath("shards/a.tar") in str(again)
+    assert "shards/a.tar" in str(again)
+    for original in (err, again, MissingMemberError("manifest.parquet", "k.corr", "no such")):
+        copied = pickle.loads(pickle.dumps(original))  # as a process pool sends it
+        assert type(copied) is type(original) and str(copied) == str(original)
+        assert (copied.shard, copied.member, copied.reason) == (
+            original.shard,
+            original.member,
+            original.reason,
+        )
