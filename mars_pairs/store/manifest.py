@@ -233,14 +233,30 @@ class Manifest:
         radius_m), great circle on the Mars sphere; ``polygon``: shapely geometry or WKT in
         the dataset CRS; ``sol``: inclusive (first, last); ``mission``/``instrument``/``split``:
         a value or a list of values. Numbers may be Python, numpy or pandas scalars (and the
-        tuples numpy arrays or pandas Series); a wrong type, size or a NaN raises
-        ArgumentError naming the argument.
+        tuples numpy arrays or pandas Series); a wrong type, size, a NaN or an empty list
+        raises ArgumentError naming the argument; a column a predicate needs that the
+        manifest lacks, DatasetError naming the column.
         """
         import pyarrow.dataset as ds
 
         f = ds.field
         terms = []
         exact = list(self._exact)
+        uses = [
+            column
+            for value, columns in (
+                (bbox_lonlat, ("latitude", "longitude")),
+                (bbox_map, ("easting", "northing")),
+                (near, ("latitude", "longitude")),
+                (polygon, ("easting", "northing")),
+                (mission, ("mission",)),
+                (instrument, ("instrument",)),
+                (sol, ("sol",)),
+                (split, ("split",)),
+            )
+            if value is not None
+            for column in columns
+        ]
         if bbox_lonlat is not None:
             w, s, e, n = numbers(bbox_lonlat, 4, "bbox_lonlat")
             terms.append((f("latitude") >= s) & (f("latitude") <= n))
@@ -282,6 +298,7 @@ class Manifest:
         if sol is not None:
             first, last = integers(sol, 2, "sol")
             terms.append((f("sol") >= first) & (f("sol") <= last))
+        self.require(uses)  # after the arguments: a bad argument is the caller's error
         expression = self._expression
         for term in terms:
             expression = term if expression is None else expression & term
@@ -294,7 +311,8 @@ class Manifest:
 
     def to_table(self, columns: list[str] | None = None) -> pa.Table:
         """The filtered rows (all columns, or ``columns``). An old column name (see
-        :mod:`mars_pairs.store.columns`) reads its new column, with a DeprecationWarning."""
+        :mod:`mars_pairs.store.columns`) reads its new column, with a DeprecationWarning; a
+        column the manifest lacks is a DatasetError naming it."""
         stored = self._dataset.schema.names
         needed = None
         if columns is not None:
@@ -305,6 +323,7 @@ class Manifest:
             extra = {"latitude", "longitude", "easting", "northing"} if self._exact else set()
             needed = list(dict.fromkeys([*columns, *sorted(extra)]))
             needed = list(dict.fromkeys(stored_name(c, stored) for c in needed))
+            self.require(needed)
         try:
             table = self._dataset.to_table(columns=needed, filter=self._expression)
         except (pa.ArrowException, OSError) as exc:  # a damaged file or a missing column
