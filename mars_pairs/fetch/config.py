@@ -10,7 +10,9 @@ fetch:
   products:
     mission: msl                  # msl (PDS3 volumes) | m2020 (PDS4 bundle)
     archive: https://...          # archive root URL (or a local folder)
-    volumes: [MSLMST_0012]        # msl: volumes whose INDEX/<index>.LBL/.TAB list products
+    volumes: [MSLMST_0014]        # msl, optional: volumes whose INDEX/<index>.LBL/.TAB list
+                                  # products; default: every volume whose sol range in
+                                  # fetch/data/mslmst_volume_sol_ranges.csv meets sols
     index: RDRINDEX               # msl: RDRINDEX or EDRINDEX
     bundle: mars2020_mastcamz_ops_calibrated              # m2020
     collection: data/collection_data.xml                  # m2020, inside the bundle
@@ -20,6 +22,7 @@ fetch:
     product_types: [DRCL]
     sites: [56]
     drives: [1632]
+    thumbnails: false             # thumbnail products (id flag T) are skipped unless true
   places: {archive: https://..., path: MSLPLC_1XXX/DATA/LOCALIZATIONS/localized_interp.csv}
   orbital:
     dem: https://.../m20_orbital_dem.img   # remote (or local) rasters to cut windows from:
@@ -56,7 +59,7 @@ class ProductsSpec:
 
     mission: str
     archive: str
-    volumes: tuple[str, ...] = ()
+    volumes: tuple[str, ...] = ()  # msl; () = the table's volumes for the filter's sols
     index: str = "RDRINDEX"
     bundle: str | None = None
     collection: str = "data/collection_data.xml"
@@ -137,6 +140,12 @@ def _strs(value: Any, key: str) -> tuple[str, ...]:
     return tuple(value)
 
 
+def _bool(value: Any, key: str) -> bool:
+    if not isinstance(value, bool):
+        raise ConfigError(f"{key}: expected true or false, got {value!r}")
+    return value
+
+
 def _sols(value: Any, key: str) -> tuple[int, int] | None:
     if value is None:
         return None
@@ -151,7 +160,7 @@ def _sols(value: Any, key: str) -> tuple[int, int] | None:
 def _products(data: Any, base: Path) -> ProductsSpec | None:
     key = "fetch.products"
     known = {"mission", "archive", "volumes", "index", "bundle", "collection", "label_path",
-             "sols", "instruments", "product_types", "sites", "drives"}  # fmt: skip
+             "sols", "instruments", "product_types", "sites", "drives", "thumbnails"}  # fmt: skip
     d = _mapping(data, key, known)
     if not d:
         return None
@@ -166,6 +175,7 @@ def _products(data: Any, base: Path) -> ProductsSpec | None:
         ),
         sites=_ints(d.get("sites"), f"{key}.sites"),
         drives=_ints(d.get("drives"), f"{key}.drives"),
+        thumbnails=_bool(d.get("thumbnails", False), f"{key}.thumbnails"),
     )
     spec = ProductsSpec(
         mission=mission,
@@ -177,8 +187,11 @@ def _products(data: Any, base: Path) -> ProductsSpec | None:
         label_path=str(d.get("label_path", ProductsSpec.label_path)),
         filters=filters,
     )
-    if mission == "msl" and not spec.volumes:
-        raise ConfigError(f"{key}.volumes: required for msl (PDS3 volumes, e.g. MSLMST_0012)")
+    if mission == "msl" and not spec.volumes and filters.sols is None:
+        raise ConfigError(
+            f"{key}.volumes: required for msl without sols (PDS3 volumes, e.g. MSLMST_0014; "
+            "with sols they come from the volume sol-range table)"
+        )
     if mission == "msl" and spec.index not in INDEXES:
         raise ConfigError(f"{key}.index: expected one of {list(INDEXES)}, got {spec.index!r}")
     if mission == "m2020" and not isinstance(spec.bundle, str):

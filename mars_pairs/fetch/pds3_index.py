@@ -9,14 +9,13 @@ from each product's label).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
 from pathlib import Path, PurePosixPath
 from typing import Any
 
 from mars_pairs.errors import FetchError
 from mars_pairs.fetch.cache import archive_path, join_url
 from mars_pairs.fetch.download import RemoteFile
-from mars_pairs.fetch.products import Product
+from mars_pairs.fetch.products import Failure, Listing, Product, mmm_version
 
 # field -> index column names that carry it, in order of preference
 COLUMNS: dict[str, tuple[str, ...]] = {
@@ -74,33 +73,58 @@ def _int(value: Any) -> int | None:
 
 
 def products_from_index(
-    table: Any, volume: str, archive_root: str, where: str, mission: str = "msl"
-) -> Iterable[Product]:
-    """One Product per row; label paths are relative to the volume (``<volume>/<PATH><FILE>``)."""
+    table: Any,
+    volume: str,
+    archive_root: str,
+    where: str,
+    mission: str = "msl",
+    index_url: str | None = None,
+) -> Listing:
+    """One Product per row; label paths are relative to the volume (``<volume>/<PATH><FILE>``).
+
+    A row whose path escapes the archive (``..``, a backslash, an absolute path) or is empty
+    is a ``Failure`` (stage ``index``) naming the row number and path; the other rows go on.
+    The version of an MMM product id (``...E01_DRCL``: 1) is the product's ``version``."""
     cols = {f: _column(table, f) for f in COLUMNS}
     if not (cols["path"] and cols["file"]) and not cols["spec"]:
         raise FetchError(
             where,
             f"no PATH_NAME + FILE_NAME (or FILE_SPECIFICATION_NAME) column: {list(table.columns)}",
         )
+    url = index_url or where
     vol = archive_path(volume, where=where)
-    for row in table.to_dict("records"):
+    out = Listing()
+    for number, row in enumerate(table.to_dict("records"), 1):
         if cols["spec"] and not (cols["path"] and cols["file"]):
             inside = _text(row[cols["spec"]])
         else:
             inside = _text(row[cols["path"]]).rstrip("/") + "/" + _text(row[cols["file"]])
-        rel = vol / archive_path(inside, where=f"{where}: row {inside!r}")
-        product_id = _text(row[cols["product_id"]]) if cols["product_id"] else rel.stem
+        product_id = _text(row[cols["product_id"]]) if cols["product_id"] else ""
+        try:
+            rel = vol / archive_path(inside, where=f"{url}: row {number}")
+        except FetchError as exc:
+            out.failures.append(
+                Failure(product_id or inside, url, "index", "FetchError", f"row {number}: "
+                        + exc.reason)
+            )  # fmt: skip
+            continue
+        product_id = product_id or rel.stem
         ptype = _text(row[cols["product_type"]]) if cols["product_type"] else None
         if not ptype and "_" in product_id:
             ptype = product_id.rsplit("_", 1)[1]  # 1429MR..._DRCL -> DRCL
-        yield Product(
-            mission=mission,
-            product_id=product_id,
-            label=RemoteFile(rel, join_url(archive_root, rel)),
-            sol=_int(row[cols["sol"]]) if cols["sol"] else None,
-            instrument=_text(row[cols["instrument"]]).upper() if cols["instrument"] else None,
-            product_type=ptype.upper() if ptype else None,
-            site=_int(row[cols["site"]]) if cols["site"] else None,
-            drive=_int(row[cols["drive"]]) if cols["drive"] else None,
+        parsed = mmm_version(product_id)
+        out.products.append(
+            Product(
+                mission=mission,
+                product_id=product_id,
+                label=RemoteFile(rel, join_url(archive_root, rel)),
+                sol=_int(row[cols["sol"]]) if cols["sol"] else None,
+                instrument=_text(row[cols["instrument"]]).upper() if cols["instrument"] else None,
+                product_type=ptype.upper() if ptype else None,
+                site=_int(row[cols["site"]]) if cols["site"] else None,
+                drive=_int(row[cols["drive"]]) if cols["drive"] else None,
+                version=parsed[1] if parsed else None,
+                volume=volume,
+            )
         )
+    return out

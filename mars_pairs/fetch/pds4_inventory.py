@@ -2,16 +2,19 @@
 
 The collection label (``Product_Collection``) names its inventory file and delimiter
 (``File_Area_Inventory/Inventory``); inventory rows are ``P,<lidvid>`` (primary members) and
-``S,<lidvid>`` (secondary, skipped). A LID's last field is the product id; the label's path
-in the bundle comes from a template (the archive's own layout, e.g.
-``data/sol/{sol:05d}/ids/rdr/zcam/{product_id}.xml``), filled from the fields the Mastcam-Z
-product id encodes (sol, instrument, type, site, drive).
+``S,<lidvid>`` (secondary, skipped and counted). A LID's last field is the product id in
+lower case without its 2-character version; the VID gives the version
+(``...110085j::3.0`` is file ``..._110085J03``; ``products.encode_version`` past 99). The
+label's path in the bundle comes from a template (the archive's own layout, e.g.
+``data/sol/{sol:05d}/ids/rdr/zcam/{product_id}.xml``, ``product_id`` the file name stem),
+filled from the fields the Mastcam-Z product id encodes (sol, instrument, type, site, drive,
+filter, geometry, thumbnail, version).
 """
 
 from __future__ import annotations
 
 import csv
-from collections.abc import Iterable
+import re
 from pathlib import Path, PurePosixPath
 
 from lxml import etree
@@ -19,7 +22,16 @@ from lxml import etree
 from mars_pairs.errors import FetchError
 from mars_pairs.fetch.cache import archive_path, join_url
 from mars_pairs.fetch.download import RemoteFile
-from mars_pairs.fetch.products import PDS4_NS, Product, zcam_fields
+from mars_pairs.fetch.products import (
+    PDS4_NS,
+    Failure,
+    Listing,
+    Product,
+    Skipped,
+    newest_only,
+    parse_m2020_id,
+    zcam_fields,
+)
 
 DELIMITERS = {
     "Comma": ",",
@@ -53,41 +65,111 @@ def inventory_delimiter(collection_label: Path) -> str:
     return DELIMITERS[text.strip()]
 
 
+def file_version(vid: str) -> int:
+    """The file version a PDS4 VID gives (``1.0`` -> 1, ``3.0`` -> 3); ValueError otherwise.
+
+    Only ``N.0`` is attested (real labels: ``version_id`` 1.0 <-> ``...J01``, 3.0 <-> ``J03``);
+    a VID with a minor part names no file and is refused."""
+    m = re.fullmatch(r"(\d+)\.(\d+)", vid.strip())
+    if not m:
+        raise ValueError(f"VID {vid!r} is not <major>.<minor>")
+    if int(m[2]) != 0:
+        raise ValueError(f"VID {vid!r}: a minor version names no file (only N.0 is attested)")
+    return int(m[1])
+
+
+def file_id_of_lidvid(lidvid: str) -> str:
+    """The file name stem of a Mars 2020 camera product's LIDVID (upper case, with version).
+
+    ``...:zlf_0052_..._110085j::1.0`` -> ``ZLF_0052_..._110085J01``. Raises ``FetchError``
+    (the LIDVID, the reason) when the VID is missing or names no file, or the id does not
+    follow the camera SIS grammar."""
+    lid, sep, vid = lidvid.strip().partition("::")
+    if not sep:
+        raise FetchError(lidvid, "no '::<VID>' after the LID")
+    try:
+        version = file_version(vid)
+    except ValueError as exc:
+        raise FetchError(lidvid, str(exc)) from None
+    pid = parse_m2020_id(lid.rsplit(":", 1)[-1])
+    if pid.version is not None:
+        raise FetchError(lidvid, "the LID's product id carries a version (54 characters)")
+    try:
+        return pid.file_id(version)
+    except ValueError as exc:
+        raise FetchError(lidvid, str(exc)) from None
+
+
 def products_from_inventory(
     inventory: Path,
     delimiter: str,
     bundle: PurePosixPath,
     label_template: str,
     archive_root: str,
-) -> Iterable[Product]:
-    """One Product per primary member whose product id is a Mastcam-Z id."""
+    inventory_url: str | None = None,
+) -> Listing:
+    """Products of the inventory's primary members that are Mastcam-Z products.
+
+    A secondary member, or a product id of another camera (or outside the SIS grammar), is
+    ``Skipped``; a row that is not ``P|S,<LID>::<VID>``, whose VID names no file or whose
+    label path escapes the archive is a ``Failure`` (stage ``index``) naming the row; the
+    other rows go on. One LID listed with several VIDs keeps the newest (``newest_only``)."""
+    url = inventory_url or str(inventory)
     try:
         text = inventory.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise FetchError(inventory, f"unreadable inventory: {exc}") from None
+    out = Listing()
+
+    def fail(number: int, lidvid: str, reason: str, error: str = "FetchError") -> None:
+        out.failures.append(Failure(lidvid, url, "index", error, f"row {number}: {reason}"))
+
     for number, row in enumerate(csv.reader(text.splitlines(), delimiter=delimiter), 1):
-        if not row or not row[0].strip():
+        if not row or not "".join(row).strip():
             continue
-        if len(row) < 2:
-            raise FetchError(inventory, f"row {number}: expected 'P,<lidvid>', got {row!r}")
-        if row[0].strip().upper() != "P":
+        status = row[0].strip().upper()
+        if len(row) != 2 or status not in ("P", "S"):
+            fail(number, delimiter.join(row), f"expected 'P|S,<lidvid>', got {row!r}")
             continue
-        lid = row[1].strip().split("::")[0]
-        product_id = lid.rsplit(":", 1)[-1].upper()
-        fields = zcam_fields(product_id)
-        if not fields:
+        lidvid = row[1].strip()
+        if status == "S":
+            out.skipped.append(Skipped(lidvid, url, "index", "secondary member", f"row {number}"))
+            continue
+        lid_id = lidvid.partition("::")[0].rsplit(":", 1)[-1]
+        try:
+            pid = parse_m2020_id(lid_id)
+        except FetchError as exc:
+            out.skipped.append(
+                Skipped(lidvid, url, "index", "not an M2020 camera product id", exc.reason)
+            )
+            continue
+        if not pid.is_mastcamz:
+            out.skipped.append(
+                Skipped(lidvid, url, "index", "not a Mastcam-Z id", f"camera {pid.camera}")
+            )
             continue
         try:
-            inside = label_template.format(product_id=product_id, lid=lid, **fields)
+            product_id = file_id_of_lidvid(lidvid)
+            fields = zcam_fields(product_id)
+            inside = label_template.format(product_id=product_id, lid=lidvid.partition("::")[0],
+                                           **fields)  # fmt: skip
+            rel = bundle / archive_path(inside, where=f"{url}: row {number}")
         except (KeyError, IndexError, ValueError) as exc:
             raise FetchError("fetch.products.label_path", f"bad template: {exc}") from None
-        rel = bundle / archive_path(inside, where=f"{inventory}: row {number}")
-        yield Product(
-            mission="m2020",
-            product_id=product_id,
-            label=RemoteFile(rel, join_url(archive_root, rel)),
-            **fields,  # type: ignore[arg-type]
+        except FetchError as exc:
+            fail(number, lidvid, exc.reason)
+            continue
+        out.products.append(
+            Product(
+                mission="m2020",
+                product_id=product_id,
+                label=RemoteFile(rel, join_url(archive_root, rel)),
+                **fields,  # type: ignore[arg-type]
+            )
         )
+    out.products, older = newest_only(out.products)
+    out.skipped.extend(older)
+    return out
 
 
 def _parse(path: Path) -> etree._Element:

@@ -4,8 +4,12 @@ Products: the index files are fetched first (PDS3 ``INDEX/<index>.LBL`` + ``.TAB
 PDS4 collection label + inventory), filtered on what they list, then each product's label is
 fetched and read (image file, its size and MD5, site/drive where the index lacks them),
 filtered again, and its image fetched. ``workers`` products go at once; a tqdm bar counts
-them. A product that fails (404, retries exhausted, bad label, MD5) becomes one failure row
-in ``<cache>/fetch_failures.parquet`` and one line on stderr naming the URL; the rest go on.
+them. A product that fails (404, retries exhausted, bad label, MD5), or an index row that
+cannot be read (a path escaping the archive, a VID naming no file), becomes one failure row
+in ``<cache>/fetch_failures.parquet`` and one line on stderr naming the URL (and the row);
+the rest go on. A product left out on purpose (a filter, a thumbnail, a secondary member, an
+older version, another camera) is one row of ``<cache>/fetch_skipped.parquet`` and is counted
+by reason in the summary.
 """
 
 from __future__ import annotations
@@ -37,26 +41,26 @@ from mars_pairs.fetch.pds4_inventory import (
     inventory_of,
     products_from_inventory,
 )
-from mars_pairs.fetch.products import Product, ProductFilter, with_label_facts
+from mars_pairs.fetch.products import (
+    Failure,
+    Listing,
+    Product,
+    ProductFilter,
+    Skipped,
+    newest_only,
+    skip_counts,
+    with_label_facts,
+)
+from mars_pairs.fetch.volumes import volumes_for_sols
 from mars_pairs.fetch.windows import WindowPlan, dem_reach_m, ortho_reach_m, plan_windows
 
 FAILURES = "fetch_failures.parquet"
-
-
-@dataclass(frozen=True)
-class Failure:
-    """One product (or file) that could not be fetched."""
-
-    product_id: str
-    url: str
-    stage: str  # index | label | image
-    error: str
-    message: str
+SKIPPED = "fetch_skipped.parquet"
 
 
 @dataclass
 class ProductsReport:
-    """What a products run found and moved."""
+    """What a products run found and moved, and what it left out (``skipped``, by reason)."""
 
     listed: int = 0  # products the index lists that pass the index-level filters
     selected: int = 0  # after the label-level filters
@@ -67,64 +71,92 @@ class ProductsReport:
     bytes_received: int = 0
     failures: list[Failure] = field(default_factory=list)
     products: list[Product] = field(default_factory=list)
+    skipped: list[Skipped] = field(default_factory=list)
 
     def format(self, dry_run: bool) -> str:
-        """Human summary lines."""
+        """Human summary: one line, then one line per reason products were skipped."""
+        tail = f"{len(self.failures)} failures, {len(self.skipped)} skipped"
         if dry_run:
-            return (
+            head = (
                 f"dry run: {self.selected} products ({self.listed} listed), "
                 f"{self.image_bytes} image bytes, {self.to_fetch_bytes} not yet in the cache; "
-                f"{len(self.failures)} failures"
+                + tail
             )
-        return (
-            f"{self.selected} products ({self.listed} listed): {self.downloaded} files "
-            f"downloaded ({self.bytes_received} bytes), {self.cached} already cached, "
-            f"{len(self.failures)} failures"
-        )
+        else:
+            head = (
+                f"{self.selected} products ({self.listed} listed): {self.downloaded} files "
+                f"downloaded ({self.bytes_received} bytes), {self.cached} already cached, " + tail
+            )
+        lines = [head] + [f"  skipped {n}: {why}" for why, n in skip_counts(self.skipped)]
+        return "\n".join(lines)
 
 
 # -- listing -------------------------------------------------------------------------------
-def list_products(spec: ProductsSpec, dl: Downloader) -> list[Product]:
-    """Fetch the index files and list the products passing the index-level filters."""
-    found: list[Product] = []
+def list_products(spec: ProductsSpec, dl: Downloader) -> Listing:
+    """Fetch the index files and list the products passing the index-level filters.
+
+    msl: the indexes of ``spec.volumes`` (default: every volume whose range in the sol-range
+    table meets the filter's sols); one product per id, the newest version then the newest
+    volume winning. m2020: the collection's inventory. The products the listing or the
+    filters leave out are in ``skipped``, unreadable rows in ``failures``."""
+    out = Listing()
     if spec.mission == "msl":
-        for volume in spec.volumes:
+        volumes = spec.volumes
+        if not volumes:
+            if spec.filters.sols is None:
+                raise FetchError("fetch.products.volumes", "no volumes and no sols to choose them")
+            volumes = volumes_for_sols(spec.filters.sols)
+        for volume in volumes:
             lbl, tab = index_files(volume, spec.index)
-            for rel in (lbl, tab):
-                dl.fetch(RemoteFile(rel, join_url(spec.archive, rel)))
+            dl.fetch(RemoteFile(lbl, join_url(spec.archive, lbl), mutable=True))
             label_path = dl.cache.path(lbl)
+            tab_url = join_url(spec.archive, tab)
+            dl.fetch(RemoteFile(tab, tab_url, mutable=True, label=label_path))
             table = read_index_table(label_path)
-            found.extend(
-                products_from_index(table, volume, spec.archive, str(label_path), spec.mission)
-            )
+            out.extend(
+                products_from_index(table, volume, spec.archive, str(label_path), spec.mission,
+                                    index_url=join_url(spec.archive, tab))
+            )  # fmt: skip
+        out.products, older = newest_only(out.products)
+        out.skipped.extend(older)
     else:
         bundle = archive_path(spec.bundle or "", where="fetch.products.bundle")
         coll = bundle / archive_path(spec.collection, where="fetch.products.collection")
-        dl.fetch(RemoteFile(coll, join_url(spec.archive, coll)))
+        dl.fetch(RemoteFile(coll, join_url(spec.archive, coll), mutable=True))
         coll_path = dl.cache.path(coll)
         inv = inventory_of(coll_path, coll)
-        dl.fetch(RemoteFile(inv, join_url(spec.archive, inv)))
-        found.extend(
+        url = join_url(spec.archive, inv)
+        dl.fetch(RemoteFile(inv, url, kind="inventory", mutable=True, label=coll_path))
+        out.extend(
             products_from_inventory(
                 dl.cache.path(inv),
                 inventory_delimiter(coll_path),
                 bundle,
                 spec.label_path,
                 spec.archive,
+                inventory_url=join_url(spec.archive, inv),
             )
         )
-    unique = {p.label.rel: p for p in found}
-    return [p for p in unique.values() if spec.filters.wants(p, unknown_ok=True)]
+    kept = []
+    for p in out.products:
+        why = spec.filters.why_not(p, unknown_ok=True)
+        if why is None:
+            kept.append(p)
+        else:
+            out.skipped.append(Skipped(p.product_id, p.label.url, "index", *why))
+    out.products = kept
+    return out
 
 
 # -- one product ---------------------------------------------------------------------------
 @dataclass(frozen=True)
 class _Outcome:
-    product: Product | None  # None: filtered out by its label
+    product: Product | None  # None: filtered out by its label (``skipped``) or failed
     files: tuple[str, ...]  # statuses of the files fetched ("cached", "downloaded", ...)
     received: int
     to_fetch: int
     failure: Failure | None = None
+    skipped: Skipped | None = None
 
 
 def _one(
@@ -134,8 +166,10 @@ def _one(
     try:
         got = dl.fetch(p.label)
         p = with_label_facts(p, got.path, spec.archive)
-        if not filt.wants(p, unknown_ok=False):
-            return _Outcome(None, (got.status,), got.bytes_received, 0)
+        why = filt.why_not(p, unknown_ok=False)
+        if why is not None:
+            skip = Skipped(p.product_id, p.label.url, "label", *why)
+            return _Outcome(None, (got.status,), got.bytes_received, 0, skipped=skip)
         assert p.image is not None
         stage, url = "image", p.image.url
         target = dl.cache.path(p.image.rel, where=url)
@@ -145,7 +179,7 @@ def _one(
             if p.image.size is None and size is not None:
                 p = replace(p, image=replace(p.image, size=size))
             return _Outcome(p, (got.status,), got.bytes_received, 0 if cached else (size or 0))
-        img = dl.fetch(p.image)
+        img = dl.fetch(replace(p.image, label=got.path))  # the label tells what it must be
         if p.image.size is None:
             p = replace(p, image=replace(p.image, size=img.path.stat().st_size))
         return _Outcome(p, (got.status, img.status), got.bytes_received + img.bytes_received, 0)
@@ -172,8 +206,13 @@ def fetch_products(
     cache = Cache(cfg.cache)
     dl = Downloader(cache, cfg.policy)
     report = ProductsReport()
-    listed = list_products(spec, dl)
+    listing = list_products(spec, dl)
+    listed = listing.products
     report.listed = len(listed)
+    report.skipped.extend(listing.skipped)
+    report.failures.extend(listing.failures)
+    for failure in listing.failures:
+        tqdm.write(f"mars-pairs fetch: {failure.url}: {failure.message}", file=sys.stderr)
     bar = tqdm(total=len(listed), unit="product", disable=not progress, file=sys.stderr)
     with ThreadPoolExecutor(max_workers=cfg.policy.workers) as pool:
         futures = [pool.submit(_one, p, spec, dl, spec.filters, dry_run) for p in listed]
@@ -189,6 +228,8 @@ def fetch_products(
             report.downloaded += sum(s in ("downloaded", "resumed") for s in out.files)
             report.cached += sum(s == "cached" for s in out.files)
             report.bytes_received += out.received
+            if out.skipped is not None:
+                report.skipped.append(out.skipped)
             if out.product is not None:
                 report.products.append(out.product)
                 report.selected += 1
@@ -197,7 +238,9 @@ def fetch_products(
     bar.close()
     report.products.sort(key=lambda p: str(p.label.rel))
     report.failures.sort(key=lambda f: (f.product_id, f.stage))
+    report.skipped.sort(key=lambda s: (s.reason, s.product_id))
     write_failures(cache, report.failures)
+    write_skipped(cache, report.skipped)
     return report
 
 
@@ -212,19 +255,40 @@ def write_failures(cache: Cache, failures: list[Failure]) -> Path:
     return target
 
 
+def write_skipped(cache: Cache, skipped: list[Skipped]) -> Path:
+    """``<cache>/fetch_skipped.parquet``: one row per product or index row left out on
+    purpose (columns product_id, url, stage, reason, detail; atomic, rewritten each run).
+
+    Kept apart from ``fetch_failures.parquet`` so that an empty failures file still means
+    "everything chosen was fetched" and a rerun retries failures, not choices."""
+    cols = ("product_id", "url", "stage", "reason", "detail")
+    table = pa.table({c: pa.array([getattr(s, c) for s in skipped], pa.string()) for c in cols})
+    sink = pa.BufferOutputStream()
+    pq.write_table(table, sink)
+    target = cache.path(SKIPPED)
+    atomic_write(target, sink.getvalue().to_pybytes())
+    return target
+
+
 # -- single files --------------------------------------------------------------------------
-def fetch_remote(cfg: FetchConfig, spec: RemoteSpec) -> Path:
-    """One archive file (e.g. the PLACES table) into the cache; its path there."""
+def fetch_remote(
+    cfg: FetchConfig, spec: RemoteSpec, *, kind: str | None = None, mutable: bool = False
+) -> Path:
+    """One archive file (e.g. the PLACES table) into the cache; its path there.
+
+    ``kind``: what it must be (``validate.KINDS``; None: by its name); ``mutable``: revalidate
+    it on every fetch (an archive table that changes between releases)."""
     rel = archive_path(spec.path, where="fetch.places.path")
     dl = Downloader(Cache(cfg.cache), cfg.policy)
-    return dl.fetch(RemoteFile(PurePosixPath(rel), join_url(spec.archive, rel))).path
+    remote = RemoteFile(PurePosixPath(rel), join_url(spec.archive, rel), kind=kind, mutable=mutable)
+    return dl.fetch(remote).path
 
 
 def fetch_places(cfg: FetchConfig) -> Path:
     """The configured PLACES table, in the cache."""
     if cfg.places is None:
         raise FetchError("fetch.places", "the config has no fetch.places section")
-    return fetch_remote(cfg, cfg.places)
+    return fetch_remote(cfg, cfg.places, kind="places", mutable=True)
 
 
 @dataclass(frozen=True)
@@ -269,9 +333,10 @@ def plan_orbital(
 ) -> OrbitalPlan:
     """Plan the DEM/ortho windows around the PLACES rover positions (sols/sites of ``filters``).
 
-    Reads the PLACES table (from the cache, else fetched: into a temporary folder on a dry run,
-    so that a dry run writes nothing) and each raster's header (cached beside the windows as
-    ``orbital/<kind>.source.json``; a dry run only reads it).
+    Reads the PLACES table (fetched into the cache; on a dry run the cached copy as it is, else
+    fetched into a temporary folder, so that a dry run writes nothing) and each raster's
+    header (cached beside the windows as ``orbital/<kind>.source.json``; a dry run only reads
+    it).
     """
     import tempfile
 
@@ -283,10 +348,12 @@ def plan_orbital(
     filt = filters or (cfg.products.filters if cfg.products else ProductFilter())
     cached = cache.path(archive_path(cfg.places.path, where="fetch.places.path"))
     with tempfile.TemporaryDirectory(prefix="mars-pairs-plan-") as tmp:
-        if cached.is_file() or not dry_run:
-            places = fetch_places(cfg)
+        if not dry_run:
+            places = fetch_places(cfg)  # revalidated: a mutable archive table
+        elif cached.is_file():
+            places = cached  # as cached: a dry run neither fetches nor rewrites it
         else:
-            places = fetch_remote(replace(cfg, cache=Path(tmp)), cfg.places)
+            places = fetch_remote(replace(cfg, cache=Path(tmp)), cfg.places, kind="places")
         pos = rover_positions(places, sols=filt.sols, sites=filt.sites)
     margin = cfg.orbital.margin_m if margin_m is None else margin_m
     reach = {

@@ -1,19 +1,57 @@
-"""Stage chips: ortho, DEM and viewshed chips around the rover, and the correspondence."""
+"""Stage chips: ortho, DEM and viewshed chips around the rover, their coverage, and the
+correspondence."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from mars_pairs.errors import CoverageError
 from mars_pairs.pds.observation import Observation
 from mars_pairs.pipeline.context import SampleContext
 from mars_pairs.pipeline.view import View, in_view
-from mars_pairs.raster.chips import ChipGrid, resample_array
+from mars_pairs.raster.chips import ChipGrid, ChipReader, coverage, resample_array
 
 
-def cut_chips(view: View, ctx: SampleContext, obs: Observation) -> tuple[ChipGrid, dict[str, Any]]:
-    """Ortho, DEM and viewshed chips around the rover (north-up or heading-up)."""
+@dataclass(frozen=True)
+class ChipCoverage:
+    """The fraction (0..1) of the ortho and DEM chips' pixels with data (not nodata, not
+    masked, not off the raster)."""
+
+    ortho: float
+    dem: float
+
+
+def check_coverage(
+    fraction: float, minimum: float, what: str, reader: ChipReader, grid: ChipGrid
+) -> None:
+    """CoverageError unless the ``what`` chip ("ortho", "DEM") has data on some pixel and on
+    at least ``minimum`` of them; the message names the raster, its extent and the chip's
+    bounds (both in the chip's CRS, map units)."""
+    if fraction > 0.0 and fraction >= minimum:
+        return
+    x0, y0, x1, y1 = grid.bounds()
+    try:
+        left, bottom, right, top = reader.bounds_in(grid.crs)
+        extent = f"x {left:.3f}..{right:.3f}, y {bottom:.3f}..{top:.3f}"
+    except Exception as exc:  # a CRS pair PROJ cannot transform: still name the raster
+        extent = f"unknown in the chip's CRS ({type(exc).__name__})"
+    why = "no data" if fraction == 0.0 else f"below chips.min_coverage {minimum:g}"
+    raise CoverageError(
+        f"{reader.path}: the {what} chip has data on {fraction:.1%} of its pixels ({why}): "
+        f"chip x {x0:.3f}..{x1:.3f}, y {y0:.3f}..{y1:.3f}; the {what} covers {extent} "
+        "(map units of the dataset CRS)"
+    )
+
+
+def cut_chips(
+    view: View, ctx: SampleContext, obs: Observation
+) -> tuple[ChipGrid, dict[str, Any], ChipCoverage]:
+    """Ortho, DEM and viewshed chips around the rover (north-up or heading-up) and their
+    coverage; CoverageError (naming the raster) when a chip has no data or less than
+    ``chips.min_coverage``."""
     spec = ctx.config.chips
     rover = view.camera.origin_map
     rotation = 0.0
@@ -28,16 +66,25 @@ def cut_chips(view: View, ctx: SampleContext, obs: Observation) -> tuple[ChipGri
         ctx.crs_wkt,
         rotation_deg=rotation,
     )
-    ortho = ctx.ortho.read_uint8(grid)  # scaled by the ortho's declared or measured range
+    ortho_values = ctx.ortho.read(grid)  # NaN where the ortho has no data
     dem = ctx.dem.read(grid)
+    cover = ChipCoverage(coverage(ortho_values), coverage(dem))
+    check_coverage(cover.ortho, spec.min_coverage, "ortho", ctx.ortho, grid)
+    check_coverage(cover.dem, spec.min_coverage, "DEM", ctx.dem, grid)
+    # scaled by the ortho's declared or measured range
+    ortho = ctx.ortho.value_range().to_uint8(ortho_values)
     los = view.mask if view.los is None else view.los
     vis = resample_array(los, view.window.transform, ctx.crs_wkt, grid, nearest=True)
     visible = chip_view(np.nan_to_num(vis) > 0.5, dem, grid, view)
-    return grid, {
-        "ortho": ortho,
-        "dem": dem.astype(np.float32),
-        "viewshed": visible.astype(np.uint8) * 255,
-    }
+    return (
+        grid,
+        {
+            "ortho": ortho,
+            "dem": dem.astype(np.float32),
+            "viewshed": visible.astype(np.uint8) * 255,
+        },
+        cover,
+    )
 
 
 def chip_view(visible: np.ndarray, dem: np.ndarray, grid: ChipGrid, view: View) -> np.ndarray:

@@ -35,6 +35,7 @@ MAX_OBSERVER_HEIGHT_M = 10_000.0
 MAX_CHIP_SIZE_M = 200_000.0
 MAX_CHIP_SIZE_PX = 8192  # 8192^2 float32 cells: 256 MB per chip
 MAX_BLOCK_M = 10_000_000.0  # ~ Mars' circumference / 2
+DEFAULT_MIN_COVERAGE = 0.5  # chips.min_coverage: a chip at least half on data
 
 
 @dataclass(frozen=True)
@@ -84,11 +85,16 @@ class GeometryConfig:
 
 @dataclass(frozen=True)
 class ChipsConfig:
-    """Orbital chips: a square of ``size_m`` metres sampled at ``size_px`` pixels."""
+    """Orbital chips: a square of ``size_m`` metres sampled at ``size_px`` pixels.
+
+    ``min_coverage``: the least fraction (0..1) of an ortho or DEM chip's pixels with data;
+    a sample below it (or with none at all) is a failure row (CoverageError).
+    """
 
     size_m: float = 256.0
     size_px: int = 512
     orientation: str = "north-up"  # or heading-up (the camera azimuth points up)
+    min_coverage: float = DEFAULT_MIN_COVERAGE
 
 
 @dataclass(frozen=True)
@@ -279,7 +285,12 @@ def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConf
         "geometry",
         {"observer_height", "radius", "viewshed", "view_mask", "ray_stride"},
     )
-    chips = Section(top.raw("chips", {}), "chips", {"size_m", "size_px", "orientation"})
+    chips = Section(
+        top.raw("chips", {}), "chips", {"size_m", "size_px", "orientation", "min_coverage"}
+    )
+    min_coverage = chips.number("min_coverage", DEFAULT_MIN_COVERAGE, positive=False, maximum=1.0)
+    if min_coverage < 0.0:
+        raise ConfigError(f"chips.min_coverage: expected a fraction in [0, 1], got {min_coverage}")
     out = Section(top.raw("output"), "output", {"dir", "shard_size", "image_encoding"})
     return BuildConfig(
         inputs=_inputs(top.raw("inputs"), base),
@@ -294,6 +305,7 @@ def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConf
             size_m=chips.number("size_m", 256.0, maximum=MAX_CHIP_SIZE_M),
             size_px=chips.integer("size_px", 512, minimum=8, maximum=MAX_CHIP_SIZE_PX),
             orientation=chips.choice("orientation", ORIENTATIONS, "north-up"),
+            min_coverage=min_coverage,
         ),
         output=OutputConfig(
             dir=out.path("dir", base),  # type: ignore[arg-type]

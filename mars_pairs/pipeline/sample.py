@@ -46,9 +46,9 @@ def build_sample(label: Path, ctx: SampleContext) -> Sample:
             camera = MapCamera.from_observation(obs, pose, ctx.crs_wkt)
         view = compute_view(obs, pose, camera, ctx, stage)
         with stage("chips"):
-            grid, chips = cut_chips(view, ctx, obs)
+            grid, chips, cover = cut_chips(view, ctx, obs)
         with stage("encode"):
-            row = manifest_row(obs, pose, view, grid, ctx)
+            row = manifest_row(obs, pose, view, grid, ctx, cover)
             meta = sample_meta(row, obs, view, grid, ctx, ground.size)
             meta["ground_image"] = ground.meta
             members = encode_members(chips, correspondence(view, grid), meta)

@@ -20,12 +20,14 @@ from affine import Affine
 from numpy.typing import ArrayLike, NDArray
 from rasterio.crs import CRS
 from rasterio.enums import Resampling
-from rasterio.warp import reproject
+from rasterio.warp import reproject, transform_bounds
 from rasterio.windows import Window, from_bounds
+from rasterio.windows import transform as window_transform
 
 from mars_pairs.errors import TerrainError
 from mars_pairs.geometry.frames import crs_string
 from mars_pairs.kernels.resample import sample_affine
+from mars_pairs.raster.grid import NorthUp
 
 
 @dataclass(frozen=True)
@@ -136,11 +138,14 @@ class ValueRange:
 class ChipReader:
     """An open raster that cuts chips; use as a context manager, like a rasterio dataset.
 
-    In the raster's own CRS a chip is one windowed read of the pixels it covers plus a numba
-    resampling (any rotation); in another CRS GDAL's warper reprojects it. Either way only
-    the blocks under the chip are read, never the whole raster. Nodata becomes NaN; values
-    are the band's physical ones (its GDAL scale and offset applied: a DEM in metres).
-    A raster that cannot be opened or read raises TerrainError naming the file.
+    A chip is one windowed read of the pixels it covers, then in the raster's own CRS a
+    numba resampling (any rotation), in another CRS GDAL's warper. Only the blocks under the
+    chip are read, never the whole raster. A pixel without data is NaN: off the raster, or
+    masked by the band's GDAL mask (nodata, an alpha band's 0, an internal mask), or a
+    bilinear neighbour of such a pixel. Values are the band's physical ones (its GDAL scale
+    and offset applied: a DEM in metres). Any axis-aligned grid is read (``NorthUp``); a
+    rotated one, or a raster that cannot be opened or read, raises TerrainError naming the
+    file.
     """
 
     def __init__(self, path: str | Path) -> None:
@@ -149,6 +154,11 @@ class ChipReader:
             self.dataset = rasterio.open(self.path)
         except rasterio.errors.RasterioError as exc:
             raise TerrainError(f"{self.path}: cannot open the raster: {exc}") from None
+        try:
+            self.grid = NorthUp.of(self.dataset, self.path, "raster")
+        except TerrainError:
+            self.dataset.close()
+            raise
         self.crs_wkt = self.dataset.crs.to_wkt() if self.dataset.crs else ""
         self._ranges: dict[int, ValueRange] = {}
 
@@ -214,27 +224,47 @@ class ChipReader:
             values = values * np.float32(scale) + np.float32(offset)
         return values
 
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """(left, bottom, right, top) of the raster in its own CRS, map units."""
+        return self.grid.bounds
+
+    def bounds_in(self, crs: object) -> tuple[float, float, float, float]:
+        """(left, bottom, right, top) of the raster in ``crs`` (its own bounds when the CRS
+        is the raster's; else the densified envelope of their reprojection)."""
+        if _same_crs(self.crs_wkt, crs):
+            return self.bounds
+        box = transform_bounds(self.crs_wkt, crs_string(crs), *self.bounds, densify_pts=21)
+        return (float(box[0]), float(box[1]), float(box[2]), float(box[3]))
+
     def _read(self, grid: ChipGrid, nearest: bool, band: int) -> NDArray[np.float32]:
-        src = self.dataset
-        if not _same_crs(self.crs_wkt, grid.crs):
-            return self._warp(grid, nearest, band)
-        xs, ys = grid.corners().T
-        window = from_bounds(xs.min(), ys.min(), xs.max(), ys.max(), transform=src.transform)
+        same = _same_crs(self.crs_wkt, grid.crs)
+        box = grid.bounds()
+        if not same:  # the chip's envelope in the raster's CRS (bounds of the reprojection)
+            box = transform_bounds(grid.crs, self.crs_wkt, *box, densify_pts=21)
+        n = grid.size_px
+        win = self._window(box)
+        if win is None:
+            return np.full((n, n), np.nan, dtype=np.float32)
+        values = self.grid.read(self.dataset, band, win, masked=True)
+        values = values.astype(np.float32).filled(np.nan)
+        src_transform = window_transform(win, self.grid.transform)
+        if same:
+            return _sample_grid(values, src_transform, grid, nearest)
+        return _reproject(values, grid, nearest, src_transform=src_transform, src_crs=self.crs_wkt)
+
+    def _window(self, box: tuple[float, float, float, float]) -> Window | None:
+        """The north-up pixel window covering map ``box`` (raster CRS) and two pixels more,
+        clipped to the raster; None when less than 2 x 2 pixels remain."""
+        g = self.grid
+        window = from_bounds(*box, transform=g.transform)
         col0 = max(math.floor(window.col_off) - 2, 0)
         row0 = max(math.floor(window.row_off) - 2, 0)
-        col1 = min(math.ceil(window.col_off + window.width) + 2, src.width)
-        row1 = min(math.ceil(window.row_off + window.height) + 2, src.height)
-        n = grid.size_px
+        col1 = min(math.ceil(window.col_off + window.width) + 2, g.width)
+        row1 = min(math.ceil(window.row_off + window.height) + 2, g.height)
         if col1 - col0 < 2 or row1 - row0 < 2:
-            return np.full((n, n), np.nan, dtype=np.float32)
-        win = Window(col0, row0, col1 - col0, row1 - row0)
-        values = src.read(band, window=win, masked=True).astype(np.float32).filled(np.nan)
-        return _sample_grid(values, src.window_transform(win), grid, nearest)
-
-    def _warp(self, grid: ChipGrid, nearest: bool, band: int) -> NDArray[np.float32]:
-        return _reproject(
-            rasterio.band(self.dataset, band), grid, nearest, src_nodata=self.dataset.nodata
-        )
+            return None
+        return Window(col0, row0, col1 - col0, row1 - row0)
 
     def close(self) -> None:
         """Close the raster."""
@@ -270,17 +300,24 @@ def resample_array(
 
 
 def _reproject(source: Any, grid: ChipGrid, nearest: bool, **src: Any) -> NDArray[np.float32]:
-    """GDAL-warp ``source`` (a rasterio band or an array with ``src`` georeferencing) onto a
-    chip grid in another CRS; NaN where nothing maps."""
+    """GDAL-warp ``source`` (a float32 array, NaN = no data, with ``src`` georeferencing) onto
+    a chip grid in another CRS; NaN where nothing maps."""
     out = np.full((grid.size_px, grid.size_px), np.nan, dtype=np.float32)
     reproject(
         source=source,
         destination=out,
         dst_transform=grid.transform,
         dst_crs=grid.crs,
+        src_nodata=np.nan,
         dst_nodata=np.nan,
         resampling=Resampling.nearest if nearest else Resampling.bilinear,
         tolerance=0.0,
         **src,
     )
     return out
+
+
+def coverage(values: NDArray[np.floating]) -> float:
+    """The fraction (0..1) of a chip's pixels with data: finite values (``ChipReader.read``
+    gives NaN off the raster and where the raster's mask says no data)."""
+    return float(np.isfinite(values).mean()) if values.size else 0.0

@@ -9,7 +9,8 @@ Frames and units:
 - Elevations are DEM values in metres (heights above the areoid for HiRISE DTMs); nodata is NaN.
 
 Only the window a request needs is read, never the whole raster, so any GDAL path or URL works
-(``/vsicurl/https://...`` included).
+(``/vsicurl/https://...`` included). Any axis-aligned grid is read (north-up, south-up,
+east-left: ``raster.grid.NorthUp``); every transform and array here is north-up (row 0 north).
 """
 
 from __future__ import annotations
@@ -28,10 +29,12 @@ from pyproj import CRS
 from rasterio.enums import Resampling
 from rasterio.warp import reproject, transform_bounds
 from rasterio.windows import Window, from_bounds
+from rasterio.windows import transform as window_transform
 
 from mars_pairs.errors import TerrainError
 from mars_pairs.geometry.frames import MARS_LONLAT, crs_string, map_to_map
 from mars_pairs.raster.crs import check_map_crs
+from mars_pairs.raster.grid import NorthUp
 
 Bounds = tuple[float, float, float, float]
 
@@ -128,14 +131,14 @@ class Terrain:
 
     # -- lifecycle -------------------------------------------------------------------------
     def _open(self) -> None:
-        """Open the datasets and check the DEM has a projected CRS and one band."""
+        """Open the datasets and check their CRSs are projected and their grids axis-aligned
+        (TerrainError naming the file otherwise)."""
         self._dem = _open_raster(self.dem_path, "DEM")
         try:
             crs = self._dem.crs
             if crs is None or not crs.to_wkt():
                 raise TerrainError(f"{self.dem_path}: DEM has no CRS (georeferencing missing)")
-            if self._dem.transform.b != 0 or self._dem.transform.d != 0:
-                raise TerrainError(f"{self.dem_path}: DEM grid is rotated; only north-up grids")
+            self._grid = NorthUp.of(self._dem, self.dem_path, "DEM")
             self.crs_wkt: str = crs.to_wkt()
             self.pyproj_crs = CRS.from_wkt(self.crs_wkt)
             check_map_crs(self.pyproj_crs, self.dem_path, "DEM")
@@ -144,6 +147,7 @@ class Terrain:
                 if self._ortho.crs is None or not self._ortho.crs.to_wkt():
                     raise TerrainError(f"{self.ortho_path}: orthoimage has no CRS")
                 check_map_crs(CRS.from_wkt(self._ortho.crs.to_wkt()), self.ortho_path, "ortho")
+                self._ortho_grid = NorthUp.of(self._ortho, self.ortho_path, "orthoimage")
         except Exception:
             self.close()
             raise
@@ -173,8 +177,8 @@ class Terrain:
 
     @property
     def transform(self) -> Affine:
-        """The full DEM's affine transform (pixel corners -> raster-CRS x, y)."""
-        return self._dem.transform
+        """The full DEM's north-up affine transform (pixel corners -> raster-CRS x, y)."""
+        return self._grid.transform
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -230,7 +234,7 @@ class Terrain:
 
     def _read_dem(self, window: Window) -> NDArray[np.float32]:
         """Read band 1 in ``window`` as float32 metres, nodata/masked -> NaN, scale/offset."""
-        arr = self._dem.read(1, window=window, masked=True)
+        arr = self._grid.read(self._dem, 1, window, masked=True)
         scale = self._dem.scales[0] if self._dem.scales else 1.0
         offset = self._dem.offsets[0] if self._dem.offsets else 0.0
         out = arr.astype(np.float32).filled(np.nan)
@@ -266,7 +270,7 @@ class Terrain:
         if win.width == 0 or win.height == 0:
             raise TerrainError(f"{self.dem_path}: window around x={x}, y={y} is empty")
         data = self._read_dem(win)
-        dem = DemWindow(data, self._dem.window_transform(win), self.crs)
+        dem = DemWindow(data, window_transform(win, self.transform), self.crs)
         if check_observer:
             self._check_data_under(dem, x, y)
         return dem
@@ -342,9 +346,12 @@ class Terrain:
         self, bounds: Bounds, shape: tuple[int, int]
     ) -> tuple[np.ndarray, NDArray[np.bool_]]:
         """Boundless windowed read of an ortho in the DEM's CRS, resampled to ``shape``."""
-        win = from_bounds(*bounds, transform=self._ortho.transform)
-        data = self._ortho.read(
-            window=win,
+        grid = self._ortho_grid
+        win = from_bounds(*bounds, transform=grid.transform)
+        data = grid.read(
+            self._ortho,
+            None,
+            win,
             out_shape=(self._ortho.count, *shape),
             boundless=True,
             masked=True,
@@ -359,16 +366,17 @@ class Terrain:
         """Reproject the needed part of an ortho in another CRS onto the raster-CRS grid."""
         left, bottom, right, top = _bounds_of(dst_transform, shape)
         ob = transform_bounds(self.crs, self._ortho.crs, left, bottom, right, top, densify_pts=21)
-        src_win = from_bounds(*ob, transform=self._ortho.transform).round_offsets().round_lengths()
-        src_win = src_win.intersection(Window(0, 0, self._ortho.width, self._ortho.height))
-        src = self._ortho.read(window=src_win, masked=True)
+        grid = self._ortho_grid
+        src_win = from_bounds(*ob, transform=grid.transform).round_offsets().round_lengths()
+        src_win = src_win.intersection(Window(0, 0, grid.width, grid.height))
+        src = grid.read(self._ortho, None, src_win, masked=True)
         count = self._ortho.count
         dst = np.zeros((count, *shape), dtype=self._ortho.dtypes[0])
         dst_ok = np.zeros((count, *shape), dtype=np.uint8)
         for b in range(count):
             ok = (~np.ma.getmaskarray(src[b])).astype(np.uint8)
             kw = {
-                "src_transform": self._ortho.window_transform(src_win),
+                "src_transform": window_transform(src_win, grid.transform),
                 "src_crs": self._ortho.crs,
                 "dst_transform": dst_transform,
                 "dst_crs": self.crs,

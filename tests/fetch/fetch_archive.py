@@ -135,6 +135,13 @@ def _with_file_facts(label: Path, image: Path) -> bytes:
     return etree.tostring(tree, xml_declaration=True, encoding="UTF-8")
 
 
+def inventory_row(product_id: str, status: str = "P") -> str:
+    """The real form: the LID ends with the id in lower case without its 2-character version,
+    which the VID gives (``..._110085J03`` -> ``..._110085j::3.0``); CRLF-terminated."""
+    lid = f"urn:nasa:pds:{M2020_BUNDLE}:data:{product_id[:-2].lower()}"
+    return f"{status},{lid}::{int(product_id[-2:])}.0\r\n"
+
+
 def _m2020(src: Path, root: Path) -> tuple[Path, ...]:
     bundle = root / "mars2020" / M2020_BUNDLE
     rows, labels = [], []
@@ -146,7 +153,7 @@ def _m2020(src: Path, root: Path) -> tuple[Path, ...]:
         shutil.copy2(image, dest.with_suffix(".jpg"))
         dest.write_bytes(_with_file_facts(label, image))
         labels.append(dest)
-        rows.append(f"P,urn:nasa:pds:{M2020_BUNDLE}:data:{obs.product_id.lower()}::1.0\r\n")
+        rows.append(inventory_row(obs.product_id))
     rows.append("S,urn:nasa:pds:mars2020_mission:context:something::1.0\r\n")
     data = bundle / "data"
     (data / "collection_data.csv").write_text("".join(rows))

@@ -236,10 +236,10 @@ def test_windows_mosaic_in_a_vrt_the_terrain_reads(maps, tmp_path):
 
 def _places_csv(path: Path) -> None:
     """A best_interp.csv-like table: ROVER rows at POSITIONS (longitude from the PLACES CRS)."""
-    lines = ["frame,site,drive,easting,northing,longitude,sol"]
+    lines = ["frame,site,drive,easting,northing,longitude,elevation,sol"]
     for x, y, sol in POSITIONS:
         lon = math.degrees(x / (R * math.cos(math.radians(18.4663))))
-        lines.append(f"ROVER,3,{sol * 10},{x},{y},{lon:.9f},{sol}")
+        lines.append(f"ROVER,3,{sol * 10},{x},{y},{lon:.9f},-2500.0,{sol}")
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines) + "\n")
 
@@ -310,9 +310,10 @@ def test_fetch_orbital_dry_run_prints_windows_and_writes_nothing(maps, tmp_path,
         assert "REJECTED: above fetch.orbital.max_cells" in capsys.readouterr().out
         assert main(["fetch", "orbital", "--config", str(small), "--quiet"]) == 2
         assert "fetch.orbital.max_cells" in capsys.readouterr().err
+    # the VRT holds the source's cells inside every window (the plan, as a dry run reads it)
     with rasterio.open(cache / "dem.vrt") as vrt, rasterio.open(maps["tif_dem"]) as ref:
         assert vrt.crs == ref.crs and vrt.res == ref.res
-        for p in plan_orbital(cfg).plans[0].windows:
+        for p in plan_orbital(cfg, dry_run=True).plans[0].windows:
             win = rasterio.windows.from_bounds(*p.bounds, transform=vrt.transform)
             src = rasterio.windows.from_bounds(*p.bounds, transform=ref.transform)
             assert np.array_equal(vrt.read(1, window=win), ref.read(1, window=src))

@@ -1,0 +1,95 @@
+"""Any axis-aligned raster grid presented as its north-up equivalent.
+
+A GeoTIFF's geotransform maps pixel (col, row) corners to map x, y: x = a col + b row + c,
+y = d col + e row + f. North-up grids have a > 0, e < 0; some PDS products and GDAL
+conversions are south-up (e > 0) or east-left (a < 0). ``NorthUp`` maps windows of the
+north-up grid onto the raster's own pixels and flips what it reads, so the rest of the code
+only ever sees a > 0, e < 0. Rotated or sheared grids (b or d not 0) are refused.
+
+Frames and units: windows and arrays in the north-up grid's pixels (row 0 north, col 0
+west); transforms from pixel corners to the raster's CRS, map units. The north-up origin is
+computed in float64 from the raster's own (``c + a * width``), never through float32.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from affine import Affine
+from rasterio.windows import Window
+
+from mars_pairs.errors import TerrainError
+
+
+@dataclass(frozen=True)
+class NorthUp:
+    """A raster's grid as north-up: ``transform`` (a > 0, e < 0), ``width`` and ``height``
+    in pixels, and whether the raster's own columns run west (``flip_cols``) and its rows
+    north (``flip_rows``)."""
+
+    transform: Affine
+    width: int
+    height: int
+    flip_cols: bool
+    flip_rows: bool
+
+    @classmethod
+    def of(cls, dataset: Any, path: str, what: str) -> NorthUp:
+        """The north-up view of an open rasterio ``dataset``; TerrainError naming ``path``
+        when its grid is rotated, sheared or degenerate (a zero pixel size)."""
+        t = dataset.transform
+        a, b, c, d, e, f = (float(v) for v in (t.a, t.b, t.c, t.d, t.e, t.f))
+        if b != 0.0 or d != 0.0:
+            raise TerrainError(
+                f"{path}: {what} grid is rotated or sheared (geotransform x = {a:g} col + "
+                f"{b:g} row + {c:.3f}, y = {d:g} col + {e:g} row + {f:.3f}); only axis-aligned "
+                f"grids are read: warp it to a north-up grid first, e.g. gdalwarp {path} "
+                "north_up.tif"
+            )
+        if not (np.isfinite([a, c, e, f]).all() and a != 0.0 and e != 0.0):
+            raise TerrainError(
+                f"{path}: {what} geotransform has a zero or non-finite pixel size "
+                f"(x size {a:g}, y size {e:g}): georeferencing missing or broken"
+            )
+        w, h = int(dataset.width), int(dataset.height)
+        left = c + a * w if a < 0 else c
+        top = f + e * h if e > 0 else f
+        transform = Affine(abs(a), 0.0, left, 0.0, -abs(e), top)
+        return cls(transform, w, h, a < 0, e > 0)
+
+    @property
+    def flipped(self) -> bool:
+        """True when the raster's own grid is not north-up."""
+        return self.flip_cols or self.flip_rows
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """(left, bottom, right, top) of the raster in its CRS, map units."""
+        t = self.transform
+        return t.c, t.f + t.e * self.height, t.c + t.a * self.width, t.f
+
+    def own_window(self, window: Window) -> Window:
+        """The raster's own pixel window holding north-up ``window`` (fractional or off the
+        raster windows map the same way)."""
+        col, row = window.col_off, window.row_off
+        if self.flip_cols:
+            col = self.width - col - window.width
+        if self.flip_rows:
+            row = self.height - row - window.height
+        return Window(col, row, window.width, window.height)
+
+    def orient(self, array: Any) -> Any:
+        """An array read in the raster's own pixel order (rows, cols last) in north-up order,
+        C-contiguous (a masked array stays masked)."""
+        if self.flip_rows:
+            array = array[..., ::-1, :]
+        if self.flip_cols:
+            array = array[..., ::-1]
+        return array.copy() if self.flipped else array
+
+    def read(self, dataset: Any, indexes: Any, window: Window, **kwargs: Any) -> Any:
+        """``dataset.read(indexes, window=...)`` for a north-up ``window``, in north-up order;
+        ``kwargs`` as rasterio's (``masked``, ``out_shape``, ``boundless``, ...)."""
+        return self.orient(dataset.read(indexes, window=self.own_window(window), **kwargs))
