@@ -353,3 +353,20 @@ def test_a_pds3_img_is_read_through_its_detached_lbl(tmp_path):
         r0, c0 = win.row_off, win.col_off
         assert np.array_equal(got.read(1), data[r0 : r0 + win.height, c0 : c0 + win.width])
         assert got.transform.almost_equals(Affine(1.0, 0, x0 + c0, 0, -1.0, y0 - r0))
+
+
+@pytest.mark.parametrize("variant", ["vicar", "vicar_pds4", "pds4"])
+def test_the_build_opens_the_maps_as_they_are(maps, variant):
+    """inputs.dem may name a VICAR file or a PDS4 label directly (read window by window)."""
+    path = maps[f"{variant}_dem"]
+    if variant == "vicar_pds4":
+        path = path.with_suffix(".xml")  # the label: the VICAR file's own label has no map
+    ref = _dem()
+    with Terrain.open(path, ortho=maps[f"{variant}_map"].with_suffix(path.suffix)) as t:
+        assert t.transform.almost_equals(DEM_TR) and t.contains(*POSITIONS[0][:2])
+        w = t.read_dem_window(*POSITIONS[2][:2], 10.0)
+        c0, r0 = ~DEM_TR * (w.transform.c, w.transform.f)
+        rows, cols = w.shape
+        assert np.array_equal(
+            w.data, ref[round(r0) : round(r0) + rows, round(c0) : round(c0) + cols]
+        )
