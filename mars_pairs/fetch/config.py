@@ -225,7 +225,7 @@ def _orbital(data: Any, base: Path) -> OrbitalSpec:
     margin = _number(o, "margin_m", key, None)
     if margin is None:
         margin = OrbitalSpec.margin_m
-    return OrbitalSpec(rasters["dem"], rasters["ortho"], margin, max_cells)  # type: ignore[arg-type]
+    return OrbitalSpec(rasters["dem"], rasters["ortho"], margin, max_cells)
 
 
 def parse_fetch(data: Any, base: Path, radius_m: float, chip_size_m: float = 256.0) -> FetchConfig:

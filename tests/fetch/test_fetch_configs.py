@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from mars_pairs.errors import ConfigError
 from mars_pairs.fetch.config import load_fetch_config
 from mars_pairs.pipeline.config import load_config
 
@@ -73,3 +74,22 @@ def test_a_build_config_may_name_a_remote_raster(tmp_path):
     path = tmp_path / "remote.yaml"
     path.write_text(text)
     assert load_config(path).inputs.dem == "/vsicurl/https://example.invalid/dem.tif"
+
+
+@pytest.mark.parametrize(
+    ("value", "message"),
+    [("'many'", "fetch.orbital.max_cells: expected a positive integer"),
+     ("0", "fetch.orbital.max_cells: expected a positive integer"),
+     ("-1", None)],
+)  # fmt: skip
+def test_orbital_limits_are_validated(tmp_path, value, message):
+    text = (CONFIGS / "msl_gale.yaml").read_text()
+    if message is None:  # a negative margin
+        text = text.replace("margin_m: 10 ", f"margin_m: {value} ")
+        message = "fetch.orbital.margin_m: expected a non-negative number"
+    else:
+        text = text.replace("max_cells: 200000000", f"max_cells: {value}")
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=message):
+        load_fetch_config(path)
