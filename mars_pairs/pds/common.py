@@ -44,16 +44,21 @@ _DOY_RE = re.compile(r"(\d{4})-(\d{3})T(\d{2}):(\d{2}):(\d{2}(?:\.\d+)?)Z?", re.
 
 #: Labels (and the label head of a product with an attached label) are read up to this size.
 MAX_LABEL_BYTES = 4 * 1024 * 1024
-#: Wall-clock budget of parsing one label (seconds); past it the label is a LabelError.
+#: Wall-clock budget of parsing one label on a process's main thread (seconds); past it the
+#: label is a LabelError. On every thread the structural bounds of the readers
+#: (``pds3.check_structure``, ``xml.MAX_XML_MARKUP``) keep a parse far below it.
 PARSE_SECONDS = 5.0
 
 
 def read_bytes(path: Path, limit: int = MAX_LABEL_BYTES) -> tuple[bytes, bool]:
     """The first ``limit`` bytes of a regular file and whether the file is longer.
 
-    A missing or unreadable file, or one that is not a regular file (a directory, FIFO or
-    device such as /dev/zero), is a LabelError; nothing is read from non-regular files.
+    A missing or unreadable file, one that is not a regular file (a directory, FIFO or
+    device such as /dev/zero), or a path no file can have (a NUL byte) is a LabelError;
+    nothing is read from non-regular files.
     """
+    if "\x00" in str(path):
+        raise LabelError(path, None, f"not a file path: {str(path)!r} holds a NUL byte")
     try:
         info = path.stat()
         if not stat.S_ISREG(info.st_mode):
@@ -74,8 +79,8 @@ def time_limit(path: Path, seconds: float = PARSE_SECONDS) -> Iterator[None]:
     """Stop the enclosed parse with a LabelError once it has run ``seconds`` of wall time.
 
     Uses a real-time interval timer (SIGALRM), so it applies on the main thread of a process
-    (the CLI, build workers); elsewhere the parse runs unguarded and the label size limit
-    alone bounds it. A timer set by the caller is restored afterwards.
+    (the CLI, local build workers); on other threads (Dask workers) the readers' structural
+    bounds alone bound the parse. A timer set by the caller is restored afterwards.
     """
     if threading.current_thread() is not threading.main_thread() or not hasattr(
         signal, "setitimer"
