@@ -34,6 +34,9 @@ MAX_INTEGER = 2**31 - 1
 MAX_IMAGE_SIDE = 100_000
 #: Largest camera model component accepted (C in metres, H and V in pixels are far below).
 MAX_MODEL_COMPONENT = 1e12
+#: Largest rover offset from its SITE origin accepted, per axis (metres): past Mars's diameter
+#: (6.8e6 m) no offset places anything; real ones are hundreds of metres.
+MAX_OFFSET_M = 1e7
 #: Longest product id / instrument / frame name accepted (real ones are under 60).
 MAX_ID_CHARS = 80
 _ID_RE = re.compile(r"[A-Za-z0-9_.\-]+", re.ASCII)
@@ -182,10 +185,17 @@ class Fields:
             self.fail(field, f"expected {n} numbers, got {len(value)}")
         return np.array([self.number(v, field) for v in value], dtype=np.float64)
 
+    def offset_m(self, values: np.ndarray, field: str) -> np.ndarray:
+        """An offset in metres (any frame) within ``MAX_OFFSET_M`` on every axis."""
+        if not np.all(np.abs(values) <= MAX_OFFSET_M):
+            self.fail(field, f"offset beyond {MAX_OFFSET_M:g} m: {values.tolist()}")
+        return values
+
     def quaternion(self, values: Sequence[float], field: str) -> np.ndarray:
         """A (s, v1, v2, v3) quaternion of norm close to 1, normalised."""
         q = np.asarray(values, dtype=np.float64)
-        norm = float(np.linalg.norm(q))
+        with np.errstate(over="ignore", under="ignore"):  # an inf norm is refused below
+            norm = float(np.linalg.norm(q))
         if abs(norm - 1.0) > 1e-3:
             self.fail(field, f"expected a unit quaternion, norm is {norm:.6g}")
         return q / norm

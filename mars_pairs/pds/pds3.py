@@ -318,7 +318,8 @@ def _camera(f: Fields, label: Mapping[str, Any]) -> CameraModel:
 
 
 def _rover_pose(f: Fields, label: Mapping[str, Any]) -> dict[str, np.ndarray | None]:
-    """ROVER_NAV_FRAME origin and quaternion in SITE_FRAME; None if absent or another frame."""
+    """ROVER_NAV_FRAME origin (metres, SITE_FRAME) and quaternion (ROVER_NAV_FRAME ->
+    SITE_FRAME); None if absent or given in another frame."""
     none: dict[str, np.ndarray | None] = {"rover_offset_m": None, "rover_quaternion": None}
     name = next((g for g in ROVER_GROUPS if label.get(g) is not None), ROVER_GROUPS[0])
     group = _group(f, label, name, required=False)
@@ -331,8 +332,9 @@ def _rover_pose(f: Fields, label: Mapping[str, Any]) -> dict[str, np.ndarray | N
     if is_null(offset) or is_null(quaternion):
         return none
     q = f.vector(quaternion, 4, "ORIGIN_ROTATION_QUATERNION")
+    xyz = f.vector(offset, 3, "ORIGIN_OFFSET_VECTOR")
     return {
-        "rover_offset_m": f.vector(offset, 3, "ORIGIN_OFFSET_VECTOR"),
+        "rover_offset_m": f.offset_m(xyz, "ORIGIN_OFFSET_VECTOR"),
         "rover_quaternion": f.quaternion(q, "ORIGIN_ROTATION_QUATERNION"),
     }
 

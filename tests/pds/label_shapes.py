@@ -31,7 +31,7 @@ SHAPES: dict[str, Callable[[], str]] = {
     "100k distinct keys": lambda: _label("".join(f"K{i} = 1\n" for i in range(100_000))),
     # literal_eval of one 4 MB tuple: ~9 s and ~1.9 GB
     "4 MB tuple value": lambda: _label("A = (" + "1," * (FOUR_MB // 2) + "1)\n"),
-    "4 MB quoted value": lambda: _label('A = "' + "x" * FOUR_MB + '"\n'),
+    "4 MB quoted value": lambda: _label('A = "' + "X" * FOUR_MB + '"\n'),
     "4 MB unclosed quote, 2M lines": lambda: _label('A = "' + "x\n" * (FOUR_MB // 2)),
     "4 MB of quantities in 64 KB values": lambda: _label(
         "".join(f"Q{i} = (" + "1 <m>," * 10_900 + "1)\n" for i in range(60))
