@@ -38,6 +38,7 @@ def on_a_thread(fn, *args) -> tuple[float, object]:
     thread.join(BUDGET_S)
     elapsed = time.perf_counter() - start
     assert not thread.is_alive(), f"still parsing after {elapsed:.1f} s on a worker thread"
+    assert elapsed < BUDGET_S, f"took {elapsed:.1f} s on a worker thread"  # one long C call
     return elapsed, box[0]
 
 
