@@ -32,7 +32,7 @@ from mars_pairs.pds.pds3 import load_label
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT.parent / "shared" / "pds-samples"
 sys.path.insert(0, str(ROOT / "tests" / "pds"))
-from label_shapes import SHAPES, slowest_accepted  # noqa: E402
+from label_shapes import SHAPES, densest_accepted, slowest_accepted  # noqa: E402
 
 PDS4_ROOT = '<Product_Observational xmlns="http://pds.nasa.gov/pds4/pds/v1">'
 PDS4_SHAPES: dict[str, Callable[[], str]] = {
@@ -120,11 +120,13 @@ def shapes(folder: Path) -> list[tuple[str, int, float, float, str]]:
         seconds, outcome = _on_a_thread(lambda p=path: read_observation(p))
         peak = _peak_mib(lambda p=path: read_observation(p)) if seconds < GIVE_UP_S else 0.0
         rows.append((name, path.stat().st_size, seconds, peak, outcome))
-    slow = folder / "slowest.LBL"
-    slow.write_text(slowest_accepted())
-    seconds, outcome = _on_a_thread(lambda: load_label(slow.read_bytes(), slow))
-    peak = _peak_mib(lambda: load_label(slow.read_bytes(), slow))
-    rows.append(("slowest accepted (parse only)", slow.stat().st_size, seconds, peak, outcome))
+    for name, make in (("slowest", slowest_accepted), ("densest", densest_accepted)):
+        path = folder / f"{name}.LBL"
+        path.write_text(make())
+        seconds, outcome = _on_a_thread(lambda p=path: load_label(p.read_bytes(), p))
+        peak = _peak_mib(lambda p=path: load_label(p.read_bytes(), p))
+        label = f"{name} accepted (parse only)"
+        rows.append((label, path.stat().st_size, seconds, peak, outcome))
     return rows
 
 

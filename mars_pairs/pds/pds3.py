@@ -64,11 +64,13 @@ _NOT_PDS3_NUMBER = re.compile(
 _PDR_COMMENT = re.compile(r"/\*.*?(\r|\n|/\*)")
 
 # Bounds of the structure handed to pdr (``check_structure``). The real Curiosity labels in
-# ../shared/pds-samples/msl (22-23 KB) have 491-495 lines, 25 comments, 283-285 statements,
-# values of at most 268 characters, 219-227 commas, GROUP/OBJECT depth 1, no keyword twice in
-# one GROUP/OBJECT and 2 pointers (^IMAGE, ^IMAGE_HEADER or none), none repeated. Each bound is
-# 50 to 250 times the real figure; measured costs of pdr 1.4.4 at the bound are in
-# benchmarks/bench_labels.py.
+# ../shared/pds-samples/msl have 22,320-22,563 characters, 491-495 lines, 25 comments,
+# 283-285 statements, values of at most 268 characters, 219-227 commas, GROUP/OBJECT depth 1,
+# no keyword twice in one GROUP/OBJECT and 2 pointers (^IMAGE, ^MODEL_DESC), none repeated.
+# Each bound is 35 to 250 times the real figure; what pdr 1.4.4 costs at the bounds is
+# measured by benchmarks/bench_labels.py.
+#: Characters of the label text (up to its END line), ~0.5 us apiece for pdr at worst.
+MAX_TEXT_CHARS = 1024 * 1024
 #: Lines (newlines plus comment starts, each of which may end a line for pdr).
 MAX_LINES = 50_000
 #: Statements (``KEY = value``, GROUP/OBJECT and their ends) as pdr chunks them.
@@ -143,6 +145,9 @@ def check_structure(text: str, path: Path) -> None:
     """
     from pdr.parselabel.pds3 import PVL_BLOCK_INITIALS, chunk_statements
 
+    if len(text) > MAX_TEXT_CHARS:
+        reason = f"label text of {len(text):,} characters (at most {MAX_TEXT_CHARS:,})"
+        raise LabelError(path, None, reason)
     lines = text.count("\n") + text.count("/*")
     if lines > MAX_LINES:
         raise LabelError(path, None, f"{lines:,} lines and comments (at most {MAX_LINES:,})")

@@ -9,7 +9,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from mars_pairs.pds.pds3 import MAX_REPEATED_POINTERS, MAX_SEPARATORS, MAX_STATEMENTS
+from mars_pairs.pds.pds3 import (
+    MAX_REPEATED_POINTERS,
+    MAX_SEPARATORS,
+    MAX_STATEMENTS,
+    MAX_TEXT_CHARS,
+    MAX_VALUE_CHARS,
+)
 
 HEAD = "PDS_VERSION_ID = PDS3\nPRODUCT_ID = SHAPE\n"
 FOUR_MB = 4_000_000
@@ -49,3 +55,12 @@ def slowest_accepted() -> str:
     n = min(MAX_STATEMENTS - MAX_REPEATED_POINTERS - 10, MAX_SEPARATORS)
     body = "".join(f"Q{i} = (1 <m>, 1 <m>)\n" for i in range(n))
     return _label(pointers + body)
+
+
+def densest_accepted() -> str:
+    """A label of the most text ``check_structure`` accepts, in the longest values, each a
+    run of implicitly concatenated strings (``"A" "A" ...``: one parser token per 4 bytes,
+    no commas)."""
+    value = '"A" ' * ((MAX_VALUE_CHARS - 8) // 4)
+    n = (MAX_TEXT_CHARS - len(HEAD) - 100) // (len(value) + 12)
+    return _label("".join(f"V{i:04d} = {value}\n" for i in range(n)))
