@@ -7,11 +7,13 @@ from __future__ import annotations
 import re
 import threading
 import time
+import warnings
 from pathlib import Path
 
 import pytest
 from label_shapes import SHAPES, densest_accepted, slowest_accepted
 
+from mars_pairs.cli.main import main
 from mars_pairs.errors import LabelError
 from mars_pairs.pds import pds3 as pds3_module
 from mars_pairs.pds import read_observation, read_pds3, read_pds4
@@ -155,3 +157,51 @@ def test_a_comment_runs_to_the_end_of_its_line_as_pdr_reads_it() -> None:
 def test_a_nul_in_the_path_is_a_label_error_naming_it(reader) -> None:
     with pytest.raises(LabelError, match=r"bad\x00name\.LBL: not a file path: .*NUL byte"):
         reader("bad\x00name.LBL")
+
+
+# -- locate: extreme numbers are one clear error, without numpy warnings ----------------------
+M2020 = "m2020/ZLF_0052_0671559321_081RAD_N0031950ZCAM05024_110085J01.xml"
+MSL = "msl/2663ML0139550021002124C00_DRCX.LBL"
+
+
+def _variant(samples_dir: Path, tmp_path: Path, name: str, old: str, new: str) -> Path:
+    source = samples_dir / name
+    text, n = re.subn(old, new, source.read_text(), count=1)
+    assert n == 1
+    out = tmp_path / source.name
+    out.write_text(text)
+    return out
+
+
+@pytest.mark.parametrize(
+    ("name", "old", "new", "field"),
+    [
+        (MSL, r"ORIGIN_OFFSET_VECTOR\s*=\s*\([^)]*\)", "ORIGIN_OFFSET_VECTOR = (1e155, 0, 0)",
+         "ORIGIN_OFFSET_VECTOR: offset beyond 1e+07 m"),
+        (MSL, r"ORIGIN_ROTATION_QUATERNION\s*=\s*\([^)]*\)",
+         "ORIGIN_ROTATION_QUATERNION = (1e300, 1e300, 0, 0)",
+         "ORIGIN_ROTATION_QUATERNION: expected a unit quaternion, norm is inf"),
+        (M2020, r"(<geom:Vector_Origin_Offset>\s*<geom:x_position[^>]*>)[^<]+", r"\g<1>-1e200",
+         "geom:Vector_Origin_Offset: offset beyond 1e+07 m"),
+    ],
+)  # fmt: skip
+def test_an_extreme_rover_pose_is_a_label_error_without_numpy_warnings(
+    samples_dir: Path, tmp_path: Path, name: str, old: str, new: str, field: str
+) -> None:
+    label = _variant(samples_dir, tmp_path, name, old, new)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a numpy RuntimeWarning fails the test
+        with pytest.raises(LabelError, match=re.escape(f"{label}: {field}")):
+            read_observation(label)
+
+
+def test_locate_takes_an_underflowing_distortion_term(
+    samples_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A term that flushes to zero changes nothing: the label is located, quietly."""
+    label = _variant(samples_dir, tmp_path, M2020, r"(<geom:c2>)[^<]+", r"\g<1>1e-300")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert main(["locate", str(label), "--json"]) == 0
+    out = capsys.readouterr()
+    assert out.err == "" and '"product_id"' in out.out
