@@ -67,8 +67,9 @@ _PDR_COMMENT = re.compile(r"/\*.*?(\r|\n|/\*)")
 # ../shared/pds-samples/msl have 22,320-22,563 characters, 491-495 lines, 25 comments,
 # 283-285 statements, values of at most 268 characters, 219-227 commas, GROUP/OBJECT depth 1,
 # no keyword twice in one GROUP/OBJECT and 2 pointers (^IMAGE, ^MODEL_DESC), none repeated.
-# Each bound is 35 to 250 times the real figure; what pdr 1.4.4 costs at the bounds is
-# measured by benchmarks/bench_labels.py.
+# The size bounds are 35 to 250 times those figures, depth and repeats 16 and 64 against 1,
+# repeated pointers 8 against none; what pdr 1.4.4 costs at the bounds is measured by
+# benchmarks/bench_labels.py (~1.5 s at most on a loaded machine, against 59 s to hours).
 #: Characters of the label text (up to its END line), ~0.5 us apiece for pdr at worst.
 MAX_TEXT_CHARS = 1024 * 1024
 #: Lines (newlines plus comment starts, each of which may end a line for pdr).
