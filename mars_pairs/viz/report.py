@@ -205,7 +205,8 @@ def _split_section(rows: list[dict[str, Any]], info: dict[str, Any], n_failed: i
         for key, value in rep.items():
             if isinstance(value, dict):
                 value = ", ".join(f"{k} {v}" for k, v in value.items())
-            kv.append([_esc(key.replace("_", " ")), _esc(value)])
+            name = f"{key[:-2]} (m)" if key.endswith("_m") else key
+            kv.append([_esc(name.replace("_", " ")), _esc("–" if value is None else value)])
         parts.append(_table(["split rule and leak check (dataset.json)", "value"], kv))
     summary = f"{len(rows)} samples, {n_failed} failures"
     return (
@@ -336,7 +337,7 @@ def report_html(root: str | Path, samples: int = DEFAULT_SAMPLES) -> str:
     ortho_path = Path(ortho) if ortho else None
 
     title = f"mars-pairs dataset {root.resolve()}"
-    missions = ", ".join(sorted({str(r["mission"]) for r in rows})) or "no samples"
+    missions = ", ".join(sorted({str(r["mission"]) for r in rows}))
     sols = [int(r["sol"]) for r in rows if r["sol"] is not None]
     sol_text = f"sols {_span(sols)}" if sols else ""
     sub = ", ".join(

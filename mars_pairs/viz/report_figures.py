@@ -308,6 +308,8 @@ def map_figure(
 def histograms_figure(rows: list[dict[str, Any]]) -> bytes:
     """Four histograms stacked by split: farthest visible range (m), footprint area (map
     units squared), visible area (true m2) and camera elevation angle (degrees); PNG."""
+    from matplotlib.ticker import MaxNLocator
+
     plt = pyplot()
     splits = [str(r["split"]) for r in rows]
     colours = split_colours(splits)
@@ -338,6 +340,7 @@ def histograms_figure(rows: list[dict[str, Any]]) -> bytes:
             ax.text(0.5, 0.5, "no values", ha="center", va="center", transform=ax.transAxes)
         ax.set_xlabel(title, fontsize=9)
         ax.set_ylabel("samples", fontsize=9)
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))
         ax.ticklabel_format(axis="x", style="sci", scilimits=(-3, 5), useOffset=False)
         ax.tick_params(labelsize=8)
         ax.set_title(f"{shown} samples" + (f", {missing} without a value" if missing else ""),
@@ -384,4 +387,4 @@ def sample_card(sample: dict[str, Any]) -> bytes:
     for ax in (ax_g, ax_o):
         ax.set_xticks([])
         ax.set_yticks([])
-    return png_bytes(fig, dpi=80)
+    return png_bytes(fig)

@@ -315,6 +315,33 @@ def test_report_is_one_file_with_inline_images(dataset: Path) -> None:
     assert not [p.name for p in dataset.iterdir() if ".tmp" in p.name]  # written atomically
 
 
+def test_report_of_a_dataset_without_samples_lists_its_failures(
+    dataset: Path, tmp_path: Path
+) -> None:
+    config = yaml.safe_load((dataset.parent / "c.yaml").read_text())
+    mission = dataset.parent / "mission"
+    config["inputs"] = mission_inputs(mission, labels=mission / "labels" / "ZZ_*.xml")
+    config["output"]["dir"] = str(tmp_path / "empty")
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(config))
+    summary = run_build(load_config(tmp_path / "c.yaml"), workers=1, progress=False)
+    assert summary.samples == 0 and summary.failures == len(BROKEN)
+    out = tmp_path / "empty.html"
+    assert main(["report", str(tmp_path / "empty"), "--out", str(out)]) == 0
+    text = out.read_text()
+    assert "0 samples, 2 failures" in text and "no samples: nothing to draw" in text
+    assert all(name in text for name in BROKEN) and "<img" not in text
+
+
+def test_report_without_the_orthoimage_still_draws_the_map(dataset: Path, tmp_path: Path) -> None:
+    moved = tmp_path / "moved"
+    shutil.copytree(dataset, moved)
+    info = json.loads((moved / "dataset.json").read_text())
+    info["config"]["inputs"]["ortho"] = str(tmp_path / "gone" / "ortho.tif")
+    (moved / "dataset.json").write_text(json.dumps(info))
+    assert main(["report", str(moved), "--samples", "1"]) == 0
+    assert (moved / "report.html").read_text().count('src="data:image/png;base64,') == 3
+
+
 @pytest.mark.parametrize(
     ("argv", "expected"),
     [
