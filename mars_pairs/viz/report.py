@@ -336,7 +336,7 @@ def report_html(root: str | Path, samples: int = DEFAULT_SAMPLES) -> str:
     ortho = (info.get("config") or {}).get("inputs", {}).get("ortho")
     ortho_path = Path(ortho) if ortho else None
 
-    title = f"mars-pairs dataset {root.resolve()}"
+    title = f"mars-pairs dataset {root}"
     missions = ", ".join(sorted({str(r["mission"]) for r in rows}))
     sols = [int(r["sol"]) for r in rows if r["sol"] is not None]
     sol_text = f"sols {_span(sols)}" if sols else ""
