@@ -21,6 +21,7 @@ from mars_pairs.viz.common import DPI, SPLIT_COLOURS, pyplot
 from mars_pairs.viz.overview import _ortho_overview, _square
 
 MAX_BLOCKS_DRAWN = 2500  # same-area blocks tested for held-out ones inside a map panel
+MAX_LABELLED_STOPS = 1000  # more rover stops on a panel: no sol labels
 
 
 def png_bytes(fig: Any, dpi: int = DPI) -> bytes:
@@ -184,7 +185,8 @@ def _traverse(
     ax: Any, rows: list[dict[str, Any]], box: tuple[float, float, float, float], labels: bool
 ) -> None:
     """The rover traverse (map CRS): positions in (sol, site, drive) order joined by a white
-    line; with ``labels``, sols written where they do not crowd (3 % of the panel apart)."""
+    line; with ``labels``, sols written where they do not crowd (3 % of the panel apart) when
+    there are at most ``MAX_LABELLED_STOPS`` stops."""
     import matplotlib.patheffects as pe
 
     order = sorted(rows, key=lambda r: (r["sol"] or 0, r["site"] or 0, r["drive"] or 0))
@@ -197,7 +199,7 @@ def _traverse(
     outline = [pe.Stroke(linewidth=3.2, foreground="black"), pe.Normal()]
     ax.plot(px, py, "-", color="white", lw=1.8, path_effects=outline, zorder=5)
     ax.plot(px, py, "^", color="red", markersize=7, markeredgecolor="white", ls="none", zorder=5)
-    if not labels:
+    if not labels or len(stops) > MAX_LABELLED_STOPS:
         return
     gap = 0.03 * max(box[2] - box[0], box[3] - box[1])
     placed: list[tuple[float, float]] = []

@@ -252,8 +252,11 @@ def render(tools: DevTools, page: Path, screenshot: Path | None = None) -> dict[
         screenshot.write_bytes(base64.b64decode(shot["data"]))
     tools.call("Page.navigate", url="about:blank")
     events = tools.events
-    out["console"] = [
-        e["params"] for e in events if e["method"] in ("Runtime.consoleAPICalled", "Log.entryAdded")
+    out["console"] = [e["params"] for e in events if e["method"] == "Runtime.consoleAPICalled"]
+    out["console"] += [
+        e["params"]
+        for e in events
+        if e["method"] == "Log.entryAdded" and e["params"]["entry"]["level"] in ("error", "warning")
     ]
     out["exceptions"] = [e["params"] for e in events if e["method"] == "Runtime.exceptionThrown"]
     out["requests"] = [
