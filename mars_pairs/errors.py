@@ -44,14 +44,28 @@ class ConfigError(MarsPairsError):
 
 
 class DatasetError(MarsPairsError):
-    """A built dataset is damaged: the message names the shard file and the member key."""
+    """A built dataset is damaged: the message names the shard file and the member key.
 
-    def __init__(self, shard: object, member: str | None, reason: str) -> None:
+    ``DatasetError(message)`` (one argument: how a DataLoader re-raises a worker's exception,
+    the worker's traceback as the message) keeps the type; its ``shard`` is then "" and its
+    ``reason`` the message.
+    """
+
+    def __init__(self, shard: object, member: str | None = None, reason: str | None = None) -> None:
+        if reason is None and member is None:  # one message (a DataLoader's re-raise)
+            self.shard, self.member, self.reason = "", None, str(shard)
+            super().__init__(self.reason)
+            return
         self.shard = str(shard)
         self.member = member
-        self.reason = reason
+        self.reason = reason or ""
         where = f"{self.shard}: {member}" if member else self.shard
-        super().__init__(f"{where}: {reason}")
+        super().__init__(f"{where}: {self.reason}")
+
+    def __reduce__(self) -> tuple[type, tuple[object, ...]]:  # pickles with its fields
+        if self.shard or self.member is not None:
+            return type(self), (self.shard, self.member, self.reason)
+        return type(self), (self.reason,)
 
 
 class FetchError(MarsPairsError):

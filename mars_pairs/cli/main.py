@@ -32,7 +32,7 @@ def _cmd_locate(args: argparse.Namespace) -> int:
             status = 2
             continue
         try:
-            with np.errstate(all="raise"):
+            with np.errstate(all="raise", under="ignore"):  # a number flushed to 0 is harmless
                 summary = describe(obs, pose)
             _require_finite(summary)
         except (FloatingPointError, ValueError) as exc:
@@ -165,6 +165,13 @@ def _cmd_overview(args: argparse.Namespace) -> int:
     from mars_pairs.viz import overview
 
     print(overview(args.dataset, args.out, colour_by=args.colour_by))
+    return 0
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from mars_pairs.viz.report import write_report
+
+    print(write_report(args.dataset, args.out, samples=args.samples))
     return 0
 
 
@@ -320,6 +327,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="overview.png", help="PNG path")
     p.add_argument("--colour-by", choices=("sol", "split"), default="sol")
     p.set_defaults(func=_cmd_overview)
+
+    p = sub.add_parser("report", help="one self-contained HTML page of a dataset (viz extra)")
+    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("--out", help="HTML path (default DATASET/report.html)")
+    p.add_argument("--samples", type=count(0), default=12, help="gallery samples (default 12)")
+    p.set_defaults(func=_cmd_report)
 
     p = sub.add_parser("export-qgis", help="a GeoPackage of positions, footprints and wedges")
     p.add_argument("dataset", help="dataset folder")

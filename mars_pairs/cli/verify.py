@@ -1,33 +1,43 @@
-"""``mars-pairs verify DIR``: check every member of a built dataset against its manifest row.
+"""``mars-pairs verify DIR``: check a built dataset against its manifest.
 
-Each member is checked three ways: the tar header just before its data (name
-``<key>.<field>...``, size equal to the manifest's), its bytes read in full, and their CRC-32C
-against the manifest's ``<member>_crc32c``. Damage is reported per member, naming the shard and
-the member; shards are read in file order, one open each.
+The dataset must have its ``dataset.json`` (:func:`~mars_pairs.store.dataset_info.
+read_dataset_info`: the ray stride, CRS and chip size every reader needs) and no key on two
+manifest rows. Each member is checked by :func:`~mars_pairs.store.integrity.check_member`,
+the code ``MarsPairsDataset(verify=True)`` runs on every sample it reads: its shard path
+confined to the dataset folder, its bytes inside the shard, the tar header just before them
+(name ``<key>.<field>...``, size equal to the manifest's), its bytes read in full and their
+CRC-32C against the manifest's ``<member>_crc32c``. Damage is reported per member, naming the
+shard and the member (per key for the manifest, per field for dataset.json); shards are
+read in file order, one open each.
 """
 
 from __future__ import annotations
 
-import tarfile
-from collections import defaultdict
+import os
+from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO
 
+from mars_pairs.errors import DatasetError
+from mars_pairs.store.dataset_info import read_dataset_info
+from mars_pairs.store.integrity import MemberSpec, check_member, shard_path
 from mars_pairs.store.manifest import MEMBERS, Manifest
-from mars_pairs.store.shards import checksum
 
 
 @dataclass(frozen=True)
 class Damage:
-    """One damaged member: its shard (relative to the dataset), member name and what is wrong."""
+    """One damaged member: its shard (relative to the dataset), member name and what is wrong.
+    For the manifest and dataset.json, ``shard`` is that file and ``member`` the key or the
+    field at fault (None: the whole file)."""
 
     shard: str
-    member: str
+    member: str | None
     reason: str
 
     def __str__(self) -> str:
-        return f"{self.shard}: {self.member}: {self.reason}"
+        where = f"{self.shard}: {self.member}" if self.member else self.shard
+        return f"{where}: {self.reason}"
 
 
 @dataclass
@@ -52,81 +62,73 @@ class VerifyReport:
 
 
 def verify_dataset(root: str | Path) -> VerifyReport:
-    """Check every member of the dataset at ``root`` (see the module docstring)."""
+    """Check the dataset at ``root`` (see the module docstring). A manifest that cannot be
+    read or lacks a location column raises DatasetError naming it and the column."""
     root = Path(root)
     manifest = Manifest.open(root)
     location = [f"{m}_{s}" for m in MEMBERS for s in ("shard", "offset", "size")]
     manifest.require(["key", "ground_member", *location])
     checksums = [f"{m}_crc32c" for m in MEMBERS if f"{m}_crc32c" in manifest.schema.names]
     rows = manifest.to_table(columns=["key", "ground_member", *location, *checksums]).to_pylist()
-    by_shard: dict[str, list[_Entry]] = defaultdict(list)
+    damage = _dataset_json_damage(root)
+    repeated = Counter(row["key"] for row in rows)
+    damage += [
+        Damage("manifest.parquet", key, f"{n} rows hold this key")
+        for key, n in sorted(repeated.items(), key=lambda kv: str(kv[0]))
+        if n > 1
+    ]
+    by_shard: dict[str, list[MemberSpec]] = defaultdict(list)
     for row in rows:
         for m in MEMBERS:
             shard = row.get(f"{m}_shard")
             if shard is None:
                 continue
-            ext = row.get("ground_member") if m == "ground" else None
             by_shard[shard].append(
-                _Entry(
+                MemberSpec(
+                    row["key"],
+                    m,
                     row[f"{m}_offset"],
                     row[f"{m}_size"],
                     row.get(f"{m}_crc32c"),
-                    f"{row['key']}.{ext}" if ext else f"{row['key']}.{m}",
-                    exact=ext is not None,
+                    row.get("ground_member"),
                 )
             )
-    report = VerifyReport(root, shards=len(by_shard))
-    for shard, entries in sorted(by_shard.items()):
-        _verify_shard(root, shard, sorted(entries, key=lambda e: e.offset or 0), report)
+    report = VerifyReport(root, shards=len(by_shard), damage=damage)
+    for shard, specs in sorted(by_shard.items()):
+        _verify_shard(root, shard, sorted(specs, key=lambda e: e.offset or 0), report)
     return report
 
 
-@dataclass(frozen=True)
-class _Entry:
-    offset: int | None
-    size: int | None
-    crc32c: int | None
-    name: str  # the member's full name (exact) or its ``<key>.<field>`` prefix
-    exact: bool
-
-
-def _verify_shard(root: Path, shard: str, entries: list[_Entry], report: VerifyReport) -> None:
-    report.members += len(entries)
-    report.unchecked += sum(e.crc32c is None for e in entries)
+def _dataset_json_damage(root: Path) -> list[Damage]:
     try:
-        fh = open(root / shard, "rb")  # noqa: SIM115 - closed below
+        read_dataset_info(root)
+    except DatasetError as exc:
+        return [Damage("dataset.json", exc.member, exc.reason)]
+    return []
+
+
+def _verify_shard(root: Path, shard: str, specs: list[MemberSpec], report: VerifyReport) -> None:
+    report.members += len(specs)
+    report.unchecked += sum(s.crc32c is None for s in specs)
+    try:
+        fh = open(shard_path(root, shard), "rb")  # noqa: SIM115 - closed below
+    except DatasetError as exc:  # a shard path outside the dataset folder
+        report.damage += [Damage(shard, s.name, exc.reason) for s in specs]
+        return
     except OSError as exc:
-        report.damage += [Damage(shard, e.name, f"cannot open: {exc}") for e in entries]
+        report.damage += [Damage(shard, s.name, f"cannot open: {exc}") for s in specs]
         return
     with fh:
-        for entry in entries:
-            problem = _check_member(fh, entry)
+        size = os.fstat(fh.fileno()).st_size
+        for spec in specs:
+            try:
+                _, problem = check_member(spec, lambda o, n: _read(fh, o, n), size)
+            except OSError as exc:
+                problem = f"cannot read: {exc}"
             if problem is not None:
-                report.damage.append(Damage(shard, entry.name, problem))
+                report.damage.append(Damage(shard, spec.name, problem))
 
 
-def _check_member(fh: BinaryIO, entry: _Entry) -> str | None:
-    """What is wrong with one member, or None."""
-    offset, size, crc = entry.offset, entry.size, entry.crc32c
-    if offset is None or size is None or size < 0:
-        return f"no valid offset/size in the manifest ({offset}, {size})"
-    block = tarfile.BLOCKSIZE
-    if offset < block or offset % block:
-        return f"offset {offset} is not after a tar header"
-    fh.seek(offset - block)
-    header = fh.read(block)
-    try:
-        info = tarfile.TarInfo.frombuf(header, "utf-8", "surrogateescape")
-    except tarfile.TarError as exc:
-        return f"bad tar header at offset {offset - block}: {exc}"
-    named = info.name == entry.name if entry.exact else info.name.startswith(f"{entry.name}.")
-    if not named:
-        return f"tar header names {info.name!r} at offset {offset - block}"
-    if info.size != size:
-        return f"size {size} in the manifest, {info.size} in the tar header"
-    data = fh.read(size)
-    if len(data) != size:
-        return f"truncated: {len(data)} of {size} bytes"
-    if crc is not None and checksum(data) != crc:
-        return f"checksum mismatch (crc32c {checksum(data):#010x}, manifest {crc:#010x})"
-    return None
+def _read(fh: BinaryIO, offset: int, size: int) -> bytes:
+    fh.seek(offset)
+    return fh.read(size)

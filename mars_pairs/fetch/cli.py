@@ -38,18 +38,23 @@ def add_fetch_parser(sub: Any) -> None:
 
     q = fsub.add_parser("places", help="the PLACES localization table")
     common(q)
+    q.add_argument("--dry-run", action="store_true", help="print the URL and cache path only")
     q.set_defaults(func=_cmd_places)
 
+    margin_help = "ground metres past the build's reach (overrides fetch.orbital.margin_m)"
+    windows_help = "print the planned windows and whether fetch.orbital.max_cells accepts them"
     q = fsub.add_parser("orbital", help="DEM/ortho windows around the rover positions, as COGs")
     common(q)
     filters(q)
-    q.add_argument("--margin", type=float, help="metres around the positions (default: radius)")
+    q.add_argument("--margin", type=float, help=margin_help)
+    q.add_argument("--dry-run", action="store_true", help=windows_help)
     q.set_defaults(func=_cmd_orbital)
 
     q = fsub.add_parser("all", help="places, products, then orbital windows")
     common(q)
     filters(q)
-    q.add_argument("--margin", type=float, help="metres around the positions (default: radius)")
+    q.add_argument("--margin", type=float, help=margin_help)
+    q.add_argument("--dry-run", action="store_true", help="product counts and planned windows")
     q.set_defaults(func=_cmd_all)
 
 
@@ -98,26 +103,43 @@ def _cmd_products(args: argparse.Namespace) -> int:
 
 
 def _cmd_places(args: argparse.Namespace) -> int:
+    from mars_pairs.fetch.cache import Cache, archive_path, join_url
     from mars_pairs.fetch.run import fetch_places
 
-    print(fetch_places(_config(args)))
+    cfg = _config(args)
+    if getattr(args, "dry_run", False) and cfg.places is not None:
+        rel = archive_path(cfg.places.path, where="fetch.places.path")
+        target = Cache(cfg.cache).path(rel)
+        state = "cached" if target.is_file() else "not yet in the cache"
+        print(f"dry run: {join_url(cfg.places.archive, rel)} -> {target} ({state})")
+        return 0
+    print(fetch_places(cfg))
     return 0
 
 
 def _cmd_orbital(args: argparse.Namespace) -> int:
-    from mars_pairs.fetch.run import fetch_orbital
+    """Plan the windows; print them; on a dry run stop (exit 1 if a limit refuses one)."""
+    from mars_pairs.fetch.run import cut_orbital, plan_orbital
 
     cfg = _config(args)
-    for res in fetch_orbital(cfg, filters=_filters(args, cfg), margin_m=args.margin):
+    dry = getattr(args, "dry_run", False)
+    margin = getattr(args, "margin", None)
+    plan = plan_orbital(cfg, filters=_filters(args, cfg), margin_m=margin, dry_run=dry)
+    for line in plan.format():
+        print(("dry run: " if dry else "") + line)
+    if dry:
+        return 0 if all(p.accepted for p in plan.plans) else 1
+    for res in cut_orbital(cfg, plan):
         state = "cached" if res.cached else "cut"
         print(f"{res.path}: {res.shape[1]} x {res.shape[0]} cells from {res.source} ({state})")
+    for p in plan.plans:
+        print(f"{cfg.cache / 'orbital' / (p.kind + '.vrt')}: mosaic of the {p.kind} windows")
     return 0
 
 
 def _cmd_all(args: argparse.Namespace) -> int:
     """Every step whose section the config has (orbital windows need the PLACES table)."""
     cfg = _config(args)
-    args.dry_run = False
     steps = [
         (cfg.places is not None, _cmd_places),
         (cfg.products is not None, _cmd_products),

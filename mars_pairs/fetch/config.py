@@ -25,10 +25,14 @@ fetch:
     thumbnails: false             # thumbnail products (id flag T) are skipped unless true
   places: {archive: https://..., path: MSLPLC_1XXX/DATA/LOCALIZATIONS/localized_interp.csv}
   orbital:
-    dem: https://.../dem.tif      # remote (or local) rasters to cut windows from
-    ortho: https://.../ortho.tif
-    margin_m: null                # default: geometry.radius of the build config
+    dem: https://.../m20_orbital_dem.img   # remote (or local) rasters to cut windows from:
+    ortho: https://.../m20_orbital_map.img # GeoTIFF, VICAR, PDS3/PDS4 (label beside a .img)
+    margin_m: 10                  # ground metres past what the build reads (see below)
+    max_cells: 200000000          # per window; a larger window is refused, naming this key
 ```
+Orbital windows are sized by what the build reads around each rover position: the DEM by
+``geometry.radius`` (the view), the ortho by the chip (``0.71 x chips.size_m``, any heading),
+each plus ``margin_m``; positions far apart get separate windows (``fetch/windows.py``).
 Relative ``cache`` and local archive roots resolve against the config file's folder.
 """
 
@@ -43,6 +47,7 @@ import yaml
 from mars_pairs.errors import ConfigError
 from mars_pairs.fetch.download import FetchPolicy
 from mars_pairs.fetch.products import ProductFilter
+from mars_pairs.fetch.windows import MAX_CELLS
 
 MISSIONS = ("msl", "m2020")
 INDEXES = ("RDRINDEX", "EDRINDEX")
@@ -72,11 +77,13 @@ class RemoteSpec:
 
 @dataclass(frozen=True)
 class OrbitalSpec:
-    """Remote rasters to cut windows from; ``margin_m`` (ground metres) around the positions."""
+    """Rasters to cut windows from; ``margin_m`` ground metres past the build's reach,
+    ``max_cells`` the largest window (cells) accepted."""
 
     dem: str | None = None
     ortho: str | None = None
-    margin_m: float | None = None
+    margin_m: float = 10.0
+    max_cells: int = MAX_CELLS
 
 
 @dataclass(frozen=True)
@@ -88,7 +95,8 @@ class FetchConfig:
     products: ProductsSpec | None
     places: RemoteSpec | None
     orbital: OrbitalSpec | None
-    radius_m: float  # geometry.radius of the build config (the default orbital margin)
+    radius_m: float  # geometry.radius of the build config (the DEM windows' reach)
+    chip_size_m: float = 256.0  # chips.size_m of the build config (the ortho windows' reach)
 
 
 def _root(value: Any, key: str, base: Path) -> str:
@@ -200,7 +208,27 @@ def _number(d: dict[str, Any], name: str, key: str, default: float | None) -> fl
     return float(value)
 
 
-def parse_fetch(data: Any, base: Path, radius_m: float) -> FetchConfig:
+def _orbital(data: Any, base: Path) -> OrbitalSpec:
+    key = "fetch.orbital"
+    o = _mapping(data, key, {"dem", "ortho", "margin_m", "max_cells"})
+    rasters = {}
+    for name in ("dem", "ortho"):
+        value = o.get(name)
+        if value is not None and (not isinstance(value, str) or not value):
+            raise ConfigError(f"{key}.{name}: expected a URL or path, got {value!r}")
+        if isinstance(value, str) and not value.startswith(("http://", "https://", "/vsi")):
+            value = str((base / value).resolve())
+        rasters[name] = value
+    max_cells = o.get("max_cells", MAX_CELLS)
+    if isinstance(max_cells, bool) or not isinstance(max_cells, int) or max_cells < 1:
+        raise ConfigError(f"{key}.max_cells: expected a positive integer, got {max_cells!r}")
+    margin = _number(o, "margin_m", key, None)
+    if margin is None:
+        margin = OrbitalSpec.margin_m
+    return OrbitalSpec(rasters["dem"], rasters["ortho"], margin, max_cells)
+
+
+def parse_fetch(data: Any, base: Path, radius_m: float, chip_size_m: float = 256.0) -> FetchConfig:
     """Validate a ``fetch:`` mapping (relative paths against ``base``)."""
     known = {"cache", "retries", "backoff_s", "timeout_s", "workers", "products", "places",
              "orbital"}  # fmt: skip
@@ -227,19 +255,7 @@ def parse_fetch(data: Any, base: Path, radius_m: float) -> FetchConfig:
         if not isinstance(p.get("path"), str):
             raise ConfigError(f"fetch.places.path: expected a path, got {p.get('path')!r}")
         places = RemoteSpec(_root(p.get("archive"), "fetch.places.archive", base), p["path"])
-    orbital = None
-    if d.get("orbital") is not None:
-        o = _mapping(d["orbital"], "fetch.orbital", {"dem", "ortho", "margin_m"})
-        rasters = {}
-        for name in ("dem", "ortho"):
-            value = o.get(name)
-            if value is not None and (not isinstance(value, str) or not value):
-                raise ConfigError(f"fetch.orbital.{name}: expected a URL or path, got {value!r}")
-            if isinstance(value, str) and not value.startswith(("http://", "https://", "/vsi")):
-                value = str((base / value).resolve())
-            rasters[name] = value
-        orbital = OrbitalSpec(rasters["dem"], rasters["ortho"],
-                              _number(o, "margin_m", "fetch.orbital", None))  # fmt: skip
+    orbital = _orbital(d["orbital"], base) if d.get("orbital") is not None else None
     return FetchConfig(
         cache=(base / Path(cache).expanduser()).resolve(),
         policy=policy,
@@ -247,6 +263,7 @@ def parse_fetch(data: Any, base: Path, radius_m: float) -> FetchConfig:
         places=places,
         orbital=orbital,
         radius_m=radius_m,
+        chip_size_m=chip_size_m,
     )
 
 
@@ -262,7 +279,8 @@ def load_fetch_config(path: str | Path) -> FetchConfig:
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a mapping at the top level")
     radius = (data.get("geometry") or {}).get("radius", 2000.0)
+    chip = (data.get("chips") or {}).get("size_m", 256.0)
     try:
-        return parse_fetch(data.get("fetch"), path.resolve().parent, float(radius))
+        return parse_fetch(data.get("fetch"), path.resolve().parent, float(radius), float(chip))
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None

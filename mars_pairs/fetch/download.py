@@ -1,9 +1,23 @@
 """Verified, resumable, atomic downloads into the cache with requests + urllib3 retries.
 
-One file: ``<cache>/<rel>`` appears only complete and verified (size, and MD5 when the archive
-gives one), by a rename of ``<rel>.part``. An interrupted download leaves the ``.part`` file,
-and the next attempt (or rerun) asks for the rest with ``Range: bytes=N-``; a server that
-ignores the Range header (200) restarts it. A file already in the cache is not fetched again.
+One file: ``<cache>/<rel>`` appears only complete and verified, by a rename of ``<rel>.part``:
+its size (the archive's, else the answer's Content-Length), its MD5 when the archive gives one,
+and its content (``validate.check_file`` for its kind: a label parses, a table has its label's
+size, an image decodes in full); an HTML answer (``Content-Type: text/html``) is refused for
+any file that is not HTML. A file failing a check is discarded, never renamed into place.
+
+Validators (ETag, Last-Modified) are kept beside the files as ``<name>.meta.json``:
+
+- resume: the answer that starts a ``.part`` leaves its validator in ``<name>.part.meta.json``;
+  an interrupted download (a retry or a rerun) asks for the rest with ``Range: bytes=N-`` and
+  ``If-Range: <that validator>``, so a remote file replaced meanwhile comes whole (200), never
+  stitched; a part without a validator is restarted from zero.
+- revalidation: a ``mutable`` file (archive tables: indexes, inventories, collection labels,
+  PLACES) is asked for on every fetch with ``If-None-Match`` / ``If-Modified-Since`` from its
+  ``<name>.meta.json``; 304 keeps the cached file, 200 replaces it (checked, atomically).
+  Products (labels, images) are immutable: once in the cache they are not requested again;
+  a cached one failing ``validate.quick_check`` (an HTML page, a JPEG without its end marker,
+  a cut label: what older releases could keep) is removed and fetched again.
 
 Retries: urllib3's ``Retry`` on the session retries connection errors, read timeouts before
 the headers and 429/5xx statuses with exponential backoff; failures inside the body (truncated
@@ -14,6 +28,7 @@ backoff. After the last attempt a ``FetchError`` names the URL and the reason.
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import re
 import threading
@@ -27,7 +42,15 @@ from requests.adapters import HTTPAdapter
 from urllib3.util.retry import Retry
 
 from mars_pairs.errors import FetchError
-from mars_pairs.fetch.cache import Cache
+from mars_pairs.fetch.cache import Cache, atomic_write
+from mars_pairs.fetch.validate import (
+    KINDS,
+    ContentError,
+    check_content_type,
+    check_file,
+    kind_of,
+    quick_check,
+)
 
 _CONTENT_RANGE = re.compile(r"bytes (\d+)-(\d+)/(\d+|\*)")
 USER_AGENT = "mars-pairs-fetch/0.1"
@@ -41,6 +64,22 @@ class RemoteFile:
     url: str
     size: int | None = None  # bytes
     md5: str | None = None  # hex digest, lower case
+    #: what the file must be (``validate.KINDS``); None: the kind its name says
+    kind: str | None = None
+    #: an archive table that changes between releases: revalidated on every fetch
+    mutable: bool = False
+    #: the local label describing this file (a PDS3 index label for its table, a product
+    #: label for its image, the collection label for its inventory), for the content check
+    label: Path | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind is not None and self.kind not in KINDS:
+            raise ValueError(f"{self.url}: unknown file kind {self.kind!r}; one of {KINDS}")
+
+    @property
+    def file_kind(self) -> str:
+        """The kind checked on download (``kind``, else by the file name)."""
+        return self.kind if self.kind is not None else kind_of(self.rel)
 
 
 @dataclass(frozen=True)
@@ -67,7 +106,68 @@ class FetchResult:
 
 
 class _Retryable(Exception):
-    """A failure inside the body (or a bad size/MD5): worth another attempt."""
+    """A failure inside the body (or a bad size/MD5/content): worth another attempt."""
+
+
+class _NotModified(Exception):
+    """The server answered 304 to a revalidation: the cached file is current."""
+
+
+@dataclass(frozen=True)
+class Validator:
+    """What identifies one version of a remote file: its ETag and Last-Modified headers."""
+
+    url: str
+    etag: str | None = None
+    last_modified: str | None = None  # the HTTP date, as the server wrote it
+    size: int | None = None  # bytes of the cached file it describes (None for a part)
+
+    @property
+    def known(self) -> bool:
+        return bool(self.etag or self.last_modified)
+
+    @property
+    def if_range(self) -> str | None:
+        """The If-Range value: a strong ETag, else the Last-Modified date, else None."""
+        if self.etag and not self.etag.startswith("W/"):
+            return self.etag
+        return self.last_modified
+
+    @classmethod
+    def of(cls, url: str, headers: requests.structures.CaseInsensitiveDict) -> Validator:
+        return cls(url, headers.get("ETag"), headers.get("Last-Modified"))
+
+    def dump(self, size: int | None) -> bytes:
+        doc = {"url": self.url, "etag": self.etag, "last_modified": self.last_modified}
+        return json.dumps(doc | {"size": size}, indent=1).encode()
+
+    @classmethod
+    def read(cls, path: Path, url: str) -> Validator | None:
+        """The validator stored at ``path`` for ``url``; None if absent, unreadable or other."""
+        try:
+            doc = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return None
+        if not isinstance(doc, dict) or doc.get("url") != url:
+            return None
+        fields = [doc.get(k) for k in ("etag", "last_modified")]
+        size = doc.get("size")
+        if not all(f is None or isinstance(f, str) for f in fields) or not (
+            size is None or isinstance(size, int)
+        ):
+            return None
+        return cls(url, fields[0], fields[1], size)
+
+
+def sidecar(path: Path) -> Path:
+    """Where the validator of a cached file (or of a ``.part``) is kept: ``<name>.meta.json``."""
+    return path.with_name(path.name + ".meta.json")
+
+
+def _discard(part: Path) -> None:
+    """Remove a part and its validator (a part that cannot be resumed)."""
+    part.unlink(missing_ok=True)
+    sidecar(part).unlink(missing_ok=True)
 
 
 class Downloader:
@@ -101,6 +201,7 @@ class Downloader:
             s.mount("http://", adapter)
             s.mount("https://", adapter)
             s.headers["User-Agent"] = USER_AGENT
+            s.headers["Accept-Encoding"] = "identity"  # the archive's bytes, ranges into them
             self._local.session = s
         return s
 
@@ -127,15 +228,32 @@ class Downloader:
     def fetch(
         self, remote: RemoteFile, on_bytes: Callable[[int], None] | None = None
     ) -> FetchResult:
-        """Download ``remote`` to the cache (or find it there); FetchError after the retries."""
+        """Download ``remote`` to the cache (or find it there); FetchError after the retries.
+
+        A product (``mutable`` False) in the cache is returned without a request; a mutable
+        table is revalidated with its stored ETag / Last-Modified (304 keeps it, 200 replaces
+        it). What lands under the real name passed the size, MD5 and ``kind`` checks.
+        """
         target = self.cache.path(remote.rel, where=remote.url)
+        meta = sidecar(target)
+        known: Validator | None = None
         if target.is_file() and (remote.size is None or target.stat().st_size == remote.size):
-            return FetchResult(remote, target, "cached", 0)
+            if not remote.mutable:
+                try:
+                    quick_check(target, remote.file_kind, where=remote.url)
+                    return FetchResult(remote, target, "cached", 0)
+                except ContentError:
+                    target.unlink()  # damaged in the cache (e.g. kept by an older release)
+            else:
+                known = Validator.read(meta, remote.url)
+                if known is not None and known.size != target.stat().st_size:
+                    known = None  # the cached file is not the one the validator describes
         target.parent.mkdir(parents=True, exist_ok=True)
         part = target.with_name(target.name + ".part")
-        if part.is_symlink():
-            raise FetchError(remote.url, f"refused: {part} is a symlink")
-        received, resumed = 0, part.is_file() and part.stat().st_size > 0
+        for path in (part, sidecar(part), meta):
+            if path.is_symlink():
+                raise FetchError(remote.url, f"refused: {path} is a symlink")
+        received, resumed = 0, False
         last = "no attempt made"
         for attempt in range(self.policy.retries + 1):
             if attempt:
@@ -143,29 +261,57 @@ class Downloader:
                     min(self.policy.backoff_max_s, self.policy.backoff_s * 2 ** (attempt - 1))
                 )
             try:
-                received += self._attempt(remote, part, on_bytes)
+                got, appended = self._attempt(remote, part, on_bytes, known)
+                received += got
+                resumed = resumed or appended
                 self._verify_md5(remote, part)
+                self._verify_kind(remote, part)
+            except _NotModified:
+                return FetchResult(remote, target, "cached", received)
             except _Retryable as exc:
                 last = str(exc)
                 continue
             except requests.RequestException as exc:
                 last = f"{type(exc).__name__}: {_short(exc)}"
                 continue
+            fresh = Validator.read(sidecar(part), remote.url)
+            meta.unlink(missing_ok=True)  # never a validator beside a file it does not describe
             os.replace(part, target)
+            if remote.mutable and fresh is not None and fresh.known:
+                atomic_write(meta, fresh.dump(target.stat().st_size))
+            sidecar(part).unlink(missing_ok=True)
             return FetchResult(remote, target, "resumed" if resumed else "downloaded", received)
         raise FetchError(remote.url, f"failed after {self.policy.retries + 1} attempts: {last}")
 
     def _attempt(
-        self, remote: RemoteFile, part: Path, on_bytes: Callable[[int], None] | None
-    ) -> int:
-        """One GET (ranged when a part exists); appends to ``part``; returns bytes received."""
+        self,
+        remote: RemoteFile,
+        part: Path,
+        on_bytes: Callable[[int], None] | None,
+        known: Validator | None = None,
+    ) -> tuple[int, bool]:
+        """One GET; writes or appends to ``part``; (bytes received, whether it appended).
+
+        A ``part`` is resumed with ``Range: bytes=N-`` and ``If-Range`` set to the validator
+        of the answer that started it (``<part>.meta.json``); without one it is restarted.
+        ``known``: the cached file's validator, sent as If-None-Match / If-Modified-Since when
+        nothing is resumed (a 304 raises ``_NotModified``).
+        """
+        started = Validator.read(sidecar(part), remote.url)
         offset = part.stat().st_size if part.is_file() else 0
+        if offset and (started is None or started.if_range is None):
+            offset = 0  # nothing proves the remote file is still the one the part began
         if remote.size is not None and offset > remote.size:
-            part.unlink()
             offset = 0
-        if remote.size is not None and offset == remote.size:
-            return 0  # complete already: the caller checks its digest
-        headers = {"Range": f"bytes={offset}-"} if offset else {}
+        headers: dict[str, str] = {}
+        if offset:
+            headers["Range"] = f"bytes={offset}-"
+            headers["If-Range"] = started.if_range  # type: ignore[union-attr,assignment]
+        elif known is not None:
+            if known.etag:
+                headers["If-None-Match"] = known.etag
+            if known.last_modified:
+                headers["If-Modified-Since"] = known.last_modified
         timeout = (self.policy.connect_timeout_s, self.policy.read_timeout_s)
         try:
             response = self.session().get(remote.url, headers=headers, stream=True, timeout=timeout)
@@ -176,8 +322,10 @@ class Downloader:
                 f"{_short(exc)}",
             ) from None
         with response as r:
+            if r.status_code == 304 and known is not None and not offset:
+                raise _NotModified()
             if r.status_code == 416 and offset:
-                part.unlink()
+                _discard(part)
                 raise _Retryable(f"HTTP 416 for a resume at byte {offset}; restarting")
             if r.status_code == 404 or r.status_code == 410:
                 raise FetchError(
@@ -188,13 +336,26 @@ class Downloader:
                     remote.url,
                     f"HTTP {r.status_code} {r.reason} after {self.policy.retries} retries",
                 )
+            try:
+                check_content_type(remote.file_kind, r.headers.get("Content-Type"), remote.url)
+            except ContentError as exc:
+                raise _Retryable(exc.reason) from None
             if r.status_code == 200 or not offset:
                 offset, mode = 0, "wb"  # the server sent the whole file
+                answer = Validator.of(remote.url, r.headers)
+                if answer.known:
+                    atomic_write(sidecar(part), answer.dump(None))
+                else:
+                    sidecar(part).unlink(missing_ok=True)
             else:
                 start, total = _content_range(r.headers.get("Content-Range", ""))
                 if start != offset:
-                    part.unlink()
+                    _discard(part)
                     raise _Retryable(f"Content-Range starts at {start}, asked for {offset}")
+                etag = r.headers.get("ETag")
+                if etag and started is not None and started.etag and etag != started.etag:
+                    _discard(part)  # a server that ignored If-Range: never stitch two files
+                    raise _Retryable(f"the resumed part has ETag {etag}, not {started.etag}")
                 mode = "ab"
             length = r.headers.get("Content-Length")
             total = offset + int(length) if length is not None else None
@@ -215,7 +376,15 @@ class Downloader:
         expected = remote.size if remote.size is not None else total
         if expected is not None and size != expected:
             raise _Retryable(f"received {size} bytes of {expected}")
-        return got
+        return got, mode == "ab"
+
+    def _verify_kind(self, remote: RemoteFile, part: Path) -> None:
+        """Check the part is a file of its kind; a failure discards the part."""
+        try:
+            check_file(part, remote.file_kind, label=remote.label, where=remote.url)
+        except ContentError as exc:
+            _discard(part)
+            raise _Retryable(exc.reason) from None
 
     def _verify_md5(self, remote: RemoteFile, part: Path) -> None:
         """Compare the part file's MD5 with the archive's; a mismatch discards the part."""
@@ -226,7 +395,7 @@ class Downloader:
             for block in iter(lambda: fh.read(1 << 20), b""):
                 digest.update(block)
         if digest.hexdigest() != remote.md5.lower():
-            part.unlink()
+            _discard(part)
             raise _Retryable(f"MD5 {digest.hexdigest()} differs from the archive's {remote.md5}")
 
 

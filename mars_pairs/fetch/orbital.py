@@ -1,14 +1,23 @@
 """Orbital windows: the DEM/ortho around the rover positions, cut from remote rasters into COGs.
 
 Frames and units: rover positions are PLACES easting/northing in the table's own CRS
-(``infer_places_crs``: Perseverance eqc lat_ts=18.4663, Curiosity eqc lat_ts=0); the window
-is the positions' bounding box grown by ``margin_m`` (ground metres, padded by 10 % for map
-scale), transformed into each raster's CRS (the USGS Jezero mosaics are eqc lat_ts=0, not the
-PLACES 18.4663: the same point has eastings 5 % apart) and snapped outward to its pixel grid.
+(``infer_places_crs``: Perseverance eqc lat_ts=18.4663, Curiosity eqc lat_ts=0). The windows
+are planned by ``windows.py`` (pure arithmetic on the source raster's grid) and cut from the
+source in its own CRS and pixel grid, never resampled.
 
-GDAL reads only the blocks inside the window over HTTP range requests (``vsi.py``); the
-window is written as a Cloud Optimized GeoTIFF (a temporary name, then a rename) tagged with
-its source and bounds, so a rerun with the same request reads nothing.
+Sources: any raster GDAL opens, local, ``https://`` (read through ``/vsicurl/`` range requests,
+``vsi.py``) or ``/vsi...``: GeoTIFF/COG (the USGS mosaics), VICAR, PDS3 and PDS4. A ``.img``
+source is opened through its detached label when one exists beside it (``<stem>.xml`` PDS4,
+``<stem>.lbl`` PDS3; GDAL's PDS driver documentation: "When a .lbl file exists it should be
+used as the dataset name rather than the .img file"), else as itself (a VICAR or attached-label
+PDS3 file carries its own georeferencing). The PLACES maps are such files: Perseverance
+``data_maps/m20_orbital_dem.img`` (VICAR) with ``m20_orbital_dem.xml`` (PDS4), Curiosity
+``MSLPLC_1XXX/DATA/MAPS/msl_orbital_dem.img`` with ``msl_orbital_dem.lbl`` (PDS3).
+
+A window is written as a Cloud Optimized GeoTIFF (row blocks into a temporary tiled GeoTIFF,
+then a COG copy and a rename) tagged with its source and pixel window, so a rerun with the same
+request reads nothing. The source's grid is kept beside the windows (``<kind>.source.json``)
+for the same reason. ``write_vrt`` mosaics a source's windows into one GDAL VRT for the build.
 """
 
 from __future__ import annotations
@@ -16,32 +25,42 @@ from __future__ import annotations
 import json
 import math
 import os
-from dataclasses import dataclass
+import warnings
+import xml.etree.ElementTree as ET
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 import pyarrow.csv as pacsv
 import rasterio
 import rasterio.shutil
-from rasterio.io import MemoryFile
+from affine import Affine
 from rasterio.warp import transform_bounds
 from rasterio.windows import Window, from_bounds
 
 from mars_pairs.errors import FetchError
 from mars_pairs.fetch.vsi import gdal_path, remote_env
+from mars_pairs.fetch.windows import PlannedWindow, RasterGrid
 
 Bounds = tuple[float, float, float, float]
 SCALE_PAD = 1.1  # ground metres -> map units, generous for eqc at |lat| < 25 deg
-MAX_CELLS = 400_000_000  # refuse windows above 20k x 20k cells: narrow the sols or sites
+LABEL_SUFFIXES = (".xml", ".lbl", ".LBL", ".XML")  # detached labels tried before a .img itself
+ROWS_PER_READ = 1024  # rows per block read of a window (bounds memory: width x 1024 cells)
 
 
 @dataclass(frozen=True)
 class Positions:
-    """Rover positions (map units of ``crs``, the PLACES table's CRS)."""
+    """Rover positions (map units of ``crs``, the PLACES table's CRS), in table order.
+
+    ``names``: one ``site/drive (sol)`` text per position, to name the ones a plan leaves out.
+    """
 
     x: np.ndarray
     y: np.ndarray
     crs: str
+    names: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -53,6 +72,15 @@ class WindowResult:
     bounds: Bounds
     shape: tuple[int, int]
     cached: bool
+    kind: str = ""
+
+
+def _column(table: dict, name: str) -> list | None:
+    """A column by case-insensitive name (current PLACES tables are lower case, PDS3-era upper)."""
+    for key, values in table.items():
+        if key.strip().lower() == name:
+            return values
+    return None
 
 
 def rover_positions(
@@ -61,37 +89,50 @@ def rover_positions(
     sols: tuple[int, int] | None = None,
     sites: tuple[int, ...] = (),
 ) -> Positions:
-    """ROVER-row positions of a PLACES table (columns by header name), optionally filtered."""
+    """ROVER-row positions of a PLACES table (columns by header name, any case), filtered.
+
+    With ``sols`` = (first, last): the rows of those sols and the last row before ``first``
+    (where the rover stood when sol ``first`` began: a sol without a drive has no row of its
+    own, e.g. Curiosity sol 1429 stands at site 56 drive 1632, the row of sol 1428).
+    """
     from mars_pairs.geometry.places import MISSING, infer_places_crs
 
     try:
-        table = pacsv.read_csv(places_csv).to_pydict()
+        raw = pacsv.read_csv(places_csv).to_pydict()
     except (OSError, ValueError) as exc:
         raise FetchError(places_csv, f"unreadable PLACES table: {exc}") from None
-    for col in ("frame", "site", "easting", "northing", "longitude"):
-        if col not in table:
+    cols = {}
+    for col in ("frame", "site", "drive", "easting", "northing", "longitude", "sol"):
+        cols[col] = _column(raw, col)
+        if cols[col] is None and col not in ("drive", "sol"):
             raise FetchError(places_csv, f"column {col!r}: missing")
-    xs, ys, lon_of_first = [], [], None
-    for i, frame in enumerate(table["frame"]):
+    rows = []  # (sol or None, x, y, name, longitude)
+    for i, frame in enumerate(cols["frame"]):
         if str(frame).strip().upper() != "ROVER":
             continue
-        x, y = float(table["easting"][i]), float(table["northing"][i])
+        x, y = float(cols["easting"][i]), float(cols["northing"][i])
         if MISSING in (x, y) or not (math.isfinite(x) and math.isfinite(y)):
             continue
-        if sites and int(table["site"][i]) not in sites:
+        site = int(cols["site"][i])
+        if sites and site not in sites:
             continue
-        if sols is not None and "sol" in table:
-            sol = table["sol"][i]
-            if sol is None or not sols[0] <= int(sol) <= sols[1]:
-                continue
-        if lon_of_first is None:
-            lon_of_first = (x, float(table["longitude"][i]))
-        xs.append(x)
-        ys.append(y)
-    if not xs:
+        sol = cols["sol"][i] if cols["sol"] is not None else None
+        sol = int(sol) if sol is not None else None
+        drive = cols["drive"][i] if cols["drive"] is not None else "?"
+        rows.append((sol, x, y, f"site {site} drive {drive} (sol {sol})", cols["longitude"][i]))
+    if sols is not None and cols["sol"] is not None:
+        before = [k for k, r in enumerate(rows) if r[0] is not None and r[0] < sols[0]]
+        keep = [k for k, r in enumerate(rows) if r[0] is not None and sols[0] <= r[0] <= sols[1]]
+        if before:
+            last = max(before, key=lambda k: (rows[k][0], k))
+            keep = sorted({last, *keep})
+        rows = [rows[k] for k in keep]
+    if not rows:
         raise FetchError(places_csv, "no ROVER rows match the sols/sites asked for")
-    crs = infer_places_crs(*lon_of_first)  # type: ignore[misc]
-    return Positions(np.asarray(xs), np.asarray(ys), crs)
+    crs = infer_places_crs(rows[0][1], float(rows[0][4]))
+    xs = np.asarray([r[1] for r in rows])
+    ys = np.asarray([r[2] for r in rows])
+    return Positions(xs, ys, crs, tuple(r[3] for r in rows))
 
 
 def window_bounds(pos: Positions, margin_m: float) -> Bounds:
@@ -100,46 +141,140 @@ def window_bounds(pos: Positions, margin_m: float) -> Bounds:
     return (pos.x.min() - pad, pos.y.min() - pad, pos.x.max() + pad, pos.y.max() + pad)
 
 
+# -- sources ---------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SourceInfo:
+    """A source raster's header: what was opened (the label, if any), grid, bands."""
+
+    source: str
+    opened: str
+    driver: str
+    crs: str  # WKT
+    transform: tuple[float, ...]  # GDAL affine (a, b, c, d, e, f)
+    width: int
+    height: int
+    count: int
+    dtype: str
+    nodata: float | None
+    colorinterp: tuple[str, ...]
+
+    @property
+    def grid(self) -> RasterGrid:
+        """The pixel grid the planner works on."""
+        return RasterGrid(self.crs, Affine(*self.transform[:6]), self.width, self.height)
+
+    def to_json(self) -> str:
+        """The header as JSON text (NaN nodata as null-safe text)."""
+        d = asdict(self)
+        if d["nodata"] is not None and math.isnan(d["nodata"]):
+            d["nodata"] = "nan"
+        return json.dumps(d, sort_keys=True, indent=1)
+
+    @classmethod
+    def from_json(cls, text: str) -> SourceInfo:
+        """Inverse of ``to_json``."""
+        d = json.loads(text)
+        if d["nodata"] == "nan":
+            d["nodata"] = math.nan
+        d["transform"] = tuple(d["transform"])
+        d["colorinterp"] = tuple(d["colorinterp"])
+        return cls(**d)
+
+
+def _candidates(source: str) -> list[str]:
+    """Paths to try for ``source``: detached labels beside a ``.img``, then the file itself."""
+    stem, dot, ext = source.rpartition(".")
+    if dot and ext.lower() == "img" and "/" not in ext:
+        return [stem + suffix for suffix in LABEL_SUFFIXES] + [source]
+    return [source]
+
+
+@contextmanager
+def open_source(source: str) -> Iterator[tuple[str, rasterio.io.DatasetReader]]:
+    """Open ``source`` (or its detached label) as a georeferenced raster: (opened path, dataset).
+
+    Raises ``FetchError`` naming every path tried when none opens with a CRS and a transform.
+    """
+    tried = []
+    with remote_env():
+        for path in _candidates(source):
+            try:
+                with warnings.catch_warnings():  # no georeferencing: the next candidate
+                    warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+                    ds = rasterio.open(gdal_path(path))
+            except rasterio.errors.RasterioIOError as exc:
+                tried.append(f"{path}: {str(exc).splitlines()[0][:160]}")
+                continue
+            if ds.crs is None or ds.transform == Affine.identity():
+                ds.close()
+                tried.append(f"{path}: opened ({ds.driver}) but has no CRS/georeferencing")
+                continue
+            try:
+                yield path, ds
+            finally:
+                ds.close()
+            return
+    raise FetchError(source, "cannot open a georeferenced raster; tried " + "; ".join(tried))
+
+
+def source_info(source: str, sidecar: Path | None = None, *, write: bool = True) -> SourceInfo:
+    """The source's header, from ``sidecar`` (JSON) when it was written for this source;
+    else read from the raster (and written to ``sidecar`` when ``write``)."""
+    if sidecar is not None and sidecar.is_file():
+        try:
+            info = SourceInfo.from_json(sidecar.read_text())
+            if info.source == source:
+                return info
+        except (ValueError, TypeError, KeyError):
+            pass
+    with open_source(source) as (opened, ds):
+        info = SourceInfo(
+            source=source,
+            opened=opened,
+            driver=ds.driver,
+            crs=ds.crs.to_wkt(),
+            transform=tuple(ds.transform)[:6],
+            width=ds.width,
+            height=ds.height,
+            count=ds.count,
+            dtype=ds.dtypes[0],
+            nodata=ds.nodata,
+            colorinterp=tuple(c.name for c in ds.colorinterp),
+        )
+    if sidecar is not None and write:
+        _atomic_text(sidecar, info.to_json())
+    return info
+
+
+# -- cutting ---------------------------------------------------------------------------------
+def cut_planned(win: PlannedWindow, info: SourceInfo, out: Path) -> WindowResult:
+    """Cut a planned window (source pixels) of ``info``'s raster into a COG at ``out``."""
+    request = {"source": info.source, "window": [win.col_off, win.row_off, win.width, win.height]}
+    cached = _cached(out, request)
+    if cached is not None:
+        return WindowResult(cached.source, out, cached.bounds, cached.shape, True, win.kind)
+    with open_source(info.opened) as (_, src):
+        if (src.width, src.height) != (info.width, info.height):
+            raise FetchError(info.opened, "the raster changed size since it was planned")
+        _write_window(src, Window(win.col_off, win.row_off, win.width, win.height), out, request)
+    with rasterio.open(out) as done:
+        return WindowResult(
+            info.source, out, tuple(done.bounds), (done.height, done.width), False, win.kind
+        )
+
+
 def cut_window(source: str, bounds: Bounds, bounds_crs: str, out: Path) -> WindowResult:
     """Read ``bounds`` (in ``bounds_crs``) of a raster (local, URL or /vsicurl/) into a COG."""
     request = {"source": source, "bounds": [round(b, 6) for b in bounds], "crs": bounds_crs}
     cached = _cached(out, request)
     if cached is not None:
         return cached
-    path = gdal_path(source)
-    with remote_env():
-        try:
-            src = rasterio.open(path)
-        except rasterio.errors.RasterioIOError as exc:
-            raise FetchError(source, f"cannot open the raster: {exc}") from None
-        with src:
-            if src.crs is None:
-                raise FetchError(source, "the raster has no CRS")
-            native = transform_bounds(bounds_crs, src.crs, *bounds, densify_pts=21)
-            win = _snap(from_bounds(*native, transform=src.transform), src.width, src.height)
-            if win is None:
-                raise FetchError(source, f"the rover positions ({bounds_crs}) are off the raster")
-            if win.width * win.height > MAX_CELLS:
-                raise FetchError(
-                    source,
-                    f"window of {win.width} x {win.height} cells is too large; narrow the sols",
-                )
-            try:
-                data = src.read(window=win)
-            except rasterio.errors.RasterioIOError as exc:
-                raise FetchError(source, f"window read failed: {exc}") from None
-            profile = {
-                "driver": "GTiff",
-                "width": int(win.width),
-                "height": int(win.height),
-                "count": src.count,
-                "dtype": data.dtype.name,
-                "crs": src.crs,
-                "transform": src.window_transform(win),
-                "nodata": src.nodata,
-            }
-            colorinterp = src.colorinterp
-    _write_cog(out, data, profile, colorinterp, request)
+    with open_source(source) as (_, src):
+        native = transform_bounds(bounds_crs, src.crs, *bounds, densify_pts=21)
+        win = _snap(from_bounds(*native, transform=src.transform), src.width, src.height)
+        if win is None:
+            raise FetchError(source, f"the rover positions ({bounds_crs}) are off the raster")
+        _write_window(src, win, out, request)
     with rasterio.open(out) as done:
         return WindowResult(source, out, tuple(done.bounds), (done.height, done.width), False)
 
@@ -155,25 +290,47 @@ def _snap(win: Window, width: int, height: int) -> Window | None:
     return Window(c0, r0, c1 - c0, r1 - r0)
 
 
-def _write_cog(out: Path, data: np.ndarray, profile: dict, colorinterp, request: dict) -> None:  # type: ignore[no-untyped-def]
-    """Write ``data`` as a deflate COG at ``out`` via a temporary name and a rename."""
+def _write_window(src, win: Window, out: Path, request: dict) -> None:  # type: ignore[no-untyped-def]
+    """Copy ``win`` of ``src`` to a deflate COG at ``out`` (row blocks; temporary names)."""
     out.parent.mkdir(parents=True, exist_ok=True)
+    stage = out.with_name(f".{out.name}.{os.getpid()}.stage.tif")
     tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    profile = {
+        "driver": "GTiff",
+        "width": int(win.width),
+        "height": int(win.height),
+        "count": src.count,
+        "dtype": src.dtypes[0],
+        "crs": src.crs,
+        "transform": src.window_transform(win),
+        "nodata": src.nodata,
+        "tiled": True,
+        "blockxsize": 256,
+        "blockysize": 256,
+        "compress": "deflate",
+    }
     try:
-        with MemoryFile() as mem:
-            with mem.open(**profile) as dst:
-                dst.write(data)
-                dst.colorinterp = colorinterp
-                dst.update_tags(MARS_PAIRS_WINDOW=json.dumps(request, sort_keys=True))
-            with mem.open() as filled:
-                rasterio.shutil.copy(
-                    filled, tmp, driver="COG", COMPRESS="DEFLATE", BLOCKSIZE=256,
-                    OVERVIEWS="NONE", NUM_THREADS=1,
-                )  # fmt: skip
+        with rasterio.open(stage, "w", **profile) as dst:
+            for r in range(0, int(win.height), ROWS_PER_READ):
+                n = min(ROWS_PER_READ, int(win.height) - r)
+                part = Window(win.col_off, win.row_off + r, win.width, n)
+                try:
+                    data = src.read(window=part)
+                except rasterio.errors.RasterioIOError as exc:
+                    raise FetchError(request["source"], f"window read failed: {exc}") from None
+                dst.write(data, window=Window(0, r, win.width, n))
+            dst.colorinterp = src.colorinterp
+            dst.update_tags(MARS_PAIRS_WINDOW=json.dumps(request, sort_keys=True))
+        with rasterio.Env(GDAL_PAM_ENABLED="NO"):
+            rasterio.shutil.copy(
+                stage, tmp, driver="COG", COMPRESS="DEFLATE", BLOCKSIZE=256,
+                OVERVIEWS="NONE", NUM_THREADS=1,
+            )  # fmt: skip
         os.replace(tmp, out)
     finally:
-        if tmp.exists():
-            tmp.unlink()
+        for path in (stage, tmp):
+            if path.exists():
+                path.unlink()
 
 
 def _cached(out: Path, request: dict) -> WindowResult | None:
@@ -190,3 +347,69 @@ def _cached(out: Path, request: dict) -> WindowResult | None:
     except (rasterio.errors.RasterioIOError, ValueError):
         return None
     return None
+
+
+def _atomic_text(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+# -- mosaic ----------------------------------------------------------------------------------
+_VRT_TYPES = {
+    "uint8": "Byte", "int8": "Int8", "uint16": "UInt16", "int16": "Int16", "uint32": "UInt32",
+    "int32": "Int32", "float32": "Float32", "float64": "Float64",
+}  # fmt: skip
+
+
+def write_vrt(
+    path: Path, info: SourceInfo, windows: list[PlannedWindow], files: list[Path]
+) -> Path:
+    """A GDAL VRT at ``path`` mosaicking window COGs (``files``, one per planned window).
+
+    The VRT's grid is the source grid cropped to the windows' union (same pixel size and
+    phase, so each window lands at whole-pixel offsets); cells outside every window are nodata
+    (the source's nodata; NaN for a float raster without one). Sources are named relative to
+    the VRT. Written atomically.
+    """
+    if not windows or len(windows) != len(files):
+        raise FetchError(path, "write_vrt: expected one file per planned window")
+    c0 = min(w.col_off for w in windows)
+    r0 = min(w.row_off for w in windows)
+    c1 = max(w.col_off + w.width for w in windows)
+    r1 = max(w.row_off + w.height for w in windows)
+    a, b, c, d, e, f = info.transform[:6]
+    x0, y0 = Affine(a, b, c, d, e, f) * (c0, r0)
+    vtype = _VRT_TYPES.get(info.dtype)
+    if vtype is None:
+        raise FetchError(info.source, f"data type {info.dtype} cannot be mosaicked in a VRT")
+    nodata = info.nodata
+    if nodata is None and info.dtype.startswith("float"):
+        nodata = math.nan
+    root = ET.Element("VRTDataset", rasterXSize=str(c1 - c0), rasterYSize=str(r1 - r0))
+    ET.SubElement(root, "SRS").text = info.crs
+    ET.SubElement(root, "GeoTransform").text = ", ".join(
+        repr(float(v)) for v in (x0, a, b, y0, d, e)
+    )
+    for band in range(1, info.count + 1):
+        el = ET.SubElement(root, "VRTRasterBand", dataType=vtype, band=str(band))
+        if nodata is not None:
+            ET.SubElement(el, "NoDataValue").text = "nan" if math.isnan(nodata) else repr(nodata)
+        if band <= len(info.colorinterp):
+            ET.SubElement(el, "ColorInterp").text = info.colorinterp[band - 1].capitalize()
+        for w, file in zip(windows, files, strict=True):
+            src = ET.SubElement(el, "SimpleSource")
+            name = os.path.relpath(file, path.parent)
+            ET.SubElement(src, "SourceFilename", relativeToVRT="1").text = name
+            ET.SubElement(src, "SourceBand").text = str(band)
+            ET.SubElement(src, "SourceProperties", RasterXSize=str(w.width),
+                          RasterYSize=str(w.height), DataType=vtype,
+                          BlockXSize="256", BlockYSize="256")  # fmt: skip
+            ET.SubElement(src, "SrcRect", xOff="0", yOff="0", xSize=str(w.width),
+                          ySize=str(w.height))  # fmt: skip
+            ET.SubElement(src, "DstRect", xOff=str(w.col_off - c0), yOff=str(w.row_off - r0),
+                          xSize=str(w.width), ySize=str(w.height))  # fmt: skip
+    ET.indent(root)
+    _atomic_text(path, ET.tostring(root, encoding="unicode") + "\n")
+    return path

@@ -27,7 +27,14 @@ from mars_pairs.errors import FetchError, MarsPairsError
 from mars_pairs.fetch.cache import Cache, archive_path, atomic_write, join_url
 from mars_pairs.fetch.config import FetchConfig, ProductsSpec, RemoteSpec
 from mars_pairs.fetch.download import Downloader, RemoteFile
-from mars_pairs.fetch.orbital import WindowResult, cut_window, rover_positions, window_bounds
+from mars_pairs.fetch.orbital import (
+    Positions,
+    WindowResult,
+    cut_planned,
+    rover_positions,
+    source_info,
+    write_vrt,
+)
 from mars_pairs.fetch.pds3_index import index_files, products_from_index, read_index_table
 from mars_pairs.fetch.pds4_inventory import (
     inventory_delimiter,
@@ -45,6 +52,7 @@ from mars_pairs.fetch.products import (
     with_label_facts,
 )
 from mars_pairs.fetch.volumes import volumes_for_sols
+from mars_pairs.fetch.windows import WindowPlan, dem_reach_m, ortho_reach_m, plan_windows
 
 FAILURES = "fetch_failures.parquet"
 SKIPPED = "fetch_skipped.parquet"
@@ -100,9 +108,10 @@ def list_products(spec: ProductsSpec, dl: Downloader) -> Listing:
             volumes = volumes_for_sols(spec.filters.sols)
         for volume in volumes:
             lbl, tab = index_files(volume, spec.index)
-            for rel in (lbl, tab):
-                dl.fetch(RemoteFile(rel, join_url(spec.archive, rel)))
+            dl.fetch(RemoteFile(lbl, join_url(spec.archive, lbl), mutable=True))
             label_path = dl.cache.path(lbl)
+            tab_url = join_url(spec.archive, tab)
+            dl.fetch(RemoteFile(tab, tab_url, mutable=True, label=label_path))
             table = read_index_table(label_path)
             out.extend(
                 products_from_index(table, volume, spec.archive, str(label_path), spec.mission,
@@ -113,10 +122,11 @@ def list_products(spec: ProductsSpec, dl: Downloader) -> Listing:
     else:
         bundle = archive_path(spec.bundle or "", where="fetch.products.bundle")
         coll = bundle / archive_path(spec.collection, where="fetch.products.collection")
-        dl.fetch(RemoteFile(coll, join_url(spec.archive, coll)))
+        dl.fetch(RemoteFile(coll, join_url(spec.archive, coll), mutable=True))
         coll_path = dl.cache.path(coll)
         inv = inventory_of(coll_path, coll)
-        dl.fetch(RemoteFile(inv, join_url(spec.archive, inv)))
+        url = join_url(spec.archive, inv)
+        dl.fetch(RemoteFile(inv, url, kind="inventory", mutable=True, label=coll_path))
         out.extend(
             products_from_inventory(
                 dl.cache.path(inv),
@@ -169,7 +179,7 @@ def _one(
             if p.image.size is None and size is not None:
                 p = replace(p, image=replace(p.image, size=size))
             return _Outcome(p, (got.status,), got.bytes_received, 0 if cached else (size or 0))
-        img = dl.fetch(p.image)
+        img = dl.fetch(replace(p.image, label=got.path))  # the label tells what it must be
         if p.image.size is None:
             p = replace(p, image=replace(p.image, size=img.path.stat().st_size))
         return _Outcome(p, (got.status, img.status), got.bytes_received + img.bytes_received, 0)
@@ -261,35 +271,146 @@ def write_skipped(cache: Cache, skipped: list[Skipped]) -> Path:
 
 
 # -- single files --------------------------------------------------------------------------
-def fetch_remote(cfg: FetchConfig, spec: RemoteSpec) -> Path:
-    """One archive file (e.g. the PLACES table) into the cache; its path there."""
+def fetch_remote(
+    cfg: FetchConfig, spec: RemoteSpec, *, kind: str | None = None, mutable: bool = False
+) -> Path:
+    """One archive file (e.g. the PLACES table) into the cache; its path there.
+
+    ``kind``: what it must be (``validate.KINDS``; None: by its name); ``mutable``: revalidate
+    it on every fetch (an archive table that changes between releases)."""
     rel = archive_path(spec.path, where="fetch.places.path")
     dl = Downloader(Cache(cfg.cache), cfg.policy)
-    return dl.fetch(RemoteFile(PurePosixPath(rel), join_url(spec.archive, rel))).path
+    remote = RemoteFile(PurePosixPath(rel), join_url(spec.archive, rel), kind=kind, mutable=mutable)
+    return dl.fetch(remote).path
 
 
 def fetch_places(cfg: FetchConfig) -> Path:
     """The configured PLACES table, in the cache."""
     if cfg.places is None:
         raise FetchError("fetch.places", "the config has no fetch.places section")
-    return fetch_remote(cfg, cfg.places)
+    return fetch_remote(cfg, cfg.places, kind="places", mutable=True)
+
+
+@dataclass(frozen=True)
+class OrbitalPlan:
+    """The windows planned for each configured raster, and the positions they serve."""
+
+    positions: Positions
+    plans: tuple[WindowPlan, ...]
+
+    def format(self) -> list[str]:
+        """Lines: each window (source, bounds, CRS, cells, verdict), positions left out."""
+        lines = [f"{len(self.positions.x)} rover positions ({self.positions.crs})"]
+        for plan in self.plans:
+            lines.append(
+                f"{plan.kind}: {len(plan.windows)} window(s), reach {plan.reach_m:.1f} m, "
+                f"from {plan.source}"
+            )
+            lines += [f"  {w.describe()}" for w in plan.windows]
+            if plan.off_raster:
+                names = [self.positions.names[i] for i in plan.off_raster if self.positions.names]
+                lines.append(
+                    f"  {len(plan.off_raster)} positions off the {plan.kind} raster (left out): "
+                    + ", ".join(names[:10])
+                    + (" ..." if len(names) > 10 else "")
+                )
+        return lines
+
+
+def _window_files(cache: Cache, kind: str, n: int) -> list[Path]:
+    """``orbital/<kind>.tif`` for one window, ``orbital/<kind>-000.tif``, ... for several."""
+    if n == 1:
+        return [cache.path(f"orbital/{kind}.tif")]
+    return [cache.path(f"orbital/{kind}-{i:03d}.tif") for i in range(n)]
+
+
+def plan_orbital(
+    cfg: FetchConfig,
+    *,
+    filters: ProductFilter | None = None,
+    margin_m: float | None = None,
+    dry_run: bool = False,
+) -> OrbitalPlan:
+    """Plan the DEM/ortho windows around the PLACES rover positions (sols/sites of ``filters``).
+
+    Reads the PLACES table (fetched into the cache; on a dry run the cached copy as it is, else
+    fetched into a temporary folder, so that a dry run writes nothing) and each raster's
+    header (cached beside the windows as ``orbital/<kind>.source.json``; a dry run only reads
+    it).
+    """
+    import tempfile
+
+    if cfg.orbital is None:
+        raise FetchError("fetch.orbital", "the config has no fetch.orbital section")
+    if cfg.places is None:
+        raise FetchError("fetch.places", "orbital windows need the PLACES table (fetch.places)")
+    cache = Cache(cfg.cache)
+    filt = filters or (cfg.products.filters if cfg.products else ProductFilter())
+    cached = cache.path(archive_path(cfg.places.path, where="fetch.places.path"))
+    with tempfile.TemporaryDirectory(prefix="mars-pairs-plan-") as tmp:
+        if not dry_run:
+            places = fetch_places(cfg)  # revalidated: a mutable archive table
+        elif cached.is_file():
+            places = cached  # as cached: a dry run neither fetches nor rewrites it
+        else:
+            places = fetch_remote(replace(cfg, cache=Path(tmp)), cfg.places, kind="places")
+        pos = rover_positions(places, sols=filt.sols, sites=filt.sites)
+    margin = cfg.orbital.margin_m if margin_m is None else margin_m
+    reach = {
+        "dem": dem_reach_m(cfg.radius_m, cfg.chip_size_m, margin),
+        "ortho": ortho_reach_m(cfg.chip_size_m, margin),
+    }
+    plans = []
+    for kind in ("dem", "ortho"):
+        source = getattr(cfg.orbital, kind)
+        if source is None:
+            continue
+        sidecar = cache.path(f"orbital/{kind}.source.json")
+        info = source_info(source, sidecar, write=not dry_run)
+        limit = cfg.orbital.max_cells
+        plans.append(
+            plan_windows(
+                pos.x,
+                pos.y,
+                pos.crs,
+                info.grid,
+                reach[kind],
+                kind=kind,
+                source=source,
+                max_cells=limit,
+            )
+        )
+    return OrbitalPlan(pos, tuple(plans))
+
+
+def cut_orbital(cfg: FetchConfig, plan: OrbitalPlan) -> list[WindowResult]:
+    """Cut every planned window into the cache and mosaic each raster's into a VRT.
+
+    Writes ``orbital/<kind>.tif`` (one window) or ``orbital/<kind>-NNN.tif`` (several) and
+    always ``orbital/<kind>.vrt`` (what ``inputs.dem`` / ``inputs.ortho`` name); window files
+    of an earlier plan that this one does not use are removed. Raises ``FetchError`` naming
+    ``fetch.orbital.max_cells`` before reading anything if a window is above it.
+    """
+    for p in plan.plans:
+        p.check()
+    cache = Cache(cfg.cache)
+    out: list[WindowResult] = []
+    for p in plan.plans:
+        info = source_info(p.source, cache.path(f"orbital/{p.kind}.source.json"))
+        files = _window_files(cache, p.kind, len(p.windows))
+        for win, file in zip(p.windows, files, strict=True):
+            out.append(cut_planned(win, info, file))
+        write_vrt(cache.path(f"orbital/{p.kind}.vrt"), info, list(p.windows), files)
+        keep = set(files)
+        folder = cache.path("orbital")
+        for stale in [*folder.glob(f"{p.kind}.tif"), *folder.glob(f"{p.kind}-[0-9][0-9][0-9].tif")]:
+            if stale not in keep:
+                stale.unlink()
+    return out
 
 
 def fetch_orbital(
     cfg: FetchConfig, *, filters: ProductFilter | None = None, margin_m: float | None = None
 ) -> list[WindowResult]:
-    """DEM/ortho windows around the PLACES rover positions (sols/sites of ``filters``)."""
-    if cfg.orbital is None:
-        raise FetchError("fetch.orbital", "the config has no fetch.orbital section")
-    places = fetch_places(cfg)
-    filt = filters or (cfg.products.filters if cfg.products else ProductFilter())
-    pos = rover_positions(places, sols=filt.sols, sites=filt.sites)
-    margin = margin_m if margin_m is not None else cfg.orbital.margin_m
-    bounds = window_bounds(pos, cfg.radius_m if margin is None else margin)
-    cache = Cache(cfg.cache)
-    out = []
-    for name in ("dem", "ortho"):
-        source = getattr(cfg.orbital, name)
-        if source is not None:
-            out.append(cut_window(source, bounds, pos.crs, cache.path(f"orbital/{name}.tif")))
-    return out
+    """Plan, then cut, the DEM/ortho windows around the PLACES rover positions."""
+    return cut_orbital(cfg, plan_orbital(cfg, filters=filters, margin_m=margin_m))

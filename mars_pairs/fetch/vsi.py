@@ -18,7 +18,10 @@ from contextlib import contextmanager
 
 VSI_OPTIONS = {
     "GDAL_DISABLE_READDIR_ON_OPEN": "EMPTY_DIR",  # no directory listing per open
-    "CPL_VSIL_CURL_ALLOWED_EXTENSIONS": ".tif,.TIF,.tiff,.TIFF,.vrt,.VRT,.ovr,.OVR,.msk",
+    # GeoTIFF/VRT, and the PDS maps: VICAR/PDS .img with detached PDS4 .xml / PDS3 .lbl labels
+    "CPL_VSIL_CURL_ALLOWED_EXTENSIONS": (
+        ".tif,.TIF,.tiff,.TIFF,.vrt,.VRT,.ovr,.OVR,.msk,.img,.IMG,.xml,.XML,.lbl,.LBL"
+    ),
     "GDAL_HTTP_MAX_RETRY": "4",
     "GDAL_HTTP_RETRY_DELAY": "0.5",
     "GDAL_HTTP_TIMEOUT": "60",

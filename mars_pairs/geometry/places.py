@@ -11,6 +11,7 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 
 from mars_pairs.errors import PlacesError
+from mars_pairs.geometry.attitude import rpy_to_quaternion
 from mars_pairs.geometry.frames import (
     M2020_PLACES_CRS,
     MARS_RADIUS_M,
@@ -22,6 +23,16 @@ from mars_pairs.pds.observation import Observation
 
 MISSING = -9999.0
 
+#: Columns every PLACES table has, read by name whatever the header's case. Two generations:
+#: the current tables (Curiosity ``msl_places/data_localizations/localized_interp.csv``, 26
+#: lower-case columns; Perseverance ``best_interp.csv``, 28, adding areoid and radius) carry
+#: the quaternion columns; the PDS3-era Curiosity table (``MSLPLC_1XXX/DATA/LOCALIZATIONS/
+#: localized_interp.csv``) has 22 upper-case columns, the 26 without the four quaternion
+#: columns: FRAME, SITE, DRIVE, POSE, LANDING_X/Y/Z, NORTHING, EASTING, PLANETOCENTRIC_LATITUDE,
+#: PLANETODETIC_LATITUDE, LONGITUDE, ELEVATION, MAP_PIXEL_LINE/SAMPLE, DEM_PIXEL_LINE/SAMPLE,
+#: ROLL, PITCH, YAW, SCLK, SOL (26 - 4 = 22; pose kept, the archive README naming it
+#: "FRAME ... YAW, SCLK, SOL"). ``pose`` is optional (tables of this shape without it, e.g.
+#: ../shared/real-gale/rover_positions.csv, are looked up by site and drive).
 REQUIRED_COLUMNS = (
     "frame",
     "site",
@@ -31,11 +42,17 @@ REQUIRED_COLUMNS = (
     "planetocentric_latitude",
     "longitude",
     "elevation",
-    "quat_s",
-    "quat_v1",
-    "quat_v2",
-    "quat_v3",
 )
+#: The attitude: the quaternion columns (s, v1, v2, v3) or, without them, roll/pitch/yaw degrees.
+QUATERNION_COLUMNS = ("quat_s", "quat_v1", "quat_v2", "quat_v3")
+RPY_COLUMNS = ("roll", "pitch", "yaw")
+
+#: ``Pose.match``: which PLACES row (or fallback) gave the position.
+MATCH_POSE = "site-drive-pose"  # the row of the label's site, drive and pose
+MATCH_SITE_DRIVE = "site-drive"  # the (site, drive) row for any pose, or the label has none
+MATCH_EARLIER = "earlier-pose"  # the label's pose is absent: the highest pose below it
+MATCH_LATER = "later-pose"  # no pose at or below the label's: the lowest above it
+MATCH_LABEL = "label-offset"  # no ROVER row: the label's offset from the PLACES SITE origin
 
 
 @dataclass(frozen=True)
@@ -47,6 +64,9 @@ class Pose:
     above the areoid. ``quaternion``: (s, v1, v2, v3), ROVER_NAV_FRAME -> SITE_FRAME
     (site <- rover). ``source``: "places" (a localized ROVER row) or "label" (the label's
     telemetry offset from the PLACES SITE origin); ``attitude_source`` likewise.
+    ``pose``: the PLACES row's pose number (-1: the table's row for every pose of the
+    (site, drive)); None without a pose column or a row. ``match``: how the row was chosen,
+    one of the ``MATCH_*`` values of this module.
     """
 
     site: int
@@ -63,6 +83,8 @@ class Pose:
     #: the SITE_FRAME origin (planetocentric lon, lat degrees) the quaternion refers to, when
     #: the table has the SITE row; None: the quaternion is taken as relative to NED at the rover
     site_lonlat: tuple[float, float] | None = None
+    pose: int | None = None
+    match: str = MATCH_SITE_DRIVE
 
 
 def _valid(*values: float) -> bool:
@@ -85,38 +107,63 @@ def infer_places_crs(easting: float, longitude_deg: float) -> str:
 class Places:
     """A PLACES localization table: SITE origins and localized ROVER positions.
 
+    Columns are read by name, case-insensitively (``REQUIRED_COLUMNS``, then the attitude: the
+    quaternion columns, else roll/pitch/yaw). ROVER rows are keyed by (site, drive, pose); a
+    table without a pose column keys them by (site, drive).
+
     >>> places = Places.from_csv("best_interp.csv")
     >>> pose = places.locate(observation)
     """
 
     def __init__(self, table: pa.Table, path: Path | None = None, crs: str | None = None) -> None:
-        missing = [c for c in REQUIRED_COLUMNS if c not in table.column_names]
+        self.path = path
+        names = [str(n).strip().lower() for n in table.column_names]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise PlacesError(f"{path}: column(s) {', '.join(twice)} appear twice (any case)")
+        missing = [c for c in REQUIRED_COLUMNS if c not in names]
         if missing:
             raise PlacesError(f"{path}: missing column(s) {', '.join(missing)}")
-        self.path = path
-        self._cols = {name: table.column(name).to_pylist() for name in table.column_names}
+        self._cols = {n: table.column(i).to_pylist() for i, n in enumerate(names)}
+        self.attitude_columns = self._attitude_columns()
+        self.has_pose = "pose" in self._cols
         frames = [str(f).strip().upper() for f in self._cols["frame"]]
-        self._rover: dict[tuple[int, int], int] = {}
+        #: (site, drive) -> {pose (-1 without a pose column): row}
+        self._rover: dict[tuple[int, int], dict[int, int]] = {}
         self._site: dict[int, int] = {}
-        self._conflicts: dict[tuple[int, int], str] = {}
+        self._conflicts: dict[tuple[int, int, int], str] = {}
         for i, kind in enumerate(frames):
             if kind not in ("ROVER", "SITE"):
                 continue
             site, drive = self._index(i, "site"), self._index(i, "drive")
             if kind == "SITE":
                 self._site[site] = i
-            elif (site, drive) in self._rover:
-                self._note_duplicate(site, drive, self._rover[(site, drive)], i)
+                continue
+            pose = self._index(i, "pose") if self.has_pose else -1
+            rows = self._rover.setdefault((site, drive), {})
+            if pose in rows:
+                self._note_duplicate(site, drive, pose, rows[pose], i)
             else:
-                self._rover[(site, drive)] = i
+                rows[pose] = i
         self.crs = crs or self._infer_crs()
+
+    def _attitude_columns(self) -> tuple[str, ...]:
+        """The quaternion columns when the table has them all, else roll/pitch/yaw."""
+        for group in (QUATERNION_COLUMNS, RPY_COLUMNS):
+            if all(c in self._cols for c in group):
+                return group
+        lacking = [c for c in (*QUATERNION_COLUMNS, *RPY_COLUMNS) if c not in self._cols]
+        raise PlacesError(
+            f"{self.path}: missing column(s) {', '.join(lacking)}: no attitude "
+            f"(quaternion {', '.join(QUATERNION_COLUMNS)} or {', '.join(RPY_COLUMNS)} degrees)"
+        )
 
     def _where(self, row: int, column: str) -> str:
         # line numbers of the CSV file: the header is line 1
         return f"{self.path}: line {row + 2}: {column}"
 
     def _index(self, row: int, column: str) -> int:
-        """The site or drive number of a row: an integer in [-1, 2**31); else PlacesError."""
+        """A site, drive or pose number: an integer in [-1, 2**31); else PlacesError."""
         v = self._cols[column][row]
         try:
             number = float(v)  # type: ignore[arg-type]
@@ -126,20 +173,23 @@ class Places:
             raise PlacesError(f"{self._where(row, column)}: expected an integer, got {v!r}")
         return int(number)
 
-    def _note_duplicate(self, site: int, drive: int, first: int, again: int) -> None:
-        """Two ROVER rows for one (site, drive): kept if they agree within 1 cm, else the
-        position is refused (``locate`` raises) rather than one of them chosen silently."""
+    def _note_duplicate(self, site: int, drive: int, pose: int, first: int, again: int) -> None:
+        """Two ROVER rows for one (site, drive, pose): kept if they agree within 1 cm, else the
+        position is refused (``locate`` raises) rather than one of them chosen silently. Rows
+        of one (site, drive) with different poses are distinct states, not duplicates."""
+        key = (site, drive, pose)
         try:
             a = [self._value(c, first) for c in ("easting", "northing", "elevation")]
             b = [self._value(c, again) for c in ("easting", "northing", "elevation")]
         except PlacesError as exc:
-            self._conflicts[(site, drive)] = str(exc)
+            self._conflicts[key] = str(exc)
             return
         gap = math.dist(a, b) if _valid(*a, *b) else math.inf
         if not gap <= 0.01:
-            self._conflicts[(site, drive)] = (
+            which = f"site {site} drive {drive}" + (f" pose {pose}" if self.has_pose else "")
+            self._conflicts[key] = (
                 f"{self.path}: lines {first + 2} and {again + 2}: conflicting ROVER rows for "
-                f"site {site} drive {drive} ({gap:.3f} m apart)"
+                f"{which} ({gap:.3f} m apart)"
             )
 
     @classmethod
@@ -178,10 +228,18 @@ class Places:
             raise PlacesError(f"{self._where(row, column)}: expected a number, got {v!r}") from None
 
     def _quaternion(self, row: int) -> np.ndarray | None:
-        q = [self._value(c, row) for c in ("quat_s", "quat_v1", "quat_v2", "quat_v3")]
-        if not _valid(*q) or abs(np.linalg.norm(q) - 1.0) > 1e-3:
+        """The row's attitude (s, v1, v2, v3), ROVER_NAV_FRAME -> SITE_FRAME; None if unknown.
+
+        From the quaternion columns, or from roll, pitch, yaw (degrees) by
+        ``attitude.rpy_to_quaternion`` in a table without them."""
+        values = [self._value(c, row) for c in self.attitude_columns]
+        if not _valid(*values):
             return None
-        return np.asarray(q)
+        if self.attitude_columns == RPY_COLUMNS:
+            return rpy_to_quaternion(*values)
+        if abs(np.linalg.norm(values) - 1.0) > 1e-3:
+            return None
+        return np.asarray(values)
 
     def site_origin(self, site: int) -> tuple[float, float, float] | None:
         """(longitude deg, planetocentric latitude deg, elevation m) of a SITE origin."""
@@ -195,14 +253,46 @@ class Places:
         )
         return (lon, lat, elev) if _valid(lon, lat, elev) else None
 
-    def rover_pose(self, site: int, drive: int) -> Pose | None:
-        """The localized ROVER row for (site, drive) as a Pose, or None when absent;
-        PlacesError when the table's rows for it conflict or hold text for numbers."""
-        if (site, drive) in self._conflicts:
-            raise PlacesError(self._conflicts[(site, drive)])
-        row = self._rover.get((site, drive))
-        if row is None:
+    def poses(self, site: int, drive: int) -> list[int]:
+        """The pose numbers of the ROVER rows for (site, drive), ascending ([-1]: one row for
+        every pose, or a table without a pose column; []: no row)."""
+        return sorted(self._rover.get((site, drive), {}))
+
+    def _choose(self, site: int, drive: int, want: int | None) -> tuple[int, str] | None:
+        """The pose row to use for an image taken at pose ``want`` (None: the label has none).
+
+        The pose index counts updates of the rover's state within one drive (the rover does
+        not drive between them): the row of the image's own pose is exact; else the latest
+        localized state before the image (the highest pose below it), as no drive has moved
+        the rover since; else a row for every pose (-1); else the next state after it (the
+        lowest pose above). Without a label pose: the row for every pose, else the lowest.
+        """
+        poses = self.poses(site, drive)
+        if not poses:
             return None
+        specific = [p for p in poses if p >= 0]
+        if want is None or not specific:
+            return (-1 if -1 in poses else poses[0]), MATCH_SITE_DRIVE
+        if want in specific:
+            return want, MATCH_POSE
+        below = [p for p in specific if p < want]
+        if below:
+            return below[-1], MATCH_EARLIER
+        if -1 in poses:
+            return -1, MATCH_SITE_DRIVE
+        return specific[0], MATCH_LATER
+
+    def rover_pose(self, site: int, drive: int, pose: int | None = None) -> Pose | None:
+        """The localized ROVER row for (site, drive) at the image's ``pose`` as a Pose (the row
+        chosen as in ``_choose``; ``Pose.pose`` and ``Pose.match`` say which), or None when
+        absent; PlacesError when the table's rows for it conflict or hold text for numbers."""
+        chosen = self._choose(site, drive, pose)
+        if chosen is None:
+            return None
+        row_pose, match = chosen
+        if (site, drive, row_pose) in self._conflicts:
+            raise PlacesError(self._conflicts[(site, drive, row_pose)])
+        row = self._rover[(site, drive)][row_pose]
         e, n = self._value("easting", row), self._value("northing", row)
         lat, lon = self._value("planetocentric_latitude", row), self._value("longitude", row)
         elev = self._value("elevation", row)
@@ -221,18 +311,21 @@ class Places:
             quaternion=q,
             source="places",
             attitude_source="places" if q is not None else None,
+            pose=row_pose if self.has_pose else None,
+            match=match,
         )
 
     def locate(self, obs: Observation) -> Pose:
         """The rover Pose for an observation, by the fallback in DESIGN.md.
 
-        1. the ROVER row for the label's (site, drive) -> source "places";
+        1. the ROVER row for the label's (site, drive), at its pose as in ``rover_pose`` ->
+           source "places";
         2. else the label's telemetry offset (SITE_FRAME, NED metres) from the PLACES SITE
-           origin -> source "label";
+           origin -> source "label", match "label-offset";
         3. else PlacesError. Attitude: the row's quaternion when known, else the label's.
         """
         site, drive = obs.rmc.site, obs.rmc.drive
-        pose = self.rover_pose(site, drive)
+        pose = self.rover_pose(site, drive, obs.rmc.pose)
         origin = self.site_origin(site)
         site_lonlat = None if origin is None else (origin[0], origin[1])
         if pose is not None:
@@ -264,4 +357,5 @@ class Places:
             source="label",
             attitude_source=None if q is None else "label",
             site_lonlat=site_lonlat,
+            match=MATCH_LABEL,
         )

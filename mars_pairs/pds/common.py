@@ -34,6 +34,9 @@ MAX_INTEGER = 2**31 - 1
 MAX_IMAGE_SIDE = 100_000
 #: Largest camera model component accepted (C in metres, H and V in pixels are far below).
 MAX_MODEL_COMPONENT = 1e12
+#: Largest rover offset from its SITE origin accepted, per axis (metres): past Mars's diameter
+#: (6.8e6 m) no offset places anything; real ones are hundreds of metres.
+MAX_OFFSET_M = 1e7
 #: Longest product id / instrument / frame name accepted (real ones are under 60).
 MAX_ID_CHARS = 80
 _ID_RE = re.compile(r"[A-Za-z0-9_.\-]+", re.ASCII)
@@ -44,16 +47,21 @@ _DOY_RE = re.compile(r"(\d{4})-(\d{3})T(\d{2}):(\d{2}):(\d{2}(?:\.\d+)?)Z?", re.
 
 #: Labels (and the label head of a product with an attached label) are read up to this size.
 MAX_LABEL_BYTES = 4 * 1024 * 1024
-#: Wall-clock budget of parsing one label (seconds); past it the label is a LabelError.
+#: Wall-clock budget of parsing one label on a process's main thread (seconds); past it the
+#: label is a LabelError. On every thread the structural bounds of the readers
+#: (``pds3.check_structure``, ``xml.MAX_XML_MARKUP``) keep a parse far below it.
 PARSE_SECONDS = 5.0
 
 
 def read_bytes(path: Path, limit: int = MAX_LABEL_BYTES) -> tuple[bytes, bool]:
     """The first ``limit`` bytes of a regular file and whether the file is longer.
 
-    A missing or unreadable file, or one that is not a regular file (a directory, FIFO or
-    device such as /dev/zero), is a LabelError; nothing is read from non-regular files.
+    A missing or unreadable file, one that is not a regular file (a directory, FIFO or
+    device such as /dev/zero), or a path no file can have (a NUL byte) is a LabelError;
+    nothing is read from non-regular files.
     """
+    if "\x00" in str(path):
+        raise LabelError(path, None, f"not a file path: {str(path)!r} holds a NUL byte")
     try:
         info = path.stat()
         if not stat.S_ISREG(info.st_mode):
@@ -74,8 +82,8 @@ def time_limit(path: Path, seconds: float = PARSE_SECONDS) -> Iterator[None]:
     """Stop the enclosed parse with a LabelError once it has run ``seconds`` of wall time.
 
     Uses a real-time interval timer (SIGALRM), so it applies on the main thread of a process
-    (the CLI, build workers); elsewhere the parse runs unguarded and the label size limit
-    alone bounds it. A timer set by the caller is restored afterwards.
+    (the CLI, local build workers); on other threads (Dask workers) the readers' structural
+    bounds alone bound the parse. A timer set by the caller is restored afterwards.
     """
     if threading.current_thread() is not threading.main_thread() or not hasattr(
         signal, "setitimer"
@@ -177,10 +185,17 @@ class Fields:
             self.fail(field, f"expected {n} numbers, got {len(value)}")
         return np.array([self.number(v, field) for v in value], dtype=np.float64)
 
+    def offset_m(self, values: np.ndarray, field: str) -> np.ndarray:
+        """An offset in metres (any frame) within ``MAX_OFFSET_M`` on every axis."""
+        if not np.all(np.abs(values) <= MAX_OFFSET_M):
+            self.fail(field, f"offset beyond {MAX_OFFSET_M:g} m: {values.tolist()}")
+        return values
+
     def quaternion(self, values: Sequence[float], field: str) -> np.ndarray:
         """A (s, v1, v2, v3) quaternion of norm close to 1, normalised."""
         q = np.asarray(values, dtype=np.float64)
-        norm = float(np.linalg.norm(q))
+        with np.errstate(over="ignore", under="ignore"):  # an inf norm is refused below
+            norm = float(np.linalg.norm(q))
         if abs(norm - 1.0) > 1e-3:
             self.fail(field, f"expected a unit quaternion, norm is {norm:.6g}")
         return q / norm

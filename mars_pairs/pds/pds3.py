@@ -3,7 +3,9 @@
 Parsed with pdr's PDS3 label parser (``pdr.parselabel.pds3.parse_pvl``): ~3 ms per Mastcam
 label against ~130 ms for ``pvl.loads``; ``tests/pds/test_pds3_pdr.py`` shows every field read
 here equals what pvl reads, on every real label in ``../shared/pds-samples``. The parse runs
-under a time limit and a size limit (``common.time_limit``, ``common.MAX_LABEL_BYTES``).
+under a size limit (``common.MAX_LABEL_BYTES``), after a linear pre-scan that bounds the
+structure pdr is handed (``check_structure``), so that parsing is bounded in time and memory on
+any thread; on a process's main thread a wall-clock limit (``common.time_limit``) applies too.
 
 Products: Mastcam RDRs (``GEOMETRIC_CAMERA_MODEL_PARMS``, ``DERIVED_IMAGE_PARMS``) and the
 MIPL-processed Navcam, Hazcam and MAHLI EDRs/RDRs (``GEOMETRIC_CAMERA_MODEL``,
@@ -20,6 +22,7 @@ from __future__ import annotations
 
 import re
 import warnings
+from collections import Counter
 from collections.abc import Mapping
 from datetime import datetime
 from pathlib import Path
@@ -51,11 +54,41 @@ _END_RE = re.compile(rb"^[ \t]*END[ \t]*\r?$", re.MULTILINE)
 # pdr turns values into Python objects with ast.literal_eval, which also reads Python-only
 # syntax that PDS3 does not have: a '#' starts a comment ("12002#101#" -> 12002), digits may
 # hold '_' ("1_000"), 0x/0o/0b prefixes and complex numbers. Such text is refused first.
-_QUOTED_OR_COMMENT = re.compile(r'"[^"]*"|/\*.*?\*/', re.DOTALL)
+_QUOTED = re.compile(r'"[^"]*"')
 _RADIX = re.compile(r"(?<![\w#])[+-]?\d{1,2}#[+-]?[0-9A-Za-z]+#(?![\w#])")
 _NOT_PDS3_NUMBER = re.compile(
     r"#|\b\d+(?:_\d+)+\b|\b0[xXoObB][0-9A-Fa-f_]+\b|\b\d+(?:\.\d*)?(?:[eE][+-]?\d+)?[jJ]\b"
 )
+# pdr's comment stripping (``parse_pvl``): a comment runs from "/*" to the end of its line or
+# to the next "/*", whatever follows; one pass, at most one line per match.
+_PDR_COMMENT = re.compile(r"/\*.*?(\r|\n|/\*)")
+
+# Bounds of the structure handed to pdr (``check_structure``). The real Curiosity labels in
+# ../shared/pds-samples/msl have 22,320-22,563 characters, 491-495 lines, 25 comments,
+# 283-285 statements, values of at most 268 characters, 219-227 commas, GROUP/OBJECT depth 1,
+# no keyword twice in one GROUP/OBJECT and 2 pointers (^IMAGE, ^MODEL_DESC), none repeated.
+# The size bounds are 35 to 250 times those figures, depth and repeats 16 and 64 against 1,
+# repeated pointers 8 against none; what pdr 1.4.4 costs at the bounds is measured by
+# benchmarks/bench_labels.py (~1.5 s at most on a loaded machine, against 59 s to hours).
+#: Characters of the label text (up to its END line), ~0.5 us apiece for pdr at worst.
+MAX_TEXT_CHARS = 1024 * 1024
+#: Lines (newlines plus comment starts, each of which may end a line for pdr).
+MAX_LINES = 50_000
+#: Statements (``KEY = value``, GROUP/OBJECT and their ends) as pdr chunks them.
+MAX_STATEMENTS = 10_000
+#: Characters of one statement's value (its continuation lines joined).
+MAX_VALUE_CHARS = 65_536
+#: Commas in all values: each is a sequence item that ``ast.literal_eval`` (and, for
+#: ``1 <m>`` quantities, a regular expression) turns into an object, ~2 to 13 us apiece.
+MAX_SEPARATORS = 10_000
+#: GROUP/OBJECT nesting depth.
+MAX_DEPTH = 16
+#: Times one keyword may occur in one GROUP/OBJECT (OBJECT = COLUMN style repeats included).
+MAX_KEY_REPEATS = 64
+#: Pointer statements (``^NAME``) that share their name with another, anywhere in the label.
+#: pdr's ``index_duplicate_pointers`` copies the whole label (``multidict_dig_and_edit``)
+#: twice per such statement: quadratic, 59 s for 10,000 ``^A = 1`` lines.
+MAX_REPEATED_POINTERS = 8
 
 
 def read_pds3(path: PathLike) -> Observation:
@@ -84,6 +117,7 @@ def load_label(data: bytes, path: Path, longer: bool = False) -> Mapping[str, An
         raise LabelError(path, None, f"not a text label (bad byte at {exc.start})") from exc
     if "\x00" in text:
         raise LabelError(path, None, "not a text label (NUL bytes)")
+    check_structure(text, path)
     _refuse_python_only_numbers(text, path)
     from pdr.parselabel.pds3 import parse_pvl
 
@@ -100,9 +134,70 @@ def load_label(data: bytes, path: Path, longer: bool = False) -> Mapping[str, An
     return label
 
 
+def check_structure(text: str, path: Path) -> None:
+    """LabelError if the label text exceeds a structural bound (``MAX_*`` above).
+
+    The statements are those pdr parses (its own comment stripping and
+    ``pdr.parselabel.pds3.chunk_statements``); the scan is one pass over them after the line
+    count, itself a C-speed count, has bounded their number. With every bound met, pdr's
+    ``parse_pvl`` is bounded too: its quadratic step, ``index_duplicate_pointers`` (a full
+    copy of the label per repeated pointer), by ``MAX_REPEATED_POINTERS``; ``literal_eval`` of
+    the values by ``MAX_VALUE_CHARS`` and ``MAX_SEPARATORS``; its recursion by ``MAX_DEPTH``.
+    """
+    from pdr.parselabel.pds3 import PVL_BLOCK_INITIALS, chunk_statements
+
+    if len(text) > MAX_TEXT_CHARS:
+        reason = f"label text of {len(text):,} characters (at most {MAX_TEXT_CHARS:,})"
+        raise LabelError(path, None, reason)
+    lines = text.count("\n") + text.count("/*")
+    if lines > MAX_LINES:
+        raise LabelError(path, None, f"{lines:,} lines and comments (at most {MAX_LINES:,})")
+    uncommented = _PDR_COMMENT.sub("\n", text)
+    statements = chunk_statements(filter(None, map(str.strip, uncommented.split("\n"))))
+    scopes: list[Counter[str]] = [Counter()]
+    pointers: Counter[str] = Counter()
+    separators = 0
+    for key, value in statements:
+        if len(value) > MAX_VALUE_CHARS:
+            reason = f"a value of {len(value):,} characters (at most {MAX_VALUE_CHARS:,})"
+            raise LabelError(path, key, reason)
+        separators += value.count(",")
+        if key in PVL_BLOCK_INITIALS:
+            scopes.append(Counter())
+            if len(scopes) - 1 > MAX_DEPTH:
+                reason = f"GROUP/OBJECT nested deeper than {MAX_DEPTH} ({value[:60]!r})"
+                raise LabelError(path, key, reason)
+        elif key.startswith("END"):  # pdr closes a block on any END* statement
+            if len(scopes) > 1:
+                scopes.pop()
+        else:
+            scopes[-1][key] += 1
+            if scopes[-1][key] > MAX_KEY_REPEATS:
+                reason = f"repeated more than {MAX_KEY_REPEATS} times in one GROUP/OBJECT"
+                raise LabelError(path, key, reason)
+            if key.startswith("^"):
+                pointers[key] += 1
+    if len(statements) > MAX_STATEMENTS:
+        reason = f"{len(statements):,} statements (at most {MAX_STATEMENTS:,})"
+        raise LabelError(path, None, reason)
+    if separators > MAX_SEPARATORS:
+        raise LabelError(path, None, f"{separators:,} commas (at most {MAX_SEPARATORS:,})")
+    repeated = {key: n for key, n in pointers.items() if n > 1}
+    if sum(repeated.values()) > MAX_REPEATED_POINTERS:
+        key = max(repeated, key=repeated.__getitem__)
+        reason = (f"{sum(repeated.values())} pointer statements share a name "
+                  f"(at most {MAX_REPEATED_POINTERS}; {key} {repeated[key]} times)")  # fmt: skip
+        raise LabelError(path, key, reason)
+
+
 def _refuse_python_only_numbers(text: str, path: Path) -> None:
-    """LabelError at the first value pdr's literal parsing would misread (see above)."""
-    bare = _QUOTED_OR_COMMENT.sub(lambda m: " " * len(m.group()), text)
+    """LabelError at the first value pdr's literal parsing would misread (see above).
+
+    Comments are blanked as pdr strips them (to the end of the line), then quoted text; both
+    passes are linear in the text, unclosed comments included.
+    """
+    bare = _PDR_COMMENT.sub(_blank_comment, text)
+    bare = _QUOTED.sub(lambda m: " " * len(m.group()), bare)
     bare = _RADIX.sub(lambda m: " " * len(m.group()), bare)
     bad = _NOT_PDS3_NUMBER.search(bare)
     if bad is not None:
@@ -113,6 +208,12 @@ def _refuse_python_only_numbers(text: str, path: Path) -> None:
         line = text.count("\n", 0, bad.start()) + 1
         field = key.group(1) if key else None
         raise LabelError(path, field, f"line {line}: not a PDS3 value ({shown[:60]!r})")
+
+
+def _blank_comment(match: re.Match[str]) -> str:
+    """A comment matched by ``_PDR_COMMENT`` as spaces, its line end kept (positions kept)."""
+    end = match.group(1)
+    return " " * (len(match.group()) - len(end)) + (end if end in ("\r", "\n") else "  ")
 
 
 def observation_from_label(label: Mapping[str, Any], path: Path) -> Observation:
@@ -223,7 +324,8 @@ def _camera(f: Fields, label: Mapping[str, Any]) -> CameraModel:
 
 
 def _rover_pose(f: Fields, label: Mapping[str, Any]) -> dict[str, np.ndarray | None]:
-    """ROVER_NAV_FRAME origin and quaternion in SITE_FRAME; None if absent or another frame."""
+    """ROVER_NAV_FRAME origin (metres, SITE_FRAME) and quaternion (ROVER_NAV_FRAME ->
+    SITE_FRAME); None if absent or given in another frame."""
     none: dict[str, np.ndarray | None] = {"rover_offset_m": None, "rover_quaternion": None}
     name = next((g for g in ROVER_GROUPS if label.get(g) is not None), ROVER_GROUPS[0])
     group = _group(f, label, name, required=False)
@@ -236,8 +338,9 @@ def _rover_pose(f: Fields, label: Mapping[str, Any]) -> dict[str, np.ndarray | N
     if is_null(offset) or is_null(quaternion):
         return none
     q = f.vector(quaternion, 4, "ORIGIN_ROTATION_QUATERNION")
+    xyz = f.vector(offset, 3, "ORIGIN_OFFSET_VECTOR")
     return {
-        "rover_offset_m": f.vector(offset, 3, "ORIGIN_OFFSET_VECTOR"),
+        "rover_offset_m": f.offset_m(xyz, "ORIGIN_OFFSET_VECTOR"),
         "rover_quaternion": f.quaternion(q, "ORIGIN_ROTATION_QUATERNION"),
     }
 

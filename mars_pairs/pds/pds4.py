@@ -277,7 +277,8 @@ class _Reader(XmlLabel):
             for n in ("qcos", "qsin1", "qsin2", "qsin3")
         ]
         q_site = self.f.quaternion(parts, "geom:Quaternion_Plus_Direction")
-        return self.xyz(offset, "geom", "Vector_Origin_Offset"), q_site
+        field = "geom:Vector_Origin_Offset"
+        return self.f.offset_m(self.xyz(offset, "geom", "Vector_Origin_Offset"), field), q_site
 
     def _matches(self, defn: etree._Element, rmc: MotionCounter) -> bool:
         """True if the definition's SITE/DRIVE indices equal the motion counter's."""

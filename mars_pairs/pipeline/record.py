@@ -6,6 +6,8 @@ from typing import Any
 
 import shapely
 
+from mars_pairs.errors import PlacesError
+from mars_pairs.geometry.attitude import image_centre_pointing_deg
 from mars_pairs.geometry.places import Pose
 from mars_pairs.pds.observation import Observation
 from mars_pairs.pipeline.chips import ChipCoverage
@@ -32,10 +34,18 @@ def manifest_row(
     cover: ChipCoverage,
 ) -> dict[str, Any]:
     """The manifest row (member locations are added when the shard is written); ``cover``:
-    the chips' coverage fractions."""
+    the chips' coverage fractions.
+
+    ``azimuth_deg``/``elevation_deg``: the ray through the image centre, SITE_FRAME (azimuth
+    clockwise from true north, elevation up, degrees), from the camera model and the pose's
+    attitude; ``label_azimuth_deg``/``label_elevation_deg``: the label's own derived pointing
+    (the camera's, not the centre of a subframe), None when the label has none.
+    """
     cfg = ctx.config
     rover_x, rover_y = (float(v) for v in view.camera.origin_map[:2])
-    az, el = view.camera.pointing_az_el()
+    if pose.quaternion is None:  # MapCamera.from_observation refuses it before this
+        raise PlacesError(f"{obs.label_path}: no rover attitude in the label or PLACES table")
+    az, el = image_centre_pointing_deg(obs.camera, obs.width, obs.height, pose.quaternion)
     hfov, vfov = obs.camera.fov_deg(obs.width, obs.height)
     footprint = footprint_polygon(view)
     xmin, ymin, xmax, ymax = grid.bounds()
@@ -48,11 +58,12 @@ def manifest_row(
         "site": obs.rmc.site, "drive": obs.rmc.drive, "pose": obs.rmc.pose,
         "time": obs.start_time, "latitude": pose.latitude, "longitude": pose.longitude,
         "easting": rover_x, "northing": rover_y, "elevation_m": pose.elevation_m,
-        "azimuth_deg": obs.azimuth_deg if obs.azimuth_deg is not None else az,
-        "elevation_deg": obs.elevation_deg if obs.elevation_deg is not None else el,
+        "azimuth_deg": az, "elevation_deg": el,
+        "label_azimuth_deg": obs.azimuth_deg, "label_elevation_deg": obs.elevation_deg,
         "hfov_deg": obs.hfov_deg if obs.hfov_deg is not None else hfov,
         "vfov_deg": obs.vfov_deg if obs.vfov_deg is not None else vfov,
         "width": obs.width, "height": obs.height, "localization": pose.source,
+        "places_pose": pose.pose, "places_match": pose.match,
         "dem_offset_m": view.dem_offset_m,
         **view_statistics(view),
         "footprint": None if footprint is None else shapely.to_wkb(footprint),

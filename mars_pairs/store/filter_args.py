@@ -45,12 +45,15 @@ def integers(value: Any, n: int, name: str) -> list[int]:
 
 
 def strings(value: Any, name: str) -> list[str]:
-    """One value or a list of values (a str, numpy str, list, array or Series) as strings."""
+    """One value or a non-empty list of values (a str, numpy str, list, array or Series) as
+    strings."""
     if isinstance(value, str):
         return [str(value)]
     if not hasattr(value, "__iter__") or isinstance(value, bytes):
         raise ArgumentError(f"{name}: expected a string or a list of strings, got {value!r}")
     values = list(value.tolist() if hasattr(value, "tolist") else value)
+    if not values:
+        raise ArgumentError(f"{name}: expected a string or a non-empty list of strings, got []")
     bad = [v for v in values if not isinstance(v, str)]
     if bad:
         raise ArgumentError(f"{name}: expected strings, got {bad[0]!r}")

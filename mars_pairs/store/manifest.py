@@ -43,13 +43,17 @@ _FIELDS: list[tuple[str, pa.DataType]] = [
     ("easting", pa.float64()),  # dataset CRS, map units
     ("northing", pa.float64()),
     ("elevation_m", pa.float64()),  # metres above the areoid (was "elevation", see columns.py)
-    ("azimuth_deg", pa.float64()),  # camera axis, clockwise from north
-    ("elevation_deg", pa.float64()),  # camera axis, up from the horizon
+    ("azimuth_deg", pa.float64()),  # image centre ray, SITE_FRAME, clockwise from true north
+    ("elevation_deg", pa.float64()),  # image centre ray, SITE_FRAME, up from the horizon
+    ("label_azimuth_deg", pa.float64()),  # the label's derived pointing (null: none)
+    ("label_elevation_deg", pa.float64()),
     ("hfov_deg", pa.float64()),
     ("vfov_deg", pa.float64()),
     ("width", pa.int32()),
     ("height", pa.int32()),
     ("localization", pa.string()),  # places | label
+    ("places_pose", pa.int32()),  # the PLACES row's pose (-1: every pose; null: none)
+    ("places_match", pa.string()),  # geometry.places MATCH_*: site-drive-pose, earlier-pose, ...
     ("dem_offset_m", pa.float64()),  # DEM at the rover origin - PLACES elevation (rover moved)
     ("viewshed_area_m2", pa.float64()),
     ("visible_cells", pa.int64()),
@@ -78,14 +82,22 @@ for _m in MEMBERS:
 
 MANIFEST_SCHEMA = pa.schema(_FIELDS)
 
-#: Columns absent from datasets built before they were added.
+#: Columns added after the first datasets: absent from older manifests, so not required.
 COVERAGE_COLUMNS = ("ortho_coverage", "dem_coverage")
+POINTING_PLACES_COLUMNS = (
+    "label_azimuth_deg",
+    "label_elevation_deg",
+    "places_pose",
+    "places_match",
+)
+OPTIONAL_COLUMNS = COVERAGE_COLUMNS + POINTING_PLACES_COLUMNS
 
-#: The columns every reader may rely on (checksums and coverage are absent from older datasets).
+#: The columns every reader may rely on (checksums and later columns are absent from older
+#: datasets).
 CORE_COLUMNS = tuple(
     f.name
     for f in MANIFEST_SCHEMA
-    if not f.name.endswith("_crc32c") and f.name not in COVERAGE_COLUMNS
+    if not f.name.endswith("_crc32c") and f.name not in OPTIONAL_COLUMNS
 )
 
 #: The plain per-sample attributes that readers pass on (dataset meta, GeoPackage attributes).
@@ -221,14 +233,30 @@ class Manifest:
         radius_m), great circle on the Mars sphere; ``polygon``: shapely geometry or WKT in
         the dataset CRS; ``sol``: inclusive (first, last); ``mission``/``instrument``/``split``:
         a value or a list of values. Numbers may be Python, numpy or pandas scalars (and the
-        tuples numpy arrays or pandas Series); a wrong type, size or a NaN raises
-        ArgumentError naming the argument.
+        tuples numpy arrays or pandas Series); a wrong type, size, a NaN or an empty list
+        raises ArgumentError naming the argument; a column a predicate needs that the
+        manifest lacks, DatasetError naming the column.
         """
         import pyarrow.dataset as ds
 
         f = ds.field
         terms = []
         exact = list(self._exact)
+        uses = [
+            column
+            for value, columns in (
+                (bbox_lonlat, ("latitude", "longitude")),
+                (bbox_map, ("easting", "northing")),
+                (near, ("latitude", "longitude")),
+                (polygon, ("easting", "northing")),
+                (mission, ("mission",)),
+                (instrument, ("instrument",)),
+                (sol, ("sol",)),
+                (split, ("split",)),
+            )
+            if value is not None
+            for column in columns
+        ]
         if bbox_lonlat is not None:
             w, s, e, n = numbers(bbox_lonlat, 4, "bbox_lonlat")
             terms.append((f("latitude") >= s) & (f("latitude") <= n))
@@ -270,6 +298,7 @@ class Manifest:
         if sol is not None:
             first, last = integers(sol, 2, "sol")
             terms.append((f("sol") >= first) & (f("sol") <= last))
+        self.require(uses)  # after the arguments: a bad argument is the caller's error
         expression = self._expression
         for term in terms:
             expression = term if expression is None else expression & term
@@ -282,7 +311,8 @@ class Manifest:
 
     def to_table(self, columns: list[str] | None = None) -> pa.Table:
         """The filtered rows (all columns, or ``columns``). An old column name (see
-        :mod:`mars_pairs.store.columns`) reads its new column, with a DeprecationWarning."""
+        :mod:`mars_pairs.store.columns`) reads its new column, with a DeprecationWarning; a
+        column the manifest lacks is a DatasetError naming it."""
         stored = self._dataset.schema.names
         needed = None
         if columns is not None:
@@ -293,6 +323,7 @@ class Manifest:
             extra = {"latitude", "longitude", "easting", "northing"} if self._exact else set()
             needed = list(dict.fromkeys([*columns, *sorted(extra)]))
             needed = list(dict.fromkeys(stored_name(c, stored) for c in needed))
+            self.require(needed)
         try:
             table = self._dataset.to_table(columns=needed, filter=self._expression)
         except (pa.ArrowException, OSError) as exc:  # a damaged file or a missing column

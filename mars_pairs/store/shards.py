@@ -142,13 +142,21 @@ def read_member(
     """One member's bytes by its manifest location: one seek, one read.
 
     ``name`` (``<key>.<field>``) is named in errors; ``verify`` checks the bytes against the
-    location's CRC-32C. A short read, a missing shard or a checksum mismatch raise
-    DatasetError naming the shard and the member.
+    location's CRC-32C. A shard path outside ``root`` (:func:`~mars_pairs.store.integrity.
+    shard_path`), a location past the shard's end, a short read, a missing shard or a
+    checksum mismatch raise DatasetError naming the shard and the member.
     """
+    from mars_pairs.store.integrity import bounds_problem, shard_path
+
     try:
-        with open(Path(root) / location.shard, "rb") as fh:
+        with open(shard_path(Path(root), location.shard, name), "rb") as fh:
+            problem = bounds_problem(location.offset, location.size, os.fstat(fh.fileno()).st_size)
+            if problem is not None:  # checked before reading: a huge size allocates nothing
+                raise DatasetError(location.shard, name, f"short read: {problem}")
             fh.seek(location.offset)
             data = fh.read(location.size)
+    except DatasetError as exc:
+        raise DatasetError(location.shard, name, exc.reason) from None
     except OSError as exc:
         raise DatasetError(location.shard, name, f"cannot read: {exc}") from None
     if len(data) != location.size:

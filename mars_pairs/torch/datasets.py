@@ -12,13 +12,17 @@ plain Python values of the manifest row.
 
 Every error a user can catch is a :class:`~mars_pairs.errors.MarsPairsError`: a bad
 argument an ArgumentError (also a TypeError / ValueError), a damaged shard or member a
-DatasetError naming the shard and the member (``verify=True`` checks each member's
-CRC-32C against the manifest where it has ``<member>_crc32c`` columns).
+DatasetError naming the shard and the member. A dataset opens only with its dataset.json
+(the ray stride, CRS and chip size) and the manifest columns it reads. Every read stays
+inside the dataset folder and inside the shard file. ``verify=True`` checks each sample it
+reads as ``mars-pairs verify`` does (:mod:`mars_pairs.store.integrity`, the same code): every
+member of the sample, requested or not (``meta.json`` too), must lie inside its shard, follow
+a tar header naming ``<key>.<field>`` with the manifest's size, and match its CRC-32C where
+the manifest has ``<member>_crc32c`` columns; and no key may be on two manifest rows.
 """
 
 from __future__ import annotations
 
-import json
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -30,10 +34,17 @@ import pyarrow.compute as pc
 import torch
 from torch.utils.data import Dataset
 
-from mars_pairs.errors import ArgumentError, DatasetError, SampleIndexError, SampleKeyError
-from mars_pairs.store.manifest import SUMMARY_COLUMNS, Manifest
+from mars_pairs.errors import (
+    ArgumentError,
+    DatasetError,
+    MissingMemberError,
+    SampleIndexError,
+    SampleKeyError,
+)
+from mars_pairs.store.dataset_info import read_dataset_info
+from mars_pairs.store.integrity import MemberSpec, check_member
+from mars_pairs.store.manifest import MEMBERS, SUMMARY_COLUMNS, Manifest
 from mars_pairs.store.member_index import MemberIndex
-from mars_pairs.store.shards import checksum
 from mars_pairs.torch.decode import (
     ALL_FIELDS,
     DEFAULT_FIELDS,
@@ -86,14 +97,17 @@ def _check_fields(fields: Sequence[str]) -> tuple[str, ...]:
     return tuple(fields)
 
 
-def _dataset_json(root: Path) -> dict[str, Any]:
-    path = root / "dataset.json"
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError:
-        return {}
-    except (OSError, ValueError) as exc:
-        raise DatasetError(path, None, f"unreadable: {exc}") from None
+def _refuse_duplicate_keys(root: Path, table: pa.Table) -> None:
+    """DatasetError naming the manifest and the first key that more than one row holds."""
+    counts = pc.value_counts(table["key"])
+    repeated = pc.filter(counts, pc.greater(counts.field("counts"), 1))
+    if len(repeated):
+        first = repeated[0].as_py()
+        raise DatasetError(
+            root / "manifest.parquet",
+            first["values"],
+            f"{first['counts']} rows hold this key ({len(repeated)} keys repeated)",
+        )
 
 
 class MarsPairsDataset(Dataset):
@@ -103,7 +117,8 @@ class MarsPairsDataset(Dataset):
     (H, W)) resizes ground images so they batch; ``normalize_dem`` subtracts each chip's
     median elevation. ``image_dtype`` is torch.uint8 (default) or torch.float32 (images in
     [0, 1]). ``transform`` is applied to the sample dict (see
-    :mod:`mars_pairs.torch.transforms`). ``verify`` checks each member's CRC-32C.
+    :mod:`mars_pairs.torch.transforms`). ``verify`` checks every member of each sample read
+    (tar header, size, CRC-32C; see the module docstring): one extra 512-byte read per member.
     Use as a context manager, or call :meth:`close`.
     """
 
@@ -132,26 +147,31 @@ class MarsPairsDataset(Dataset):
         self._dtypes = {f: out_dtype(f, image_dtype) for f in self.fields}
         self.image_dtype = image_dtype
         manifest = Manifest.open(self.root).filter(**filters)
-        info = _dataset_json(self.root)
-        self.crs: str = info.get("crs") or manifest.crs or ""
-        self.chip_px = int(info.get("chip", {}).get("size_px", 0)) or None
-        self.ray_stride = int(info.get("config", {}).get("geometry", {}).get("ray_stride", 1))
-        names = set(manifest.column_names)
-        self._crc_fields = tuple(f for f in self.fields if f"{f}_crc32c" in names)
+        info = read_dataset_info(self.root)
+        self.crs: str = info.crs or manifest.crs or ""
+        self.chip_px = info.chip_px
+        self.ray_stride = info.ray_stride
         self.verify = bool(verify)
-        if self.verify and len(self._crc_fields) < len(self.fields):
-            missing = [f for f in self.fields if f not in self._crc_fields]
+        # verify=True checks every member of a sample read, like `mars-pairs verify`
+        self._located = tuple(MEMBERS) if self.verify else self.fields
+        locations = [f"{m}_{s}" for m in self._located for s in ("shard", "offset", "size")]
+        required = [*META_COLUMNS, *GEO_COLUMNS, "width", "height", *locations]
+        manifest.require(required)
+        names = set(manifest.column_names)
+        crc_fields = tuple(m for m in self._located if f"{m}_crc32c" in names and self.verify)
+        if self.verify and len(crc_fields) < len(self._located):
+            missing = [m for m in self._located if m not in crc_fields]
             warnings.warn(
                 f"{self.root}: the manifest has no checksums of {missing} (built before "
                 "checksums): verify=True checks the others only",
                 stacklevel=2,
             )
-        columns = [*META_COLUMNS, *GEO_COLUMNS, "width", "height", "ground_member"]
-        for name in self.fields:
-            columns += [f"{name}_shard", f"{name}_offset", f"{name}_size"]
-        columns += [f"{f}_crc32c" for f in self._crc_fields]
-        table = manifest.to_table(columns=[c for c in dict.fromkeys(columns) if c in names])
-        self._index = MemberIndex(table, self.fields, META_COLUMNS)
+        columns = [*required, *(["ground_member"] if "ground_member" in names else [])]
+        columns += [f"{m}_crc32c" for m in crc_fields]
+        table = manifest.to_table(columns=list(dict.fromkeys(columns)))
+        if self.verify:
+            _refuse_duplicate_keys(self.root, table)
+        self._index = MemberIndex(table, self._located, META_COLUMNS)
         self._geo = np.column_stack(
             [table[c].fill_null(np.nan).to_numpy().astype(np.float64) for c in GEO_COLUMNS]
         ).reshape(table.num_rows, len(GEO_COLUMNS))
@@ -162,8 +182,7 @@ class MarsPairsDataset(Dataset):
             table["ground_member"].combine_chunks() if "ground_member" in names else None
         )
         self._crc = {
-            f: table[f"{f}_crc32c"].fill_null(-1).to_numpy().astype(np.int64)
-            for f in self._crc_fields
+            m: table[f"{m}_crc32c"].fill_null(-1).to_numpy().astype(np.int64) for m in crc_fields
         }
         self._files = ShardFiles(self.root)
 
@@ -215,28 +234,55 @@ class MarsPairsDataset(Dataset):
         return f"{key}.{suffix}"
 
     def _bytes(self, index: int, field: str) -> bytearray:
+        """The bytes of sample ``index``'s ``field`` member (not checked)."""
         shard, offset, size = self._index.location(index, field)
         try:
-            data = self._files.read(shard, offset, size)
+            return self._files.read(shard, offset, size)
+        except DatasetError as exc:  # a shard path outside the dataset, a read past its end
+            raise DatasetError(exc.shard, self.member_name(index, field), exc.reason) from None
         except OSError as exc:
             name = self.member_name(index, field)
             raise DatasetError(self.root / shard, name, f"cannot read: {exc}") from None
-        if self.verify and field in self._crc:
-            expected = int(self._crc[field][index])
-            if expected >= 0:
-                got = checksum(data)  # type: ignore[arg-type]  (a bytearray is fine)
-                if got != expected:
-                    raise DatasetError(
-                        self.root / shard,
-                        self.member_name(index, field),
-                        f"checksum mismatch (crc32c {got:#010x}, manifest {expected:#010x})",
-                    )
-        return data
+
+    def _verified(self, index: int) -> dict[str, bytes | bytearray]:
+        """Every member of sample ``index`` checked as ``mars-pairs verify`` does
+        (:func:`~mars_pairs.store.integrity.check_member`); the bytes of ``self.fields``."""
+        key = self._index.meta_value(index, "key")
+        ground = self._ground_member[index].as_py() if self._ground_member is not None else None
+        out = {}
+        for field in self._located:
+            try:
+                shard, offset, size = self._index.location(index, field)
+            except MissingMemberError:
+                if field in self.fields:
+                    raise
+                continue  # a sample without this member: nothing to check
+            name = self.member_name(index, field)
+            crc = self._crc.get(field)
+            spec = MemberSpec(
+                key, field, offset, size, None if crc is None else int(crc[index]), ground
+            )
+            try:
+                data, problem = check_member(
+                    spec,
+                    lambda o, n, s=shard: self._files.read(s, o, n),
+                    self._files.size(shard),
+                )
+            except DatasetError as exc:
+                raise DatasetError(exc.shard, name, exc.reason) from None
+            except OSError as exc:
+                raise DatasetError(self.root / shard, name, f"cannot read: {exc}") from None
+            if problem is not None:
+                raise DatasetError(self.root / shard, name, problem)
+            if field in self.fields:
+                out[field] = data
+        return out
 
     def _raw(self, index: int) -> dict[str, np.ndarray]:
         raw = {}
+        verified = self._verified(index) if self.verify else {}
         for name in self.fields:
-            data = self._bytes(index, name)
+            data = verified[name] if self.verify else self._bytes(index, name)
             try:
                 raw[name] = decode_raw(name, data, self.ground_size, self.normalize_dem)
             except (OSError, ValueError, SyntaxError, EOFError) as exc:  # PIL, numpy headers

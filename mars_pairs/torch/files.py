@@ -1,4 +1,5 @@
-"""Shard files opened lazily per process, with positioned reads."""
+"""Shard files opened lazily per process, with positioned reads confined to the dataset
+folder and to each file's size."""
 
 from __future__ import annotations
 
@@ -8,35 +9,50 @@ from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
+from mars_pairs.errors import DatasetError
+from mars_pairs.store.integrity import bounds_problem, shard_path
+
 
 class ShardFiles:
     """Shard file descriptors, opened lazily and per process (safe under fork and spawn).
 
     At most ``max_open`` stay open (least recently used closed first), so datasets with many
     shards do not run out of descriptors. Reads are positioned (``preadv``): no seek state.
+    A shard path that is not confined to ``root`` (:func:`~mars_pairs.store.integrity.
+    shard_path`) and a read past a shard's end raise DatasetError naming the shard (no
+    member: the caller adds it) before anything is read or allocated; I/O errors are OSError.
     """
 
     def __init__(self, root: Path, max_open: int = 64) -> None:
         self.root = root
         self.max_open = max_open
         self._pid = -1
-        self._files: OrderedDict[str, int] = OrderedDict()
+        self._files: OrderedDict[str, tuple[int, int]] = OrderedDict()
 
-    def _fd(self, shard: str) -> int:
+    def _fd(self, shard: str) -> tuple[int, int]:
+        """(descriptor, size in bytes) of ``shard``, opened if need be."""
         if self._pid != os.getpid():  # inherited through fork: the parent's, leave them be
             self._files, self._pid = OrderedDict(), os.getpid()
-        fd = self._files.get(shard)
-        if fd is None:
+        entry = self._files.get(shard)
+        if entry is None:
             while len(self._files) >= self.max_open:
-                os.close(self._files.popitem(last=False)[1])
-            fd = self._files[shard] = os.open(self.root / shard, os.O_RDONLY)
+                os.close(self._files.popitem(last=False)[1][0])
+            fd = os.open(shard_path(self.root, shard), os.O_RDONLY)
+            entry = self._files[shard] = (fd, os.fstat(fd).st_size)
         else:
             self._files.move_to_end(shard)
-        return fd
+        return entry
+
+    def size(self, shard: str) -> int:
+        """The size in bytes of ``shard`` (as when this process opened it)."""
+        return self._fd(shard)[1]
 
     def read(self, shard: str, offset: int, size: int) -> bytearray:
         """``size`` bytes at ``offset``, into a fresh writable buffer."""
-        fd = self._fd(shard)
+        fd, shard_size = self._fd(shard)
+        problem = bounds_problem(offset, size, shard_size)
+        if problem is not None:
+            raise DatasetError(self.root / shard, None, problem)
         buf = bytearray(size)
         view, done = memoryview(buf), 0
         while done < size:
@@ -55,7 +71,7 @@ class ShardFiles:
     def close(self) -> None:
         """Close this process's descriptors."""
         if self._pid == os.getpid():
-            for fd in self._files.values():
+            for fd, _ in self._files.values():
                 os.close(fd)
         self._files = OrderedDict()
 

@@ -9,13 +9,23 @@ Content-Range, 416). Faults are queued per path and used one per request:
     "stall"          send half the body, then wait ``slow_s`` before the rest (kill a client then)
     "corrupt"        the same number of bytes with one changed (an MD5 mismatch)
     "longer"         the file with 100 bytes appended (a wrong size)
+    "html"           200 with ``Content-Type: text/html`` and an HTML error page (a proxy's)
+    "html-as-file"   that HTML page with the Content-Type the file itself would have
+    "short"          200 with the first half of the file and a Content-Length matching that
+                     half (a cut body that looks complete); ignores Range and validators;
+                     "short:N" sends the first N bytes instead
 
-Every request is logged with its method, path, Range header, status and body bytes sent, so
-tests measure what a client moved.
+``replace(rel, data)`` puts new content at a path between requests, moving its modification
+time on (so its ETag and Last-Modified change, as an archive's re-release would).
+
+Every request is logged with its method, path, Range, If-Range, If-None-Match and
+If-Modified-Since headers, status and body bytes sent, so tests measure what a client moved.
 """
 
 from __future__ import annotations
 
+import mimetypes
+import os
 import threading
 import time
 from collections.abc import Iterable, Iterator
@@ -37,6 +47,9 @@ class LogEntry:
     range: str | None
     status: int = 0
     sent: int = 0
+    if_range: str | None = None
+    if_none_match: str | None = None
+    if_modified_since: str | None = None
 
 
 class _Quiet(WSGIRequestHandler):
@@ -92,6 +105,15 @@ class ArchiveServer:
             rows = [e for e in self.log if rel is None or e.path == "/" + rel.lstrip("/")]
             return sum(e.sent for e in rows)
 
+    def replace(self, rel: str, data: bytes) -> None:
+        """New content at ``rel``, its modification time moved 10 s past the old one."""
+        path = self.root / rel.lstrip("/")
+        old = path.stat().st_mtime if path.exists() else time.time()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(data)
+        later = max(old + 10, time.time())
+        os.utime(path, (later, later))
+
     def reset_log(self) -> None:
         with self._lock:
             self.log.clear()
@@ -99,7 +121,10 @@ class ArchiveServer:
     # -- the WSGI app ----------------------------------------------------------------------
     def _app(self, environ: dict, start_response):  # type: ignore[no-untyped-def]
         req = Request(environ)
-        entry = LogEntry(req.method, req.path, req.headers.get("Range"))
+        h = req.headers
+        entry = LogEntry(req.method, req.path, h.get("Range"), if_range=h.get("If-Range"),
+                         if_none_match=h.get("If-None-Match"),
+                         if_modified_since=h.get("If-Modified-Since"))  # fmt: skip
         with self._lock:
             self.log.append(entry)
             queue = self.faults.get(req.path.lstrip("/"))
@@ -113,6 +138,8 @@ class ArchiveServer:
             path = safe_join(str(self.root), req.path.lstrip("/"))
             if path is None or not Path(path).is_file():
                 resp = NotFound()
+            elif fault in ("html", "html-as-file") or (fault or "").startswith("short"):
+                resp = self._bad_200(Path(path), fault)
             else:
                 served = (
                     self._variant(Path(path), fault) if fault in ("corrupt", "longer") else path
@@ -150,6 +177,20 @@ class ArchiveServer:
             close = getattr(body, "close", None)
             if close is not None:
                 close()
+
+    @staticmethod
+    def _bad_200(path: Path, fault: str) -> Response:
+        """A 200 that is not the file: an HTML error page, or the first half of the file."""
+        own = mimetypes.guess_type(path.name)[0] or "application/octet-stream"  # as send_file
+        if fault.startswith("short"):
+            data = path.read_bytes()
+            cut = int(fault.split(":")[1]) if ":" in fault else len(data) // 2
+            return Response(data[:cut], status=200, mimetype=own)
+        page = (
+            "<!DOCTYPE html>\n<html><head><title>Service Unavailable</title></head>\n"
+            "<body><h1>The archive is down for maintenance</h1></body></html>\n"
+        )
+        return Response(page, status=200, mimetype="text/html" if fault == "html" else own)
 
     def _variant(self, path: Path, fault: str) -> str:
         """A corrupted or lengthened copy of ``path`` (kept beside the archive, not in it)."""

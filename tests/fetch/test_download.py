@@ -9,10 +9,11 @@ from pathlib import Path, PurePosixPath
 import fetch_server
 import numpy as np
 import pytest
+import requests
 
 from mars_pairs.errors import FetchError
 from mars_pairs.fetch.cache import Cache, archive_path
-from mars_pairs.fetch.download import Downloader, FetchPolicy, RemoteFile
+from mars_pairs.fetch.download import Downloader, FetchPolicy, RemoteFile, Validator, sidecar
 
 served = fetch_server.served  # the loopback server fixture
 FAST = FetchPolicy(retries=2, backoff_s=0.01, connect_timeout_s=2.0, read_timeout_s=0.4, workers=2)
@@ -141,18 +142,35 @@ def test_without_md5_a_short_body_is_still_caught_by_content_length(served, tmp_
     assert not (tmp_path / "c" / REL).exists()  # only the .part, never the real name
 
 
-def test_a_part_left_by_a_kill_is_resumed(served, tmp_path):
+def test_a_part_left_by_a_kill_is_resumed_with_if_range(served, tmp_path):
     srv, root = served
     data = _publish(root)
     cache = Cache(tmp_path / "c")
     part = cache.path(REL).with_name("PRODUCT.IMG.part")
     part.parent.mkdir(parents=True)
     part.write_bytes(data[:123_456])
+    url = f"{srv.url}/{REL}"
+    etag = requests.head(url, timeout=5).headers["ETag"]  # what the first answer carried
+    sidecar(part).write_bytes(Validator(url, etag).dump(None))
     res = Downloader(cache, FAST).fetch(_remote(srv, data))
     assert res.status == "resumed" and res.path.read_bytes() == data
     (req,) = srv.requests_for(REL)
     assert req.range == "bytes=123456-" and req.sent == len(data) - 123_456
-    assert not part.exists()
+    assert req.if_range == etag and req.status == 206
+    assert not part.exists() and not sidecar(part).exists()
+
+
+def test_a_part_without_a_validator_is_restarted_not_stitched(served, tmp_path):
+    srv, root = served
+    data = _publish(root)
+    cache = Cache(tmp_path / "c")
+    part = cache.path(REL).with_name("PRODUCT.IMG.part")
+    part.parent.mkdir(parents=True)
+    part.write_bytes(b"x" * 123_456)  # nothing says which version of the file this began
+    res = Downloader(cache, FAST).fetch(_remote(srv, data, md5=False))
+    assert res.status == "downloaded" and res.path.read_bytes() == data
+    (req,) = srv.requests_for(REL)
+    assert req.range is None and req.sent == len(data)
 
 
 @pytest.mark.parametrize(

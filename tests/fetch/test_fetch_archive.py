@@ -76,7 +76,10 @@ def test_msl_products_from_the_pds3_index_mirror_the_archive(archive, server, tm
     server.reset_log()
     again = fetch_products(cfg, progress=False)
     assert again.downloaded == 0 and again.selected == 4
-    assert [e for e in server.log if e.method == "GET"] == []  # a rerun fetches nothing
+    # a rerun fetches no product; the index files (mutable tables) are revalidated: 304
+    gets = [e for e in server.log if e.method == "GET"]
+    assert sorted(e.path.rsplit("/", 1)[1] for e in gets) == ["RDRINDEX.LBL", "RDRINDEX.TAB"]
+    assert all(e.status == 304 and e.if_none_match and e.sent == 0 for e in gets)
 
 
 def test_index_columns_are_read_by_name_not_position(archive, server, tmp_path):
@@ -166,7 +169,12 @@ def test_failures_become_rows_and_a_rerun_completes(archive, server, tmp_path):
     server.reset_log()
     again = fetch_products(cfg, progress=False)
     assert again.selected == 4 and not again.failures
-    fetched = sorted(e.path for e in server.log if e.method == "GET")
+    gets = [e for e in server.log if e.method == "GET"]
+    fetched = sorted(e.path for e in gets if e.status != 304)  # 304: revalidated tables
+    assert sorted(e.path.rsplit("/", 1)[1] for e in gets if e.status == 304) == [
+        "collection_data.csv",
+        "collection_data.xml",
+    ]
     assert fetched == sorted(
         [f"/{bad_label}", f"/{bad_label.with_suffix('.jpg')}", f"/{bad_image}"]
     )  # only what was missing

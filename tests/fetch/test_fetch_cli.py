@@ -95,7 +95,7 @@ def test_a_fetch_killed_mid_download_resumes_and_fetches_only_what_was_missing(a
         assert not part.with_suffix("").exists()  # no half-written file under the real name
         srv.reset_log()
         report = fetch_products(cfg, progress=False)
-        gets = [e for e in srv.log if e.method == "GET"]
+        gets = [e for e in srv.log if e.method == "GET" and e.status != 304]  # 304: tables
     assert report.selected == 2 and not report.failures
     assert [(e.path, e.range) for e in gets] == [(f"/{image}", f"bytes={kept}-")]
     data = (cfg.cache / image.relative_to("mars2020")).read_bytes()

@@ -561,6 +561,8 @@ def test_pds3_wrong_types(workdir: Path, bad: tuple[str, str]) -> None:
     index = _PDS3_TARGET[key]
     lines[index] = f" {key} = {value}"
     field = "ROVER_MOTION_COUNTER" if key.startswith("ROVER_MOTION_COUNTER") else key
+    if bad == ("MODEL_TYPE", "CAHVORE"):
+        field = "MODEL_COMPONENT_7"  # a valid type: what is wrong is the CAHVOR seed's missing E
     expect_error(write(workdir, "badtype.LBL", "\n".join(lines)), field=field)
 
 

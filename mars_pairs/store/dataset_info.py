@@ -1,0 +1,64 @@
+"""``dataset.json``: what a reader of a built dataset needs beyond the manifest (the ray
+stride of the correspondence grids, the CRS, the chip size). Every reader requires it: there
+is no default stride to fall back on."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from mars_pairs.errors import DatasetError
+
+#: where dataset.json keeps the ray stride (ground-image pixels between keypoint rays)
+RAY_STRIDE = ("config", "geometry", "ray_stride")
+
+
+@dataclass(frozen=True)
+class DatasetInfo:
+    """The reader's part of dataset.json: ``crs`` (WKT or PROJJSON text; None when absent),
+    ``chip_px`` (chip side in pixels; None when absent), ``ray_stride`` (ground-image pixels
+    between rays, >= 1) and the whole document."""
+
+    path: Path
+    crs: str | None
+    chip_px: int | None
+    ray_stride: int
+    doc: dict[str, Any]
+
+
+def _positive_int(value: Any) -> int | None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        return None
+    return value
+
+
+def read_dataset_info(root: str | Path) -> DatasetInfo:
+    """The dataset.json of the dataset folder ``root``; DatasetError naming the file (and the
+    field) when it is missing, unreadable, not a JSON object or lacks a valid ray stride."""
+    path = Path(root) / "dataset.json"
+    try:
+        doc = json.loads(path.read_text())
+    except FileNotFoundError:
+        reason = "missing (it holds the ray stride, CRS and chip size: rebuild or restore it)"
+        raise DatasetError(path, None, reason) from None
+    except (OSError, ValueError) as exc:
+        raise DatasetError(path, None, f"unreadable: {exc}") from None
+    if not isinstance(doc, dict):
+        raise DatasetError(path, None, f"expected a JSON object, got {type(doc).__name__}")
+    value: Any = doc
+    for part in RAY_STRIDE:
+        value = value.get(part) if isinstance(value, dict) else None
+    stride = _positive_int(value)
+    if stride is None:
+        reason = f"expected a positive integer, got {value!r}"
+        raise DatasetError(path, ".".join(RAY_STRIDE), reason)
+    chip = doc.get("chip")
+    size_px = chip.get("size_px") if isinstance(chip, dict) else None
+    if size_px is not None and _positive_int(size_px) is None:
+        raise DatasetError(path, "chip.size_px", f"expected a positive integer, got {size_px!r}")
+    crs = doc.get("crs")
+    if crs is not None and not isinstance(crs, str):
+        raise DatasetError(path, "crs", f"expected a string, got {type(crs).__name__}")
+    return DatasetInfo(path, crs or None, size_px, stride, doc)

@@ -1,0 +1,380 @@
+"""``mars-pairs report``: one self-contained HTML page describing a built dataset.
+
+The page holds the map of footprints and traverse over the ortho (held-out areas and buffer
+drawn), the counts per split, histograms of the view statistics, a gallery of samples
+(ground image and its view on the ortho chip), the failures table and the provenance from
+``dataset.json``. Every image is inline (base64 PNG): no external URL, no script.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import math
+from collections import Counter
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from mars_pairs.errors import DatasetError, MarsPairsError, UsageError
+from mars_pairs.store.manifest import Manifest
+from mars_pairs.store.shards import atomic_write_bytes
+
+COLUMNS = (
+    "key", "mission", "instrument", "product_id", "sol", "site", "drive", "split", "easting",
+    "northing", "azimuth_deg", "elevation_deg", "hfov_deg", "max_visible_range_m",
+    "viewshed_area_m2", "footprint",
+)  # fmt: skip
+MAX_FAILURE_ROWS = 500  # failures listed on the page; the rest are counted
+DEFAULT_SAMPLES = 12
+
+CSS = """
+body{font:14px/1.45 system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:0;
+color:#1d1d1f;background:#f4f4f6}
+main{max-width:1480px;margin:0 auto;padding:18px 28px 40px}
+h1{font-size:24px;margin:8px 0 2px}h2{font-size:19px;margin:28px 0 8px;
+border-bottom:2px solid #d0d0d8;padding-bottom:3px}
+.sub{color:#555;margin:0 0 10px}
+img{max-width:100%;height:auto;display:block;background:#fff}
+table{border-collapse:collapse;background:#fff;font-size:13px;margin:6px 0}
+th,td{border:1px solid #d6d6de;padding:3px 9px;text-align:left;vertical-align:top}
+th{background:#ebebf0}td.n{text-align:right;font-variant-numeric:tabular-nums}
+.row{display:flex;gap:28px;flex-wrap:wrap;align-items:flex-start}
+.gallery{display:grid;grid-template-columns:repeat(auto-fill,minmax(440px,1fr));gap:14px}
+figure{margin:0;background:#fff;border:1px solid #d6d6de;padding:6px}
+figcaption{font-size:12px;color:#333;margin-top:4px;word-break:break-all}
+.swatch{display:inline-block;width:11px;height:11px;border-radius:2px;margin-right:6px;
+vertical-align:-1px}
+pre{background:#fff;border:1px solid #d6d6de;padding:8px;font-size:12px;overflow:auto;
+max-height:480px}
+.msg{max-width:720px;word-break:break-word}.empty{color:#2a7a2a;font-weight:600}
+"""
+
+
+def _esc(value: Any) -> str:
+    return html.escape("" if value is None else str(value))
+
+
+def _img(png: bytes, alt: str, cls: str = "") -> str:
+    from PIL import Image
+
+    with Image.open(io.BytesIO(png)) as im:
+        width, height = im.size
+    data = base64.b64encode(png).decode("ascii")
+    klass = f' class="{cls}"' if cls else ""
+    return (
+        f'<img{klass} alt="{_esc(alt)}" width="{width}" height="{height}" '
+        f'src="data:image/png;base64,{data}">'
+    )
+
+
+def _table(header: list[str], rows: list[list[Any]], numeric: set[int] = frozenset()) -> str:
+    head = "".join(f"<th>{_esc(h)}</th>" for h in header)
+    body = "".join(
+        "<tr>"
+        + "".join(
+            f'<td class="n">{_esc(v)}</td>' if i in numeric else f"<td>{v}</td>"
+            for i, v in enumerate(row)
+        )
+        + "</tr>"
+        for row in rows
+    )
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _fmt(value: Any, spec: str = "") -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "–"
+    return format(value, spec)
+
+
+def _span(values: list[int]) -> str:
+    """'a–b' of the smallest and largest value ('a' when they are equal, '–' for none)."""
+    if not values:
+        return "–"
+    lo, hi = min(values), max(values)
+    return f"{lo}" if lo == hi else f"{lo}–{hi}"
+
+
+# -- reading ------------------------------------------------------------------------------------
+
+
+def _dataset_json(root: Path) -> dict[str, Any]:
+    path = root / "dataset.json"
+    if not path.is_file():
+        return {}
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DatasetError(path, None, f"unreadable JSON: {exc}") from None
+    if not isinstance(doc, dict):
+        raise DatasetError(path, None, "expected a JSON object")
+    return doc
+
+
+def _failures(root: Path) -> pa.Table | None:
+    path = root / "failures.parquet"
+    if not path.is_file():
+        return None
+    try:
+        return pq.read_table(path)
+    except (pa.ArrowException, OSError) as exc:
+        raise DatasetError(path, None, f"unreadable Parquet: {exc}") from None
+
+
+def _crs(info: dict[str, Any], manifest: Manifest) -> tuple[str, str]:
+    """The dataset CRS described in words and its axis unit ('m' for metres)."""
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
+    text = info.get("crs") or manifest.crs
+    if not text:
+        return "unknown CRS", "map units"
+    try:
+        crs = CRS.from_user_input(text)
+    except CRSError:
+        return "unreadable CRS", "map units"
+    unit = crs.axis_info[0].unit_name if crs.axis_info else "map units"
+    return crs_description(crs), "m" if unit in ("metre", "meter") else unit
+
+
+def crs_description(crs: Any) -> str:
+    """A pyproj CRS in words: its name, or (for an unnamed one, as GDAL writes many Mars
+    CRSs) its projection method, body and non-zero parameters."""
+    if crs.name and crs.name.lower() != "unknown":
+        return str(crs.name)
+    op = crs.coordinate_operation
+    words = [op.method_name if op is not None else "unnamed CRS"]
+    ellipsoid = crs.ellipsoid
+    if ellipsoid is not None:
+        if ellipsoid.name and ellipsoid.name.lower() != "unknown":
+            words.append(f"on {ellipsoid.name}")
+        elif ellipsoid.inverse_flattening == 0:
+            words.append(f"on a sphere of radius {ellipsoid.semi_major_metre:.0f} m")
+        else:
+            words.append(f"on an ellipsoid of semi-major axis {ellipsoid.semi_major_metre:.0f} m")
+    params = [p for p in (op.params if op is not None else []) if p.value]
+    if params:
+        words.append("(" + ", ".join(f"{p.name.lower()} {p.value:g}" for p in params) + ")")
+    return " ".join(words)
+
+
+# -- sections -----------------------------------------------------------------------------------
+
+
+def _split_section(rows: list[dict[str, Any]], info: dict[str, Any], n_failed: int) -> str:
+    from mars_pairs.viz.report_figures import split_colours
+
+    splits = [str(r["split"]) for r in rows]
+    colours = split_colours(splits)
+    counts = Counter(splits)
+    table_rows = []
+    for name in sorted(counts, key=lambda s: (-counts[s], s)):
+        mine = [r for r in rows if str(r["split"]) == name]
+        sols = [int(r["sol"]) for r in mine if r["sol"] is not None]
+        stops = {(r["easting"], r["northing"]) for r in mine}
+        colour = colours[name]
+        table_rows.append(
+            [
+                f'<span class="swatch" style="background:{colour}"></span>{_esc(name)}',
+                counts[name],
+                f"{100 * counts[name] / len(rows):.1f} %",
+                len(stops),
+                _span(sols),
+                _esc(", ".join(sorted({str(r["instrument"]) for r in mine}))),
+            ]
+        )
+    table_rows.append(["<b>all</b>", len(rows), "100 %" if rows else "–",
+                       len({(r["easting"], r["northing"]) for r in rows}), "", ""])  # fmt: skip
+    parts = [
+        _table(
+            ["split", "samples", "share", "rover positions", "sols", "instruments"],
+            table_rows,
+            numeric={1, 2, 3},
+        )
+    ]
+    rep = info.get("splits") or {}
+    if rep:
+        kv = []
+        for key, value in rep.items():
+            if isinstance(value, dict):
+                value = ", ".join(f"{k} {v}" for k, v in value.items())
+            name = f"{key[:-2]} (m)" if key.endswith("_m") else key
+            kv.append([_esc(name.replace("_", " ")), _esc("–" if value is None else value)])
+        parts.append(_table(["split rule and leak check (dataset.json)", "value"], kv))
+    summary = f"{len(rows)} samples, {n_failed} failures"
+    return (
+        f'<section id="splits"><h2>Samples per split</h2><p class="sub">{_esc(summary)}</p>'
+        f'<div class="row">{"".join(parts)}</div></section>'
+    )
+
+
+def _file_name(path: Any) -> str:
+    return Path(str(path)).name if path else ""
+
+
+def _failures_section(failures: pa.Table | None) -> str:
+    head = '<section id="failures"><h2>Failures</h2>'
+    if failures is None:
+        return head + '<p class="sub">no failures.parquet in the dataset folder</p></section>'
+    if failures.num_rows == 0:
+        return head + '<p class="empty">no failures: every product became a sample</p></section>'
+    rows = failures.to_pylist()
+    reasons = Counter((r.get("stage"), r.get("error_type")) for r in rows)
+    by_reason = _table(
+        ["stage", "error", "products"],
+        [[_esc(s), _esc(e), n] for (s, e), n in reasons.most_common()],
+        numeric={2},
+    )
+    listed = [
+        [
+            _esc(r.get("product_id")),
+            _esc(r.get("stage")),
+            _esc(r.get("error_type")),
+            f'<div class="msg">{_esc(r.get("message"))}</div>',
+            f'<span title="{_esc(r.get("path"))}">{_esc(_file_name(r.get("path")))}</span>',
+        ]
+        for r in rows[:MAX_FAILURE_ROWS]
+    ]
+    more = len(rows) - len(listed)
+    note = f'<p class="sub">{more} more in failures.parquet</p>' if more > 0 else ""
+    return (
+        f'{head}<p class="sub">{len(rows)} products failed (failures.parquet)</p>{by_reason}'
+        f"{_table(['product', 'stage', 'error', 'message', 'file'], listed)}{note}</section>"
+    )
+
+
+def _gallery_section(root: Path, rows: list[dict[str, Any]], n: int) -> str:
+    from mars_pairs.torch import MarsPairsDataset
+    from mars_pairs.viz.report_figures import sample_card
+
+    head = '<section id="gallery"><h2>Samples</h2>'
+    if not rows or n == 0:
+        return head + '<p class="sub">no samples shown</p></section>'
+    order = sorted(range(len(rows)), key=lambda i: (rows[i]["sol"] or 0, str(rows[i]["key"])))
+    spread = np.linspace(0, len(rows) - 1, min(n, len(rows)))
+    picks = sorted({order[round(float(k))] for k in spread})
+    cards = []
+    with MarsPairsDataset(root, fields=("ground", "ortho", "viewshed")) as ds:
+        for i in sorted(picks, key=lambda i: order.index(i)):
+            r = rows[i]
+            png = sample_card(ds[ds.index_of(str(r["key"]))])
+            caption = (
+                f"<b>{_esc(r['key'])}</b><br>{_esc(r['instrument'])}, sol {_esc(r['sol'])}, "
+                f"split <b>{_esc(r['split'])}</b><br>camera az {_fmt(r['azimuth_deg'], '.1f')}°, "
+                f"el {_fmt(r['elevation_deg'], '.1f')}°; farthest visible "
+                f"{_fmt(r['max_visible_range_m'], '.0f')} m, visible area "
+                f"{_fmt(r['viewshed_area_m2'], ',.0f')} m²"
+            )
+            cards.append(
+                f"<figure>{_img(png, 'sample ' + str(r['key']), 'card')}"
+                f"<figcaption>{caption}</figcaption></figure>"
+            )
+    return (
+        f'{head}<p class="sub">{len(cards)} of {len(rows)} samples, spread over the sols: the '
+        "ground image and its view on the ortho chip (viewshed green, camera wedge orange, "
+        f'rover ▲)</p><div class="gallery">{"".join(cards)}</div></section>'
+    )
+
+
+def _provenance_section(root: Path, info: dict[str, Any], crs_name: str) -> str:
+    from mars_pairs import __version__
+
+    head = '<section id="provenance"><h2>Provenance</h2>'
+    if not info:
+        return head + '<p class="sub">no dataset.json in the dataset folder</p></section>'
+    written = datetime.fromtimestamp((root / "dataset.json").stat().st_mtime, tz=timezone.utc)
+    seconds = info.get("build_seconds")
+    facts = [
+        ["dataset", _esc(root.resolve())],
+        ["built (dataset.json written)", _esc(written.strftime("%Y-%m-%d %H:%M:%S UTC"))],
+        ["build time", _esc(f"{seconds:.1f} s" if isinstance(seconds, (int, float)) else "–")],
+        ["CRS", _esc(crs_name)],
+        ["chip", _esc(", ".join(f"{k} {v}" for k, v in (info.get("chip") or {}).items()))],
+    ]
+    for key, value in (info.get("counts") or {}).items():
+        if isinstance(value, dict):
+            value = ", ".join(f"{k} {v}" for k, v in value.items())
+        facts.append([_esc(f"count: {key.replace('_', ' ')}"), _esc(value)])
+    for key, value in (info.get("failures_by_reason") or {}).items():
+        facts.append([_esc(f"failures: {key}"), _esc(value)])
+    versions = [[_esc(k), _esc(v)] for k, v in (info.get("versions") or {}).items()]
+    generated = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
+    versions.append(["report written by", _esc(f"mars_pairs {__version__}, {generated}")])
+    config = json.dumps(info.get("config", {}), indent=2)
+    return (
+        f'{head}<div class="row">{_table(["build", ""], facts)}'
+        f"{_table(['versions', ''], versions)}</div>"
+        f"<h3>Build configuration</h3><pre>{_esc(config)}</pre></section>"
+    )
+
+
+# -- the page -----------------------------------------------------------------------------------
+
+
+def report_html(root: str | Path, samples: int = DEFAULT_SAMPLES) -> str:
+    """The report page of the dataset folder ``root`` with ``samples`` gallery samples."""
+    from mars_pairs.viz.report_figures import histograms_figure, map_figure
+
+    if isinstance(samples, bool) or not isinstance(samples, int) or samples < 0:
+        raise UsageError(f"samples: expected a whole number >= 0, got {samples!r}")
+    root = Path(root)
+    if not root.is_dir():
+        raise MarsPairsError(f"{root}: no such dataset folder")
+    manifest = Manifest.open(root).require(COLUMNS)
+    rows = manifest.to_table(columns=list(COLUMNS)).to_pylist()
+    info = _dataset_json(root)
+    failures = _failures(root)
+    n_failed = failures.num_rows if failures is not None else 0
+    crs_name, unit = _crs(info, manifest)
+    ortho = (info.get("config") or {}).get("inputs", {}).get("ortho")
+    ortho_path = Path(ortho) if ortho else None
+
+    title = f"mars-pairs dataset {root}"
+    missions = ", ".join(sorted({str(r["mission"]) for r in rows}))
+    sols = [int(r["sol"]) for r in rows if r["sol"] is not None]
+    sol_text = f"sols {_span(sols)}" if sols else ""
+    sub = ", ".join(
+        x for x in (f"{len(rows)} samples", f"{n_failed} failures", missions, sol_text) if x
+    )
+    if rows:
+        the_map = _img(map_figure(rows, info, ortho_path, crs_name, unit), "map of the footprints")
+        hists = _img(histograms_figure(rows), "histograms of the view statistics")
+    else:
+        the_map = hists = '<p class="sub">no samples: nothing to draw</p>'
+    body = [
+        f'<h1>{_esc(title)}</h1><p class="sub">{_esc(sub)}</p>',
+        f'<section id="map"><h2>Map</h2><p class="sub">rover positions (red ▲) joined in '
+        f"(sol, site, drive) order, footprints (the visible area's hull) coloured by split, "
+        f"over the orthoimage; map coordinates of {_esc(crs_name)}</p>{the_map}</section>",
+        _split_section(rows, info, n_failed),
+        f'<section id="histograms"><h2>View statistics</h2>{hists}</section>',
+        _gallery_section(root, rows, samples),
+        _failures_section(failures),
+        _provenance_section(root, info, crs_name),
+    ]
+    return (
+        '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+        f"<title>{_esc(title)}</title>"
+        '<meta name="viewport" content="width=device-width,initial-scale=1">'
+        f"<style>{CSS}</style></head><body><main>{''.join(body)}</main></body></html>\n"
+    )
+
+
+def write_report(
+    root: str | Path, out: str | Path | None = None, samples: int = DEFAULT_SAMPLES
+) -> Path:
+    """Write the report page of dataset ``root`` to ``out`` (default ``root/report.html``),
+    atomically; returns its path."""
+    root = Path(root)
+    path = Path(out) if out is not None else root / "report.html"
+    page = report_html(root, samples)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(path, page.encode("utf-8"))
+    return path
