@@ -92,14 +92,19 @@ def _valid(*values: float) -> bool:
 
 
 def infer_places_crs(easting: float, longitude_deg: float) -> str:
-    """The table's equirectangular CRS, recovered from one row: cos(lat_ts) = x / (R lon)."""
+    """The table's equirectangular CRS, recovered from one row: cos(lat_ts) = x / (R lon).
+
+    acos is ill-conditioned at lat_ts = 0: a longitude rounded to 7 decimals (1e-9 relative)
+    reads as lat_ts ~0.002 deg, so lat_ts below 0.01 deg (an easting change under 2e-8 of
+    itself) is taken as 0, Curiosity's CRS.
+    """
     if abs(longitude_deg) < 1e-6:
         raise PlacesError("cannot infer the PLACES CRS from a row at longitude 0")
     ratio = easting / (MARS_RADIUS_M * math.radians(longitude_deg))
     lat_ts = math.degrees(math.acos(max(-1.0, min(1.0, ratio))))
     if abs(lat_ts - 18.4663) < 1e-3:
         return M2020_PLACES_CRS
-    if abs(lat_ts) < 1e-3:
+    if abs(lat_ts) < 0.01:
         return MSL_PLACES_CRS
     return M2020_PLACES_CRS.replace("+lat_ts=18.4663", f"+lat_ts={lat_ts:.4f}")
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
@@ -202,3 +203,13 @@ def test_a_fifo_is_refused_without_blocking(tmp_path: Path) -> None:
     os.mkfifo(fifo)
     with pytest.raises(PlacesError, match="not a regular file"):
         Places.from_csv(fifo)
+
+
+def test_curiosity_crs_from_rounded_longitudes() -> None:
+    """rover_positions.csv's 7-decimal longitudes read as lat_ts ~0.0015 by acos: still eqc 0."""
+    from mars_pairs.geometry.frames import MSL_PLACES_CRS
+    from mars_pairs.geometry.places import infer_places_crs
+
+    assert infer_places_crs(8141618.407, 137.3540271) == MSL_PLACES_CRS
+    assert "+lat_ts=0.05" in infer_places_crs(8141618.407 * math.cos(math.radians(0.05)),
+                                               137.3540271)  # fmt: skip
