@@ -227,6 +227,8 @@ def run_build(
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ConfigError(f"--workers: expected an integer >= 1, got {workers!r}")
     check_input_files(config)  # before any process opens them
+    if not resume:  # refused before any worker starts (resume: once the stamp is read)
+        check_clearable(config.output.dir)
     # the workers start now: their imports and raster opening overlap the planning
     pool = LocalPool(config, workers) if engine is None and workers > 1 else None
     if pool is None:
