@@ -53,14 +53,16 @@ def worker_context() -> BaseContext:
 
 def _start_server(ctx: BaseContext) -> None:
     """Start the fork server now (if ``ctx`` uses one and it is not running) with SIGINT
-    ignored, which it and every worker it forks inherit: a Ctrl-C while the server imports
-    the build's modules would print its traceback and break the pool."""
+    ignored, which it and every worker it forks inherit through exec and fork (a Ctrl-C
+    while the server imports the build's modules would print its traceback and break the
+    pool). The driver ignores SIGINT for the few milliseconds of the server's fork and exec
+    (only from the main thread, the one that may set signal handlers)."""
     if ctx.get_start_method() != "forkserver":
         return
     from multiprocessing import forkserver
 
     if threading.current_thread() is not threading.main_thread():
-        forkserver.ensure_running()  # only the main thread sets signal handlers
+        forkserver.ensure_running()
         return
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
