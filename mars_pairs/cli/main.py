@@ -354,7 +354,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (MarsPairsError, OSError) as exc:  # a missing or unwritable path too
         print(f"mars-pairs {args.command}: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # Ctrl-C: one line, no traceback (a build's workers are gone)
+        print(f"mars-pairs {args.command}: interrupted", file=sys.stderr)
         return 130
 
 

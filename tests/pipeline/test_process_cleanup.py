@@ -161,4 +161,5 @@ def test_ctrl_c_while_the_fork_server_starts_is_quiet_and_leaves_no_process(
         _reap(tag)
     text = err.decode()
     assert "Traceback" not in text, text
+    assert "mars-pairs build: interrupted" in text, text
     assert build.returncode == 130, text
