@@ -65,9 +65,13 @@ def _cmd_build(args: argparse.Namespace) -> int:
     if args.out:
         config = replace(config, output=replace(config.output, dir=Path(args.out).resolve()))
     if args.dry_run:  # lists, chunks and checks; writes nothing (nor a synthetic mission)
+        from mars_pairs.pipeline.build import check_clearable
         from mars_pairs.pipeline.plan import plan_build
 
-        print(plan_build(config, resume=args.resume, limit=args.limit).format())
+        plan = plan_build(config, resume=args.resume, limit=args.limit)
+        if plan.clears:  # the build would refuse to clear a folder of other files
+            check_clearable(plan.out_dir)
+        print(plan.format())
         return 0
     _ensure_synthetic(config)
     engine = _engine(args)
@@ -363,7 +367,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (MarsPairsError, OSError) as exc:  # a missing or unwritable path too
         print(f"mars-pairs {args.command}: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # Ctrl-C: one line, no traceback (a build's workers are gone)
+        print(f"mars-pairs {args.command}: interrupted", file=sys.stderr)
         return 130
 
 

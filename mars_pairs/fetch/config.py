@@ -48,6 +48,7 @@ from mars_pairs.errors import ConfigError
 from mars_pairs.fetch.download import FetchPolicy
 from mars_pairs.fetch.products import ProductFilter
 from mars_pairs.fetch.windows import MAX_CELLS
+from mars_pairs.pipeline.config import read_yaml
 
 MISSIONS = ("msl", "m2020")
 INDEXES = ("RDRINDEX", "EDRINDEX")
@@ -271,7 +272,7 @@ def load_fetch_config(path: str | Path) -> FetchConfig:
     """Read the ``fetch:`` section of a YAML build config."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = read_yaml(path)  # refuses duplicate keys, alias bombs, FIFOs
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read config: {exc.strerror}") from None
     except yaml.YAMLError as exc:

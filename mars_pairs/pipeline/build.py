@@ -26,6 +26,7 @@ from tqdm import tqdm
 from mars_pairs.errors import ConfigError, MarsPairsError
 from mars_pairs.pipeline import worker
 from mars_pairs.pipeline.config import BuildConfig
+from mars_pairs.pipeline.config_section import check_regular
 from mars_pairs.pipeline.context import SampleContext
 from mars_pairs.pipeline.finish import merge_parts, write_dataset_json
 from mars_pairs.pipeline.local_pool import LocalPool
@@ -35,7 +36,9 @@ from mars_pairs.pipeline.outputs import (
     built_keys,
     clear_outputs,
     dropped_count,
+    foreign_file,
     part_paths,
+    remove_temporaries,
     stamp_path,
 )
 from mars_pairs.pipeline.plan import chunks_of, is_done, labels_of, plan_build
@@ -81,6 +84,29 @@ class BuildSummary:
 
 class BuildError(MarsPairsError):
     """A strict build stopped at its first failure."""
+
+
+def check_input_files(config: BuildConfig) -> None:
+    """ConfigError naming the key when an input path is a FIFO, a socket or a device (one
+    would block the build for ever when opened; ``config_section.check_regular``)."""
+    inputs = config.inputs
+    for key in ("places", "dem", "ortho"):
+        check_regular(getattr(inputs, key), f"inputs.{key}")
+    if inputs.images is not None:
+        check_regular(inputs.images, "inputs.images", folder=True)
+
+
+def check_clearable(out: Path) -> None:
+    """ConfigError unless a build may clear ``out``: absent, empty, or holding only what an
+    earlier mars-pairs build wrote there, as its stamp lists (``outputs.foreign_file``). A
+    folder holding anything else is refused whole: nothing in it is removed."""
+    foreign = foreign_file(out)
+    if foreign is not None:
+        raise ConfigError(
+            f"output.dir: {out} holds {foreign}, which no mars-pairs build stamp there lists; "
+            "refusing to clear the folder (nothing was removed): build into a new or empty "
+            "folder (--out), or remove what is not the dataset's"
+        )
 
 
 def _in_process(config: BuildConfig, labels: Iterable[str]) -> Iterator[tuple[str, Any]]:
@@ -200,6 +226,9 @@ def run_build(
     start = time.perf_counter()
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ConfigError(f"--workers: expected an integer >= 1, got {workers!r}")
+    check_input_files(config)  # before any process opens them
+    if not resume:  # refused before any worker starts (resume: once the stamp is read)
+        check_clearable(config.output.dir)
     # the workers start now: their imports and raster opening overlap the planning
     pool = LocalPool(config, workers) if engine is None and workers > 1 else None
     if pool is None:
@@ -221,9 +250,10 @@ def _run(
     """run_build's work, its arguments checked and its workers starting."""
     out = config.output.dir
     plan = plan_build(config, resume=resume, limit=limit)  # checks; the labels' first pass
+    if plan.clears:
+        check_clearable(out)
     out.mkdir(parents=True, exist_ok=True)
-    for leftover in out.rglob(".*.tmp-*"):  # temporary files of a killed build
-        leftover.unlink()
+    remove_temporaries(out)  # of a killed build
     if plan.clears:
         clear_outputs(out)
     stamp = stamp_path(out)

@@ -6,6 +6,7 @@ the key (``geometry.radius``) and what was expected.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -14,7 +15,7 @@ from typing import Any
 import yaml
 
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline.config_section import Section
+from mars_pairs.pipeline.config_section import Section, file_kind, shown
 from mars_pairs.pipeline.label_list import iter_matches
 
 VIEWSHED_MODES = ("wedge", "raycast", "both")
@@ -317,17 +318,111 @@ def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConf
     )
 
 
-def load_config(path: str | Path) -> BuildConfig:
-    """Read and validate a YAML build config."""
+#: A config's YAML may use anchors and aliases, but the document they expand to is bounded:
+#: nodes plus scalar characters, counted with every alias expanded (a ~300-byte "billion
+#: laughs" document expands to 10^9 nodes and would hang whatever formats it).
+MAX_CONFIG_EXPANDED = 2 * MAX_CONFIG_BYTES
+
+
+class _ConfigLoader(yaml.SafeLoader):
+    """PyYAML's SafeLoader that refuses a key given twice in one mapping (naming the key and
+    both lines) and a document whose aliases expand beyond ``MAX_CONFIG_EXPANDED`` or into
+    themselves."""
+
+    def construct_document(self, node: yaml.Node) -> Any:
+        _check_expansion(node)
+        return super().construct_document(node)
+
+    def construct_mapping(self, node: yaml.Node, deep: bool = False) -> Any:
+        if isinstance(node, yaml.MappingNode):
+            first: dict[Any, int] = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue  # "<<": merged keys may be overridden, as YAML says
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    line = first.setdefault(key, key_node.start_mark.line + 1)
+                except TypeError:  # an unhashable key: SafeLoader names it
+                    continue
+                if line != key_node.start_mark.line + 1:
+                    raise ConfigError(
+                        f"duplicate key {shown(key)} at lines {line} and "
+                        f"{key_node.start_mark.line + 1} (a key may appear once in a mapping)"
+                    )
+        return super().construct_mapping(node, deep=deep)
+
+
+def _check_expansion(root: yaml.Node) -> None:
+    """ConfigError if the document under ``root``, every alias expanded, holds more than
+    ``MAX_CONFIG_EXPANDED`` nodes plus scalar characters, or an alias inside its own anchor.
+    Each node is sized once (an alias is the node it names), so a bomb is refused at once."""
+    size: dict[int, int] = {}
+    open_: set[int] = set()
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        ident = id(node)
+        if isinstance(node, yaml.ScalarNode):
+            size[ident] = 1 + len(node.value)
+            continue
+        children = (
+            [n for pair in node.value for n in pair]
+            if isinstance(node, yaml.MappingNode)
+            else list(node.value)
+        )
+        if done:
+            open_.discard(ident)
+            size[ident] = 1 + sum(size[id(c)] for c in children)
+            if size[ident] > MAX_CONFIG_EXPANDED:
+                raise ConfigError(
+                    f"line {node.start_mark.line + 1}: its aliases expand the config beyond "
+                    f"{MAX_CONFIG_EXPANDED} nodes and characters"
+                )
+            continue
+        if ident in size:
+            continue
+        if ident in open_:
+            raise ConfigError(
+                f"line {node.start_mark.line + 1}: an alias inside its own anchor (a recursive "
+                "value)"
+            )
+        open_.add(ident)
+        stack.append((node, True))
+        stack.extend((c, False) for c in children if id(c) not in size)
+
+
+def _yaml_problem(exc: yaml.YAMLError) -> str:
+    """A PyYAML error on one line: ``LINE:COLUMN: not valid YAML: problem (context at line
+    N)`` (PyYAML's own takes 4 or 5 lines)."""
+    if isinstance(exc, yaml.MarkedYAMLError):
+        mark = exc.problem_mark or exc.context_mark
+        text = " ".join(str(exc.problem or exc.context or "").split())
+        where = f"{mark.line + 1}:{mark.column + 1}:" if mark is not None else ""
+        if exc.problem and exc.context:
+            context = " ".join(str(exc.context).split())
+            at = f" at line {exc.context_mark.line + 1}" if exc.context_mark is not None else ""
+            text += f" ({context}{at})"
+        return f"{where} not valid YAML: {text}"
+    return f" not valid YAML: {' '.join(str(exc).split())}"
+
+
+def read_yaml(path: str | Path) -> Any:
+    """The YAML document of the config file at ``path``: a regular file (checked on the open
+    file: a FIFO or a device is refused, never read) of at most ``MAX_CONFIG_BYTES`` of UTF-8,
+    without a key twice in one mapping, its aliases expanding within ``MAX_CONFIG_EXPANDED``.
+    Every error is one ConfigError line naming the file (and the line and column)."""
     path = Path(path)
     try:
-        if not path.is_file():
-            raise ConfigError(f"{path}: cannot read config: not a regular file")
-        if path.stat().st_size > MAX_CONFIG_BYTES:
-            raise ConfigError(f"{path}: cannot read config: larger than {MAX_CONFIG_BYTES} bytes")
-        raw = path.read_bytes()
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)  # a FIFO opens without a writer
+        with open(fd, "rb") as f:
+            kind = file_kind(os.fstat(fd).st_mode)
+            if kind is not None:
+                raise ConfigError(f"{path}: cannot read config: not a regular file ({kind})")
+            raw = f.read(MAX_CONFIG_BYTES + 1)
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read config: {exc.strerror or exc}") from None
+    if len(raw) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{path}: cannot read config: larger than {MAX_CONFIG_BYTES} bytes")
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -335,11 +430,19 @@ def load_config(path: str | Path) -> BuildConfig:
             f"{path}: not UTF-8 text (byte {exc.start}: {raw[exc.start : exc.start + 4]!r})"
         ) from None
     try:
-        data = yaml.safe_load(text)
+        return yaml.load(text, Loader=_ConfigLoader)  # a SafeLoader
     except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+        raise ConfigError(f"{path}:{_yaml_problem(exc)}") from None
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
     except RecursionError:
         raise ConfigError(f"{path}: not valid YAML: nested too deeply") from None
+
+
+def load_config(path: str | Path) -> BuildConfig:
+    """Read and validate a YAML build config (``read_yaml``)."""
+    path = Path(path)
+    data = read_yaml(path)
     try:
         return parse_config(data, path.resolve().parent, source=path.resolve())
     except ConfigError as exc:

@@ -3,13 +3,64 @@
 from __future__ import annotations
 
 import math
+import os
 import re
+import reprlib
+import stat
 from pathlib import Path
 from typing import Any
 
 from mars_pairs.errors import ConfigError
 
 _NUMBER_TEXT = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)[eE][+-]?[0-9]+", re.ASCII)
+
+_SHOWN = reprlib.Repr()
+_SHOWN.maxstring = _SHOWN.maxother = 120
+_SHOWN.maxlist = _SHOWN.maxtuple = _SHOWN.maxdict = _SHOWN.maxset = 8
+_SHOWN.maxlevel = 3
+
+
+def shown(value: Any) -> str:
+    """``repr(value)`` cut to a bounded length (``reprlib``: long strings, lists and mappings
+    elided with ``...``), for error messages about config values of any size."""
+    return _SHOWN.repr(value)
+
+
+_KINDS = (
+    (stat.S_ISFIFO, "a FIFO"),
+    (stat.S_ISSOCK, "a socket"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISDIR, "a folder"),
+)
+
+
+def file_kind(mode: int) -> str | None:
+    """What a file of ``st_mode`` ``mode`` is, when it is not a regular file (None)."""
+    for test, kind in _KINDS:
+        if test(mode):
+            return kind
+    return None if stat.S_ISREG(mode) else "not a regular file"
+
+
+def check_regular(path: Path | str, key: str, *, folder: bool = False) -> None:
+    """ConfigError naming ``key`` and ``path`` when ``path`` exists and is not a regular file
+    (with ``folder``: not a folder): a FIFO, a socket or a device would block or never end
+    when read. An absent path, a URL and a GDAL ``/vsi`` path pass (what opens them says
+    why they do not). Checked by ``stat``, without opening the path."""
+    text = str(path)
+    if text.startswith("/vsi") or "://" in text:
+        return
+    try:
+        mode = os.stat(text).st_mode
+    except (OSError, ValueError):
+        return
+    if folder and stat.S_ISDIR(mode):
+        return
+    kind = file_kind(mode)
+    if kind is not None:
+        expected = "a folder" if folder else "a regular file"
+        raise ConfigError(f"{key}: {path} is {kind}, expected {expected}")
 
 
 class Section:
@@ -20,11 +71,13 @@ class Section:
             data = {}
         if not isinstance(data, dict):
             raise ConfigError(f"{prefix}: expected a mapping, got {type(data).__name__}")
-        unknown = sorted(set(data) - known)
+        unknown = sorted((k for k in data if k not in known), key=str)
         if unknown:
-            raise ConfigError(
-                f"{prefix}.{unknown[0]}: unknown key (expected one of {sorted(known)})"
-            )
+            name = unknown[0]
+            if not isinstance(name, str) or len(name) > 120:
+                name = shown(name)
+            where = f"{prefix}.{name}" if prefix else name
+            raise ConfigError(f"{where}: unknown key (expected one of {sorted(known)})")
         self.data, self.prefix = data, prefix
 
     def _name(self, key: str) -> str:
@@ -48,13 +101,15 @@ class Section:
         if isinstance(value, str) and _NUMBER_TEXT.fullmatch(value.strip()):
             value = float(value)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{self._name(key)}: expected a number, got {value!r}")
+            raise ConfigError(f"{self._name(key)}: expected a number, got {shown(value)}")
         if not math.isfinite(value):
-            raise ConfigError(f"{self._name(key)}: expected a finite number, got {value!r}")
+            raise ConfigError(f"{self._name(key)}: expected a finite number, got {shown(value)}")
         if positive and value <= 0:
-            raise ConfigError(f"{self._name(key)}: expected a positive number, got {value!r}")
+            raise ConfigError(f"{self._name(key)}: expected a positive number, got {shown(value)}")
         if value > maximum:
-            raise ConfigError(f"{self._name(key)}: expected a number <= {maximum:g}, got {value!r}")
+            raise ConfigError(
+                f"{self._name(key)}: expected a number <= {maximum:g}, got {shown(value)}"
+            )
         return float(value)
 
     def integer(
@@ -63,14 +118,17 @@ class Section:
         value = self.raw(key, default)
         if isinstance(value, bool) or not isinstance(value, int) or not minimum <= value <= maximum:
             raise ConfigError(
-                f"{self._name(key)}: expected an integer in [{minimum}, {maximum}], got {value!r}"
+                f"{self._name(key)}: expected an integer in [{minimum}, {maximum}], "
+                f"got {shown(value)}"
             )
         return value
 
     def choice(self, key: str, options: tuple[str, ...], default: Any = ...) -> str:
         value = self.raw(key, default)
         if value not in options:
-            raise ConfigError(f"{self._name(key)}: expected one of {list(options)}, got {value!r}")
+            raise ConfigError(
+                f"{self._name(key)}: expected one of {list(options)}, got {shown(value)}"
+            )
         return str(value)
 
     def raster(self, key: str, base: Path) -> Path | str:
@@ -84,9 +142,13 @@ class Section:
         return self.path(key, base)  # type: ignore[return-value]
 
     def path(self, key: str, base: Path, default: Any = ...) -> Path | None:
+        """A path, relative to ``base``; ConfigError if it names a FIFO, a socket or a device
+        (``check_regular``: a regular file or a folder, or absent)."""
         value = self.raw(key, default)
         if value is None:
             return None
         if not isinstance(value, str) or not value:
-            raise ConfigError(f"{self._name(key)}: expected a path, got {value!r}")
-        return (base / Path(value).expanduser()).resolve()
+            raise ConfigError(f"{self._name(key)}: expected a path, got {shown(value)}")
+        resolved = (base / Path(value).expanduser()).resolve()
+        check_regular(resolved, self._name(key), folder=True)
+        return resolved

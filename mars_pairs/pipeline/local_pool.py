@@ -11,12 +11,22 @@
   with the label count, and results come back in label order.
 - A worker that dies (killed, out of memory, a crash) fails the build at once, naming a
   label in flight; the chunks already written stay, and ``--resume`` goes on from there.
+- The workers die with their build. Each watches the driver: a thread waits on the pipe only
+  the driver holds (``multiprocessing.parent_process().sentinel``) and ends the worker when
+  it closes, whatever ended the driver (SIGKILL, SIGTERM, a crash); the fork server then
+  exits (its last client gone), and the resource tracker after it. On an error or Ctrl-C in
+  the driver the pool kills its workers instead of waiting for their samples. The fork
+  server and its workers ignore SIGINT (the server starts with it ignored, before its
+  imports): Ctrl-C is the driver's to handle, and prints no worker or server traceback.
 """
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing as mp
 import os
+import signal
+import threading
 from collections import deque
 from collections.abc import Iterable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -41,6 +51,65 @@ def worker_context() -> BaseContext:
     return ctx
 
 
+def _start_server(ctx: BaseContext) -> None:
+    """Start the fork server now (if ``ctx`` uses one and it is not running) with SIGINT
+    ignored, which it and every worker it forks inherit through exec and fork (a Ctrl-C
+    while the server imports the build's modules would print its traceback and break the
+    pool). The driver ignores SIGINT for the few milliseconds of the server's fork and exec
+    (only from the main thread, the one that may set signal handlers)."""
+    if ctx.get_start_method() != "forkserver":
+        return
+    from multiprocessing import forkserver
+
+    if threading.current_thread() is not threading.main_thread():
+        forkserver.ensure_running()
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        forkserver.ensure_running()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
+def _sigint_deferred() -> Iterator[None]:
+    """Hold a Ctrl-C (SIGINT) that arrives in the block until its end, then raise its
+    KeyboardInterrupt; only in the main thread (elsewhere, the block runs as it is)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if caught:
+        raise KeyboardInterrupt
+
+
+def _exit_with_driver() -> None:
+    """End this worker process as soon as the driver that started it is gone: a daemon
+    thread waits on the pipe whose other end only the driver holds."""
+    parent = mp.parent_process()
+    if parent is None:
+        return
+
+    def watch() -> None:
+        from multiprocessing.connection import wait
+
+        wait([parent.sentinel])  # ready (at EOF) once the driver process has ended
+        os._exit(1)
+
+    threading.Thread(target=watch, name="exit-with-driver", daemon=True).start()
+
+
+def _start_worker(config: BuildConfig, environ: dict[str, str]) -> None:
+    """A worker's initializer: watch the driver, then open the build context."""
+    _exit_with_driver()
+    worker.open_context(config, environ)
+
+
 class WorkerDiedError(MarsPairsError):
     """A build worker process died (killed, out of memory, crashed) with samples in flight."""
 
@@ -56,14 +125,21 @@ class LocalPool:
     def __init__(self, config: BuildConfig, workers: int, window: int = 0) -> None:
         self.workers = workers
         self.window = window or 4 * workers
+        ctx = worker_context()
+        _start_server(ctx)
         self._pool = ProcessPoolExecutor(
             workers,
-            mp_context=worker_context(),
-            initializer=worker.open_context,
+            mp_context=ctx,
+            initializer=_start_worker,
             initargs=(config, dict(os.environ)),  # this build's environment, not the server's
         )
-        for _ in range(workers):  # start them all now (the pool starts one per task)
-            self._pool.submit(_started)
+        try:
+            with _sigint_deferred():  # a Ctrl-C mid-start would orphan a starting worker
+                for _ in range(workers):  # start them all now (the pool starts one per task)
+                    self._pool.submit(_started)
+        except BaseException:
+            self.close(abort=True)
+            raise
 
     def results(self, labels: Iterable[str]) -> Iterator[tuple[str, Any]]:
         """Every label's result, in order; WorkerStartError (once) if a worker could not
@@ -92,7 +168,11 @@ class LocalPool:
             ) from None
 
     def close(self, abort: bool = False) -> None:
-        """Let the workers finish and exit; with ``abort``, drop what is queued."""
+        """Let the workers finish and exit; with ``abort`` (an error, Ctrl-C), drop what is
+        queued and kill the workers rather than wait for the samples they are building."""
+        if abort:
+            for process in list((getattr(self._pool, "_processes", None) or {}).values()):
+                process.kill()
         self._pool.shutdown(wait=True, cancel_futures=abort)
 
     def __enter__(self) -> LocalPool:

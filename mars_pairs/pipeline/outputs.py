@@ -1,13 +1,18 @@
 """What a build keeps in its output folder: chunk part paths, the build stamp, clearing.
 
 The stamp (``parts/build.json``) holds the fingerprint of the build that wrote the parts; a
-resumed build must match it. Clearing is ordered so that a kill at any point resumes.
+resumed build must match it. It also lists what that build writes: its label count and
+``output.shard_size`` give its chunks, and ``written_by`` names their files. A build clears
+only those (and its own temporary files): a folder holding anything else is refused, untouched
+(``foreign_file``). Clearing is ordered so that a kill at any point resumes.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import os
+import re
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
@@ -18,6 +23,21 @@ from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.store.wids_index import WIDS_INDEX
 
 DROPPED_KEY = b"mars_pairs:dropped_in_buffer"
+#: The stamp of a build whose files are being cleared (the old stamp, renamed).
+CLEARING = "parts/clearing.json"
+#: The files of a build besides its chunks', relative to the output folder.
+BUILD_FILES = (
+    "parts/build.json",
+    CLEARING,
+    "manifest.parquet",
+    "failures.parquet",
+    "dataset.json",
+    WIDS_INDEX,
+)
+_CHUNK_FILE = re.compile(
+    r"(shards/shard-([0-9]{6,})\.tar|parts/(?:manifest|failures)-([0-9]{6,})\.parquet)"
+)
+_TEMPORARY = re.compile(r"((?:shards/|parts/)?)\.([^/]+)\.tmp-[0-9]+")  # store's atomic writes
 
 
 def part_paths(out: Path, k: int) -> tuple[str, Path, Path]:
@@ -92,6 +112,89 @@ def read_stamp(stamp: Path) -> dict[str, Any] | None:
     return doc if isinstance(doc, dict) else None
 
 
+def stamp_chunks(stamp: Any) -> int | None:
+    """The chunk count of the build a stamp describes (its label count over its
+    ``output.shard_size``); None when ``stamp`` is not a build's fingerprint."""
+    try:
+        count, size = stamp["count"], stamp["config"]["output"]["shard_size"]
+    except (KeyError, TypeError):
+        return None
+    ints = all(isinstance(v, int) and not isinstance(v, bool) for v in (count, size))
+    if not ints or count < 0 or size < 1:
+        return None
+    return -(-count // size)
+
+
+def written_by(chunks: int | None, rel: str) -> bool:
+    """Whether a build of ``chunks`` chunks (None: no build) writes the file ``rel`` (a path
+    relative to the output folder, with ``/``)."""
+    if chunks is None:
+        return False
+    if rel in BUILD_FILES:
+        return True
+    m = _CHUNK_FILE.fullmatch(rel)
+    if m is None:
+        return False
+    digits = m[2] or m[3]
+    return int(digits) < chunks and f"{int(digits):06d}" == digits
+
+
+def is_temporary(rel: str) -> bool:
+    """Whether ``rel`` is the temporary name of a file a build writes (``.NAME.tmp-PID``
+    beside NAME, left by a killed build), whatever the build."""
+    m = _TEMPORARY.fullmatch(rel)
+    return m is not None and written_by(2**62, m[1] + m[2])
+
+
+def stamped_chunks(out: Path) -> int | None:
+    """The chunks of the build(s) whose stamp the folder holds (the build's, and a clearing's
+    left by a killed clearing); None when it holds no valid stamp."""
+    counts = [stamp_chunks(read_stamp(out / rel)) for rel in ("parts/build.json", CLEARING)]
+    valid = [n for n in counts if n is not None]
+    return max(valid) if valid else None
+
+
+def foreign_file(out: Path) -> str | None:
+    """The first entry of ``out`` (sorted, relative, with ``/``) that the build that stamped
+    it did not write: a file it does not list, a symbolic link, a folder other than
+    ``shards`` and ``parts``; None when a build may clear the folder."""
+    if not out.is_dir():
+        return None
+    chunks = stamped_chunks(out)
+    for folder, dirs, files in os.walk(out):
+        dirs.sort()
+        rel_dir = os.path.relpath(folder, out).replace(os.sep, "/")
+        prefix = "" if rel_dir == "." else rel_dir + "/"
+        for name in sorted(files):
+            rel = prefix + name
+            path = os.path.join(folder, name)
+            if os.path.islink(path) or not os.path.isfile(path):
+                return rel
+            if not (written_by(chunks, rel) or is_temporary(rel)):
+                return rel
+        for name in dirs:
+            if (
+                prefix
+                or name not in ("shards", "parts")
+                or os.path.islink(os.path.join(folder, name))
+            ):
+                return prefix + name + "/"
+    return None
+
+
+def remove_temporaries(out: Path) -> None:
+    """Remove the temporary files a killed build left (``is_temporary`` names only, in the
+    output folder, ``shards/`` and ``parts/``)."""
+    for sub in ("", "shards/", "parts/"):
+        folder = out / sub
+        if not folder.is_dir():
+            continue
+        for name in sorted(os.listdir(folder)):
+            path = folder / name
+            if is_temporary(sub + name) and path.is_file() and not path.is_symlink():
+                path.unlink()
+
+
 def built_keys(out: Path, done: Iterable[int]) -> dict[str, str]:
     """Sample key -> label path of the chunks a resumed build keeps (for duplicate ids)."""
     seen: dict[str, str] = {}
@@ -102,13 +205,19 @@ def built_keys(out: Path, done: Iterable[int]) -> dict[str, str]:
 
 
 def clear_outputs(out: Path) -> None:
-    """Remove what an earlier build left, crash-safely: the stamp goes first, so a build
-    killed at any point of the clearing leaves no stamp and its rerun (resumed or not)
-    clears again; then the dataset's own commit marker (manifest.parquet), so no reader
-    sees a manifest whose shards are going; then the chunk commit markers (manifest parts)
-    before the failure parts and shards they vouch for."""
+    """Remove what the earlier build(s) stamped in ``out`` wrote (``written_by``; the caller
+    has checked that the folder holds nothing else: ``foreign_file``), crash-safely. The
+    stamp is renamed first (``parts/clearing.json``): a build killed at any point of the
+    clearing leaves no build stamp, so its rerun (resumed or not) clears again, and the
+    renamed stamp still lists what is left. Then the dataset's own commit marker
+    (manifest.parquet) goes, so no reader sees a manifest whose shards are going; then the
+    chunk commit markers (manifest parts) before the failure parts and shards they vouch
+    for; the renamed stamp goes last."""
+    chunks = stamped_chunks(out)
+    stamp = stamp_path(out)
+    if stamp.is_file():
+        os.replace(stamp, out / CLEARING)
     for pattern in (
-        "parts/build.json",
         "manifest.parquet",
         "dataset.json",
         WIDS_INDEX,
@@ -118,5 +227,9 @@ def clear_outputs(out: Path) -> None:
         "shards/*.tar",
     ):
         for stale in sorted(out.glob(pattern)):
-            if stale.is_file():
+            rel = stale.relative_to(out).as_posix()
+            if written_by(chunks, rel) and stale.is_file() and not stale.is_symlink():
                 stale.unlink()
+    clearing = out / CLEARING
+    if clearing.is_file():
+        clearing.unlink()

@@ -59,11 +59,11 @@ def test_a_rebuild_killed_at_every_file_operation_resumes_byte_identical(
     assert report["killed"] == len(ops)  # every kill point was reached and killed the build
     # only kills before the first change leave the old dataset (which resume refuses, its
     # config being another): the ops before the stamp goes
-    first_change = ops.index(("unlink", "parts/build.json")) + 1
+    first_change = ops.index(("replace", "parts/build.json")) + 1
     assert report["untouched"] == list(range(1, first_change + 1))
     # the kill points cover the clearing of every old output and every commit of the new one
     unlinked = {path for op, path in ops if op == "unlink"}
-    for stale in ("parts/build.json", "manifest.parquet", "failures.parquet", "dataset.json"):
+    for stale in ("parts/clearing.json", "manifest.parquet", "failures.parquet", "dataset.json"):
         assert stale in unlinked
     assert {f"shards/shard-00000{k}.tar" for k in range(4)} <= unlinked
     assert {f"parts/manifest-00000{k}.parquet" for k in range(4)} <= unlinked
