@@ -108,14 +108,18 @@ def list_products(spec: ProductsSpec, dl: Downloader) -> Listing:
             volumes = volumes_for_sols(spec.filters.sols)
         for volume in volumes:
             lbl, tab = index_files(volume, spec.index)
-            dl.fetch(RemoteFile(lbl, join_url(spec.archive, lbl), mutable=True))
-            label_path = dl.cache.path(lbl)
             tab_url = join_url(spec.archive, tab)
-            dl.fetch(RemoteFile(tab, tab_url, mutable=True, label=label_path))
-            table = read_index_table(label_path)
+            try:  # one volume's unusable index is a failure row; the other volumes go on
+                dl.fetch(RemoteFile(lbl, join_url(spec.archive, lbl), mutable=True))
+                label_path = dl.cache.path(lbl)
+                dl.fetch(RemoteFile(tab, tab_url, mutable=True, label=label_path))
+                table = read_index_table(label_path)
+            except FetchError as exc:
+                out.failures.append(Failure(volume, tab_url, "index", "FetchError", exc.reason))
+                continue
             out.extend(
                 products_from_index(table, volume, spec.archive, str(label_path), spec.mission,
-                                    index_url=join_url(spec.archive, tab))
+                                    index_url=tab_url)
             )  # fmt: skip
         out.products, older = newest_only(out.products)
         out.skipped.extend(older)

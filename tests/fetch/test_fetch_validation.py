@@ -94,8 +94,13 @@ def test_pds3_index_table_bad_200_is_refused_and_a_rerun_completes(
     rel = f"msl/{fetch_archive.MSL_VOLUME}/INDEX/RDRINDEX.TAB"
     server.fault(rel, *[fault] * (cfg.policy.retries + 1))
     why = "HTML" if fault == "html" else r"396 bytes, its label .*RDRINDEX\.LBL says 792"
-    with pytest.raises(FetchError, match=rf"RDRINDEX\.TAB: failed after 2 attempts: .*{why}"):
-        fetch_products(cfg, dry_run=True, progress=False)
+    report = fetch_products(cfg, dry_run=True, progress=False)
+    assert report.selected == 0 and len(report.failures) == 1
+    row = report.failures[0]
+    assert (row.product_id, row.stage) == (fetch_archive.MSL_VOLUME, "index")
+    assert row.url.endswith("RDRINDEX.TAB") and re.search(
+        f"failed after 2 attempts: .*{why}", row.message
+    )
     assert not (cfg.cache / fetch_archive.MSL_VOLUME / "INDEX" / "RDRINDEX.TAB").exists()
     assert _debris(cfg.cache) == []
     assert fetch_products(cfg, dry_run=True, progress=False).selected == 4

@@ -185,3 +185,20 @@ def test_configs_choose_msl_volumes_by_sols_and_validate_thumbnails(tmp_path):
     path.write_text(yaml.safe_dump({"fetch": {"cache": "c", "products": products}}))
     with pytest.raises(ConfigError, match=r"fetch\.products\.thumbnails"):
         load_fetch_config(path)
+
+
+def test_a_volume_whose_index_fails_is_a_failure_row_and_the_others_go_on(volumes_14_15, tmp_path):
+    archive, records = volumes_14_15
+    ids = [r["PRODUCT_ID"] for r in records]
+    with ArchiveServer(archive.root) as srv:
+        cfg = load_fetch_config(
+            write_config(tmp_path, srv.url, "msl", volumes=None, sols=[1429, 1430])
+        )
+        srv.fault("msl/MSLMST_0015/INDEX/RDRINDEX.TAB", *["404"] * (cfg.policy.retries + 1))
+        report = fetch_products(cfg, dry_run=True, progress=False)
+    assert [(f.product_id, f.stage) for f in report.failures] == [("MSLMST_0015", "index")]
+    assert "404" in report.failures[0].message
+    # MSLMST_0014's products all listed, from 0014 (0015 could not be read)
+    assert sorted((p.product_id, p.volume) for p in report.products) == sorted(
+        (i, "MSLMST_0014") for i in ids
+    )
