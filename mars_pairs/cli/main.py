@@ -123,15 +123,20 @@ def _ensure_synthetic(config: object) -> None:
         text=True,
     )
     print(f"generating the synthetic {spec.mission} mission in {spec.root} ...", flush=True)
-    generate_mission(
-        spec.root,
-        seed=spec.seed,
-        mission=spec.mission,
-        stops=spec.stops,
-        images_per_stop=spec.images_per_stop,
-        size=spec.size,
-        log=lambda line: print(f"  {line}", flush=True),
-    )
+    try:
+        generate_mission(
+            spec.root,
+            seed=spec.seed,
+            mission=spec.mission,
+            stops=spec.stops,
+            images_per_stop=spec.images_per_stop,
+            size=spec.size,
+            log=lambda line: print(f"  {line}", flush=True),
+        )
+    except BaseException:
+        warm.kill()
+        warm.wait()
+        raise
     print(f"mission generated ({time.perf_counter() - t0:.0f} s)", flush=True)
     _, err = warm.communicate()
     if warm.returncode:  # the workers compile what is missing themselves

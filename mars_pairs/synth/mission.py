@@ -419,6 +419,32 @@ def _window(
     return sub, sub_blocks, ortho[i0 * factor : i1 * factor, j0 * factor : j1 * factor]
 
 
+def _traverse(rng: np.random.Generator, spec: MissionSpec, preset: SizeSpec, stops: int,
+              dem64: np.ndarray, dem_tr: Affine) -> Traverse:  # fmt: skip
+    """The traverse of ``stops`` stops over the DEM (NaN nodata; map CRS, 1 m cells), inside
+    the preset's margin."""
+    sampler = DemSampler(np.where(np.isfinite(dem64), dem64, np.nanmean(dem64)), dem_tr)
+    n = preset.dem_cells
+    margin = 0.25 * n * DEM_RES_M if preset.margin_m is None else preset.margin_m
+    left, top = dem_tr.c, dem_tr.f
+    inner = (left + margin, top - n * DEM_RES_M + margin, left + n * DEM_RES_M - margin,
+             top - margin)  # fmt: skip
+    return make_traverse(rng, sampler, spec.crs, inner, stops, spec.first_site,
+                         spec.first_sol, spec.sclk_sol0, spacing_m=preset.stop_spacing_m,
+                         directed=preset.directed)  # fmt: skip
+
+
+def mission_traverse(seed: int, mission: str, size: str, stops: int | None = None) -> Traverse:
+    """The traverse ``generate_mission`` makes for one mission ("m2020" or "msl") with these
+    arguments, without writing or rendering anything (the terrain is generated: the traverse
+    follows it). Map CRS metres."""
+    preset = SIZES[size]
+    rng = np.random.default_rng([int(seed), MISSIONS.index(mission)])
+    dem32, dem_tr, _, _ = _terrain(rng, SPECS[mission], preset)
+    k = preset.stops if stops is None else int(stops)
+    return _traverse(rng, SPECS[mission], preset, k, dem32.astype(np.float64), dem_tr)
+
+
 # -- one mission ---------------------------------------------------------------------------------
 def _generate_one(out: Path, rng: np.random.Generator, spec: MissionSpec, size: str,
                   stops: int, per_stop: int,
@@ -436,14 +462,7 @@ def _generate_one(out: Path, rng: np.random.Generator, spec: MissionSpec, size: 
     _write_geotiff(ortho_path, ortho, ortho_tr, spec.crs, 0, predictor=2)
 
     dem64 = dem32.astype(np.float64)
-    sampler = DemSampler(np.where(np.isfinite(dem64), dem64, np.nanmean(dem64)), dem_tr)
-    margin = 0.25 * n * DEM_RES_M if preset.margin_m is None else preset.margin_m
-    left, top = dem_tr.c, dem_tr.f
-    inner = (left + margin, top - n * DEM_RES_M + margin, left + n * DEM_RES_M - margin,
-             top - margin)  # fmt: skip
-    trav = make_traverse(rng, sampler, spec.crs, inner, stops, spec.first_site,
-                         spec.first_sol, spec.sclk_sol0, spacing_m=preset.stop_spacing_m,
-                         directed=preset.directed)  # fmt: skip
+    trav = _traverse(rng, spec, preset, stops, dem64, dem_tr)
     places_path = out / "places" / spec.places_name
     write_places_csv(places_path, trav, dem_tr, ortho_tr)
     xy = np.array([(r.x, r.y) for r in trav.rovers])
