@@ -360,8 +360,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("out", help="output folder")
     p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--mission", choices=("m2020", "msl", "both"), default="m2020")
-    p.add_argument("--stops", type=count(1), help="rover stops (default: the size's, 3 or 8)")
-    p.add_argument("--images-per-stop", type=count(1), help="default: the size's (4)")
+    p.add_argument("--stops", type=count(1), help="rover stops (default: the size's: 3, 8, 90)")
+    p.add_argument("--images-per-stop", type=count(1), help="default: the size's (4, 4, 3)")
     p.add_argument("--size", choices=("small", "default", "demo"), default="small")
     p.set_defaults(func=_cmd_synth)
     return parser
