@@ -4,7 +4,7 @@ Layout written for one mission (``OUT`` directly, or ``OUT/m2020`` and ``OUT/msl
 "both"):
 
     orbital/dem.tif     float32 DEM, 1 m/px, mission map CRS, nodata -3.4028235e38
-    orbital/ortho.tif   uint8 ortho (0.25 m/px small, 0.5 m/px default), nodata 0
+    orbital/ortho.tif   uint8 ortho (0.25 m/px small, 0.5 m/px default and demo), nodata 0
     places/best_interp.csv | places/localized_interp.csv   PLACES table
     labels/<product>.xml|.LBL and labels/<product>.jpg     labels, each with its image
     truth.parquet       one row per image: pose, camera, pointing (the exact truth)
@@ -93,7 +93,7 @@ class SizeSpec:
     ortho_factor: int  # ortho pixels per DEM cell
     stops: int
     images_per_stop: int
-    survey: bool = False  # pointing: False, a grid per stop; True, ``_survey_pointing``
+    survey: bool = False  # pointing: False, ``_grid_stop``; True, ``_survey_stop``
     directed: bool = False  # traverse: False, wanders about the centre; True, heads across
     margin_m: float | None = None  # traverse keeps this far inside the DEM; None: a quarter
     stop_spacing_m: tuple[float, float] = (15.0, 35.0)  # between stops along the path
@@ -112,7 +112,7 @@ SPECS = {
 # 500 m or more of terrain) and 8 x 4 full-size images: about a minute on 2 cores
 # demo: a 3 km DEM with a 0.5 m ortho, a ~3 km traverse heading across it, 90 stops of 3 images
 # (a Navcam-like wide image and two Mastcam-Z frames, quarter size) pointed as the mission
-# points them: a dataset worth training on, generated in well under a minute on 2 cores
+# points them: a dataset worth training on, in ~65 s of CPU (~45 s on 2 cores)
 SIZES = {
     "small": SizeSpec(1024, 4, 3, 4),
     "default": SizeSpec(2048, 2, 8, 4),
