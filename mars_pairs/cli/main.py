@@ -111,17 +111,42 @@ def _ensure_synthetic(config: object) -> None:
         return
     if inputs.dem.exists() and inputs.places.exists() and next(inputs.iter_label_paths(), None):
         return
+    import subprocess
+    import time
+
     from mars_pairs.synth import generate_mission
 
-    print(f"generating the synthetic {spec.mission} mission in {spec.root} ...", flush=True)
-    generate_mission(
-        spec.root,
-        seed=spec.seed,
-        mission=spec.mission,
-        stops=spec.stops,
-        images_per_stop=spec.images_per_stop,
-        size=spec.size,
+    t0 = time.perf_counter()
+    # numba compiles the build's kernels once (then loads them from its cache): in a process
+    # of its own, on the other core, while the mission is generated; the workers then load it
+    print("compiling the build's kernels in the background (first run: ~20 s of CPU) ...")
+    warm = subprocess.Popen(
+        [sys.executable, "-c", "from mars_pairs.kernels.warm import warm_kernels as w; w()"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
     )
+    print(f"generating the synthetic {spec.mission} mission in {spec.root} ...", flush=True)
+    try:
+        generate_mission(
+            spec.root,
+            seed=spec.seed,
+            mission=spec.mission,
+            stops=spec.stops,
+            images_per_stop=spec.images_per_stop,
+            size=spec.size,
+            log=lambda line: print(f"  {line}", flush=True),
+        )
+    except BaseException:
+        warm.kill()
+        warm.wait()
+        raise
+    print(f"mission generated ({time.perf_counter() - t0:.0f} s)", flush=True)
+    _, err = warm.communicate()
+    if warm.returncode:  # the workers compile what is missing themselves
+        print(f"compiling the kernels failed ({err.strip()[-300:]}); the workers will retry")
+    else:
+        print(f"kernels compiled ({time.perf_counter() - t0:.0f} s); building ...", flush=True)
 
 
 def _cmd_inspect(args: argparse.Namespace) -> int:
@@ -352,9 +377,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("out", help="output folder")
     p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--mission", choices=("m2020", "msl", "both"), default="m2020")
-    p.add_argument("--stops", type=count(1), help="rover stops (default: the size's, 3 or 8)")
-    p.add_argument("--images-per-stop", type=count(1), help="default: the size's (4)")
-    p.add_argument("--size", choices=("small", "default"), default="small")
+    p.add_argument("--stops", type=count(1), help="rover stops (default: the size's: 3, 8, 90)")
+    p.add_argument("--images-per-stop", type=count(1), help="default: the size's (4, 4, 3)")
+    p.add_argument("--size", choices=("small", "default", "demo"), default="small")
     p.set_defaults(func=_cmd_synth)
     return parser
 

@@ -178,7 +178,7 @@ def _inputs(data: Any, base: Path) -> InputsConfig:
             seed=syn.integer("seed", 0, minimum=0),
             stops=syn.integer("stops", 6),
             images_per_stop=syn.integer("images_per_stop", 4),
-            size=syn.choice("size", ("small", "default"), "small"),
+            size=syn.choice("size", ("small", "default", "demo"), "small"),
         )
     return InputsConfig(
         labels=tuple(str(base / Path(p).expanduser()) for p in labels),
