@@ -240,7 +240,7 @@ class Downloader:
         if target.is_file() and (remote.size is None or target.stat().st_size == remote.size):
             if not remote.mutable:
                 try:
-                    quick_check(target, remote.file_kind, where=remote.url)
+                    quick_check(target, remote.file_kind, label=remote.label, where=remote.url)
                     return FetchResult(remote, target, "cached", 0)
                 except ContentError:
                     target.unlink()  # damaged in the cache (e.g. kept by an older release)
