@@ -14,6 +14,7 @@ by reason in the summary.
 
 from __future__ import annotations
 
+import json
 import sys
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
@@ -371,6 +372,8 @@ def plan_orbital(
         if source is None:
             continue
         sidecar = cache.path(f"orbital/{kind}.source.json")
+        if not dry_run:
+            _check_same_source(cache, kind, source)
         info = source_info(source, sidecar, write=not dry_run)
         limit = cfg.orbital.max_cells
         plans.append(
@@ -399,6 +402,8 @@ def cut_orbital(cfg: FetchConfig, plan: OrbitalPlan) -> list[WindowResult]:
     for p in plan.plans:
         p.check()
     cache = Cache(cfg.cache)
+    for p in plan.plans:
+        _check_same_source(cache, p.kind, p.source)
     out: list[WindowResult] = []
     for p in plan.plans:
         info = source_info(p.source, cache.path(f"orbital/{p.kind}.source.json"))
@@ -412,6 +417,25 @@ def cut_orbital(cfg: FetchConfig, plan: OrbitalPlan) -> list[WindowResult]:
             if stale not in keep:
                 stale.unlink()
     return out
+
+
+def _check_same_source(cache: Cache, kind: str, source: str) -> None:
+    """FetchError naming ``fetch.cache`` when ``orbital/<kind>.vrt`` holds windows of another
+    source (two configs sharing one cache would replace each other's maps)."""
+    sidecar = cache.path(f"orbital/{kind}.source.json")
+    if not sidecar.is_file():
+        return
+    try:
+        earlier = json.loads(sidecar.read_text()).get("source")
+    except (ValueError, OSError, AttributeError):
+        return
+    if earlier not in (None, source):
+        raise FetchError(
+            "fetch.cache",
+            f"{cache.path('orbital')} holds {kind} windows of {earlier}; this config's "
+            f"fetch.orbital.{kind} is {source}: give each config its own fetch.cache (or "
+            "remove that folder to replace them)",
+        )
 
 
 def fetch_orbital(
