@@ -140,5 +140,7 @@ def sample_index(name: Any, keys: Any, product_ids: Any, where: str) -> int:
             return int(rows[0])
         if len(rows) > 1:
             names = ", ".join(keys.take(pa.array(rows[:5])).to_pylist())
-            raise SampleKeyError(f"{where}: {name!r} names {len(rows)} samples ({names}): use a key")
+            raise SampleKeyError(
+                f"{where}: {name!r} names {len(rows)} samples ({names}): use a key"
+            )
     raise SampleKeyError(f"{where}: no sample with key or product id {name!r} in this dataset")

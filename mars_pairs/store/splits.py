@@ -122,11 +122,8 @@ def empty_split_warnings(
     total = sum(counts.values())
     if total == 0:
         return []
-    if style == "same-area":
-        wanted = [n for n, r in ratios.items() if r > 0]
-    else:
-        wanted = [TRAIN, *areas]
-    wanted = sorted(set(wanted) | {TRAIN}, key=lambda n: (n != TRAIN, n))
+    named = [n for n, r in ratios.items() if r > 0] if style == "same-area" else list(areas)
+    wanted = sorted({*named, TRAIN}, key=lambda n: (n != TRAIN, n))
     held = ", ".join(f"{n} {c}" for n, c in sorted(counts.items()) if c)
     out = []
     for name in wanted:

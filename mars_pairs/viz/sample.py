@@ -393,9 +393,7 @@ def sample_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
     return fig
 
 
-def show_sample(
-    root: str | Path, key: str, out: str | Path | None = None, dpi: int = DPI
-) -> Path:
+def show_sample(root: str | Path, key: str, out: str | Path | None = None, dpi: int = DPI) -> Path:
     """The figure of the sample named ``key`` (its key or product id, any case) drawn by
     :meth:`MarsPairsDataset.plot` and written to ``out`` (PNG of ``SHOW_SIZE`` inches at
     ``dpi``; default ``<key>.png`` in the current directory, the sample's own key)."""
