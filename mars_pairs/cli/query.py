@@ -102,7 +102,7 @@ def check_query_splits(dataset: str | Path, split: Any) -> None:
         doc = json.loads((root / "dataset.json").read_text())
     except (OSError, ValueError):
         doc = {}  # an old or damaged dataset.json: the names on the rows
-    check_split_names(split, known | configured_splits(doc), str(root))
+    check_split_names(split, known | (configured_splits(doc) or set()), str(root))
 
 
 def _finite(option: str, values: Sequence[float], n: int) -> tuple[float, ...]:

@@ -119,6 +119,8 @@ class MarsPairsDataset(Dataset):
     [0, 1]). ``transform`` is applied to the sample dict (see
     :mod:`mars_pairs.torch.transforms`). ``verify`` checks every member of each sample read
     (tar header, size, CRC-32C; see the module docstring): one extra 512-byte read per member.
+    A ``split`` the dataset does not know (dataset.json's split config and counts) is an
+    ArgumentError listing the known ones; a known split without samples gives 0 rows.
     Use as a context manager, or call :meth:`close`.
     """
 
