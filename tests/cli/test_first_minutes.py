@@ -18,8 +18,6 @@ from mission_inputs import mission_inputs
 
 from mars_pairs.cli.main import build_parser, main
 from mars_pairs.errors import ArgumentError, SampleKeyError
-from mars_pairs.store.filter_args import sample_index
-from mars_pairs.store.splits import EmptySplitWarning, empty_split_warnings
 
 
 def built_dataset(base: Path, mission: Path) -> Path:
@@ -116,6 +114,8 @@ def test_query_and_dataset_refuse_an_unknown_split_naming_the_known_ones(
 
 
 def test_sample_index_by_key_or_product_id() -> None:
+    from mars_pairs.store.filter_args import sample_index
+
     keys = pa.array(["m2020_zlf_0052_a", "msl_0123ml0005_drcl", "m2020_x_1"])
     ids = pa.array(["ZLF_0052_A", "0123ML0005.DRCL", "X_1"])
     for name, want in (
@@ -209,6 +209,8 @@ def test_synth_example_writes_where_told_and_prints_help(tmp_path, monkeypatch, 
 
 
 def test_empty_split_warnings_say_where_the_samples_went() -> None:
+    from mars_pairs.store.splits import empty_split_warnings
+
     ratios = {"train": 0.8, "val": 0.1, "test": 0.1}
     got = empty_split_warnings("same-area", ratios, {}, 10000.0, {"val": 12})
     assert got[0].startswith("split 'train' is empty (12 samples: val 12)")
@@ -236,6 +238,7 @@ def test_a_build_without_train_warns_in_its_summary_dataset_json_and_inspect(
     # the library (run_build) warns too, with a category a caller can filter
     from mars_pairs.pipeline.config import load_config
     from mars_pairs.pipeline.splitting import splits_report
+    from mars_pairs.store.splits import EmptySplitWarning
 
     config = load_config(dataset.parent / "c.yaml")
     with pytest.warns(EmptySplitWarning, match="split 'train' is empty"):

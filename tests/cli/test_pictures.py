@@ -13,7 +13,6 @@ import pytest
 from test_first_minutes import built_dataset
 
 from mars_pairs.viz.common import SPLIT_COLOURS
-from mars_pairs.viz.sample import _camera_centre, _inverse, _wedge_pixels, wedge_apex, wedge_ring
 
 pytest.importorskip("matplotlib")
 
@@ -34,6 +33,8 @@ def meta_json(root: Path, key: str) -> dict:
 
 
 def test_the_wedge_starts_at_the_camera_centre() -> None:
+    from mars_pairs.viz.sample import _inverse, _wedge_pixels, wedge_apex, wedge_ring
+
     row = {"easting": 1000.0, "northing": 2000.0, "camera_center_map": [1000.6, 2000.7, -5.0]}
     assert wedge_apex(row) == (1000.6, 2000.7, True)
     assert wedge_apex({"easting": 1000.0, "northing": 2000.0}) == (1000.0, 2000.0, False)
@@ -53,6 +54,8 @@ def test_the_wedge_starts_at_the_camera_centre() -> None:
 
 
 def test_show_reads_the_camera_centre_from_meta_json(dataset: Path) -> None:
+    from mars_pairs.viz.sample import _camera_centre
+
     for row in pq.read_table(dataset / "manifest.parquet").to_pylist():
         want = meta_json(dataset, row["key"])["camera_center_map"]
         got = _camera_centre(dataset, row["key"])
@@ -65,6 +68,7 @@ def test_show_reads_the_camera_centre_from_meta_json(dataset: Path) -> None:
 def test_the_sample_figure_has_scale_bars_and_names_the_wedge_apex(dataset: Path) -> None:
     from mars_pairs.torch import ALL_FIELDS, MarsPairsDataset
     from mars_pairs.viz.common import pyplot
+    from mars_pairs.viz.sample import _camera_centre, _inverse, _wedge_pixels
 
     with MarsPairsDataset(dataset, fields=ALL_FIELDS) as ds:
         sample = ds[0]
