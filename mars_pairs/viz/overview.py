@@ -93,7 +93,8 @@ def overview_figure(
                 gx, gy = poly.exterior.xy
                 ax.fill(gx, gy, color=colour[i], alpha=0.3, lw=0)
                 ax.plot(gx, gy, color=colour[i], lw=1.1)
-        found = _draw_held_out(ax, held_out_regions(info, box), SPLIT_COLOURS, label=True)
+        held = held_out_regions(info, box)
+        found = _draw_held_out(ax, held, SPLIT_COLOURS, label=_few_regions(held.regions, box))
         held_handles = held_handles or found
         _traverse(ax, rows, xs, ys, label_sols=ax is ax_near)
         ax.set_xlim(box[0], box[2])
@@ -114,17 +115,34 @@ def overview_figure(
     if held_handles:
         ax_near.legend(handles=held_handles, loc="lower right", fontsize=8, framealpha=0.9,
                        facecolor="#9a9a9a")  # fmt: skip
+    for ax in (ax_full, ax_near):
+        if ax.get_legend() is not None:
+            ax.get_legend().set_zorder(10)  # above the held-out areas and their names
     ax_full.set_title(
         f"{len(rows)} samples: footprints coloured by {colour_by}, rover traverse (white)",
         fontsize=10,
     )
-    held = "held-out areas hatched, buffer zones dashed" if held_handles else "no held-out area"
+    named = "held-out areas hatched, buffer zones dashed" if held_handles else "no held-out area"
     ax_near.set_title(
-        f"the traverse ({len(set(zip(xs, ys, strict=True)))} rover positions, cyan box); {held}",
+        f"the traverse ({len(set(zip(xs, ys, strict=True)))} rover positions, cyan box); {named}",
         fontsize=10,
     )
     fig.suptitle(f"map CRS: {crs_name}", fontsize=10)
     return fig
+
+
+MAX_NAMED_REGIONS = 12  # more held-out regions on a panel: named in the legend only
+
+
+def _few_regions(regions: dict[str, list[Any]], box: tuple[float, float, float, float]) -> bool:
+    """Whether the held-out regions (merged per split) meeting the panel ``box`` (map units)
+    are few enough to be named on the map."""
+    frame = shapely.box(*box)
+    count = 0
+    for cells in regions.values():
+        union = shapely.intersection(shapely.union_all(cells), frame)
+        count += len(getattr(union, "geoms", [union])) if not union.is_empty else 0
+    return count <= MAX_NAMED_REGIONS
 
 
 def _square(

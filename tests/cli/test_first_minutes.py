@@ -219,6 +219,12 @@ def test_empty_split_warnings_say_where_the_samples_went() -> None:
     full = {"train": 8, "val": 2, "test": 2}
     assert empty_split_warnings("same-area", ratios, {}, 100.0, full) == []
     assert empty_split_warnings("same-area", ratios, {}, 100.0, {}) == []  # no sample
+    got = empty_split_warnings("same-area", ratios, {}, 15.0, {"buffer": 4})
+    assert got == [
+        "split 'train', 'test', 'val' are empty (4 samples: buffer 4); every sample is in the "
+        "buffer zone around held-out regions: use regions several times wider than the zone "
+        "(reach_m + buffer_m in dataset.json; splits.block_m = 15 map units)"
+    ]
     areas = {"test": [[0, 0, 1, 1]]}
     got = empty_split_warnings("cross-area", {}, areas, 1.0, {"train": 3})
     assert got == ["split 'test' is empty (3 samples: train 3); no rover position lies "
