@@ -148,4 +148,6 @@ def sample_index(name: Any, keys: Any, product_ids: Any, where: str) -> int:
             raise SampleKeyError(
                 f"{where}: {name!r} names {len(rows)} samples ({names}): use a key"
             )
-    raise SampleKeyError(f"{where}: no sample with key or product id {name!r} in this dataset")
+    raise SampleKeyError(
+        f"{where}: no sample with key {name!r} (nor with that product id) in this dataset"
+    )
