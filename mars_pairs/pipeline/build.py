@@ -28,7 +28,12 @@ from mars_pairs.pipeline import worker
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.config_section import check_regular
 from mars_pairs.pipeline.context import SampleContext
-from mars_pairs.pipeline.finish import merge_parts, write_dataset_json
+from mars_pairs.pipeline.finish import (
+    finished_summary,
+    merge_parts,
+    write_card,
+    write_dataset_json,
+)
 from mars_pairs.pipeline.local_pool import LocalPool
 from mars_pairs.pipeline.outputs import (
     DROPPED_KEY,
@@ -38,6 +43,7 @@ from mars_pairs.pipeline.outputs import (
     dropped_count,
     foreign_file,
     part_paths,
+    remove_parts,
     remove_temporaries,
     stamp_path,
 )
@@ -250,6 +256,8 @@ def _run(
     """run_build's work, its arguments checked and its workers starting."""
     out = config.output.dir
     plan = plan_build(config, resume=resume, limit=limit)  # checks; the labels' first pass
+    if plan.finished:
+        return finished_summary(config, plan, start)
     if plan.clears:
         check_clearable(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -315,6 +323,11 @@ def _run(
         seconds=time.perf_counter() - start,
         stage_seconds=dict(stage_seconds),
     )
-    write_dataset_json(config, summary, manifest, dropped_count(out, plan.chunks))
+    doc = write_dataset_json(
+        config, summary, manifest, dropped_count(out, plan.chunks), plan.fingerprint
+    )
     write_wids_index(out, manifest)
+    write_card(config, manifest, doc)
+    if not config.output.keep_parts:
+        remove_parts(out, plan.chunks)  # the last step: a kill before it resumes
     return summary
