@@ -75,7 +75,7 @@ def named_wkt(crs: str) -> str:
     """``crs`` as WKT with the names ``geoparquet.named_crs`` gives it (the same CRS)."""
     from pyproj import CRS
 
-    return str(CRS.from_json_dict(named_crs(crs)).to_wkt())
+    return str(CRS.from_json_dict(named_crs(crs)).to_wkt("WKT1_GDAL"))
 
 
 def relative_config(config: BuildConfig) -> dict[str, Any]:
