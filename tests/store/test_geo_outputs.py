@@ -18,7 +18,6 @@ from mars_pairs.cli import main
 from mars_pairs.geometry.body import M2020_PLACES_CRS, MSL_PLACES_CRS
 from mars_pairs.store.geoparquet import crs_name, named_crs
 
-
 EVERYWHERE = ("--bbox", "-180", "-90", "180", "90")
 
 
