@@ -179,7 +179,7 @@ def write_card(config: BuildConfig, manifest: pa.Table, doc: dict[str, Any]) -> 
     )
     atomic_write_bytes(out / "README.md", dataset_card(facts).encode())
     meta = croissant_metadata(
-        name=f"mars-pairs-{out.name}",
+        name="mars-pairs-dataset",
         description=dataset_description(doc["counts"], synthetic),
         version=__version__,
         license=doc["license"],

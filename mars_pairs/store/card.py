@@ -152,8 +152,9 @@ def dataset_card(facts: CardFacts) -> str:
         "",
         "## How it was built",
         "",
-        f"- mars-pairs {facts.version}: `mars-pairs build --config CONFIG` "
-        f"(the config is in `dataset.json`, `config`; paths relative to this folder)",
+        f"- mars-pairs {facts.version}: `mars-pairs build --config "
+        f"{cfg.get('source') or 'CONFIG'}` (the config is in `dataset.json`, `config`; "
+        "paths relative to this folder)",
         f"- labels: {', '.join(f'`{p}`' for p in inputs.get('labels', []))}",
         f"- PLACES: `{inputs.get('places')}`; DEM: `{inputs.get('dem')}`; "
         f"ortho: `{inputs.get('ortho')}`",
