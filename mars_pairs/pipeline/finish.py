@@ -27,6 +27,7 @@ from mars_pairs.pipeline.outputs import (
     remove_empty_parts,
     stamp_digest,
 )
+from mars_pairs.pipeline.record import labels_root
 from mars_pairs.pipeline.splitting import splits_report
 from mars_pairs.store.card import CardFacts, dataset_card, default_license
 from mars_pairs.store.croissant import croissant_metadata, dataset_description, sha256_of
@@ -126,9 +127,12 @@ def write_dataset_json(
         counts["by_split"] = dict(Counter(manifest.column("split").to_pylist()))
         counts["by_mission"] = dict(Counter(manifest.column("mission").to_pylist()))
     crs = named_wkt(dataset_crs(config))
+    out = config.output.dir
     doc: dict[str, Any] = {
         "config": relative_config(config),
         "paths": PATHS_NOTE,
+        # the folder the manifest's label_path is relative to (relative to this folder)
+        "labels_root": Path(os.path.relpath(labels_root(config.inputs.labels), out)).as_posix(),
         "license": license_of(config),
         "versions": {
             "mars_pairs": __version__,
@@ -152,7 +156,7 @@ def write_dataset_json(
     }
     if fingerprint is not None:
         doc[FINISHED_KEY] = stamp_digest(fingerprint)
-    atomic_write_bytes(config.output.dir / "dataset.json", json.dumps(doc, indent=2).encode())
+    atomic_write_bytes(out / "dataset.json", json.dumps(doc, indent=2).encode())
     return doc
 
 

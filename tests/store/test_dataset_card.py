@@ -61,6 +61,9 @@ def test_no_absolute_path_of_the_building_machine_is_written(
     assert config["output"]["dir"] == "."
     # relative to the dataset folder: they resolve to the inputs from where it was built
     assert (built / config["inputs"]["dem"]).resolve() == (small_mission / "orbital/dem.tif")
+    assert (built / json.loads((built / "dataset.json").read_text())["labels_root"]).resolve() == (
+        small_mission / "labels"
+    )
     labels = pq.read_table(built / "manifest.parquet", columns=["label_path"])
     for path in labels["label_path"].to_pylist():
         assert not Path(path).is_absolute()
