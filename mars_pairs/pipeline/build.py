@@ -5,9 +5,11 @@ Labels are streamed in one total order (``pipeline.label_list``) and cut into ch
 ``shards/shard-{k:06d}.tar`` plus ``parts/manifest-{k:06d}.parquet`` and
 ``parts/failures-{k:06d}.parquet``. The manifest part is renamed into place last and marks the
 chunk done, so a killed build rerun with ``resume`` redoes only unfinished chunks, and the
-output is the same whatever the worker count. The labels are never held: a planning pass
-counts them and sums their fingerprint (the stamp), the build pass streams them again to the
-engine, chunk by chunk.
+output is the same whatever the worker count. A finished build writes the folder's card
+(``pipeline.finish``) and removes ``parts/`` last (``output.keep_parts`` keeps it); its stamp
+lives on in dataset.json, so ``--resume`` over it does nothing. The labels are never held: a
+planning pass counts them and sums their fingerprint (the stamp), the build pass streams them
+again to the engine, chunk by chunk.
 """
 
 from __future__ import annotations
