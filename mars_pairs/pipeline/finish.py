@@ -190,6 +190,7 @@ def write_card(config: BuildConfig, manifest: pa.Table, doc: dict[str, Any]) -> 
         synthetic=synthetic,
         schema=schema,
         manifest_sha256=sha256_of(out / "manifest.parquet"),
+        missions=list(doc["counts"].get("by_mission") or {}),
     )
     atomic_write_bytes(out / "croissant.json", json.dumps(meta, indent=2).encode())
 

@@ -68,11 +68,15 @@ MEMBER_DOCS: dict[str, tuple[str, str, str]] = {
              "(affine a..f, chip pixel -> map x, y)"),
 }  # fmt: skip
 
-SOURCES_REAL = (
-    "- Curiosity Mastcam RDR, MSL-M-MASTCAM-4-RDR-IMG-V1.0, NASA Planetary Data System, "
+#: The camera data set of each mission (NASA PDS, with its DOI).
+MISSION_SOURCES = {
+    "msl": "- Curiosity Mastcam RDR, MSL-M-MASTCAM-4-RDR-IMG-V1.0, NASA Planetary Data System, "
     "doi:10.17189/1520328",
-    "- Perseverance Mastcam-Z calibrated products, NASA Planetary Data System, "
+    "m2020": "- Perseverance Mastcam-Z calibrated products, NASA Planetary Data System, "
     "doi:10.17189/bs6b-4782",
+}
+SOURCES_REAL = (
+    *MISSION_SOURCES.values(),
     "- PLACES rover localizations (best_interp / localized_interp tables), NASA PDS "
     "Cartography and Imaging Sciences Node",
     "- Orbital DEM and orthoimage: HiRISE (NASA / JPL / University of Arizona) digital "
@@ -100,6 +104,16 @@ class CardFacts:
     schema: pa.Schema
     shards: Sequence[str]
     failures_by_reason: Mapping[str, int]
+
+
+def sources(synthetic: bool, missions: Sequence[str] = ()) -> tuple[str, ...]:
+    """The card's source lines: the synthetic mission, or the PDS data sets of ``missions``
+    (every one when none is known), PLACES and the HiRISE maps."""
+    if synthetic:
+        return SOURCES_SYNTHETIC
+    known = [MISSION_SOURCES[m] for m in sorted(set(missions)) if m in MISSION_SOURCES]
+    return tuple(line for line in SOURCES_REAL if line not in MISSION_SOURCES.values() or
+                 not known or line in known)  # fmt: skip
 
 
 def default_license(synthetic: bool) -> str:
@@ -167,7 +181,7 @@ def dataset_card(facts: CardFacts) -> str:
         "",
         "## Sources",
         "",
-        *(SOURCES_SYNTHETIC if facts.synthetic else SOURCES_REAL),
+        *sources(facts.synthetic, list(counts.get("by_mission") or {})),
         "",
         "## Licence",
         "",

@@ -15,7 +15,7 @@ from typing import Any
 
 import pyarrow as pa
 
-from mars_pairs.store.card import COLUMN_DOCS, MEMBER_DOCS, SOURCES_REAL, SOURCES_SYNTHETIC
+from mars_pairs.store.card import COLUMN_DOCS, MEMBER_DOCS, sources
 
 #: The JSON-LD context of Croissant 1.0 (as mlcroissant writes it).
 CONTEXT: dict[str, Any] = {
@@ -99,10 +99,12 @@ def croissant_metadata(
     schema: pa.Schema,
     manifest_sha256: str,
     members: Sequence[str] = tuple(MEMBER_DOCS),
+    missions: Sequence[str] = (),
     url: str = PROJECT_URL,
 ) -> dict[str, Any]:
     """The Croissant JSON-LD document of a dataset folder whose manifest has ``schema`` and
-    whose ``manifest.parquet`` hashes to ``manifest_sha256``."""
+    whose ``manifest.parquet`` hashes to ``manifest_sha256``; ``missions``: those of its
+    samples (the PDS data sets cited)."""
     fields = []
     for f in schema:
         kind = croissant_type(f.type)
@@ -153,7 +155,7 @@ def croissant_metadata(
                 "includes": f"*.{member}.*",
             }
         )
-    sources = SOURCES_SYNTHETIC if synthetic else SOURCES_REAL
+    cited = sources(synthetic, missions)
     return {
         "@context": CONTEXT,
         "@type": "sc:Dataset",
@@ -163,7 +165,7 @@ def croissant_metadata(
         "license": license,
         "url": url,
         "version": version,
-        "citeAs": " ".join(s.lstrip("- ") for s in sources),
+        "citeAs": " ".join(s.lstrip("- ") for s in cited),
         "keywords": ["Mars", "rover", "cross-view", "geospatial", "webdataset"],
         "distribution": distribution,
         "recordSet": [

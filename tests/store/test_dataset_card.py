@@ -43,7 +43,8 @@ def test_a_finished_build_leaves_the_card_and_no_parts(built: Path) -> None:
     for member in ("ground.jpg", "ortho.png", "dem.npy", "viewshed.png", "corr.npy", "meta.json"):
         assert member in card
     # sources with their DOIs, the licence (public domain for PDS data), how to load it
-    assert "doi:10.17189/1520328" in card and "doi:10.17189/bs6b-4782" in card
+    assert "doi:10.17189/bs6b-4782" in card  # the Perseverance samples' data set, alone
+    assert "doi:10.17189/1520328" not in card
     assert info["license"] == "CC0-1.0" and "public domain" in card
     assert "MarsPairsDataset" in card and 'load_dataset("webdataset"' in card
     assert 'load_dataset("parquet", data_files="manifest.parquet"' in card
@@ -141,3 +142,14 @@ def test_hugging_face_datasets_load_the_shards_and_the_manifest(
         "parquet", data_files=str(built / "manifest.parquet"), split="train", cache_dir=cache
     )
     assert rows.num_rows == len(keys) and rows["key"] == keys
+
+
+def test_the_sources_cited_follow_the_missions() -> None:
+    from mars_pairs.store.card import SOURCES_SYNTHETIC, sources
+
+    msl = "\n".join(sources(False, ["msl"]))
+    assert "doi:10.17189/1520328" in msl and "bs6b-4782" not in msl
+    assert "PLACES" in msl and "HiRISE" in msl
+    both = "\n".join(sources(False, []))  # no mission known: every data set
+    assert "1520328" in both and "bs6b-4782" in both
+    assert sources(True, ["m2020"]) == SOURCES_SYNTHETIC
