@@ -213,7 +213,11 @@ def _cmd_report(args: argparse.Namespace) -> int:
 def _cmd_export_qgis(args: argparse.Namespace) -> int:
     from mars_pairs.cli.qgis import export_geopackage
 
-    print(export_geopackage(args.dataset, args.out, with_viewsheds=args.viewsheds))
+    print(
+        export_geopackage(
+            args.dataset, args.out, with_viewsheds=args.viewsheds, with_chips=args.chips
+        )
+    )
     return 0
 
 
@@ -387,6 +391,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dataset", help="dataset folder")
     p.add_argument("out", help="output .gpkg")
     p.add_argument("--viewsheds", action="store_true", help="also write viewshed GeoTIFFs")
+    p.add_argument(
+        "--chips",
+        action="store_true",
+        help="also write every sample's ortho, DEM and viewshed chips as GeoTIFFs (NAME_chips/)",
+    )
     p.set_defaults(func=_cmd_export_qgis)
 
     from mars_pairs.fetch.cli import add_fetch_parser

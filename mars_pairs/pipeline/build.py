@@ -5,9 +5,11 @@ Labels are streamed in one total order (``pipeline.label_list``) and cut into ch
 ``shards/shard-{k:06d}.tar`` plus ``parts/manifest-{k:06d}.parquet`` and
 ``parts/failures-{k:06d}.parquet``. The manifest part is renamed into place last and marks the
 chunk done, so a killed build rerun with ``resume`` redoes only unfinished chunks, and the
-output is the same whatever the worker count. The labels are never held: a planning pass
-counts them and sums their fingerprint (the stamp), the build pass streams them again to the
-engine, chunk by chunk.
+output is the same whatever the worker count. A finished build writes the folder's card
+(``pipeline.finish``) and removes ``parts/`` last (``output.keep_parts`` keeps it); its stamp
+lives on in dataset.json, so ``--resume`` over it does nothing. The labels are never held: a
+planning pass counts them and sums their fingerprint (the stamp), the build pass streams them
+again to the engine, chunk by chunk.
 """
 
 from __future__ import annotations
@@ -28,7 +30,12 @@ from mars_pairs.pipeline import worker
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.config_section import check_regular
 from mars_pairs.pipeline.context import SampleContext
-from mars_pairs.pipeline.finish import merge_parts, write_dataset_json
+from mars_pairs.pipeline.finish import (
+    finished_summary,
+    merge_parts,
+    write_card,
+    write_dataset_json,
+)
 from mars_pairs.pipeline.local_pool import LocalPool
 from mars_pairs.pipeline.outputs import (
     DROPPED_KEY,
@@ -38,6 +45,7 @@ from mars_pairs.pipeline.outputs import (
     dropped_count,
     foreign_file,
     part_paths,
+    remove_parts,
     remove_temporaries,
     stamp_path,
 )
@@ -250,6 +258,8 @@ def _run(
     """run_build's work, its arguments checked and its workers starting."""
     out = config.output.dir
     plan = plan_build(config, resume=resume, limit=limit)  # checks; the labels' first pass
+    if plan.finished:
+        return finished_summary(config, plan, start)
     if plan.clears:
         check_clearable(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -315,6 +325,11 @@ def _run(
         seconds=time.perf_counter() - start,
         stage_seconds=dict(stage_seconds),
     )
-    write_dataset_json(config, summary, manifest, dropped_count(out, plan.chunks))
+    doc = write_dataset_json(
+        config, summary, manifest, dropped_count(out, plan.chunks), plan.fingerprint
+    )
     write_wids_index(out, manifest)
+    write_card(config, manifest, doc)
+    if not config.output.keep_parts:
+        remove_parts(out, plan.chunks)  # the last step: a kill before it resumes
     return summary

@@ -5,6 +5,10 @@ resumed build must match it. It also lists what that build writes: its label cou
 ``output.shard_size`` give its chunks, and ``written_by`` names their files. A build clears
 only those (and its own temporary files): a folder holding anything else is refused, untouched
 (``foreign_file``). Clearing is ordered so that a kill at any point resumes.
+
+A finished build removes ``parts/`` (``remove_parts``, unless ``output.keep_parts``): its stamp
+lives on as ``build_stamp`` in dataset.json (``finished_stamp``: the label count, shard size and
+the SHA-256 of the fingerprint, no paths), written before the parts go.
 """
 
 from __future__ import annotations
@@ -33,7 +37,11 @@ BUILD_FILES = (
     "failures.parquet",
     "dataset.json",
     WIDS_INDEX,
+    "README.md",
+    "croissant.json",
 )
+#: dataset.json's key holding the stamp of the finished build (``stamp_digest``).
+FINISHED_KEY = "build_stamp"
 _CHUNK_FILE = re.compile(
     r"(shards/shard-([0-9]{6,})\.tar|parts/(?:manifest|failures)-([0-9]{6,})\.parquet)"
 )
@@ -112,11 +120,34 @@ def read_stamp(stamp: Path) -> dict[str, Any] | None:
     return doc if isinstance(doc, dict) else None
 
 
+def stamp_digest(stamp: dict[str, Any]) -> dict[str, Any]:
+    """What dataset.json keeps of a build's fingerprint: its label count, shard size and the
+    SHA-256 of the fingerprint (canonical JSON), so that no input path is written there."""
+    text = json.dumps(stamp, sort_keys=True, separators=(",", ":")).encode()
+    return {
+        "count": stamp["count"],
+        "shard_size": stamp["config"]["output"]["shard_size"],
+        "sha256": hashlib.sha256(text).hexdigest(),
+    }
+
+
+def finished_stamp(out: Path) -> dict[str, Any] | None:
+    """The ``stamp_digest`` of the finished build in ``out`` (dataset.json's ``build_stamp``);
+    None when there is none."""
+    doc = read_stamp(out / "dataset.json")
+    digest = doc.get(FINISHED_KEY) if doc is not None else None
+    return digest if isinstance(digest, dict) else None
+
+
 def stamp_chunks(stamp: Any) -> int | None:
     """The chunk count of the build a stamp describes (its label count over its
-    ``output.shard_size``); None when ``stamp`` is not a build's fingerprint."""
+    ``output.shard_size``); None when ``stamp`` is not a build's fingerprint. A finished
+    build's dataset.json (its ``build_stamp``) describes that build."""
     try:
-        count, size = stamp["count"], stamp["config"]["output"]["shard_size"]
+        if isinstance(stamp, dict) and isinstance(stamp.get(FINISHED_KEY), dict):
+            count, size = stamp[FINISHED_KEY]["count"], stamp[FINISHED_KEY]["shard_size"]
+        else:
+            count, size = stamp["count"], stamp["config"]["output"]["shard_size"]
     except (KeyError, TypeError):
         return None
     ints = all(isinstance(v, int) and not isinstance(v, bool) for v in (count, size))
@@ -149,7 +180,8 @@ def is_temporary(rel: str) -> bool:
 def stamped_chunks(out: Path) -> int | None:
     """The chunks of the build(s) whose stamp the folder holds (the build's, and a clearing's
     left by a killed clearing); None when it holds no valid stamp."""
-    counts = [stamp_chunks(read_stamp(out / rel)) for rel in ("parts/build.json", CLEARING)]
+    stamps = ("parts/build.json", CLEARING, "dataset.json")
+    counts = [stamp_chunks(read_stamp(out / rel)) for rel in stamps]
     valid = [n for n in counts if n is not None]
     return max(valid) if valid else None
 
@@ -195,6 +227,25 @@ def remove_temporaries(out: Path) -> None:
                 path.unlink()
 
 
+def remove_parts(out: Path, chunks: int) -> None:
+    """Remove ``parts/`` of a finished build (its dataset.json holds the stamp): the chunk
+    commit markers first, then the failure parts, the stamp, the folder. A kill at any point
+    resumes: a chunk without its manifest part is rebuilt, byte for byte."""
+    for k in range(chunks):
+        part_paths(out, k)[1].unlink(missing_ok=True)
+    for k in range(chunks):
+        part_paths(out, k)[2].unlink(missing_ok=True)
+    stamp_path(out).unlink(missing_ok=True)
+    remove_empty_parts(out)
+
+
+def remove_empty_parts(out: Path) -> None:
+    """Remove ``parts/`` when it is an empty folder."""
+    parts = out / "parts"
+    if parts.is_dir() and not parts.is_symlink() and not any(parts.iterdir()):
+        parts.rmdir()
+
+
 def built_keys(out: Path, done: Iterable[int]) -> dict[str, str]:
     """Sample key -> label path of the chunks a resumed build keeps (for duplicate ids)."""
     seen: dict[str, str] = {}
@@ -209,17 +260,23 @@ def clear_outputs(out: Path) -> None:
     has checked that the folder holds nothing else: ``foreign_file``), crash-safely. The
     stamp is renamed first (``parts/clearing.json``): a build killed at any point of the
     clearing leaves no build stamp, so its rerun (resumed or not) clears again, and the
-    renamed stamp still lists what is left. Then the dataset's own commit marker
-    (manifest.parquet) goes, so no reader sees a manifest whose shards are going; then the
-    chunk commit markers (manifest parts) before the failure parts and shards they vouch
-    for; the renamed stamp goes last."""
+    renamed stamp still lists what is left (a finished build's stamp is its dataset.json,
+    renamed the same way). Then the dataset's own commit marker (manifest.parquet) goes, so
+    no reader sees a manifest whose shards are going; then the chunk commit markers (manifest
+    parts) before the failure parts and shards they vouch for; the renamed stamp goes last."""
     chunks = stamped_chunks(out)
     stamp = stamp_path(out)
+    finished = out / "dataset.json"
     if stamp.is_file():
         os.replace(stamp, out / CLEARING)
+    elif finished_stamp(out) is not None and not (out / CLEARING).is_file():
+        (out / "parts").mkdir(exist_ok=True)
+        os.replace(finished, out / CLEARING)
     for pattern in (
         "manifest.parquet",
         "dataset.json",
+        "README.md",
+        "croissant.json",
         WIDS_INDEX,
         "failures.parquet",
         "parts/manifest-*.parquet",

@@ -19,7 +19,14 @@ from typing import Any
 
 from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.config import BuildConfig
-from mars_pairs.pipeline.outputs import fingerprint, part_paths, read_stamp, stamp_path
+from mars_pairs.pipeline.outputs import (
+    fingerprint,
+    finished_stamp,
+    part_paths,
+    read_stamp,
+    stamp_digest,
+    stamp_path,
+)
 from mars_pairs.pipeline.splitting import split_rule
 
 
@@ -75,11 +82,14 @@ class BuildPlan:
     clears: bool  # the build clears the output folder first (no --resume, or no stamp)
     seconds: float  # planning wall time, s
     fingerprint: dict[str, Any] = field(repr=False, compare=False)  # the stamp it writes
+    finished: bool = False  # --resume over a finished build of the same config: nothing to do
 
     def format(self) -> str:
         """The plan as ``mars-pairs build --dry-run`` prints it."""
         if not self.resume:
             done = "no --resume: the build clears the folder and starts afresh"
+        elif self.finished:
+            done = "--resume: the build in the folder is finished, nothing to do"
         elif self.clears:
             done = "--resume: no earlier build in the folder, the build starts afresh"
         else:
@@ -111,16 +121,23 @@ def plan_build(config: BuildConfig, *, resume: bool = False, limit: int | None =
         raise ConfigError(f"inputs.labels: no file matches {list(config.inputs.labels)}")
     out = config.output.dir
     previous = read_stamp(stamp_path(out))
-    if resume and previous is not None and previous != stamp:
+    finished = finished_stamp(out) if previous is None else None  # parts/ removed
+    if resume and (
+        (previous is not None and previous != stamp)
+        or (finished is not None and finished != stamp_digest(stamp))
+    ):
         raise ConfigError(
             f"{out}: cannot resume: the config or the label list changed since the "
             "interrupted build; rerun without --resume"
         )
-    clears = not resume or previous is None  # no stamp: no part can be trusted
+    is_finished = resume and finished is not None and (out / "manifest.parquet").is_file()
+    clears = not resume or (previous is None and not is_finished)  # no stamp: no part trusted
     size = config.output.shard_size
     chunks = -(-n // size)
     done = labels_done = 0
-    for k in range(0 if clears else chunks):
+    if is_finished:
+        done, labels_done = chunks, n
+    for k in range(0 if clears or is_finished else chunks):
         if is_done(out, k):
             done += 1
             labels_done += min(size, n - k * size)
@@ -135,6 +152,7 @@ def plan_build(config: BuildConfig, *, resume: bool = False, limit: int | None =
         clears=clears,
         seconds=time.perf_counter() - start,
         fingerprint=stamp,
+        finished=is_finished,
     )
 
 

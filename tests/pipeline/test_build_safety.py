@@ -86,6 +86,7 @@ def test_a_finished_dataset_with_a_strangers_file_is_refused_but_resumes(
 ) -> None:
     out = tmp_path / "ds"
     run_build(cheap_config(small_mission, out, output={"shard_size": 2}), progress=False)
+    (out / "parts").mkdir()  # a finished build left none
     (out / "parts" / "my-notes.txt").write_text("mine\n")
     hidden = out / "shards" / ".scratch.tmp-1"  # like a temporary name, not one of ours
     hidden.write_text("mine too\n")
@@ -109,6 +110,7 @@ def test_a_rebuild_clears_its_own_dataset_and_its_killed_temporaries(
     run_build(cheap_config(small_mission, out, output={"shard_size": 1}), progress=False)
     assert (out / "shards" / "shard-000003.tar").exists()
     (out / "shards" / ".shard-000001.tar.tmp-4242").write_bytes(b"half a shard")
+    (out / "parts").mkdir()  # a finished build left none
     (out / "parts" / ".build.json.tmp-4242").write_bytes(b"{")
     run_build(cheap_config(small_mission, out, output={"shard_size": 2}), progress=False)
     names = set(_files(out))
