@@ -99,28 +99,36 @@ HASHED_BYTES = 4 << 20
 INPUT_KEYS = ("places", "dem", "ortho")
 
 
-def file_fingerprint(path: Path | str) -> dict[str, Any]:
+#: The most bytes of a VRT read for its source list.
+VRT_BYTES = 64 << 20
+
+
+def file_fingerprint(path: Path | str, *, depth: int = 0) -> dict[str, Any]:
     """What identifies the input file ``path``: its path, and its size and sha256 (a file
     of up to ``HASHED_BYTES``) or its size and ``st_mtime_ns`` (a larger one); a VRT also
-    lists its source files' (``SourceFilename``, relative to the VRT when it says so). A URL
-    or GDAL ``/vsi`` path: the string only; an absent or unreadable file: ``missing``."""
+    lists its source files' (``SourceFilename``, relative to the VRT when it says so; a VRT
+    of VRTs to 4 levels). A URL or GDAL ``/vsi`` path: the string only; an absent or
+    unreadable file: ``missing`` (the error's words)."""
     text = str(path)
     if text.startswith("/vsi") or "://" in text:
         return {"path": text}
+    is_vrt = text.lower().endswith(".vrt")
     try:
         st = os.stat(text)
         doc: dict[str, Any] = {"path": text, "size": st.st_size}
-        if st.st_size <= HASHED_BYTES:
+        data = b""
+        if st.st_size <= HASHED_BYTES or is_vrt:
             with open(text, "rb") as fh:
-                data = fh.read(HASHED_BYTES + 1)
+                data = fh.read(max(HASHED_BYTES, VRT_BYTES if is_vrt else 0) + 1)
+        if st.st_size <= HASHED_BYTES:
             doc["sha256"] = hashlib.sha256(data).hexdigest()
         else:
             doc["mtime_ns"] = st.st_mtime_ns
-            data = b""
     except OSError as exc:
         return {"path": text, "missing": exc.strerror or type(exc).__name__}
-    if text.lower().endswith(".vrt") and data:
-        doc["sources"] = [file_fingerprint(src) for src in vrt_sources(Path(text), data)]
+    if is_vrt and data and depth < 4:
+        sources = vrt_sources(Path(text), data)
+        doc["sources"] = [file_fingerprint(src, depth=depth + 1) for src in sources]
     return doc
 
 

@@ -28,6 +28,8 @@ from mars_pairs.pipeline.outputs import (
     read_stamp,
     stamp_difference,
     stamp_path,
+    stamped_chunks,
+    written_by,
 )
 from mars_pairs.pipeline.splitting import split_rule
 
@@ -60,8 +62,13 @@ def check_clearable(out: Path, *, resume: bool = False) -> None:
     foreign = foreign_file(out)
     if foreign is not None:
         what = "resume in" if resume else "clear"
+        why = (
+            "which does not read as the file a mars-pairs build writes there"
+            if written_by(stamped_chunks(out), foreign)
+            else "which no mars-pairs build stamp there lists"
+        )
         raise ConfigError(
-            f"output.dir: {out} holds {foreign}, which no mars-pairs build stamp there lists; "
+            f"output.dir: {out} holds {foreign}, {why}; "
             f"refusing to {what} the folder (nothing was removed): build into a new or empty "
             "folder (--out), or remove what is not the dataset's"
         )
