@@ -163,8 +163,9 @@ def plan_build(
     label list or input file, an output folder holding files no build stamp there lists).
 
     ``generate``: a synthetic mission still to generate (``mission_pending``) is planned
-    from its preset (stops x images labels) instead of refused; its inputs are not checked
-    and its plan has no fingerprint (``mars-pairs build --dry-run``)."""
+    from its preset (stops x images labels) instead of refused; the inputs it generates are
+    not checked (those outside its root must exist) and its plan has no fingerprint
+    (``mars-pairs build --dry-run``)."""
     start = time.perf_counter()
     check_limit(limit)
     out = config.output.dir
@@ -176,6 +177,14 @@ def plan_build(
                 f"{out}: cannot resume: the synthetic mission at {pending.root} is absent and "
                 "the build generates it anew; rerun without --resume"
             )
+        for key in ("places", "dem", "ortho"):  # the inputs the generation does not write
+            path = getattr(config.inputs, key)
+            outside = isinstance(path, Path) and not path.is_relative_to(pending.root)
+            if outside and not path.exists():
+                raise ConfigError(
+                    f"inputs.{key}: no such file {path} (outside inputs.synthetic.root "
+                    f"{pending.root}: not generated)"
+                )
         stamp: dict[str, Any] = {}
         n = pending.stops * pending.images_per_stop
         n = n if limit is None else min(n, limit)

@@ -217,7 +217,13 @@ def test_the_dry_run_plans_a_synthetic_mission_still_to_generate(
     assert main(["build", "--config", str(path), "--dry-run", "--resume", "--limit", "3"]) == 0
     assert "labels: 3 " in capsys.readouterr().out
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.yaml"]  # nothing written
-    # the rest is still checked: a stranger's folder is refused
+    # the rest is still checked: an input the generation does not write, a stranger's folder
+    doc["inputs"]["ortho"] = "elsewhere/ortho.tif"
+    path.write_text(yaml.safe_dump(doc))
+    assert main(["build", "--config", str(path), "--dry-run"]) == 2
+    assert "inputs.ortho: no such file" in capsys.readouterr().err
+    doc["inputs"]["ortho"] = "mission/orbital/ortho.tif"
+    path.write_text(yaml.safe_dump(doc))
     (tmp_path / "ds").mkdir()
     (tmp_path / "ds" / "README.txt").write_text("mine\n")
     assert main(["build", "--config", str(path), "--dry-run"]) == 2
