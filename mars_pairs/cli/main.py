@@ -68,12 +68,9 @@ def _cmd_build(args: argparse.Namespace) -> int:
     if args.out:
         config = replace(config, output=replace(config.output, dir=Path(args.out).resolve()))
     if args.dry_run:  # lists, chunks and checks; writes nothing (nor a synthetic mission)
-        from mars_pairs.pipeline.build import check_clearable
         from mars_pairs.pipeline.plan import plan_build
 
-        plan = plan_build(config, resume=args.resume, limit=args.limit)
-        if plan.clears:  # the build would refuse to clear a folder of other files
-            check_clearable(plan.out_dir)
+        plan = plan_build(config, resume=args.resume, limit=args.limit, generate=True)
         print(plan.format())
         return 0
     _ensure_synthetic(config)

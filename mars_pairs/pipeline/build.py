@@ -43,13 +43,18 @@ from mars_pairs.pipeline.outputs import (
     built_keys,
     clear_outputs,
     dropped_count,
-    foreign_file,
     part_paths,
     remove_parts,
     remove_temporaries,
     stamp_path,
 )
-from mars_pairs.pipeline.plan import chunks_of, is_done, labels_of, plan_build
+from mars_pairs.pipeline.plan import (
+    check_clearable,
+    chunks_of,
+    is_done,
+    labels_of,
+    plan_build,
+)
 from mars_pairs.pipeline.worker import WorkerStartError  # noqa: F401  (re-exported)
 from mars_pairs.store.manifest import (
     FAILURE_SCHEMA,
@@ -102,19 +107,6 @@ def check_input_files(config: BuildConfig) -> None:
         check_regular(getattr(inputs, key), f"inputs.{key}")
     if inputs.images is not None:
         check_regular(inputs.images, "inputs.images", folder=True)
-
-
-def check_clearable(out: Path) -> None:
-    """ConfigError unless a build may clear ``out``: absent, empty, or holding only what an
-    earlier mars-pairs build wrote there, as its stamp lists (``outputs.foreign_file``). A
-    folder holding anything else is refused whole: nothing in it is removed."""
-    foreign = foreign_file(out)
-    if foreign is not None:
-        raise ConfigError(
-            f"output.dir: {out} holds {foreign}, which no mars-pairs build stamp there lists; "
-            "refusing to clear the folder (nothing was removed): build into a new or empty "
-            "folder (--out), or remove what is not the dataset's"
-        )
 
 
 def _in_process(config: BuildConfig, labels: Iterable[str]) -> Iterator[tuple[str, Any]]:
@@ -257,11 +249,10 @@ def _run(
 ) -> BuildSummary:
     """run_build's work, its arguments checked and its workers starting."""
     out = config.output.dir
-    plan = plan_build(config, resume=resume, limit=limit)  # checks; the labels' first pass
+    # checks (the inputs, the stamp, the folder's files); the labels' first pass
+    plan = plan_build(config, resume=resume, limit=limit)
     if plan.finished:
         return finished_summary(config, plan, start)
-    if plan.clears:
-        check_clearable(out)
     out.mkdir(parents=True, exist_ok=True)
     remove_temporaries(out)  # of a killed build
     if plan.clears:

@@ -189,7 +189,7 @@ def _inputs(data: Any, base: Path) -> InputsConfig:
         )
     return InputsConfig(
         labels=tuple(str(base / Path(p).expanduser()) for p in labels),
-        places=sec.path("places", base),  # type: ignore[arg-type]
+        places=sec.path("places", base, folder=False),  # type: ignore[arg-type]
         dem=sec.raster("dem", base),
         ortho=sec.raster("ortho", base),
         images=sec.path("images", base, None),
