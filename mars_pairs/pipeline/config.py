@@ -96,6 +96,7 @@ class ChipsConfig:
     size_px: int = 512
     orientation: str = "north-up"  # or heading-up (the camera azimuth points up)
     min_coverage: float = DEFAULT_MIN_COVERAGE
+    offset_m: float | None = None  # largest chip-centre shift from the rover (per axis, metres)
 
 
 @dataclass(frozen=True)
@@ -105,6 +106,8 @@ class OutputConfig:
     dir: Path
     shard_size: int = 64
     image_encoding: str = "png"
+    members: tuple[str, ...] = ()  # optional dense members (pipeline.dense.DENSE_MEMBERS)
+    dense_stride: int | None = None  # pixels of the dense grid (None: geometry.ray_stride)
 
 
 @dataclass(frozen=True)
@@ -154,7 +157,20 @@ class BuildConfig:
                 return [plain(v) for v in value]
             return value
 
-        return plain(asdict(self))
+        doc = plain(asdict(self))
+        # opt-in keys appear only when set: a default config's fingerprint stays as it was
+        for section, key, unset in _OPT_IN_KEYS:
+            if doc[section].get(key) == unset:
+                doc[section].pop(key)
+        return doc
+
+
+#: (section, key, unset value) of the opt-in keys left out of ``BuildConfig.to_dict``.
+_OPT_IN_KEYS = (
+    ("chips", "offset_m", None),
+    ("output", "members", []),
+    ("output", "dense_stride", None),
+)
 
 
 def _inputs(data: Any, base: Path) -> InputsConfig:
@@ -234,6 +250,24 @@ def _splits(data: Any) -> SplitsConfig:
     )
 
 
+def _members(value: Any) -> tuple[str, ...]:
+    """``output.members``: a list of optional member names, or "all" (in the list or alone)."""
+    from mars_pairs.pipeline.dense import DENSE_MEMBERS
+
+    items = [value] if isinstance(value, str) else value
+    if not isinstance(items, list) or not all(isinstance(v, str) for v in items):
+        raise ConfigError(f"output.members: expected a list of member names, got {shown(value)}")
+    unknown = [v for v in items if v != "all" and v not in DENSE_MEMBERS]
+    if unknown:
+        raise ConfigError(
+            f"output.members: unknown member {unknown[0]!r}; expected some of "
+            f"{list(DENSE_MEMBERS)} or 'all'"
+        )
+    if "all" in items:
+        return DENSE_MEMBERS
+    return tuple(m for m in DENSE_MEMBERS if m in items)
+
+
 def _is_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
@@ -287,12 +321,21 @@ def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConf
         {"observer_height", "radius", "viewshed", "view_mask", "ray_stride"},
     )
     chips = Section(
-        top.raw("chips", {}), "chips", {"size_m", "size_px", "orientation", "min_coverage"}
+        top.raw("chips", {}),
+        "chips",
+        {"size_m", "size_px", "orientation", "min_coverage", "offset_m"},
     )
     min_coverage = chips.number("min_coverage", DEFAULT_MIN_COVERAGE, positive=False, maximum=1.0)
     if min_coverage < 0.0:
         raise ConfigError(f"chips.min_coverage: expected a fraction in [0, 1], got {min_coverage}")
-    out = Section(top.raw("output"), "output", {"dir", "shard_size", "image_encoding"})
+    out = Section(
+        top.raw("output"),
+        "output",
+        {"dir", "shard_size", "image_encoding", "members", "dense_stride"},
+    )
+    offset_m = chips.number("offset_m", None, positive=False, maximum=MAX_CHIP_SIZE_M)
+    if offset_m is not None and offset_m < 0.0:
+        raise ConfigError(f"chips.offset_m: expected a distance >= 0 (metres), got {offset_m}")
     return BuildConfig(
         inputs=_inputs(top.raw("inputs"), base),
         geometry=GeometryConfig(
@@ -307,11 +350,16 @@ def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConf
             size_px=chips.integer("size_px", 512, minimum=8, maximum=MAX_CHIP_SIZE_PX),
             orientation=chips.choice("orientation", ORIENTATIONS, "north-up"),
             min_coverage=min_coverage,
+            offset_m=offset_m,
         ),
         output=OutputConfig(
             dir=out.path("dir", base),  # type: ignore[arg-type]
             shard_size=out.integer("shard_size", 64),
             image_encoding=out.choice("image_encoding", IMAGE_ENCODINGS, "png"),
+            members=_members(out.raw("members", [])),
+            dense_stride=None
+            if out.raw("dense_stride", None) is None
+            else out.integer("dense_stride", maximum=100_000),
         ),
         splits=_splits(top.raw("splits", {})),
         source=source,
