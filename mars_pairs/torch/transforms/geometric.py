@@ -121,6 +121,7 @@ class _Geometric:
                         out[name] = self._apply_chip(name, sample[name], m, new_hw)
                 if "corr" in out:
                     out["corr"] = _move_points(sample["corr"], np.linalg.inv(m))
+                out.update(move_localization(sample, np.linalg.inv(m)))
                 if "transform" in out:
                     t = sample["transform"].double().numpy()
                     affine = (np.array([t[0:3], t[3:6], [0.0, 0.0, 1.0]]) @ m)[:2].ravel()
@@ -128,6 +129,26 @@ class _Geometric:
                     out["bounds"] = torch.tensor(bounds_of(affine, *new_hw), dtype=torch.float64)
                     out["rotation"] = torch.tensor(rotation_of(affine), dtype=torch.float64)
         return out
+
+
+LOCALIZATION_POINTS = ("rover_px", "camera_px")
+
+
+def move_localization(sample: Sample, m_inv: np.ndarray) -> Sample:
+    """The localization targets of ``sample`` under the chip map ``m_inv`` (old chip pixel ->
+    new, pixel-edge coordinates): ``rover_px`` and ``camera_px`` ([2] column, row) move as
+    points; ``heading_deg`` (clockwise from the chip's up, degrees) turns with the direction
+    (sin h, -cos h) it names in chip pixels (a mirror reverses its sense)."""
+    out: Sample = {}
+    for name in LOCALIZATION_POINTS:
+        if name in sample:
+            out[name] = _move_points(torch.as_tensor(sample[name]), m_inv)
+    if "heading_deg" in sample:
+        h = math.radians(float(sample["heading_deg"]))
+        dx, dy = m_inv[:2, :2] @ np.array([math.sin(h), -math.cos(h)])
+        heading = math.degrees(math.atan2(dx, -dy)) % 360.0
+        out["heading_deg"] = torch.tensor(heading, dtype=torch.float64)
+    return out
 
 
 def _ground_hw(sample: Sample, *needing: str) -> tuple[int, int]:
