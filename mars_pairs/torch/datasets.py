@@ -23,6 +23,7 @@ the manifest has ``<member>_crc32c`` columns; and no key may be on two manifest 
 
 from __future__ import annotations
 
+import json
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -46,8 +47,9 @@ from mars_pairs.store.integrity import MemberSpec, check_member
 from mars_pairs.store.manifest import MEMBERS, SUMMARY_COLUMNS, Manifest
 from mars_pairs.store.member_index import MemberIndex
 from mars_pairs.torch.decode import (
-    ALL_FIELDS,
     DEFAULT_FIELDS,
+    DENSE_GROUND_FIELDS,
+    KNOWN_FIELDS,
     MEMBER_SUFFIXES,
     chw_shape,
     decode_raw,
@@ -72,6 +74,14 @@ FILTER_KEYS = (
 )
 
 
+def _dense_stride(doc: dict[str, Any], ray_stride: int) -> int:
+    """The dense members' stride from dataset.json (``output.dense_stride``; default the ray
+    stride)."""
+    output = doc.get("config", {}).get("output", {}) if isinstance(doc, dict) else {}
+    value = output.get("dense_stride") if isinstance(output, dict) else None
+    return value if isinstance(value, int) and value >= 1 else ray_stride
+
+
 def _ground_size(value: int | Sequence[int] | None) -> tuple[int, int] | None:
     if value is None:
         return None
@@ -91,9 +101,11 @@ def _ground_size(value: int | Sequence[int] | None) -> tuple[int, int] | None:
 def _check_fields(fields: Sequence[str]) -> tuple[str, ...]:
     if isinstance(fields, str):
         fields = (fields,)
-    bad = [f for f in fields if f not in ALL_FIELDS]
+    bad = [f for f in fields if f not in KNOWN_FIELDS]
     if bad or not fields:
-        raise ArgumentError(f"fields: unknown field(s) {bad}; expected some of {list(ALL_FIELDS)}")
+        raise ArgumentError(
+            f"fields: unknown field(s) {bad}; expected some of {list(KNOWN_FIELDS)}"
+        )
     return tuple(fields)
 
 
@@ -132,6 +144,7 @@ class MarsPairsDataset(Dataset):
         normalize_dem: bool = False,
         image_dtype: torch.dtype = torch.uint8,
         verify: bool = False,
+        localization: bool = False,
         **filters: Any,
     ) -> None:
         unknown = set(filters) - set(FILTER_KEYS)
@@ -152,8 +165,13 @@ class MarsPairsDataset(Dataset):
         self.chip_px = info.chip_px
         self.ray_stride = info.ray_stride
         self.verify = bool(verify)
+        self.localization = bool(localization)
+        self.dense_stride = _dense_stride(info.doc, self.ray_stride)
         # verify=True checks every member of a sample read, like `mars-pairs verify`
-        self._located = tuple(MEMBERS) if self.verify else self.fields
+        located = (*MEMBERS, *self.fields) if self.verify else self.fields
+        if self.localization:
+            located = (*located, "meta")
+        self._located = tuple(dict.fromkeys(located))
         locations = [f"{m}_{s}" for m in self._located for s in ("shard", "offset", "size")]
         required = [*META_COLUMNS, *GEO_COLUMNS, "width", "height", *locations]
         manifest.require(required)
@@ -319,7 +337,32 @@ class MarsPairsDataset(Dataset):
                 raw["corr"].shape[:2], self.ray_stride, (width, height), ground_hw
             )
             out["corr_ground"] = torch.from_numpy(grid)
+        dense = next((f for f in DENSE_GROUND_FIELDS if f in raw), None)
+        if dense is not None:
+            width, height = (int(v) for v in self._size[index])
+            ground_hw = raw["ground"].shape[:2] if "ground" in raw else (height, width)
+            grid = corr_ground_grid(
+                raw[dense].shape[:2], self.dense_stride, (width, height), ground_hw
+            )
+            out["dense_ground"] = torch.from_numpy(grid)
+        if self.localization:
+            out.update(self._localization(index))
         return out
+
+    def _localization(self, index: int) -> dict[str, torch.Tensor]:
+        """rover_px, camera_px ([2] chip column, row, pixel-edge) and heading_deg (clockwise
+        from the chip's up) of sample ``index``, from its meta.json."""
+        data = self._bytes(index, "meta")
+        try:
+            meta = json.loads(bytes(data))
+            values = {k: meta[k] for k in ("rover_px", "camera_px", "heading_deg")}
+        except (ValueError, KeyError) as exc:
+            raise DatasetError(
+                self.root / self._index.location(index, "meta")[0],
+                self.member_name(index, "meta"),
+                f"no localization targets ({exc}): build with chips.offset_m or output.members",
+            ) from None
+        return {k: torch.tensor(v, dtype=torch.float64) for k, v in values.items()}
 
     def _finish_sample(
         self, tensors: dict[str, torch.Tensor], index: int, raw: dict[str, np.ndarray]

@@ -15,6 +15,18 @@ from mars_pairs.errors import ArgumentError
 from mars_pairs.torch.georef import bounds_of, rotation_of
 
 CHIP_FIELDS = ("ortho", "dem", "viewshed")
+#: Optional chip-grid members (``output.members``) that move with the chips.
+DENSE_CHIP_FIELDS = ("ground_on_map", "ground_on_map_cover", "ground_px")
+_NEAREST = ("viewshed", "ground_on_map_cover", "ground_px")  # masks and pixel maps
+_NAN_FILL = ("dem", "ground_px")
+
+
+def _chip_mode(name: str) -> str:
+    return "nearest" if name in _NEAREST else "bilinear"
+
+
+def _chip_fill(name: str) -> float:
+    return math.nan if name in _NAN_FILL else 0.0
 
 
 Sample = dict[str, Any]
@@ -99,26 +111,29 @@ class _Geometric:
     def _apply_chip(
         self, name: str, image: torch.Tensor, m: np.ndarray, hw: tuple[int, int]
     ) -> torch.Tensor:
-        mode = "nearest" if name == "viewshed" else "bilinear"
-        return _warp(image, m, hw, mode, math.nan if name == "dem" else 0.0)
+        return _warp(image, m, hw, _chip_mode(name), _chip_fill(name))
 
     def __call__(self, sample: Sample) -> Sample:
         out = dict(sample)
         if self.target in ("ground", "both"):
-            made = self._ground_map(*_ground_hw(sample, "corr_ground"))
+            made = self._ground_map(*_ground_hw(sample, "corr_ground", "dense_ground"))
             if made is not None:
                 m, new_hw = made
                 if "ground" in out:
                     out["ground"] = self._apply_ground(sample["ground"], m, new_hw)
-                if "corr_ground" in out:
-                    out["corr_ground"] = _move_points(sample["corr_ground"], np.linalg.inv(m))
+                for name in ("corr_ground", "dense_ground"):
+                    if name in out:
+                        out[name] = _move_points(sample[name], np.linalg.inv(m))
+                if "ground_px" in out:  # image pixel centres (integers): edges are +0.5
+                    moved = _move_points(out["ground_px"] + 0.5, np.linalg.inv(m))
+                    out["ground_px"] = moved - 0.5
         if self.target in ("chip", "both"):
             made = self._chip_map(*_chip_hw(sample, "corr", "transform"))
             if made is not None:
                 m, new_hw = made
-                for name in CHIP_FIELDS:
+                for name in CHIP_FIELDS + DENSE_CHIP_FIELDS:
                     if name in out:
-                        out[name] = self._apply_chip(name, sample[name], m, new_hw)
+                        out[name] = self._apply_chip(name, out[name], m, new_hw)
                 if "corr" in out:
                     out["corr"] = _move_points(sample["corr"], np.linalg.inv(m))
                 out.update(move_localization(sample, np.linalg.inv(m)))
@@ -164,7 +179,7 @@ def _ground_hw(sample: Sample, *needing: str) -> tuple[int, int]:
 def _chip_hw(sample: Sample, *needing: str) -> tuple[int, int]:
     """The chips' (H, W); ArgumentError when a field that moves with them is there without
     any chip."""
-    for name in CHIP_FIELDS:
+    for name in CHIP_FIELDS + DENSE_CHIP_FIELDS:
         if name in sample:
             return tuple(sample[name].shape[-2:])  # type: ignore[return-value]
     if any(k in sample for k in needing):
@@ -225,7 +240,7 @@ class Resize(_Geometric):
     def _apply_chip(
         self, name: str, image: torch.Tensor, m: np.ndarray, hw: tuple[int, int]
     ) -> torch.Tensor:
-        if name == "viewshed":
+        if _chip_mode(name) == "nearest":
             return _resize(image, hw, "nearest-exact")
         return _resize(image, hw, "bilinear")  # NaN in the DEM spreads to its neighbours
 
@@ -324,8 +339,7 @@ class Rotate(_Geometric):
     def _apply_chip(
         self, name: str, image: torch.Tensor, m: np.ndarray, hw: tuple[int, int]
     ) -> torch.Tensor:
-        mode = "nearest" if name == "viewshed" else "bilinear"
-        return self._turn(image, m, hw, mode=mode, fill=math.nan if name == "dem" else 0.0)
+        return self._turn(image, m, hw, mode=_chip_mode(name), fill=_chip_fill(name))
 
 
 class NorthUp:
