@@ -416,10 +416,14 @@ class MarsPairsDataset(Dataset):
             self._finish_sample(t, i, r) for t, i, r in zip(tensors, checked, raws, strict=True)
         ]
 
-    def plot(self, sample: dict[str, Any], *, title: str | None = None) -> Any:
+    def plot(self, sample: dict[str, Any], *, title: str | None = None, dense: bool = False) -> Any:
         """A matplotlib Figure of one sample (as returned by ``ds[i]``, transformed or not):
         the ground image, the ortho chip with the viewshed and the camera wedge, the DEM as a
-        hillshade and the keypoints, colour-linked (needs the ``viz`` extra)."""
-        from mars_pairs.viz.sample import sample_figure
+        hillshade and the keypoints, colour-linked (needs the ``viz`` extra). ``dense``: the
+        figure of its dense members instead (range, depth, the map seen from the rover, the
+        ground image laid on the map)."""
+        from mars_pairs.viz.sample import dense_figure, sample_figure
 
+        if dense:
+            return dense_figure(sample, title=title)
         return sample_figure(sample, title=title)
