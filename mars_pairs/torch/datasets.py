@@ -47,6 +47,7 @@ from mars_pairs.store.integrity import MemberSpec, check_member
 from mars_pairs.store.manifest import MEMBERS, SUMMARY_COLUMNS, Manifest
 from mars_pairs.store.member_index import MemberIndex
 from mars_pairs.torch.decode import (
+    ALL_FIELDS,  # noqa: F401  (re-exported)
     DEFAULT_FIELDS,
     DENSE_GROUND_FIELDS,
     KNOWN_FIELDS,
