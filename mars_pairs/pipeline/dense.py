@@ -20,8 +20,9 @@ On the chip grid (S x S, the chip's affine):
   the image point of each visible chip pixel's terrain point (map x, y of its centre, the DEM
   chip's height), i.e. the nearest ray through it; ``ground_on_map_cover`` (uint8 0/255):
   visible (the viewshed chip: line of sight and the exact view test) and inside the image;
-  ``ground_px`` (S, S, 2) float32: that image point (sample, line; NaN where not covered),
-  the map ``mars_pairs.raster.transfer.image_to_chip`` uses.
+- ``ground_px`` (S, S, 2) float32: the image point of each visible chip pixel (sample, line;
+  NaN where not covered), the map ``mars_pairs.raster.transfer.image_to_chip`` uses (its
+  own member: 8 bytes a chip pixel, 2 MiB for a 512 px chip).
 """
 
 from __future__ import annotations
@@ -42,7 +43,9 @@ from mars_pairs.raster.chips import ChipGrid
 from mars_pairs.raster.transfer import sample_at
 
 #: The names ``output.members`` accepts (``all``: every one), in member order.
-DENSE_MEMBERS = ("range", "depth", "hits", "ortho_view", "dem_view", "ground_on_map")
+DENSE_MEMBERS = (
+    "range", "depth", "hits", "ortho_view", "dem_view", "ground_on_map", "ground_px",
+)  # fmt: skip
 
 #: The tar members each written member name brings (companions: validity and pixel maps).
 MEMBER_FILES: dict[str, tuple[str, ...]] = {
@@ -51,7 +54,8 @@ MEMBER_FILES: dict[str, tuple[str, ...]] = {
     "hits": ("hits.npy",),
     "ortho_view": ("ortho_view.png", "view_valid.png"),
     "dem_view": ("dem_view.npy", "view_valid.png"),
-    "ground_on_map": ("ground_on_map.png", "ground_on_map_cover.png", "ground_px.npy"),
+    "ground_on_map": ("ground_on_map.png", "ground_on_map_cover.png"),
+    "ground_px": ("ground_px.npy",),
 }
 
 #: Every field (manifest column prefix) the dense members can add, in tar order.
@@ -198,12 +202,14 @@ def dense_members(
             out["view_valid.png"] = png_bytes(valid.astype(np.uint8) * 255)
             if "dem_view" in wanted:
                 out["dem_view.npy"] = npy_bytes(dem_view.astype(np.float32))
-    if "ground_on_map" in wanted:
+    if wanted & {"ground_on_map", "ground_px"}:
         visible = np.asarray(chips["viewshed"]) > 0
         ground_px = ground_pixels_of_chip(view.camera, grid, chips["dem"], visible)
-        colours, cover = ground_on_map(decode_ground(ground_data), ground_px)
-        out["ground_on_map.png"] = png_bytes(colours)
-        out["ground_on_map_cover.png"] = png_bytes(cover.astype(np.uint8) * 255)
-        out["ground_px.npy"] = npy_bytes(ground_px)
+        if "ground_on_map" in wanted:
+            colours, cover = ground_on_map(decode_ground(ground_data), ground_px)
+            out["ground_on_map.png"] = png_bytes(colours)
+            out["ground_on_map_cover.png"] = png_bytes(cover.astype(np.uint8) * 255)
+        if "ground_px" in wanted:
+            out["ground_px.npy"] = npy_bytes(ground_px)
     order = [f for m in DENSE_MEMBERS for f in MEMBER_FILES[m]]
     return {f: out[f] for f in dict.fromkeys(order) if f in out}, meta
