@@ -275,3 +275,22 @@ def test_classes_move_between_image_and_chip(
             assert agree >= 0.98, (key, agree, valid.sum())
             checked_back += 1
     assert checked >= 1 and checked_back >= 1
+
+
+def test_verify_checks_the_dense_members(dense: Path, tmp_path: Path) -> None:
+    import shutil
+
+    from mars_pairs.cli.verify import verify_dataset
+
+    report = verify_dataset(dense)
+    rows = pq.read_table(dense / "manifest.parquet").to_pylist()
+    assert not report.damage and report.members == len(rows) * 15
+    copy = tmp_path / "copy"
+    shutil.copytree(dense, copy)
+    row = rows[0]
+    shard = copy / row["depth_shard"]
+    data = bytearray(shard.read_bytes())
+    data[row["depth_offset"] + 200] ^= 0xFF
+    shard.write_bytes(bytes(data))
+    damage = verify_dataset(copy).damage
+    assert len(damage) == 1 and "depth" in str(damage[0]), damage
