@@ -111,3 +111,24 @@ def test_dense_fields_of_a_default_dataset_are_refused(small_mission: Path, tmp_
     ds = MarsPairsDataset(tmp_path / "plain", fields=("ortho",), localization=True)
     with ds, pytest.raises(MarsPairsError, match="localization"):
         ds[0]
+
+
+def test_dense_figure_and_show(dense_dir: Path, tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    import matplotlib.pyplot as plt
+    from PIL import Image
+
+    from mars_pairs.viz import show_sample
+
+    with MarsPairsDataset(dense_dir, fields=FIELDS) as ds:
+        s = _best(ds)
+        fig = ds.plot(s, dense=True)
+        key = s["meta"]["key"]
+    titles = [a.get_title() for a in fig.axes]
+    plt.close(fig)
+    assert any("range" in t for t in titles) and any("laid on the map" in t for t in titles)
+    out = show_sample(dense_dir, key, tmp_path / "show.png")
+    dense_png = tmp_path / "show_dense.png"
+    assert out.is_file() and dense_png.is_file()
+    pixels = np.asarray(Image.open(dense_png).convert("L"))
+    assert pixels.std() > 10  # something is drawn
