@@ -10,6 +10,15 @@ ground pixel of each strided ray, NaN for no hit); ``crs``, ``bounds``, ``transf
 ``rotation`` place the chips on the map (:mod:`mars_pairs.torch.georef`); ``meta`` holds
 plain Python values of the manifest row.
 
+Datasets built with ``output.members`` also give the dense fields (``DENSE_FIELDS``, see
+:mod:`mars_pairs.pipeline.dense`): ``range``, ``depth`` and ``dem_view`` float32 [1, H', W'],
+``hits`` float64 [3, H', W'] (map x, y, z), ``ortho_view`` and ``view_valid`` on the ground
+image's dense grid, with ``dense_ground`` float32 [2, H', W'] (each cell's ground pixel, as
+``corr_ground``); ``ground_on_map`` [3, h, w], ``ground_on_map_cover`` and ``ground_px``
+float32 [2, h, w] (the ground pixel of each chip pixel, for the decoded ground image's size)
+on the chip grid. ``localization=True`` adds ``rover_px``, ``camera_px`` and ``heading_deg``
+from ``meta.json`` (datasets built with ``chips.offset_m`` or ``output.members``).
+
 Every error a user can catch is a :class:`~mars_pairs.errors.MarsPairsError`: a bad
 argument an ArgumentError (also a TypeError / ValueError), a damaged shard or member a
 DatasetError naming the shard and the member. A dataset opens only with its dataset.json
@@ -350,6 +359,18 @@ class MarsPairsDataset(Dataset):
             out.update(self._localization(index))
         return out
 
+    def _scaled_ground_px(
+        self, index: int, ground_px: torch.Tensor, raw: dict[str, np.ndarray]
+    ) -> torch.Tensor:
+        """``ground_px`` (label image pixels, centres at integers) re-expressed for the decoded
+        ground image's size (``ground_size``): x' + 0.5 = (x + 0.5) * scale."""
+        width, height = (int(v) for v in self._size[index])
+        h, w = raw["ground"].shape[:2]
+        if (h, w) == (height, width) or not (width and height):
+            return ground_px
+        scale = torch.tensor([w / width, h / height], dtype=ground_px.dtype)[:, None, None]
+        return (ground_px + 0.5) * scale - 0.5
+
     def _localization(self, index: int) -> dict[str, torch.Tensor]:
         """rover_px, camera_px ([2] chip column, row, pixel-edge) and heading_deg (clockwise
         from the chip's up) of sample ``index``, from its meta.json."""
@@ -369,6 +390,8 @@ class MarsPairsDataset(Dataset):
         self, tensors: dict[str, torch.Tensor], index: int, raw: dict[str, np.ndarray]
     ) -> dict[str, Any]:
         sample: dict[str, Any] = dict(tensors)
+        if "ground_px" in sample and "ground" in raw:
+            sample["ground_px"] = self._scaled_ground_px(index, sample["ground_px"], raw)
         sample.update(self._georef(index, raw))
         sample["meta"] = self._index.meta(index)
         return self.transform(sample) if self.transform is not None else sample

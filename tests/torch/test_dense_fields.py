@@ -132,3 +132,17 @@ def test_dense_figure_and_show(dense_dir: Path, tmp_path: Path) -> None:
     assert out.is_file() and dense_png.is_file()
     pixels = np.asarray(Image.open(dense_png).convert("L"))
     assert pixels.std() > 10  # something is drawn
+
+
+def test_ground_px_follows_ground_size(dense_dir: Path) -> None:
+    with MarsPairsDataset(dense_dir, fields=FIELDS) as ds:
+        full = ds[0]
+    with MarsPairsDataset(dense_dir, fields=FIELDS, ground_size=(300, 412)) as ds:
+        small = ds[0]
+    h, w = full["ground"].shape[-2:]
+    scale = torch.tensor([412 / w, 300 / h], dtype=torch.float32)[:, None, None]
+    expected = (full["ground_px"] + 0.5) * scale - 0.5
+    assert torch.allclose(small["ground_px"], expected, equal_nan=True)
+    ok = small["ground_on_map_cover"][0].bool()
+    carried = CarryToChip("ground", "c", nearest=False)(small)
+    assert carried["c_valid"][ok].float().mean() > 0.99
