@@ -128,7 +128,7 @@ class _Geometric:
                     moved = _move_points(out["ground_px"] + 0.5, np.linalg.inv(m))
                     out["ground_px"] = moved - 0.5
         if self.target in ("chip", "both"):
-            made = self._chip_map(*_chip_hw(sample, "corr", "transform"))
+            made = self._chip_map(*_chip_hw(sample, "corr", "transform", *LOCALIZATION_POINTS))
             if made is not None:
                 m, new_hw = made
                 for name in CHIP_FIELDS + DENSE_CHIP_FIELDS:
