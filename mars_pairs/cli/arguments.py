@@ -57,3 +57,42 @@ def band(low: float | None, high: float | None, names: str) -> tuple[float, floa
     if low is None or high is None:
         raise UsageError(f"{names}: give both bounds of the band, in degrees")
     return (low, high)
+
+
+#: The libraries ``mars-pairs --version`` names (distribution names), in the order shown.
+VERSIONED = ("numpy", "pyarrow", "rasterio", "shapely", "pyproj", "numba", "torch", "matplotlib")
+
+
+def version_text() -> str:
+    """Two lines: the package and Python versions; the key libraries' versions (``-`` for
+    one not installed) and GDAL's, as rasterio links it. Read from the installed metadata,
+    so nothing heavy is imported but rasterio (for GDAL)."""
+    import platform
+    from importlib import metadata
+
+    from mars_pairs import __version__
+
+    parts = []
+    for name in VERSIONED:
+        try:
+            parts.append(f"{name} {metadata.version(name)}")
+        except metadata.PackageNotFoundError:
+            parts.append(f"{name} -")
+    try:
+        import rasterio
+
+        parts.insert(VERSIONED.index("rasterio") + 1, f"GDAL {rasterio.__gdal_version__}")
+    except ImportError:  # pragma: no cover - rasterio is a core dependency
+        pass
+    return f"mars-pairs {__version__} (Python {platform.python_version()})\n" + ", ".join(parts)
+
+
+class VersionAction(argparse.Action):
+    """``--version``: print :func:`version_text` and exit 0 (computed only when asked)."""
+
+    def __init__(self, option_strings: list[str], dest: str = argparse.SUPPRESS, **kw: object):
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kw)
+
+    def __call__(self, parser: argparse.ArgumentParser, *args: object) -> None:
+        print(version_text())
+        parser.exit(0)

@@ -6,14 +6,17 @@ import argparse
 import json
 import math
 import sys
+import warnings
 from collections.abc import Sequence
 
 import numpy as np
 
-from mars_pairs.cli.arguments import bounded, count, finite
+from mars_pairs.cli.arguments import VersionAction, bounded, count, finite
+from mars_pairs.cli.summary import split_warnings
 from mars_pairs.cli.viewshed import cmd_viewshed
 from mars_pairs.errors import MarsPairsError, UsageError
 from mars_pairs.pipeline.config import MAX_RADIUS_M
+from mars_pairs.store.splits import EmptySplitWarning
 
 
 def _cmd_locate(args: argparse.Namespace) -> int:
@@ -76,19 +79,23 @@ def _cmd_build(args: argparse.Namespace) -> int:
     _ensure_synthetic(config)
     engine = _engine(args)
     try:
-        summary = run_build(
-            config,
-            engine=engine,
-            workers=args.workers,
-            resume=args.resume,
-            limit=args.limit,
-            strict=args.strict,
-            progress=not args.quiet,
-        )
+        with warnings.catch_warnings():  # printed below, from dataset.json, with the summary
+            warnings.simplefilter("ignore", EmptySplitWarning)
+            summary = run_build(
+                config,
+                engine=engine,
+                workers=args.workers,
+                resume=args.resume,
+                limit=args.limit,
+                strict=args.strict,
+                progress=not args.quiet,
+            )
     except BuildError as exc:
         print(f"mars-pairs build: --strict: {exc}", file=sys.stderr)
         return 2
     print(summary.format())
+    for text in split_warnings(summary.out_dir):
+        print(f"warning: {text}")
     return 0
 
 
@@ -111,17 +118,42 @@ def _ensure_synthetic(config: object) -> None:
         return
     if inputs.dem.exists() and inputs.places.exists() and next(inputs.iter_label_paths(), None):
         return
+    import subprocess
+    import time
+
     from mars_pairs.synth import generate_mission
 
-    print(f"generating the synthetic {spec.mission} mission in {spec.root} ...", flush=True)
-    generate_mission(
-        spec.root,
-        seed=spec.seed,
-        mission=spec.mission,
-        stops=spec.stops,
-        images_per_stop=spec.images_per_stop,
-        size=spec.size,
+    t0 = time.perf_counter()
+    # numba compiles the build's kernels once (then loads them from its cache): in a process
+    # of its own, on the other core, while the mission is generated; the workers then load it
+    print("compiling the build's kernels in the background (first run: ~20 s of CPU) ...")
+    warm = subprocess.Popen(
+        [sys.executable, "-c", "from mars_pairs.kernels.warm import warm_kernels as w; w()"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
     )
+    print(f"generating the synthetic {spec.mission} mission in {spec.root} ...", flush=True)
+    try:
+        generate_mission(
+            spec.root,
+            seed=spec.seed,
+            mission=spec.mission,
+            stops=spec.stops,
+            images_per_stop=spec.images_per_stop,
+            size=spec.size,
+            log=lambda line: print(f"  {line}", flush=True),
+        )
+    except BaseException:
+        warm.kill()
+        warm.wait()
+        raise
+    print(f"mission generated ({time.perf_counter() - t0:.0f} s)", flush=True)
+    _, err = warm.communicate()
+    if warm.returncode:  # the workers compile what is missing themselves
+        print(f"compiling the kernels failed ({err.strip()[-300:]}); the workers will retry")
+    else:
+        print(f"kernels compiled ({time.perf_counter() - t0:.0f} s); building ...", flush=True)
 
 
 def _cmd_inspect(args: argparse.Namespace) -> int:
@@ -160,8 +192,7 @@ def _cmd_synth(args: argparse.Namespace) -> int:
 def _cmd_show(args: argparse.Namespace) -> int:
     from mars_pairs.viz import show_sample
 
-    out = args.out or f"{args.key}.png"
-    print(show_sample(args.dataset, args.key, out))
+    print(show_sample(args.dataset, args.key, args.out))
     return 0
 
 
@@ -187,7 +218,7 @@ def _cmd_export_qgis(args: argparse.Namespace) -> int:
 
 
 def _cmd_query(args: argparse.Namespace) -> int:
-    from mars_pairs.cli.query import filter_arguments, run_query
+    from mars_pairs.cli.query import check_query_splits, filter_arguments, run_query
 
     filters = filter_arguments(
         bbox=args.bbox,
@@ -199,6 +230,7 @@ def _cmd_query(args: argparse.Namespace) -> int:
         split=args.split,
         sol=args.sol,
     )
+    check_query_splits(args.dataset, filters.get("split"))
     return run_query(args.dataset, filters, args.format, args.out)
 
 
@@ -235,6 +267,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mars-pairs",
         description="Paired aerial/ground ML datasets from Mars rover images and orbital maps.",
+    )
+    parser.add_argument(
+        "--version", action=VersionAction, help="the package's and key libraries' versions"
     )
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -287,9 +322,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dataset", help="dataset folder")
     p.set_defaults(func=_cmd_verify)
 
-    p = sub.add_parser("query", help="filter a dataset's manifest by place and attributes")
+    p = sub.add_parser(
+        "query",
+        help="filter a dataset's manifest by place and attributes",
+        description="Rows of a dataset's manifest matching every filter given: at most one "
+        "place filter (--bbox, --bbox-map, --near, --polygon) and any of --split, --mission, "
+        "--instrument, --sol. No filter: every row.",
+    )
     p.add_argument("dataset", help="dataset folder")
-    where = p.add_mutually_exclusive_group(required=True)
+    where = p.add_mutually_exclusive_group()
     where.add_argument(
         "--bbox",
         nargs=4,
@@ -312,18 +353,22 @@ def build_parser() -> argparse.ArgumentParser:
         help="within a great-circle radius (metres) of a point",
     )
     where.add_argument("--polygon", help="WKT polygon in the dataset CRS")
-    p.add_argument("--mission")
-    p.add_argument("--instrument")
-    p.add_argument("--split")
-    p.add_argument("--sol", nargs=2, type=int, metavar=("FIRST", "LAST"))
+    p.add_argument("--mission", action="append", help="m2020 or msl (repeat for several)")
+    p.add_argument(
+        "--instrument", action="append", help="e.g. MAST_LEFT, NAV_LEFT (repeat for several)"
+    )
+    p.add_argument(
+        "--split", action="append", help="train, val, test, buffer... (repeat for several)"
+    )
+    p.add_argument("--sol", nargs=2, type=int, metavar=("FIRST", "LAST"), help="inclusive")
     p.add_argument("--format", choices=("table", "csv", "parquet", "geojson"), default="table")
     p.add_argument("--out", help="output file (parquet needs one; others default to stdout)")
     p.set_defaults(func=_cmd_query)
 
     p = sub.add_parser("show", help="a figure of one sample (needs the viz extra)")
     p.add_argument("dataset", help="dataset folder")
-    p.add_argument("key", help="sample key (see mars-pairs query)")
-    p.add_argument("--out", help="PNG path (default KEY.png)")
+    p.add_argument("key", help="sample key or product id (see mars-pairs query)")
+    p.add_argument("--out", help="PNG path (default KEY.png in the current directory)")
     p.set_defaults(func=_cmd_show)
 
     p = sub.add_parser("overview", help="all footprints over the orthoimage (needs the viz extra)")
@@ -352,9 +397,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("out", help="output folder")
     p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--mission", choices=("m2020", "msl", "both"), default="m2020")
-    p.add_argument("--stops", type=count(1), help="rover stops (default: the size's, 3 or 8)")
-    p.add_argument("--images-per-stop", type=count(1), help="default: the size's (4)")
-    p.add_argument("--size", choices=("small", "default"), default="small")
+    p.add_argument("--stops", type=count(1), help="rover stops (default: the size's: 3, 8, 90)")
+    p.add_argument("--images-per-stop", type=count(1), help="default: the size's (4, 4, 3)")
+    p.add_argument("--size", choices=("small", "default", "demo"), default="small")
     p.set_defaults(func=_cmd_synth)
     return parser
 

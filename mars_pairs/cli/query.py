@@ -39,15 +39,17 @@ def filter_arguments(
     bbox_map: Sequence[float] | None = None,
     near: Sequence[float] | None = None,
     polygon: str | None = None,
-    mission: str | None = None,
-    instrument: str | None = None,
-    split: str | None = None,
+    mission: str | Sequence[str] | None = None,
+    instrument: str | Sequence[str] | None = None,
+    split: str | Sequence[str] | None = None,
     sol: Sequence[int] | None = None,
 ) -> dict[str, Any]:
     """Manifest.filter keyword arguments from the query's options (unset ones left out).
 
     ``bbox`` is (west, south, east, north) degrees, ``bbox_map`` (xmin, ymin, xmax, ymax) in
-    the dataset CRS, ``near`` (lat, lon, radius_m), ``polygon`` WKT in the dataset CRS.
+    the dataset CRS, ``near`` (lat, lon, radius_m), ``polygon`` WKT in the dataset CRS;
+    ``mission``, ``instrument``, ``split``: a value or a list of values (any of them). Any
+    subset may be given, none for every row.
     """
     out: dict[str, Any] = {}
     if bbox is not None:
@@ -74,10 +76,33 @@ def filter_arguments(
         out["polygon"] = _polygon(polygon)
     for name, value in (("mission", mission), ("instrument", instrument), ("split", split)):
         if value:
-            out[name] = value
+            out[name] = [value] if isinstance(value, str) else list(value)
     if sol:
-        out["sol"] = tuple(sol)
+        first, last = (int(v) for v in sol)
+        if first > last:
+            raise MarsPairsError(f"--sol: FIRST ({first}) is after LAST ({last})")
+        out["sol"] = (first, last)
     return out
+
+
+def check_query_splits(dataset: str | Path, split: Any) -> None:
+    """ArgumentError when a requested split (a name or a list) is none the dataset knows:
+    those its dataset.json configures (``filter_args.configured_splits``) or its rows hold.
+    The known names are listed; a known split with no rows is not an error (0 rows)."""
+    if not split:
+        return
+    import pyarrow.compute as pc
+
+    from mars_pairs.store.filter_args import check_split_names, configured_splits
+
+    root = Path(dataset)
+    rows = Manifest.open(root).require(["split"]).to_table(["split"])["split"]
+    known = {str(v) for v in pc.unique(rows).to_pylist() if v is not None}
+    try:
+        doc = json.loads((root / "dataset.json").read_text())
+    except (OSError, ValueError):
+        doc = {}  # an old or damaged dataset.json: the names on the rows
+    check_split_names(split, known | (configured_splits(doc) or set()), str(root))
 
 
 def _finite(option: str, values: Sequence[float], n: int) -> tuple[float, ...]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from collections import Counter
 from pathlib import Path
 
@@ -20,6 +21,19 @@ def _counts(title: str, values: list[object]) -> list[str]:
 
 def _size(root: Path) -> int:
     return sum(p.stat().st_size for p in root.rglob("*") if p.is_file())
+
+
+def split_warnings(dataset: str | Path) -> list[str]:
+    """The split warnings a build recorded in ``dataset.json`` (``splits.warnings``: a
+    configured split left empty); none for a dataset built before they were recorded or
+    without a readable dataset.json."""
+    try:
+        doc = json.loads((Path(dataset) / "dataset.json").read_text())
+    except (OSError, ValueError):
+        return []
+    splits = doc.get("splits") if isinstance(doc, dict) else None
+    found = splits.get("warnings") if isinstance(splits, dict) else None
+    return [str(w) for w in found] if isinstance(found, list) else []
 
 
 def inspect_dataset(dataset: str | Path) -> str:
@@ -46,5 +60,6 @@ def inspect_dataset(dataset: str | Path) -> str:
         ]
         lines.append(f"failures: {failures.num_rows}")
         lines += _counts("failures by reason", reasons)[1:] if reasons else []
+    lines += [f"warning: {text}" for text in split_warnings(root)]
     lines.append(f"size on disk: {_size(root) / 1e6:.1f} MB")
     return "\n".join(lines)

@@ -240,7 +240,7 @@ class Downloader:
         if target.is_file() and (remote.size is None or target.stat().st_size == remote.size):
             if not remote.mutable:
                 try:
-                    quick_check(target, remote.file_kind, where=remote.url)
+                    quick_check(target, remote.file_kind, label=remote.label, where=remote.url)
                     return FetchResult(remote, target, "cached", 0)
                 except ContentError:
                     target.unlink()  # damaged in the cache (e.g. kept by an older release)
@@ -407,6 +407,20 @@ def _content_range(header: str) -> tuple[int | None, int | None]:
     return int(m[1]), None if m[3] == "*" else int(m[3])
 
 
+_OBJECT_REPR = re.compile(r"<[\w.]+ object at 0x[0-9a-f]+>: ")
+
+
 def _short(exc: BaseException) -> str:
-    text = str(exc)
-    return text if len(text) <= 160 else text[:157] + "..."
+    """The innermost cause of a requests/urllib3 error first (a name that does not resolve, a
+    refused connection), then the rest, within 200 characters."""
+    inner = exc
+    for _ in range(6):  # requests' ConnectionError -> urllib3 MaxRetryError -> its reason
+        nxt = getattr(inner, "reason", None)
+        if not isinstance(nxt, BaseException) and inner.args:
+            nxt = inner.args[0]
+        if not isinstance(nxt, BaseException) or nxt is inner:
+            break
+        inner = nxt
+    text = str(exc) if inner is exc else f"{type(inner).__name__}: {inner} ({exc})"
+    text = _OBJECT_REPR.sub("", text)
+    return text if len(text) <= 200 else text[:197] + "..."

@@ -14,7 +14,9 @@ by reason in the summary.
 
 from __future__ import annotations
 
+import json
 import sys
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field, replace
 from pathlib import Path, PurePosixPath
@@ -115,7 +117,7 @@ def list_products(spec: ProductsSpec, dl: Downloader) -> Listing:
                 dl.fetch(RemoteFile(tab, tab_url, mutable=True, label=label_path))
                 table = read_index_table(label_path)
             except FetchError as exc:
-                out.failures.append(Failure(volume, tab_url, "index", "FetchError", exc.reason))
+                out.failures.append(Failure(volume, exc.url, "index", "FetchError", exc.reason))
                 continue
             out.extend(
                 products_from_index(table, volume, spec.archive, str(label_path), spec.mission,
@@ -250,13 +252,9 @@ def fetch_products(
 
 def write_failures(cache: Cache, failures: list[Failure]) -> Path:
     """``<cache>/fetch_failures.parquet`` (atomic; empty when nothing failed)."""
-    cols = ("product_id", "url", "stage", "error", "message")
-    table = pa.table({c: pa.array([getattr(f, c) for f in failures], pa.string()) for c in cols})
-    sink = pa.BufferOutputStream()
-    pq.write_table(table, sink)
-    target = cache.path(FAILURES)
-    atomic_write(target, sink.getvalue().to_pybytes())
-    return target
+    return _write_rows(
+        cache, FAILURES, failures, ("product_id", "url", "stage", "error", "message")
+    )
 
 
 def write_skipped(cache: Cache, skipped: list[Skipped]) -> Path:
@@ -265,11 +263,15 @@ def write_skipped(cache: Cache, skipped: list[Skipped]) -> Path:
 
     Kept apart from ``fetch_failures.parquet`` so that an empty failures file still means
     "everything chosen was fetched" and a rerun retries failures, not choices."""
-    cols = ("product_id", "url", "stage", "reason", "detail")
-    table = pa.table({c: pa.array([getattr(s, c) for s in skipped], pa.string()) for c in cols})
+    return _write_rows(cache, SKIPPED, skipped, ("product_id", "url", "stage", "reason", "detail"))
+
+
+def _write_rows(cache: Cache, name: str, rows: Sequence[object], cols: tuple[str, ...]) -> Path:
+    """A string-columned Parquet table of ``rows``' attributes ``cols`` at ``<cache>/name``."""
+    table = pa.table({c: pa.array([getattr(r, c) for r in rows], pa.string()) for c in cols})
     sink = pa.BufferOutputStream()
     pq.write_table(table, sink)
-    target = cache.path(SKIPPED)
+    target = cache.path(name)
     atomic_write(target, sink.getvalue().to_pybytes())
     return target
 
@@ -370,6 +372,8 @@ def plan_orbital(
         if source is None:
             continue
         sidecar = cache.path(f"orbital/{kind}.source.json")
+        if not dry_run:
+            _check_same_source(cache, kind, source)
         info = source_info(source, sidecar, write=not dry_run)
         limit = cfg.orbital.max_cells
         plans.append(
@@ -398,6 +402,8 @@ def cut_orbital(cfg: FetchConfig, plan: OrbitalPlan) -> list[WindowResult]:
     for p in plan.plans:
         p.check()
     cache = Cache(cfg.cache)
+    for p in plan.plans:
+        _check_same_source(cache, p.kind, p.source)
     out: list[WindowResult] = []
     for p in plan.plans:
         info = source_info(p.source, cache.path(f"orbital/{p.kind}.source.json"))
@@ -411,6 +417,25 @@ def cut_orbital(cfg: FetchConfig, plan: OrbitalPlan) -> list[WindowResult]:
             if stale not in keep:
                 stale.unlink()
     return out
+
+
+def _check_same_source(cache: Cache, kind: str, source: str) -> None:
+    """FetchError naming ``fetch.cache`` when ``orbital/<kind>.vrt`` holds windows of another
+    source (two configs sharing one cache would replace each other's maps)."""
+    sidecar = cache.path(f"orbital/{kind}.source.json")
+    if not sidecar.is_file():
+        return
+    try:
+        earlier = json.loads(sidecar.read_text()).get("source")
+    except (ValueError, OSError, AttributeError):
+        return
+    if earlier not in (None, source):
+        raise FetchError(
+            "fetch.cache",
+            f"{cache.path('orbital')} holds {kind} windows of {earlier}; this config's "
+            f"fetch.orbital.{kind} is {source}: give each config its own fetch.cache (or "
+            "remove that folder to replace them)",
+        )
 
 
 def fetch_orbital(

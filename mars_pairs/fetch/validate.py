@@ -113,16 +113,19 @@ def check_file(path: Path, kind: str, *, label: Path | None = None, where: objec
     _CHECKS[kind](path, label, where)
 
 
-def quick_check(path: Path, kind: str, *, where: object = None) -> None:
+def quick_check(path: Path, kind: str, *, label: Path | None = None, where: object = None) -> None:
     """The cheap part of ``check_file``, for a file already in the cache (run on every fetch).
 
     Reads at most the first and last KiB, except labels (checked whole: they are small): an
-    HTML page, a JPEG without its end marker or a PNG without its IEND chunk is refused.
+    HTML page, a JPEG without its end marker, a PNG without its IEND chunk, or an ``.IMG``
+    shorter than its label's arrays (``label``: the local label that describes it) is refused.
     """
     where = path if where is None else where
     if kind in ("pds3_label", "pds4_label"):
         check_file(path, kind, where=where)
         return
+    if kind == "img" and label is not None:
+        _img(path, label, where)  # a stat and the label: no image bytes read
     with open(path, "rb") as fh:
         head = fh.read(1024)
         fh.seek(max(0, path.stat().st_size - 1024))

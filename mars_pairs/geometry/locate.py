@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from mars_pairs.geometry.attitude import image_centre_pointing_deg
 from mars_pairs.geometry.frames import azimuth_elevation_deg, quaternion_to_matrix
 from mars_pairs.geometry.places import Pose
 from mars_pairs.pds.observation import Observation
@@ -14,12 +15,13 @@ from mars_pairs.pds.observation import Observation
 def model_pointing_deg(
     obs: Observation, quaternion: np.ndarray | None = None, *, convention: str | None = None
 ) -> tuple[float, float] | None:
-    """Azimuth/elevation (degrees, SITE_FRAME) of the camera's pointing, from the camera model.
+    """Azimuth/elevation (degrees, SITE_FRAME) of the ray the label's derived pointing
+    describes, from the camera model.
 
-    ``convention`` says which ray the label's derived pointing describes, checked on the real
-    labels: "centre" (Perseverance: the ray through the image centre) or "axis" (Curiosity:
-    the camera axis A, which for a subframe such as 2663ML's 1152 x 432 lies 50 px off the
-    image centre). The default is the mission's. The ray is turned from the model frame
+    ``convention``, checked on the real labels: "centre" (Perseverance: the ray through the
+    sensor centre, which is the image centre of a full frame only) or "axis" (Curiosity: the
+    camera axis A, which for a subframe such as 2663ML's 1152 x 432 lies 50 px off the image
+    centre). The default is the mission's. The ray is turned from the model frame
     (ROVER_NAV_FRAME) into SITE_FRAME by ``quaternion`` (default: the label's); None without.
     """
     q = obs.rover_quaternion if quaternion is None else quaternion
@@ -40,11 +42,17 @@ def _round(value: float | None, digits: int) -> float | None:
 
 
 def describe(obs: Observation, pose: Pose | None = None) -> dict[str, Any]:
-    """A JSON-ready summary of an observation (and its pose, when located)."""
+    """A JSON-ready summary of an observation (and its pose, when located), with the manifest's
+    names: ``azimuth_deg``/``elevation_deg`` the ray through the image centre (SITE_FRAME,
+    degrees; attitude from the pose, else the label), ``label_azimuth_deg``/
+    ``label_elevation_deg`` the label's derived pointing, ``model_azimuth_deg``/
+    ``model_elevation_deg`` the model's ray for the label's convention (``model_pointing_deg``).
+    """
     hfov, vfov = obs.camera.fov_deg(obs.width, obs.height)
-    pointing = model_pointing_deg(obs, None if pose is None else pose.quaternion)
-    az = obs.azimuth_deg if obs.azimuth_deg is not None else (pointing[0] if pointing else None)
-    el = obs.elevation_deg if obs.elevation_deg is not None else (pointing[1] if pointing else None)
+    q = pose.quaternion if pose is not None and pose.quaternion is not None else None
+    q = obs.rover_quaternion if q is None else q
+    pointing = model_pointing_deg(obs, q)
+    centre = None if q is None else image_centre_pointing_deg(obs.camera, obs.width, obs.height, q)
     out: dict[str, Any] = {
         "product_id": obs.product_id,
         "mission": obs.mission,
@@ -54,8 +62,10 @@ def describe(obs: Observation, pose: Pose | None = None) -> dict[str, Any]:
         "drive": obs.rmc.drive,
         "pose": obs.rmc.pose,
         "time": obs.start_time.isoformat() if obs.start_time else None,
-        "azimuth_deg": _round(az, 4),
-        "elevation_deg": _round(el, 4),
+        "azimuth_deg": _round(centre[0], 4) if centre else None,
+        "elevation_deg": _round(centre[1], 4) if centre else None,
+        "label_azimuth_deg": _round(obs.azimuth_deg, 4),
+        "label_elevation_deg": _round(obs.elevation_deg, 4),
         "hfov_deg": _round(obs.hfov_deg if obs.hfov_deg is not None else hfov, 4),
         "vfov_deg": _round(obs.vfov_deg if obs.vfov_deg is not None else vfov, 4),
         "model_azimuth_deg": _round(pointing[0], 4) if pointing else None,
@@ -78,6 +88,8 @@ def describe(obs: Observation, pose: Pose | None = None) -> dict[str, Any]:
             elevation_m=round(pose.elevation_m, 3),
             localization=pose.source,
             attitude_source=pose.attitude_source,
+            places_pose=pose.pose,
+            places_match=pose.match,
             crs=pose.crs,
         )
     return out

@@ -194,7 +194,7 @@ def _inputs(data: Any, base: Path) -> InputsConfig:
             seed=syn.integer("seed", 0, minimum=0),
             stops=syn.integer("stops", 6),
             images_per_stop=syn.integer("images_per_stop", 4),
-            size=syn.choice("size", ("small", "default"), "small"),
+            size=syn.choice("size", ("small", "default", "demo"), "small"),
         )
     return InputsConfig(
         labels=tuple(str(base / Path(p).expanduser()) for p in labels),
@@ -383,19 +383,21 @@ class _ConfigLoader(yaml.SafeLoader):
 
     def construct_mapping(self, node: yaml.Node, deep: bool = False) -> Any:
         if isinstance(node, yaml.MappingNode):
-            first: dict[Any, int] = {}
-            for key_node, _ in node.value:
+            first: dict[Any, str] = {}
+            for key_node, _ in node.value:  # before flattening: merged keys are not here
                 if key_node.tag == "tag:yaml.org,2002:merge":
                     continue  # "<<": merged keys may be overridden, as YAML says
                 key = self.construct_object(key_node, deep=True)
+                mark = key_node.start_mark
+                where = f"{mark.line + 1}:{mark.column + 1}"
                 try:
-                    line = first.setdefault(key, key_node.start_mark.line + 1)
+                    seen = first.setdefault(key, where)
                 except TypeError:  # an unhashable key: SafeLoader names it
                     continue
-                if line != key_node.start_mark.line + 1:
+                if seen != where:
                     raise ConfigError(
-                        f"duplicate key {shown(key)} at lines {line} and "
-                        f"{key_node.start_mark.line + 1} (a key may appear once in a mapping)"
+                        f"duplicate key {shown(key)} at line:column {seen} and {where} "
+                        "(a key may appear once in a mapping)"
                     )
         return super().construct_mapping(node, deep=deep)
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import warnings
+from collections import Counter
 from collections.abc import Sequence
 from typing import Any
 
@@ -11,7 +13,14 @@ import pyarrow.compute as pc
 
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.store.leakage import leak_report, rounded
-from mars_pairs.store.splits import BUFFER, SplitRule, make_rule, map_scale_bound
+from mars_pairs.store.splits import (
+    BUFFER,
+    EmptySplitWarning,
+    SplitRule,
+    empty_split_warnings,
+    make_rule,
+    map_scale_bound,
+)
 
 
 def split_rule(
@@ -26,12 +35,19 @@ def split_rule(
 
 
 def splits_report(config: BuildConfig, manifest: pa.Table, dropped: int) -> dict[str, Any]:
-    """The split rule's buffer and reach, the buffer's count and the measured leak check."""
+    """The split rule's buffer and reach, the buffer's count, the measured leak check and
+    ``warnings``: a sentence per configured split left empty (each also an
+    EmptySplitWarning, see ``store.splits.empty_split_warnings``)."""
     import rasterio
 
     with rasterio.open(config.inputs.dem) as src:
         rule = split_rule(config, src.crs.to_wkt(), tuple(src.bounds), src.res)
     in_buffer = int(pc.sum(pc.equal(manifest["split"], BUFFER)).as_py() or 0)
+    counts = Counter(manifest["split"].to_pylist())
+    cfg = config.splits
+    empty = empty_split_warnings(cfg.style, cfg.ratios, cfg.areas, cfg.block_m, dict(counts))
+    for text in empty:
+        warnings.warn(f"{config.output.dir}: {text}", EmptySplitWarning, stacklevel=2)
     return {
         "style": config.splits.style,
         "guard": config.splits.guard,
@@ -42,4 +58,5 @@ def splits_report(config: BuildConfig, manifest: pa.Table, dropped: int) -> dict
         "in_buffer": in_buffer + dropped,
         "dropped_in_buffer": dropped,
         **leak_report(manifest, config.chips.size_m),
+        "warnings": empty,
     }

@@ -1,12 +1,14 @@
 """Manifest filter arguments as users pass them: Python, numpy and pandas scalars, tuples,
-arrays and Series; a wrong type, size or a NaN raises ArgumentError naming the argument."""
+arrays and Series; a wrong type, size or a NaN raises ArgumentError naming the argument. Split
+names are checked against those a dataset knows; a sample is named by its key or product id."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from typing import Any
 
-from mars_pairs.errors import ArgumentError
+from mars_pairs.errors import ArgumentError, SampleKeyError
 
 
 def sequence(value: Any, n: int, name: str) -> list[Any]:
@@ -75,3 +77,77 @@ def geometry(polygon: Any) -> Any:
     if not isinstance(geom, shapely.Geometry) or geom.is_empty:
         raise ArgumentError(f"polygon: expected a shapely geometry or WKT, got {polygon!r}")
     return geom
+
+
+def configured_splits(doc: dict[str, Any]) -> set[str] | None:
+    """The split names a build's ``dataset.json`` (``doc``) configures: ``train`` and
+    ``buffer`` always, the ``splits.ratios`` names of a same-area rule, the ``splits.areas``
+    names of a cross-area one, and those its ``counts.by_split`` holds; None (unknown) when
+    it records neither its split config nor its counts."""
+    from mars_pairs.store.splits import BUFFER, TRAIN
+
+    names = {TRAIN, BUFFER}
+    recorded = False
+    config = doc.get("config") if isinstance(doc, dict) else None
+    splits = config.get("splits") if isinstance(config, dict) else None
+    if isinstance(splits, dict):
+        recorded = True
+        for part in ("ratios", "areas"):
+            if isinstance(splits.get(part), dict):
+                names.update(str(n) for n in splits[part])
+    counts = doc.get("counts") if isinstance(doc, dict) else None
+    if isinstance(counts, dict) and isinstance(counts.get("by_split"), dict):
+        recorded = True
+        names.update(str(n) for n in counts["by_split"])
+    return names if recorded else None
+
+
+def check_split_names(value: Any, known: Iterable[str] | None, where: str) -> None:
+    """ArgumentError naming the first requested split (``value``: a name or a list) that is
+    not in ``known``, and listing the known ones; ``where`` names the dataset. No check
+    when ``known`` is None (a dataset that does not record its splits)."""
+    if value is None or known is None:
+        return
+    known = sorted(set(known))
+    for name in strings(value, "split"):
+        if name not in known:
+            raise ArgumentError(
+                f"split: {where} has no split {name!r}; its splits are {', '.join(known)}"
+            )
+
+
+def sample_index(name: Any, keys: Any, product_ids: Any, where: str) -> int:
+    """The row of the sample a user names by key (``m2020_zl0_...``) or by product id
+    (``ZL0_...``), in any case, dots or underscores.
+
+    ``keys`` and ``product_ids`` are pyarrow arrays of the same rows (``product_ids`` may be
+    None). SampleKeyError (a KeyError too) naming ``where`` when no row matches, or when a
+    product id names several rows (their keys listed).
+    """
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    if not isinstance(name, str):
+        raise ArgumentError(f"key: expected a sample key or product id, got {name!r}")
+    text = name.strip()
+    found = pc.index(keys, pa.scalar(text, keys.type)).as_py()
+    if found >= 0:
+        return int(found)
+    folded = text.replace(".", "_").lower()
+    candidates = [pc.equal(pc.utf8_lower(keys), folded)]
+    if product_ids is not None:
+        ids = pc.utf8_lower(product_ids.fill_null(""))
+        candidates.append(pc.equal(ids, text.lower()))
+        candidates.append(pc.equal(pc.replace_substring(ids, ".", "_"), folded))
+    for mask in candidates:
+        rows = pc.indices_nonzero(mask.fill_null(False)).to_pylist()
+        if len(rows) == 1:
+            return int(rows[0])
+        if len(rows) > 1:
+            names = ", ".join(keys.take(pa.array(rows[:5])).to_pylist())
+            raise SampleKeyError(
+                f"{where}: {name!r} names {len(rows)} samples ({names}): use a key"
+            )
+    raise SampleKeyError(
+        f"{where}: no sample with key {name!r} (nor with that product id) in this dataset"
+    )

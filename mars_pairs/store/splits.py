@@ -100,6 +100,67 @@ class SplitRule:
         return _block_split(bx, by, tuple(self.ratios.items()), self.seed)
 
 
+class EmptySplitWarning(UserWarning):
+    """A build left a split it configures empty (no train sample, or a held-out split with
+    none): the dataset is usable but not what the config asks for."""
+
+
+def empty_split_warnings(
+    style: str,
+    ratios: dict[str, float],
+    areas: dict[str, Any],
+    block_m: float,
+    counts: dict[str, int],
+) -> list[str]:
+    """One sentence per configured split that holds no sample (``counts``: samples per split
+    name), train first; one for them all when every sample is in the buffer; none when the
+    dataset has no sample at all.
+
+    Configured: ``train`` and, same-area, the ``ratios`` names with a positive ratio, or,
+    cross-area, the ``areas`` names. Each sentence says where the samples went and what to
+    change (``splits.block_m``, ``splits.areas``, ``splits.ratios``).
+    """
+    total = sum(counts.values())
+    if total == 0:
+        return []
+    named = [n for n, r in ratios.items() if r > 0] if style == "same-area" else list(areas)
+    wanted = sorted({*named, TRAIN}, key=lambda n: (n != TRAIN, n))
+    held = ", ".join(f"{n} {c}" for n, c in sorted(counts.items()) if c)
+    blocks = f"splits.block_m = {block_m:g} map units"
+    empty = [n for n in wanted if not counts.get(n, 0)]
+    if empty and counts.get(BUFFER, 0) == total:
+        where = (
+            f"use regions several times wider than the zone (reach_m + buffer_m in "
+            f"dataset.json; {blocks})"
+            if style == "same-area"
+            else "move splits.areas or lower splits.buffer_m"
+        )
+        names = ", ".join(repr(n) for n in empty)
+        return [
+            f"split {names} {'is' if len(empty) == 1 else 'are'} empty ({total} samples: "
+            f"{held}); every sample is in the buffer zone around held-out regions: {where}"
+        ]
+    out = []
+    for name in empty:
+        if style == "same-area" and name == TRAIN:
+            fix = (
+                f"every rover position fell in held-out blocks or their buffer ({blocks}, "
+                "blocks drawn by splits.ratios): use smaller blocks (several per traverse), "
+                "another splits.seed, or style cross-area"
+            )
+        elif style == "same-area":
+            fix = (
+                f"no rover position fell in a {name} block ({blocks}, blocks drawn by "
+                "splits.ratios): use smaller blocks or another splits.seed"
+            )
+        elif name == TRAIN:
+            fix = "every rover position is in a held-out area or its buffer: shrink splits.areas"
+        else:
+            fix = f"no rover position lies inside splits.areas.{name}"
+        out.append(f"split {name!r} is empty ({total} samples: {held}); {fix}")
+    return out
+
+
 def _box_distance(x: float, y: float, box: tuple[float, float, float, float]) -> float:
     """Euclidean distance (map units) from a point to an axis-aligned box (0 inside)."""
     x0, y0, x1, y1 = box

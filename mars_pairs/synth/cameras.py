@@ -36,20 +36,51 @@ class CameraSpec:
     radial_r1: tuple[float, float] = (0.0, 0.45)
 
 
+#: Mastcam-Z zoom stops (mm) and how often a demo image uses them: mostly the wide end,
+#: as the mission's panoramas and context images are (26 mm ~ 25.6 deg, 63 mm ~ 10.7 deg).
+ZOOM_STOPS_MM = (26, 34, 48, 63)
+ZOOM_STOP_WEIGHTS = (0.3, 0.35, 0.2, 0.15)
+#: The demo's Navcam-like wide camera: hFOV (degrees), square image side (pixels).
+NAVCAM_HFOV_DEG = 45.0
+NAVCAM_SIDE_PX = 384
+
+
 def mission_cameras(mission: str, size: str) -> list[CameraSpec]:
-    """The cameras used for a mission ("m2020" or "msl") at a size ("small" or "default")."""
+    """The mast cameras used for a mission ("m2020" or "msl") at a size ("small", "default"
+    or "demo": quarter-size images; the wide camera is ``wide_camera``)."""
     big = size == "default"
+    demo = size == "demo"
     if mission == "m2020":
-        w, h = (1648, 1200) if big else (824, 600)
+        w, h = (1648, 1200) if big else (384, 280) if demo else (824, 600)
         return [
             CameraSpec("MCZ_LEFT", "L", w, h, None),
             CameraSpec("MCZ_RIGHT", "R", w, h, None),
+        ]
+    if demo:
+        return [
+            CameraSpec("MAST_LEFT", "L", 336, 300, (15.0,), radial_r1=(-0.14, -0.10)),
+            CameraSpec("MAST_RIGHT", "R", 336, 300, (5.8,), radial_r1=(-0.01, 0.01)),
         ]
     w, h = (1344, 1200) if big else (672, 600)
     return [
         CameraSpec("MAST_LEFT", "L", w, h, (15.0,), radial_r1=(-0.14, -0.10)),
         CameraSpec("MAST_RIGHT", "R", w, h, (5.8,), radial_r1=(-0.01, 0.01)),
     ]
+
+
+def wide_camera(mission: str, size: str) -> CameraSpec | None:
+    """The Navcam-like wide camera beside the mast cameras (m2020 "demo" only, else None):
+    45 degrees, 384 x 384, small radial distortion (an MSL-Navcam-like FOV on the M2020 mast;
+    the real M2020 Navcam is 90 x 70 degrees)."""
+    if mission != "m2020" or size != "demo":
+        return None
+    side = NAVCAM_SIDE_PX
+    return CameraSpec("NAVCAM_LEFT", "L", side, side, (NAVCAM_HFOV_DEG,), radial_r1=(-0.02, 0.02))
+
+
+def zoom_hfov_deg(focal_mm: float) -> float:
+    """Mastcam-Z horizontal FOV (degrees) at a focal length (mm); inverse of zoom_focal_mm."""
+    return 2.0 * math.degrees(math.atan(110.0 * math.tan(math.radians(3.1)) / focal_mm))
 
 
 def _pan_tilt_basis(direction_rover: F64) -> F64:
@@ -108,6 +139,16 @@ def m2020_product_id(eye: str, sol: int, sclk: int, msec: int, site: int, drive:
     return (
         f"Z{eye}F_{sol:04d}_{sclk:010d}_{msec:03d}RAD_N{site:03d}{drive:04d}"
         f"ZCAM{seq:05d}_{focal_mm:03d}085J01"
+    )
+
+
+def navcam_product_id(eye: str, sol: int, sclk: int, msec: int, site: int, drive: int,
+                      seq: int) -> str:  # fmt: skip
+    """Navcam RAD product id in the Mars 2020 grammar, the camera fields as in a real full
+    frame (NLF_0100_0673158398_650ECM_N0060000NCAM00900_01_295J01, mars.nasa.gov raw images):
+    e.g. NLF_0052_0671559321_081RAD_N0031950NCAM00500_01_295J01."""
+    return (
+        f"N{eye}F_{sol:04d}_{sclk:010d}_{msec:03d}RAD_N{site:03d}{drive:04d}NCAM{seq:05d}_01_295J01"
     )
 
 

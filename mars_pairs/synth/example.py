@@ -4,13 +4,16 @@ Panels: (1) a rendered image (the JPEG as written); (2) the ortho sampled where 
 every third pixel first hit the DEM (``mars_pairs.kernels.raycast.cast_rays``, independent of
 the renderer), tinted like the renderer; (3) the ortho around the rover, north up, map metres
 east/north of the camera, with the image's azimuth band (wedge) and ray hits (dots); (4) a
-40 m zoom of the ortho under the near view. Run ``python -m mars_pairs.synth.example OUT.png``.
+40 m zoom of the ortho under the near view. Run ``python -m mars_pairs.synth.example
+[OUT.png]`` (default ``synth_example.png`` in the current directory; ``--help`` for options).
 """
 
 from __future__ import annotations
 
+import argparse
 import sys
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -137,5 +140,36 @@ def make_example_figure(out_png: str | Path, *, seed: int = 3, workdir: str | Pa
     return str(obs.product_id)
 
 
+DEFAULT_OUT = "synth_example.png"  # in the current directory
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m mars_pairs.synth.example [OUT.png] [--seed N]``: write the figure to OUT
+    (default ``synth_example.png`` in the current directory) and print its path and the
+    product id shown."""
+    parser = argparse.ArgumentParser(
+        prog="python -m mars_pairs.synth.example",
+        description="Render a small synthetic mission and draw one image beside independent "
+        "evidence (ray-cast ortho, wedge and hits on the map).",
+    )
+    parser.add_argument(
+        "out",
+        nargs="?",
+        default=DEFAULT_OUT,
+        help=f"PNG to write (default {DEFAULT_OUT} in the current directory)",
+    )
+    parser.add_argument("--seed", type=int, default=3, help="mission seed (default 3)")
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    if out.suffix.lower() != ".png":
+        parser.error(f"OUT: expected a .png path, got {args.out!r}")
+    if out.is_dir():
+        parser.error(f"OUT: {args.out} is a folder; name the PNG to write")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    product = make_example_figure(out, seed=args.seed)
+    print(f"{out}: {product}")
+    return 0
+
+
 if __name__ == "__main__":
-    print(make_example_figure(sys.argv[1] if len(sys.argv) > 1 else "docs/synth_example.png"))
+    sys.exit(main())

@@ -4,7 +4,7 @@ Layout written for one mission (``OUT`` directly, or ``OUT/m2020`` and ``OUT/msl
 "both"):
 
     orbital/dem.tif     float32 DEM, 1 m/px, mission map CRS, nodata -3.4028235e38
-    orbital/ortho.tif   uint8 ortho (0.25 m/px small, 0.5 m/px default), nodata 0
+    orbital/ortho.tif   uint8 ortho (0.25 m/px small, 0.5 m/px default and demo), nodata 0
     places/best_interp.csv | places/localized_interp.csv   PLACES table
     labels/<product>.xml|.LBL and labels/<product>.jpg     labels, each with its image
     truth.parquet       one row per image: pose, camera, pointing (the exact truth)
@@ -16,6 +16,8 @@ The same seed gives the same bytes in every file.
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from datetime import datetime, timedelta
@@ -29,21 +31,28 @@ import rasterio
 from affine import Affine
 from PIL import Image
 from rasterio.crs import CRS as RioCRS
+from tqdm import tqdm
 
 from mars_pairs.geometry.frames import M2020_PLACES_CRS, MSL_PLACES_CRS, quaternion_to_matrix
 from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.geometry.places import Pose
 from mars_pairs.pds.observation import MotionCounter, Observation
 from mars_pairs.synth.cameras import (
+    ZOOM_STOP_WEIGHTS,
+    ZOOM_STOPS_MM,
+    CameraSpec,
     build_camera,
     centre_pointing_site,
     m2020_product_id,
     mission_cameras,
     msl_product_id,
+    navcam_product_id,
+    wide_camera,
     zoom_focal_mm,
+    zoom_hfov_deg,
 )
 from mars_pairs.synth.ortho import make_ortho
-from mars_pairs.synth.render import DemGrid, block_ranges, render_view
+from mars_pairs.synth.render import BLOCK, DemGrid, block_ranges, render_view
 from mars_pairs.synth.terrain import make_dem
 from mars_pairs.synth.traverse import (
     DemSampler,
@@ -84,6 +93,13 @@ class SizeSpec:
     ortho_factor: int  # ortho pixels per DEM cell
     stops: int
     images_per_stop: int
+    survey: bool = False  # pointing: False, ``_grid_stop``; True, ``_survey_stop``
+    directed: bool = False  # traverse: False, wanders about the centre; True, heads across
+    margin_m: float | None = None  # traverse keeps this far inside the DEM; None: a quarter
+    stop_spacing_m: tuple[float, float] = (15.0, 35.0)  # between stops along the path
+    # images show the DEM within this many metres (east and north) of the camera, as if the
+    # DEM ended there (None: all of it); rendering time grows with the terrain in view
+    render_window_m: float | None = None
 
 
 SPECS = {
@@ -94,7 +110,15 @@ SPECS = {
 }  # fmt: skip
 # default: a 2 km DEM (the traverse keeps to its central kilometre, so every view still reaches
 # 500 m or more of terrain) and 8 x 4 full-size images: about a minute on 2 cores
-SIZES = {"small": SizeSpec(1024, 4, 3, 4), "default": SizeSpec(2048, 2, 8, 4)}
+# demo: a 3 km DEM with a 0.5 m ortho, a ~3 km traverse heading across it, 90 stops of 3 images
+# (a Navcam-like wide image and two Mastcam-Z frames, quarter size) pointed as the mission
+# points them: a dataset worth training on, in ~65 s of CPU (~45 s on 2 cores)
+SIZES = {
+    "small": SizeSpec(1024, 4, 3, 4),
+    "default": SizeSpec(2048, 2, 8, 4),
+    "demo": SizeSpec(3072, 2, 90, 3, survey=True, directed=True, margin_m=200.0,
+                     stop_spacing_m=(30.0, 45.0), render_window_m=600.0),
+}  # fmt: skip
 DEM_RES_M = 1.0
 
 
@@ -106,16 +130,19 @@ def generate_mission(
     stops: int | None = None,
     images_per_stop: int | None = None,
     size: str = "small",
+    log: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """Generate a synthetic mission ("m2020", "msl" or "both") under ``out_dir``.
 
     ``stops`` / ``images_per_stop`` default to the size preset (small: 3 x 4, default:
-    8 x 4). Returns {"out_dir", "missions": {name: {paths..., counts...}}, "images"}.
+    8 x 4, demo: 90 x 3). ``log``: called with a line per phase (terrain, traverse,
+    rendering), and a tqdm bar counts the rendered images; None: silent.
+    Returns {"out_dir", "missions": {name: {paths..., counts...}}, "images"}.
     """
     if mission not in (*MISSIONS, "both"):
         raise ValueError(f"mission must be 'm2020', 'msl' or 'both', got {mission!r}")
     if size not in SIZES:
-        raise ValueError(f"size must be 'small' or 'default', got {size!r}")
+        raise ValueError(f"size must be one of {', '.join(SIZES)}, got {size!r}")
     preset = SIZES[size]
     k = preset.stops if stops is None else int(stops)
     m = preset.images_per_stop if images_per_stop is None else int(images_per_stop)
@@ -127,7 +154,7 @@ def generate_mission(
     for name in names:
         target = out / name if mission == "both" else out
         rng = np.random.default_rng([int(seed), MISSIONS.index(name)])
-        result["missions"][name] = _generate_one(target, rng, SPECS[name], size, k, m)
+        result["missions"][name] = _generate_one(target, rng, SPECS[name], size, k, m, log)
     result["images"] = sum(v["images"] for v in result["missions"].values())
     return result
 
@@ -188,27 +215,24 @@ def _plan_shots(rng: np.random.Generator, spec: MissionSpec, size: str, trav: Tr
                 per_stop: int, label_dir: Path) -> list[Shot]:  # fmt: skip
     """Cameras, pointings and product names of every image (deterministic in ``rng``)."""
     cams = mission_cameras(spec.name, size)
+    wide = wide_camera(spec.name, size)
     shots: list[Shot] = []
     index = 0
     sites = {s.site: s for s in trav.sites}
     for k, stop in enumerate(trav.stops):
         rot = quaternion_to_matrix(stop.quaternion)
-        az0 = rng.uniform(0.0, 360.0)
-        el_slots = rng.permutation(per_stop)
+        if SIZES[size].survey:
+            point = _survey_stop(rng, stop.heading_deg, cams, wide)
+        else:
+            point = _grid_stop(rng, per_stop, cams)
         for j in range(per_stop):
-            cam_spec = cams[index % len(cams)]
-            if cam_spec.hfov_choices is None:
-                hfov = float(rng.uniform(*cam_spec.hfov_range))
-            else:
-                hfov = float(cam_spec.hfov_choices[int(rng.integers(len(cam_spec.hfov_choices)))])
+            cam_spec, az, el, hfov = point(j, index)
             vfov = hfov * cam_spec.height / cam_spec.width
-            az = (az0 + 360.0 * (j + rng.uniform(0.1, 0.9)) / per_stop) % 360.0
-            el = -25.0 + 30.0 * (el_slots[j] + rng.uniform(0.1, 0.9)) / per_stop
             el = min(el, 0.5 * vfov - 1.5)  # keep some terrain at the bottom of every image
             model_type = "CAHVOR" if index % 2 == 0 else "CAHV"
             camera = build_camera(rng, cam_spec, rot, az, el, hfov, model_type)
             sclk = stop.sclk + 40 * j + int(rng.integers(0, 20))
-            pid = _product_id(spec.name, cam_spec.eye, stop, sclk, k, j, index, hfov,
+            pid = _product_id(spec.name, cam_spec, stop, sclk, k, j, index, hfov,
                               int(rng.integers(0, 1000)))  # fmt: skip
             label = label_dir / f"{pid}{spec.label_suffix}"
             hfov_m, vfov_m = camera.fov_deg(cam_spec.width, cam_spec.height)
@@ -230,12 +254,90 @@ def _plan_shots(rng: np.random.Generator, spec: MissionSpec, size: str, trav: Tr
     return shots
 
 
-def _product_id(mission: str, eye: str, stop: RoverState, sclk: int, k: int, j: int,
+Pointing = Callable[[int, int], tuple[CameraSpec, float, float, float]]
+
+
+def _grid_stop(rng: np.random.Generator, per_stop: int, cams: list[CameraSpec]) -> Pointing:
+    """The small/default presets' pointing at one stop: the cameras in turn, azimuths spread
+    round the circle, elevations in slots over -25..+5 degrees (SITE_FRAME), zoom uniform.
+    Returns f(j, index) -> (camera, azimuth, elevation, hFOV) degrees for the stop's j-th
+    image, the mission's index-th."""
+    az0 = rng.uniform(0.0, 360.0)
+    el_slots = rng.permutation(per_stop)
+
+    def point(j: int, index: int) -> tuple[CameraSpec, float, float, float]:
+        cam_spec = cams[index % len(cams)]
+        if cam_spec.hfov_choices is None:
+            hfov = float(rng.uniform(*cam_spec.hfov_range))
+        else:
+            hfov = float(cam_spec.hfov_choices[int(rng.integers(len(cam_spec.hfov_choices)))])
+        az = (az0 + 360.0 * (j + rng.uniform(0.1, 0.9)) / per_stop) % 360.0
+        el = -25.0 + 30.0 * (el_slots[j] + rng.uniform(0.1, 0.9)) / per_stop
+        return cam_spec, az, el, hfov
+
+    return point
+
+
+#: What a stop's mast-camera frames do (the demo): a panorama row near the horizon, targeted
+#: frames, or a look down at the ground near the rover; and how often.
+STOP_KINDS = ("panorama", "targeted", "down")
+STOP_KIND_WEIGHTS = (0.45, 0.4, 0.15)
+
+
+def _survey_stop(rng: np.random.Generator, heading_deg: float, cams: list[CameraSpec],
+                 wide: CameraSpec | None) -> Pointing:  # fmt: skip
+    """The demo's pointing at one stop, after the real labels (Mastcam sol 1429: elevations
+    3..15 degrees; sol 2663: a panorama sweeping azimuth 218..246 in 4.6 degree steps at
+    elevations 5..0; Mastcam-Z sols 52/79: -2.9 and -37 degrees). The first image is the
+    wide camera's (if any): azimuth within 90 degrees of the drive direction, elevation
+    -25..-5. The mast frames (eyes in turn, Mastcam-Z zoom stops mostly wide) follow the
+    stop's kind: a panorama (one row at elevation -8..0, azimuth stepping by 0.85 of the
+    FOV), targeted frames (random azimuth, elevation ~ N(-4, 5) within -15..+5), or down
+    (elevation -40..-20). Angles SITE_FRAME degrees (azimuth clockwise from north)."""
+    kind = STOP_KINDS[int(rng.choice(len(STOP_KINDS), p=STOP_KIND_WEIGHTS))]
+    az0 = float(rng.uniform(0.0, 360.0))
+    pano_el = float(rng.uniform(-8.0, 0.0))
+    pano_focal = (34, 48)[int(rng.integers(2))]
+    first_mast = 0 if wide is None else 1
+
+    def mast_hfov(cam_spec: CameraSpec, focal: float | None) -> float:
+        if cam_spec.hfov_choices is not None:  # fixed-focus Mastcam eyes
+            return float(cam_spec.hfov_choices[0])
+        if focal is None:
+            focal = ZOOM_STOPS_MM[int(rng.choice(len(ZOOM_STOPS_MM), p=ZOOM_STOP_WEIGHTS))]
+        return zoom_hfov_deg(focal)
+
+    def point(j: int, index: int) -> tuple[CameraSpec, float, float, float]:
+        if wide is not None and j == 0:
+            az = heading_deg + float(rng.uniform(-90.0, 90.0))
+            return wide, az % 360.0, float(rng.uniform(-25.0, -5.0)), wide.hfov_choices[0]
+        cam_spec = cams[index % len(cams)]
+        if kind == "panorama":
+            hfov = mast_hfov(cam_spec, pano_focal)
+            az = az0 + (j - first_mast) * 0.85 * hfov
+            el = pano_el + float(rng.normal(0.0, 0.3))
+        elif kind == "targeted":
+            hfov = mast_hfov(cam_spec, None)
+            az = float(rng.uniform(0.0, 360.0))
+            el = float(np.clip(rng.normal(-4.0, 5.0), -15.0, 5.0))
+        else:
+            hfov = mast_hfov(cam_spec, (26, 34)[int(rng.integers(2))])
+            az = float(rng.uniform(0.0, 360.0))
+            el = float(rng.uniform(-40.0, -20.0))
+        return cam_spec, az % 360.0, el, hfov
+
+    return point
+
+
+def _product_id(mission: str, cam: CameraSpec, stop: RoverState, sclk: int, k: int, j: int,
                 index: int, hfov: float, msec: int) -> str:  # fmt: skip
     if mission == "m2020":
-        return m2020_product_id(eye, stop.sol, sclk, msec, stop.site, stop.drive,
+        if cam.instrument.startswith("NAVCAM"):
+            return navcam_product_id(cam.eye, stop.sol, sclk, msec, stop.site, stop.drive,
+                                     500 + k)  # fmt: skip
+        return m2020_product_id(cam.eye, stop.sol, sclk, msec, stop.site, stop.drive,
                                 5000 + 7 * k, zoom_focal_mm(hfov))  # fmt: skip
-    return msl_product_id(eye, stop.sol, 7000 + k, j + 1, 702000 + index)
+    return msl_product_id(cam.eye, stop.sol, 7000 + k, j + 1, 702000 + index)
 
 
 def _write_label(obs: Observation) -> None:
@@ -292,10 +394,67 @@ def _save_shot(shot: Shot, rgb: np.ndarray) -> None:
     _write_label(shot.obs)
 
 
+Blocks = tuple[np.ndarray, np.ndarray]
+
+
+def _window(
+    grid: DemGrid, blocks: Blocks, ortho: np.ndarray, factor: int, centre_map: np.ndarray,
+    half_m: float,
+) -> tuple[DemGrid, Blocks, np.ndarray]:  # fmt: skip
+    """The DEM within about ``half_m`` metres east and north of ``centre_map`` (map x, y
+    metres), cut on culling-block edges: a DemGrid with its own transform, its blocks'
+    (``block_ranges``) z ranges (a slice of ``blocks``, the whole DEM's) and its ortho
+    (``factor`` pixels per DEM cell)."""
+    col, row = ~grid.transform * (float(centre_map[0]), float(centre_map[1]))
+    half = half_m / grid.res
+    rows, cols = grid.z.shape
+    bi0, bj0 = max(0, int(row - half) // BLOCK), max(0, int(col - half) // BLOCK)
+    i0, j0 = bi0 * BLOCK, bj0 * BLOCK
+    i1 = min(rows, (int(row + half) // BLOCK + 1) * BLOCK + 1)
+    j1 = min(cols, (int(col + half) // BLOCK + 1) * BLOCK + 1)
+    nbi, nbj = -(-(i1 - i0 - 1) // BLOCK), -(-(j1 - j0 - 1) // BLOCK)
+    z = np.ascontiguousarray(grid.z[i0:i1, j0:j1])
+    sub = DemGrid(z, grid.transform * Affine.translation(j0, i0))
+    sub_blocks = tuple(np.ascontiguousarray(b[bi0 : bi0 + nbi, bj0 : bj0 + nbj]) for b in blocks)
+    return sub, sub_blocks, ortho[i0 * factor : i1 * factor, j0 * factor : j1 * factor]
+
+
+def _traverse(rng: np.random.Generator, spec: MissionSpec, preset: SizeSpec, stops: int,
+              dem64: np.ndarray, dem_tr: Affine) -> Traverse:  # fmt: skip
+    """The traverse of ``stops`` stops over the DEM (NaN nodata; map CRS, 1 m cells), inside
+    the preset's margin."""
+    sampler = DemSampler(np.where(np.isfinite(dem64), dem64, np.nanmean(dem64)), dem_tr)
+    n = preset.dem_cells
+    margin = 0.25 * n * DEM_RES_M if preset.margin_m is None else preset.margin_m
+    left, top = dem_tr.c, dem_tr.f
+    inner = (left + margin, top - n * DEM_RES_M + margin, left + n * DEM_RES_M - margin,
+             top - margin)  # fmt: skip
+    return make_traverse(rng, sampler, spec.crs, inner, stops, spec.first_site,
+                         spec.first_sol, spec.sclk_sol0, spacing_m=preset.stop_spacing_m,
+                         directed=preset.directed)  # fmt: skip
+
+
+def mission_traverse(seed: int, mission: str, size: str, stops: int | None = None) -> Traverse:
+    """The traverse ``generate_mission`` makes for one mission ("m2020" or "msl") with these
+    arguments, without writing or rendering anything (the terrain is generated: the traverse
+    follows it). Map CRS metres."""
+    preset = SIZES[size]
+    rng = np.random.default_rng([int(seed), MISSIONS.index(mission)])
+    dem32, dem_tr, _, _ = _terrain(rng, SPECS[mission], preset)
+    k = preset.stops if stops is None else int(stops)
+    return _traverse(rng, SPECS[mission], preset, k, dem32.astype(np.float64), dem_tr)
+
+
 # -- one mission ---------------------------------------------------------------------------------
 def _generate_one(out: Path, rng: np.random.Generator, spec: MissionSpec, size: str,
-                  stops: int, per_stop: int) -> dict[str, Any]:  # fmt: skip
+                  stops: int, per_stop: int,
+                  log: Callable[[str], None] | None = None) -> dict[str, Any]:  # fmt: skip
     preset = SIZES[size]
+    say = log or (lambda _line: None)
+    t0 = time.perf_counter()
+    n = preset.dem_cells
+    say(f"{spec.name}: terrain: {n} x {n} m DEM at {DEM_RES_M:g} m, ortho at "
+        f"{DEM_RES_M / preset.ortho_factor:g} m ...")  # fmt: skip
     dem32, dem_tr, ortho, ortho_tr = _terrain(rng, spec, preset)
     dem_path, ortho_path = out / "orbital" / "dem.tif", out / "orbital" / "ortho.tif"
     _write_geotiff(dem_path, np.where(np.isfinite(dem32), dem32, np.float32(DEM_NODATA)),
@@ -303,16 +462,13 @@ def _generate_one(out: Path, rng: np.random.Generator, spec: MissionSpec, size: 
     _write_geotiff(ortho_path, ortho, ortho_tr, spec.crs, 0, predictor=2)
 
     dem64 = dem32.astype(np.float64)
-    sampler = DemSampler(np.where(np.isfinite(dem64), dem64, np.nanmean(dem64)), dem_tr)
-    n = preset.dem_cells
-    margin = 0.25 * n * DEM_RES_M
-    left, top = dem_tr.c, dem_tr.f
-    inner = (left + margin, top - n * DEM_RES_M + margin, left + n * DEM_RES_M - margin,
-             top - margin)  # fmt: skip
-    trav = make_traverse(rng, sampler, spec.crs, inner, stops, spec.first_site,
-                         spec.first_sol, spec.sclk_sol0)  # fmt: skip
+    trav = _traverse(rng, spec, preset, stops, dem64, dem_tr)
     places_path = out / "places" / spec.places_name
     write_places_csv(places_path, trav, dem_tr, ortho_tr)
+    xy = np.array([(r.x, r.y) for r in trav.rovers])
+    length_km = float(np.hypot(*np.diff(xy, axis=0).T).sum()) / 1000.0
+    say(f"{spec.name}: traverse: {len(trav.stops)} stops, {len(trav.sites)} sites, "
+        f"{length_km:.1f} km ({time.perf_counter() - t0:.1f} s)")  # fmt: skip
 
     label_dir = out / "labels"
     label_dir.mkdir(parents=True, exist_ok=True)
@@ -324,12 +480,18 @@ def _generate_one(out: Path, rng: np.random.Generator, spec: MissionSpec, size: 
     cams = [MapCamera.from_observation(s.obs, s.pose, spec.crs) for s in shots]
 
     def render(mc: MapCamera) -> np.ndarray:
-        return render_view(mc, grid, blocks, ortho, preset.ortho_factor)[0]
+        if preset.render_window_m is None:
+            return render_view(mc, grid, blocks, ortho, preset.ortho_factor)[0]
+        g, b, o = _window(grid, blocks, ortho, preset.ortho_factor, mc.origin_map,
+                          preset.render_window_m)  # fmt: skip
+        return render_view(mc, g, b, o, preset.ortho_factor)[0]
 
-    with ThreadPoolExecutor(max_workers=RENDER_THREADS) as pool:
+    bar = tqdm(total=len(shots), desc=f"{spec.name}: rendering", unit="img", disable=log is None)
+    with bar, ThreadPoolExecutor(max_workers=RENDER_THREADS) as pool:
         images = pool.map(render, cams)
         for shot, rgb in zip(shots, images, strict=True):
             _save_shot(shot, rgb)
+            bar.update()
     truth_path = out / "truth.parquet"
     pq.write_table(_truth_table(shots, out, spec.crs), truth_path, compression="zstd")
     return {

@@ -132,6 +132,38 @@ def smooth_path(
     return out
 
 
+def directed_path(
+    rng: np.random.Generator, bounds: tuple[float, float, float, float], length_m: float
+) -> F64:
+    """A smooth path (N, 2) of map x, y at 1 m steps inside ``bounds`` (l, b, r, t) that
+    heads across them, as a rover drives toward a distant goal: from near the south-west
+    corner toward the north-east one, the heading a smoothed random walk pulled toward the
+    goal (the path is about 1.1-1.3 times the straight distance it makes good).
+    """
+    left, bottom, right, top = bounds
+    span = np.array([right - left, top - bottom])
+    start = np.array([left, bottom]) + rng.uniform(0.02, 0.08, 2) * span
+    corner = np.array([right, top]) - rng.uniform(0.02, 0.08, 2) * span
+    way = corner - start
+    reach = min(float(np.hypot(*way)), length_m / 1.15)
+    goal = start + way / np.hypot(*way) * reach
+    heading = math.atan2(way[0], way[1]) + rng.normal(0.0, 0.2)  # clockwise from north
+    turn = 0.0
+    steps = int(length_m) + 1
+    out = np.empty((steps, 2))
+    p = start.copy()
+    for k in range(steps):
+        out[k] = p
+        to_g = goal - p
+        want = math.atan2(to_g[0], to_g[1])
+        err = (want - heading + np.pi) % (2 * np.pi) - np.pi
+        turn = 0.97 * turn + rng.normal(0.0, 0.003)
+        heading += turn + 0.01 * err
+        p = p + np.array([math.sin(heading), math.cos(heading)])
+        p = np.clip(p, [left, bottom], [right, top])
+    return out
+
+
 def rover_attitude(
     sampler: DemSampler, x: float, y: float, heading_deg: float, crs: str
 ) -> tuple[F64, float, float]:
@@ -190,15 +222,19 @@ def make_traverse(
     first_site: int,
     first_sol: int,
     sclk0: int,
+    spacing_m: tuple[float, float] = (15.0, 35.0),
+    directed: bool = False,
 ) -> Traverse:
     """A traverse of ``stops`` imaging stops along a smooth path inside ``bounds``.
 
+    Stops are ``spacing_m`` (low, high) metres apart along the path; the path wanders about
+    the bounds (``smooth_path``) or, ``directed``, heads across them (``directed_path``).
     A new site starts every 2..4 stops at the rover's position (drive 0); the drive counter
     then grows along the path, with ROVER rows every ~8 m between stops.
     """
-    spacing = rng.uniform(15.0, 35.0, max(stops - 1, 0))
+    spacing = rng.uniform(*spacing_m, max(stops - 1, 0))
     cum = np.concatenate([[0.0], np.cumsum(spacing)])
-    path = smooth_path(rng, bounds, cum[-1] + 2.0)
+    path = (directed_path if directed else smooth_path)(rng, bounds, cum[-1] + 2.0)
     seg = np.diff(path, axis=0)
     heading_path = np.degrees(np.arctan2(seg[:, 0], seg[:, 1])) % 360.0
 

@@ -49,9 +49,9 @@ from mars_pairs.errors import (
     DatasetError,
     MissingMemberError,
     SampleIndexError,
-    SampleKeyError,
 )
 from mars_pairs.store.dataset_info import read_dataset_info
+from mars_pairs.store.filter_args import check_split_names, configured_splits, sample_index
 from mars_pairs.store.integrity import MemberSpec, check_member
 from mars_pairs.store.manifest import MEMBERS, SUMMARY_COLUMNS, Manifest
 from mars_pairs.store.member_index import MemberIndex
@@ -141,6 +141,8 @@ class MarsPairsDataset(Dataset):
     [0, 1]). ``transform`` is applied to the sample dict (see
     :mod:`mars_pairs.torch.transforms`). ``verify`` checks every member of each sample read
     (tar header, size, CRC-32C; see the module docstring): one extra 512-byte read per member.
+    A ``split`` the dataset does not know (dataset.json's split config and counts) is an
+    ArgumentError listing the known ones; a known split without samples gives 0 rows.
     Use as a context manager, or call :meth:`close`.
     """
 
@@ -171,6 +173,7 @@ class MarsPairsDataset(Dataset):
         self.image_dtype = image_dtype
         manifest = Manifest.open(self.root).filter(**filters)
         info = read_dataset_info(self.root)
+        check_split_names(filters.get("split"), configured_splits(info.doc), str(self.root))
         self.crs: str = info.crs or manifest.crs or ""
         self.chip_px = info.chip_px
         self.ray_stride = info.ray_stride
@@ -229,12 +232,10 @@ class MarsPairsDataset(Dataset):
         return len(self._index)
 
     def index_of(self, key: str) -> int:
-        """The index of the sample with ``key`` (SampleKeyError, a KeyError too, if absent)."""
-        keys = self._index.column("key")
-        found = pc.index(keys, pa.scalar(str(key), keys.type)).as_py()
-        if found < 0:
-            raise SampleKeyError(f"{self.root}: no sample with key {key!r} in this dataset")
-        return int(found)
+        """The index of the sample named by ``key``: its key or its product id, in any case
+        (SampleKeyError, a KeyError too, if absent; see ``filter_args.sample_index``)."""
+        ids = self._index.column("product_id")
+        return sample_index(key, self._index.column("key"), ids, str(self.root))
 
     def _checked(self, index: Any) -> int:
         if isinstance(index, (bool, np.bool_)) or not isinstance(index, (int, np.integer)):

@@ -5,6 +5,7 @@ query or ``import mars_pairs.cli`` needs no plotting stack."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +23,8 @@ SHOW_SIZE = (16.0, 10.0)  # inches: show_sample writes SHOW_SIZE * DPI pixels
 OVERVIEW_SIZE = (16.0, 8.0)  # inches: overview writes OVERVIEW_SIZE * DPI pixels
 
 
-SPLIT_COLOURS = {"train": "#1f77b4", "val": "#ff7f0e", "test": "#2ca02c", "buffer": "#9e9e9e"}
+#: Split colours of every picture; buffer pink, visible over a grey orthoimage.
+SPLIT_COLOURS = {"train": "#1f77b4", "val": "#ff7f0e", "test": "#2ca02c", "buffer": "#e377c2"}
 
 
 def pyplot() -> Any:
@@ -57,3 +59,48 @@ def hillshade(
     az, alt = np.radians(azimuth), np.radians(altitude)
     shade = np.sin(alt) * np.cos(slope) + np.cos(alt) * np.sin(slope) * np.cos(az - aspect)
     return np.where(finite, np.clip(shade, 0, 1), np.nan)
+
+
+def nice_length(length: float) -> float:
+    """The largest 1, 2 or 5 times a power of ten not above ``length`` (> 0)."""
+    power = 10.0 ** math.floor(math.log10(length))
+    return max(m * power for m in (1.0, 2.0, 5.0) if m * power <= length)
+
+
+def scale_bar(
+    ax: Any,
+    box: tuple[float, float, float, float],
+    metres_per_unit: float = 1.0,
+    *,
+    y_down: bool = False,
+    unit: str = "m",
+) -> float:
+    """A black and white scale bar in the lower-left corner of a panel showing ``box``
+    (x0, y0, x1, y1, axis data units; ``y_down``: an image panel whose y grows downwards),
+    about a fifth of the panel wide, labelled in metres (``metres_per_unit`` metres per data
+    unit; ``unit`` names the data unit when it is not metres, ``metres_per_unit`` then 1).
+    Returns the bar's length in ``unit``s (metres by default)."""
+    import matplotlib.patheffects as pe
+    from matplotlib.patches import Rectangle
+
+    width, height = abs(box[2] - box[0]), abs(box[3] - box[1])
+    length = nice_length(width * metres_per_unit * 0.22)
+    span = length / metres_per_unit  # data units
+    thick = 0.012 * height
+    x0 = min(box[0], box[2]) + 0.05 * width
+    bottom = max(box[1], box[3]) - 0.05 * height if y_down else min(box[1], box[3]) + 0.05 * height
+    up = -1.0 if y_down else 1.0  # towards the top of the panel
+    for k in range(2):
+        ax.add_patch(
+            Rectangle(
+                (x0 + k * span / 2, bottom + (up * thick if y_down else 0.0)), span / 2, thick,
+                facecolor="black" if k == 0 else "white", edgecolor="black", lw=0.8, zorder=6,
+            )
+        )  # fmt: skip
+    label = f"{length / 1000:g} km" if length >= 1000 and unit == "m" else f"{length:g} {unit}"
+    ax.text(
+        x0 + span / 2, bottom + up * 2.2 * thick, label, ha="center",
+        va="bottom", fontsize=9, color="black", zorder=6,
+        path_effects=[pe.withStroke(linewidth=3, foreground="white")],
+    )  # fmt: skip
+    return length

@@ -1,8 +1,8 @@
-"""The picture of a dataset: every footprint over the downsampled ortho."""
+"""The picture of a dataset: every footprint over the downsampled ortho, the traverse and
+the held-out areas, in the dataset CRS (map units)."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -10,12 +10,14 @@ import numpy as np
 import shapely
 
 from mars_pairs.errors import MarsPairsError
+from mars_pairs.store.manifest import Manifest
 from mars_pairs.viz.common import (
     DPI,
     OVERVIEW_SIZE,
     SPLIT_COLOURS,
     manifest_rows,
     pyplot,
+    scale_bar,
 )
 
 
@@ -27,21 +29,46 @@ def overview(
     max_px: int = 1400,
     dpi: int = DPI,
 ) -> Path:
-    """All footprints over a downsampled ortho with the rover traverse, coloured by sol/split.
+    """All footprints over a downsampled ortho with the rover traverse and the held-out areas
+    (:func:`overview_figure`), written to ``out``: a PNG of ``OVERVIEW_SIZE`` inches at
+    ``dpi``."""
+    plt = pyplot()
+    out = Path(out)
+    fig = overview_figure(root, ortho_path, colour_by=colour_by, max_px=max_px)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(out, dpi=dpi)
+    finally:
+        plt.close(fig)
+    return out
 
-    Left: every footprint; right: a zoom on the traverse. Writes a PNG of ``OVERVIEW_SIZE``
-    inches at ``dpi``.
-    """
+
+def overview_figure(
+    root: str | Path,
+    ortho_path: str | Path | None = None,
+    colour_by: str = "sol",
+    max_px: int = 1400,
+) -> Any:
+    """The matplotlib Figure of a dataset on the map (dataset CRS, map units; the CRS named
+    in the title, axes labelled easting/northing): every footprint coloured by sol or split
+    over the downsampled ortho (``ortho_path``, default the build's ``inputs.ortho``), the
+    rover traverse, a scale bar, and the held-out areas of the build's split rule (hatched,
+    named) with their buffer zones (dashed), as ``mars-pairs report`` draws them. Left: the
+    whole dataset; right: a zoom on the traverse."""
+    from mars_pairs.viz.report import _crs, _dataset_json
+    from mars_pairs.viz.report_figures import _draw_held_out, held_out_regions
+
     if colour_by not in ("sol", "split"):
         raise MarsPairsError(f"colour_by must be 'sol' or 'split', not {colour_by!r}")
     plt = pyplot()
-    root, out = Path(root), Path(out)
+    root = Path(root)
     rows = manifest_rows(root)
     if not rows:
         raise MarsPairsError(f"{root}: the dataset has no samples")
+    info = _dataset_json(root)
+    crs_name, unit = _crs(info, Manifest.open(root))
     if ortho_path is None:
-        doc = json.loads((root / "dataset.json").read_text())
-        ortho_path = doc.get("config", {}).get("inputs", {}).get("ortho")
+        ortho_path = (info.get("config") or {}).get("inputs", {}).get("ortho")
     xs = np.array([r["easting"] for r in rows], dtype=np.float64)
     ys = np.array([r["northing"] for r in rows], dtype=np.float64)
     geoms = [shapely.from_wkb(r["footprint"]) if r["footprint"] is not None else None for r in rows]
@@ -52,6 +79,7 @@ def overview(
 
     colour, legend = _colours(plt, rows, colour_by)
     fig, (ax_full, ax_near) = plt.subplots(1, 2, figsize=OVERVIEW_SIZE, layout="constrained")
+    held_handles: list[Any] = []
     for ax, box in ((ax_full, full), (ax_near, near)):
         ax.set_facecolor("#d9d9d9")
         image, extent = _ortho_overview(Path(ortho_path) if ortho_path else None, box, max_px)
@@ -63,31 +91,58 @@ def overview(
                 continue
             for poly in getattr(geoms[i], "geoms", [geoms[i]]):
                 gx, gy = poly.exterior.xy
-                ax.fill(gx, gy, color=colour[i], alpha=0.22, lw=0)
-                ax.plot(gx, gy, color=colour[i], lw=0.9)
+                ax.fill(gx, gy, color=colour[i], alpha=0.3, lw=0)
+                ax.plot(gx, gy, color=colour[i], lw=1.1)
+        held = held_out_regions(info, box)
+        found = _draw_held_out(ax, held, SPLIT_COLOURS, label=_few_regions(held.regions, box))
+        held_handles = held_handles or found
         _traverse(ax, rows, xs, ys, label_sols=ax is ax_near)
         ax.set_xlim(box[0], box[2])
         ax.set_ylim(box[1], box[3])
         ax.set_aspect("equal")
         ax.ticklabel_format(useOffset=False, style="plain")
         ax.tick_params(labelsize=7)
+        ax.set_xlabel(f"easting ({unit})", fontsize=9)
+        ax.set_ylabel(f"northing ({unit})", fontsize=9)
+        scale_bar(ax, box, unit=unit)
+        if image is None:
+            ax.text(0.5, 0.02, "orthoimage not found: no background", transform=ax.transAxes,
+                    ha="center", fontsize=9)  # fmt: skip
     if near[2] - near[0] < full[2] - full[0]:
         x0, y0, x1, y1 = near
         ax_full.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], color="cyan", lw=1, ls="--")
     legend(ax_full, ax_near)
+    if held_handles:
+        ax_near.legend(handles=held_handles, loc="lower right", fontsize=8, framealpha=0.9,
+                       facecolor="#9a9a9a")  # fmt: skip
+    for ax in (ax_full, ax_near):
+        if ax.get_legend() is not None:
+            ax.get_legend().set_zorder(10)  # above the held-out areas and their names
     ax_full.set_title(
-        f"{len(rows)} samples: footprints coloured by {colour_by}, rover traverse (white)\n"
-        "map CRS metres",
+        f"{len(rows)} samples: footprints coloured by {colour_by}, rover traverse (white)",
         fontsize=10,
     )
+    named = "held-out areas hatched, buffer zones dashed" if held_handles else "no held-out area"
     ax_near.set_title(
-        f"the traverse ({len(set(zip(xs, ys, strict=True)))} rover positions, cyan box)",
+        f"the traverse ({len(set(zip(xs, ys, strict=True)))} rover positions, cyan box); {named}",
         fontsize=10,
     )
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=dpi)
-    plt.close(fig)
-    return out
+    fig.suptitle(f"map CRS: {crs_name}", fontsize=10)
+    return fig
+
+
+MAX_NAMED_REGIONS = 12  # more held-out regions on a panel: named in the legend only
+
+
+def _few_regions(regions: dict[str, list[Any]], box: tuple[float, float, float, float]) -> bool:
+    """Whether the held-out regions (merged per split) meeting the panel ``box`` (map units)
+    are few enough to be named on the map."""
+    frame = shapely.box(*box)
+    count = 0
+    for cells in regions.values():
+        union = shapely.intersection(shapely.union_all(cells), frame)
+        count += len(getattr(union, "geoms", [union])) if not union.is_empty else 0
+    return count <= MAX_NAMED_REGIONS
 
 
 def _square(
@@ -103,6 +158,7 @@ def _colours(plt: Any, rows: list[dict[str, Any]], colour_by: str) -> tuple[list
     """A colour per row and a function drawing the key (colour bar or legend)."""
     if colour_by == "sol":
         from matplotlib.colors import Normalize
+        from matplotlib.ticker import MaxNLocator
 
         sols = [int(r["sol"]) if r["sol"] is not None else 0 for r in rows]
         norm = Normalize(min(sols), max(max(sols), min(sols) + 1))
@@ -112,6 +168,7 @@ def _colours(plt: Any, rows: list[dict[str, Any]], colour_by: str) -> tuple[list
             sm = plt.cm.ScalarMappable(norm=norm, cmap=cmap)
             bar = ax.figure.colorbar(sm, ax=other, fraction=0.04, pad=0.02)
             bar.set_label("sol", fontsize=9)
+            bar.ax.yaxis.set_major_locator(MaxNLocator(integer=True))
             bar.ax.tick_params(labelsize=7)
 
         return [cmap(norm(s)) for s in sols], key

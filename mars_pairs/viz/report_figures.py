@@ -383,7 +383,7 @@ def sample_card(sample: dict[str, Any]) -> bytes:
         rover = _apply(inv, *origin)
         if vis is None:
             vis = np.zeros(ortho.shape, dtype=bool)
-        _ortho_panel(ax_o, ortho, vis, rover, _wedge_pixels(row, origin, inv))
+        _ortho_panel(ax_o, ortho, vis, rover, _wedge_pixels(row, inv))
         size = ortho.shape[1] * float(np.hypot(transform[0], transform[3]))
         ax_o.set_title(f"ortho chip {size:.0f} m: viewshed, wedge", fontsize=9)
     for ax in (ax_g, ax_o):

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from mars_pairs.errors import MarsPairsError
-from mars_pairs.viz.common import DPI, SHOW_SIZE, hillshade, pyplot
+from mars_pairs.viz.common import DPI, SHOW_SIZE, hillshade, pyplot, scale_bar
 
 
 @dataclass(frozen=True)
@@ -79,18 +79,39 @@ def _apply(t: tuple[float, ...], x: Any, y: Any) -> tuple[Any, Any]:
     return a * np.asarray(x) + b * np.asarray(y) + c, d * np.asarray(x) + e * np.asarray(y) + f
 
 
-def _wedge_pixels(
-    row: dict[str, Any], origin: list[float], inv: tuple[float, ...]
+def wedge_apex(row: dict[str, Any]) -> tuple[float, float, bool]:
+    """Where a sample's camera wedge starts, map x, y (dataset CRS, map units): the camera
+    centre (``camera_center_map`` of the sample's meta.json, ~1 m from the rover origin on a
+    mast) when the row has it, else the rover origin (``easting``, ``northing``); and whether
+    it is the camera centre."""
+    centre = row.get("camera_center_map")
+    if centre is not None and len(centre) >= 2 and np.all(np.isfinite(centre[:2])):
+        return float(centre[0]), float(centre[1]), True
+    return float(row.get("easting", np.nan)), float(row.get("northing", np.nan)), False
+
+
+def wedge_ring(
+    apex: tuple[float, float], azimuth_deg: float, hfov_deg: float, range_m: float, n: int = 33
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The camera's azimuth wedge (az +/- hFOV/2) from ``origin`` to the farthest visible range,
-    as a closed ring of chip pixel coordinates."""
+    """The camera's azimuth wedge (``azimuth_deg`` +/- ``hfov_deg``/2, degrees clockwise from
+    north) from ``apex`` (map x, y, map units of a projected CRS in metres) out to
+    ``range_m``, as a closed ring of map x, y: the apex, ``n`` points on the arc, the apex."""
+    half = hfov_deg / 2
+    az = np.radians(np.linspace(azimuth_deg - half, azimuth_deg + half, n))
+    x = np.concatenate([[apex[0]], apex[0] + range_m * np.sin(az), [apex[0]]])
+    y = np.concatenate([[apex[1]], apex[1] + range_m * np.cos(az), [apex[1]]])
+    return x, y
+
+
+def _wedge_pixels(row: dict[str, Any], inv: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """The camera's wedge (``wedge_ring`` from ``wedge_apex``) to the farthest visible range,
+    as a closed ring of chip pixel coordinates (``inv``: map -> chip pixel affine)."""
+    x0, y0, _ = wedge_apex(row)
     rng = max(float(row.get("max_visible_range_m") or 0.0), 1.0)
-    half = float(row.get("hfov_deg") or 0.0) / 2
-    azimuth = float(row.get("azimuth_deg") or 0.0)
-    az = np.radians(np.linspace(azimuth - half, azimuth + half, 33))
-    x = np.concatenate([[origin[0]], origin[0] + rng * np.sin(az), [origin[0]]])
-    y = np.concatenate([[origin[1]], origin[1] + rng * np.cos(az), [origin[1]]])
-    return _apply(inv, x, y)
+    ring = wedge_ring(
+        (x0, y0), float(row.get("azimuth_deg") or 0.0), float(row.get("hfov_deg") or 0.0), rng
+    )
+    return _apply(inv, *ring)
 
 
 def _limits(ax: Any, box: tuple[float, float, float, float]) -> None:
@@ -115,6 +136,7 @@ def _ortho_panel(
     ax.imshow(overlay, extent=extent, interpolation="nearest")
     ax.plot(*wedge, color="orange", lw=1.3)
     ax.plot(*rover, marker="^", color="red", markersize=9, markeredgecolor="white", ls="none")
+    ax.plot(wedge[0][0], wedge[1][0], marker="o", color="orange", markersize=4, ls="none")
     _limits(ax, (0, 0, n_cols, n_rows))
 
 
@@ -280,7 +302,7 @@ def sample_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
     rotation = float(sample.get("rotation", 0.0))
     inv = _inverse(transform)
     rover = _apply(inv, row.get("easting", np.nan), row.get("northing", np.nan))
-    wedge = _wedge_pixels(row, [row.get("easting", np.nan), row.get("northing", np.nan)], inv)
+    wedge = _wedge_pixels(row, inv)
     links = None
     if parts["corr"] is not None and parts["corr_ground"] is not None:
         ground_shape = ground.shape if ground is not None else (1, 1)
@@ -307,13 +329,15 @@ def sample_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
             x0, y0, x1, y1 = zoom
             ax.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], color="cyan", lw=1, ls="--")
         _north_arrow(ax, inv, n_cols)
+        scale_bar(ax, (0, 0, n_cols, n_rows), res, y_down=True)
     else:
         _missing(ax, "ortho chip")
+    apex = "camera centre ●" if wedge_apex(row)[2] else "rover (camera centre unknown)"
     ax.set_title(
         f"ortho chip {n_cols * res:.0f} m: viewshed (green) "
         f"{row.get('viewshed_area_m2', np.nan):.0f} m², rover ▲,\ncamera wedge (orange) az "
         f"{row.get('azimuth_deg', np.nan):.0f}° ± {row.get('hfov_deg', np.nan) / 2:.1f}° to "
-        f"{row.get('max_visible_range_m', np.nan):.0f} m",
+        f"{row.get('max_visible_range_m', np.nan):.0f} m from the {apex}",
         fontsize=9,
     )
     ax = axes[0, 2]
@@ -333,6 +357,7 @@ def sample_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
         ax.plot(*rover, marker="^", color="red", markersize=9, markeredgecolor="white", ls="none")
         _north_arrow(ax, inv, n_cols)
         _limits(ax, (0, 0, n_cols, n_rows))
+        scale_bar(ax, (0, 0, n_cols, n_rows), res, y_down=True)
         finite = np.isfinite(dem)
         lo, hi = (np.nanmin(dem), np.nanmax(dem)) if finite.any() else (np.nan, np.nan)
         ax.set_title(
@@ -351,6 +376,8 @@ def sample_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
     _draw_links(axes[1, 0], ax, links)
     if zoom is not None:
         _limits(ax, zoom)
+        if ortho is not None:
+            scale_bar(ax, zoom, res, y_down=True)
         ax.set_title(
             f"... and their map points, same colours\n(ortho zoom "
             f"{(zoom[2] - zoom[0]) * res:.0f} m across: cyan box)",
@@ -366,19 +393,24 @@ def sample_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
     return fig
 
 
-def show_sample(root: str | Path, key: str, out: str | Path, dpi: int = DPI) -> Path:
-    """The figure of sample ``key`` (:meth:`MarsPairsDataset.plot`) written to ``out`` (PNG
-    of ``SHOW_SIZE`` inches at ``dpi``)."""
+def show_sample(root: str | Path, key: str, out: str | Path | None = None, dpi: int = DPI) -> Path:
+    """The figure of the sample named ``key`` (its key or product id, any case) drawn by
+    :meth:`MarsPairsDataset.plot` and written to ``out`` (PNG of ``SHOW_SIZE`` inches at
+    ``dpi``; default ``<key>.png`` in the current directory, the sample's own key)."""
     from mars_pairs.store.manifest import Manifest
     from mars_pairs.torch import ALL_FIELDS, MarsPairsDataset
 
-    root, out = Path(root), Path(out)
+    root = Path(root)
     if not root.is_dir():
         raise MarsPairsError(f"{root}: no such dataset folder")
     Manifest.open(root).require()  # a damaged or column-less manifest: one error naming it
     plt = pyplot()
     with MarsPairsDataset(root, fields=ALL_FIELDS + _dense_fields_of(root)) as ds:
         sample = ds[ds.index_of(key)]
+        out = Path(out) if out is not None else Path(f"{sample['meta']['key']}.png")
+        centre = _camera_centre(root, sample["meta"]["key"])
+        if centre is not None:
+            sample["meta"] = {**sample["meta"], "camera_center_map": centre}
         fig = ds.plot(sample)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -468,3 +500,27 @@ def dense_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
         fig.suptitle(title)
     fig.tight_layout()
     return fig
+
+
+def _camera_centre(root: Path, key: str) -> list[float] | None:
+    """``camera_center_map`` (map x, y, z of the dataset CRS) from sample ``key``'s meta.json
+    member; None when the manifest has no meta.json location or the member lacks it."""
+    import json
+
+    import pyarrow.dataset as ds
+
+    from mars_pairs.store.manifest import Manifest
+    from mars_pairs.store.shards import MemberLocation, read_member
+
+    columns = ["meta_shard", "meta_offset", "meta_size"]
+    manifest = Manifest.open(root)
+    if not set(columns) <= set(manifest.column_names):
+        return None
+    rows = manifest.to_table(columns=["key", *columns]).filter(ds.field("key") == key)
+    if rows.num_rows != 1 or rows["meta_shard"][0].as_py() is None:
+        return None
+    row = rows.to_pylist()[0]
+    location = MemberLocation(row["meta_shard"], int(row["meta_offset"]), int(row["meta_size"]))
+    meta = json.loads(read_member(root, location, name=f"{key}.meta.json"))
+    centre = meta.get("camera_center_map") if isinstance(meta, dict) else None
+    return [float(v) for v in centre] if isinstance(centre, list) and len(centre) >= 2 else None

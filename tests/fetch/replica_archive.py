@@ -11,7 +11,8 @@ What is real and what is made, so that a test on it says what it proves:
   sequential; PDS4: ODL3 + VICAR headers, then ``SignedMSB2`` Band/Line/Sample at the label's
   offset), with pixel values from the real browse JPEGs. The header bytes are filler.
 - Curiosity indexes: ``INDEX/RDRINDEX.LBL`` + ``.TAB`` per volume MSLMST_0013..0015 (the
-  volumes whose sol ranges cover sol 1429, ``mslmst_volume_sol_ranges.csv``) in the PDS3
+  real-archive README names these three for sol 1429; the shipped sol-range table ends 0013 at
+  sol 1417, so a fetch for sol 1429 reads 0014 and 0015 only) in the PDS3
   fixed-width layout with the real column names; the rows are made from the labels (the real
   index holds ~75 MB of them); 0013 lists products of other sols, 0015 lists one of the
   sol-1429 products again (a re-release).
@@ -21,7 +22,9 @@ What is real and what is made, so that a test on it says what it proves:
 - PLACES: Mars 2020 ``best_interp.csv`` (real, 28 columns); Curiosity's current 26-column
   ``localized_interp.csv`` and the PDS3-era 22-column upper-case one, both made from the real
   positions in ``../shared/real-gale/rover_positions.csv`` (its header names; the pose column
-  is made: 0, plus a pose-8 row for site 56 drive 1632, the sol-1429 labels' pose).
+  is made: 0 for every real row, which for site 56 drive 1632 is moved 0.5 m east and turned
+  3 degrees, plus a pose-8 row holding the real position, the sol-1429 labels' pose: a wrong
+  pose choice shows).
 - Orbital maps: the PLACES bundles' maps in their paths and formats (Curiosity
   ``MSLPLC_1XXX/DATA/MAPS/msl_orbital_{dem,map}.img``: VICAR; Mars 2020
   ``data_maps/m20_orbital_{dem,map}.{xml,img}``: PDS4 label + raw image), written by GDAL, on
@@ -179,9 +182,10 @@ def msl_places_tables(folder: Path) -> tuple[Path, Path]:
         for c in ("map_pixel_line", "map_pixel_sample", "dem_pixel_line", "dem_pixel_sample"):
             out[c] = "-1.00"
         out["pose"] = "0"
-        rows.append(out)
         if (r["site"], r["drive"]) == ("56", "1632"):
-            rows.append({**out, "pose": "8"})
+            rows.append({**out, "pose": "8"})  # the real row: where the labels were taken
+            out = _moved(out, east_m=0.5, yaw_deg=3.0)  # a made-up earlier pose
+        rows.append(out)
     folder.mkdir(parents=True, exist_ok=True)
     current, pds3 = folder / "localized_interp_26.csv", folder / "localized_interp_22.csv"
     with open(current, "w", newline="") as fh:
@@ -193,6 +197,29 @@ def msl_places_tables(folder: Path) -> tuple[Path, Path]:
         w.writerow([c.upper() for c in cols22])
         w.writerows([[row[c] for c in cols22] for row in rows])
     return current, pds3
+
+
+def _moved(row: dict[str, str], *, east_m: float, yaw_deg: float) -> dict[str, str]:
+    """The row moved ``east_m`` metres east (eqc lat_ts 0 map units: metres on the sphere) and
+    turned ``yaw_deg`` about the vertical (yaw and the quaternion both: the quaternion
+    q' = q_z(yaw) * q, rotating site-frame vectors about down)."""
+    out = dict(row)
+    out["easting"] = f"{float(row['easting']) + east_m:.3f}"
+    lon = float(row["longitude"]) + math.degrees(east_m / 3396190.0)
+    out["longitude"] = f"{lon:.9f}"
+    out["yaw"] = f"{float(row['yaw']) + yaw_deg:.6f}"
+    half = math.radians(yaw_deg) / 2
+    qz = (math.cos(half), 0.0, 0.0, math.sin(half))
+    q = tuple(float(row[c]) for c in ("quat_s", "quat_v1", "quat_v2", "quat_v3"))
+    s1, v1 = qz[0], qz[1:]
+    s2, v2 = q[0], q[1:]
+    s = s1 * s2 - sum(a * b for a, b in zip(v1, v2, strict=True))
+    cross = (v1[1] * v2[2] - v1[2] * v2[1], v1[2] * v2[0] - v1[0] * v2[2],
+             v1[0] * v2[1] - v1[1] * v2[0])  # fmt: skip
+    v = [s1 * b + s2 * a + c for a, b, c in zip(v1, v2, cross, strict=True)]
+    for name, value in zip(("quat_s", "quat_v1", "quat_v2", "quat_v3"), (s, *v), strict=True):
+        out[name] = f"{value:.9f}"
+    return out
 
 
 # -- Perseverance --------------------------------------------------------------------------

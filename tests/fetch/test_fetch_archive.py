@@ -12,23 +12,11 @@ import pytest
 import yaml
 from fetch_server import ArchiveServer
 
-from mars_pairs.errors import ConfigError, FetchError
+from mars_pairs.errors import ConfigError
 from mars_pairs.fetch.config import load_fetch_config
 from mars_pairs.fetch.products import ProductFilter
 from mars_pairs.fetch.run import FAILURES, fetch_products
 from mars_pairs.pds import read_observation
-
-
-@pytest.fixture()
-def archive(tmp_path_factory) -> fetch_archive.Archive:
-    """Both synthetic missions laid out as the real archives (built once per run)."""
-    return fetch_archive.shared_archive(tmp_path_factory.getbasetemp())
-
-
-@pytest.fixture()
-def server(archive):
-    with ArchiveServer(archive.root, slow_s=1.0) as srv:
-        yield srv
 
 
 def write_config(tmp: Path, url: str, mission: str, **products) -> Path:
@@ -181,10 +169,13 @@ def test_failures_become_rows_and_a_rerun_completes(archive, server, tmp_path):
     assert pq.read_table(cfg.cache / FAILURES).num_rows == 0
 
 
-def test_an_unreachable_index_is_one_clear_error(archive, server, tmp_path):
+def test_an_unreachable_index_is_one_failure_row(archive, server, tmp_path):
     cfg = load_fetch_config(write_config(tmp_path, server.url, "msl", volumes=["MSLMST_9999"]))
-    with pytest.raises(FetchError, match=r"MSLMST_9999/INDEX/RDRINDEX\.LBL: HTTP 404"):
-        fetch_products(cfg, progress=False)
+    report = fetch_products(cfg, progress=False)
+    assert report.selected == 0
+    assert [(f.product_id, f.stage) for f in report.failures] == [("MSLMST_9999", "index")]
+    assert "HTTP 404" in report.failures[0].message
+    assert pq.read_table(cfg.cache / FAILURES).num_rows == 1
 
 
 def test_index_entries_that_escape_the_cache_are_refused(archive, server, tmp_path):

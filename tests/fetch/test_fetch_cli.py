@@ -11,7 +11,6 @@ import time
 from pathlib import Path
 
 import fetch_archive
-import pytest
 import yaml
 from fetch_server import ArchiveServer
 from test_fetch_archive import write_config
@@ -21,12 +20,6 @@ from mars_pairs.fetch.config import load_fetch_config
 from mars_pairs.fetch.run import fetch_products
 
 REPO = Path(__file__).resolve().parents[2]
-
-
-@pytest.fixture()
-def archive(tmp_path_factory) -> fetch_archive.Archive:
-    """The fixture archive (built once per run, shared with test_fetch_archive)."""
-    return fetch_archive.shared_archive(tmp_path_factory.getbasetemp())
 
 
 def test_dry_run_prints_count_and_bytes(archive, tmp_path, capsys):
@@ -122,11 +115,15 @@ def test_fetch_all_lays_out_what_a_build_reads(archive, tmp_path, capsys):
     assert "4 products (4 listed)" in out and "orbital/dem.tif" in out
 
 
-def test_an_unreachable_archive_is_one_line_and_exit_2(tmp_path, capsys):
+def test_an_unreachable_archive_is_one_line_and_a_failure_row(tmp_path, capsys):
+    """Each volume's index is fetched on its own: an unreachable one is a failure row (exit 1)
+    naming its URL, and the other volumes would go on."""
     config = write_config(tmp_path, "http://127.0.0.1:9", "msl")  # discard port: refused
-    assert main(["fetch", "products", "--config", str(config), "--quiet"]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
+    assert main(["fetch", "products", "--config", str(config), "--quiet"]) == 1
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
     assert len(err) == 1 and "http://127.0.0.1:9/msl/MSLMST_0001/INDEX/RDRINDEX.LBL" in err[0]
+    assert "0 products (0 listed)" in captured.out and "1 failures" in captured.out
 
 
 def test_fetch_all_runs_the_sections_the_config_has(archive, tmp_path, capsys):

@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import fetch_archive
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import rasterio
 import yaml
-from fetch_server import ArchiveServer
 from pyproj import Transformer
 from rasterio.windows import from_bounds
 from test_fetch_archive import write_config
@@ -19,18 +17,6 @@ from mars_pairs.fetch.run import fetch_orbital, fetch_places, fetch_products
 from mars_pairs.pipeline.build import run_build
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.torch import MarsPairsDataset
-
-
-@pytest.fixture()
-def archive(tmp_path_factory) -> fetch_archive.Archive:
-    """The fixture archive (built once per run, shared with test_fetch_archive)."""
-    return fetch_archive.shared_archive(tmp_path_factory.getbasetemp())
-
-
-@pytest.fixture()
-def server(archive):
-    with ArchiveServer(archive.root) as srv:
-        yield srv
 
 
 def _orbital_config(tmp, url, mission, kind):

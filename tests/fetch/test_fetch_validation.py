@@ -40,17 +40,6 @@ REPO = Path(__file__).resolve().parents[2]
 PDS4 = fetch_archive.PDS4
 
 
-@pytest.fixture()
-def archive(tmp_path_factory) -> fetch_archive.Archive:
-    return fetch_archive.shared_archive(tmp_path_factory.getbasetemp())
-
-
-@pytest.fixture()
-def server(archive):
-    with ArchiveServer(archive.root, slow_s=1.0) as srv:
-        yield srv
-
-
 def _debris(cache: Path) -> list[Path]:
     return [p for p in cache.rglob("*") if p.name.endswith((".part", ".tmp", ".part.meta.json"))]
 

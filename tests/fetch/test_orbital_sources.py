@@ -310,6 +310,13 @@ def test_fetch_orbital_dry_run_prints_windows_and_writes_nothing(maps, tmp_path,
         assert "REJECTED: above fetch.orbital.max_cells" in capsys.readouterr().out
         assert main(["fetch", "orbital", "--config", str(small), "--quiet"]) == 2
         assert "fetch.orbital.max_cells" in capsys.readouterr().err
+        # another config naming another DEM in the same cache is refused, the windows kept
+        vrt_before = (cache / "dem.vrt").read_bytes()
+        other = _config(tmp_path, srv.url, dem=f"{srv.url}/{BUNDLE}/data_maps/m20_orbital_map.img")
+        assert main(["fetch", "orbital", "--config", str(other), "--quiet"]) == 2
+        err = capsys.readouterr().err
+        assert "fetch.cache" in err and "holds dem windows of" in err
+        assert (cache / "dem.vrt").read_bytes() == vrt_before
     # the VRT holds the source's cells inside every window (the plan, as a dry run reads it)
     with rasterio.open(cache / "dem.vrt") as vrt, rasterio.open(maps["tif_dem"]) as ref:
         assert vrt.crs == ref.crs and vrt.res == ref.res

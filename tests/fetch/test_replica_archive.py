@@ -100,14 +100,15 @@ def _fetch_and_build(work: Path, url: str, mission: str) -> dict[str, str]:
     return out
 
 
-def _positions(csv_path: Path, keys: set[tuple[int, int]]) -> dict[tuple[int, int], tuple]:
-    """(easting, northing) of PLACES ROVER rows, read with the csv module (not the package)."""
+def _positions(csv_path: Path, keys: set[tuple[int, int, int]]) -> dict[tuple, tuple]:
+    """(easting, northing) of PLACES ROVER rows by (site, drive, pose), read with the csv
+    module (not the package)."""
     import csv
 
     found = {}
     with open(csv_path, newline="") as fh:
         for row in csv.DictReader(fh):
-            key = (int(row["site"]), int(row["drive"]))
+            key = (int(row["site"]), int(row["drive"]), int(row["pose"]))
             if row["frame"] == "ROVER" and key in keys:
                 found[key] = (float(row["easting"]), float(row["northing"]))
     return found
@@ -128,7 +129,8 @@ def test_curiosity_fetch_and_build(archive, server, tmp_path) -> None:
     want = sorted(Path(p).stem for p in archive.msl_labels)
     assert sorted(r["product_id"] for r in rows) == want
     # located at the PLACES row of the labels' (site, drive, pose): 56, 1632, pose 8
-    (x, y) = _positions(cache / replica.MSL_PLACES_CURRENT, {(56, 1632)})[(56, 1632)]
+    # (the table's pose-0 row for it lies 0.5 m away, turned 3 degrees: a wrong choice shows)
+    (x, y) = _positions(cache / replica.MSL_PLACES_CURRENT, {(56, 1632, 8)})[(56, 1632, 8)]
     for r in rows:
         assert (r["site"], r["drive"], r["pose"]) == (56, 1632, 8)
         assert (r["places_match"], r["places_pose"]) == ("site-drive-pose", 8)
@@ -178,12 +180,26 @@ def test_perseverance_fetch_and_build(archive, server, tmp_path) -> None:
     assert sorted(r["product_id"] for r in rows) == sorted(
         Path(p).stem for p in archive.m2020_labels
     )
-    places = _positions(cache / replica.M2020_PLACES, {(3, 1950), (3, 2430)})
+    places = _positions(cache / replica.M2020_PLACES, {(3, 1950, -1), (3, 2430, -1)})
     for r in rows:
-        x, y = places[(r["site"], r["drive"])]
+        x, y = places[(r["site"], r["drive"], -1)]
         assert abs(r["easting"] - x) < 0.01 and abs(r["northing"] - y) < 0.01
         # best_interp.csv gives these (site, drive) with pose -1: a match for every pose
         assert r["places_match"] == "site-drive" and r["places_pose"] == -1
         # full frames: the label's pointing is the image centre's ray
         assert abs((r["azimuth_deg"] - r["label_azimuth_deg"] + 180) % 360 - 180) < 0.1
         assert abs(r["elevation_deg"] - r["label_elevation_deg"]) < 0.1
+
+
+def test_a_cut_image_in_the_cache_is_fetched_again(archive, server, tmp_path) -> None:
+    """An .IMG shorter than its label's arrays (a cut download kept by an older release) is
+    not taken as cached: the next fetch replaces it, whole."""
+    config = str(_config(tmp_path, server.url, "m2020"))
+    assert _cli("fetch", "products", "--config", config, "--quiet").returncode == 0
+    image = (tmp_path / "cache" / archive.m2020_labels[1]).with_suffix(".IMG")
+    whole = image.read_bytes()
+    image.write_bytes(whole[: len(whole) // 2])
+    again = _cli("fetch", "products", "--config", config, "--quiet")
+    assert again.returncode == 0, again.stderr
+    assert "1 files downloaded" in again.stdout
+    assert image.read_bytes() == whole

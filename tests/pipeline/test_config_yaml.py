@@ -31,14 +31,22 @@ def _write(tmp_path: Path, text: str) -> Path:
 
 def test_a_duplicate_key_names_the_key_and_both_lines(tmp_path: Path) -> None:
     path = _write(tmp_path, "inputs:\n  labels: a\ngeometry:\n  radius: 100\n  radius: 5\n")
-    with pytest.raises(ConfigError, match=r"config\.yaml: duplicate key 'radius' at lines 4 and 5"):
+    with pytest.raises(
+        ConfigError, match=r"config\.yaml: duplicate key 'radius' at line:column 4:3 and 5:3"
+    ):
         load_config(path)
     top = _write(tmp_path, "output: {dir: a}\nchips: {}\noutput: {dir: b}\n")
-    with pytest.raises(ConfigError, match="duplicate key 'output' at lines 1 and 3"):
+    with pytest.raises(ConfigError, match="duplicate key 'output' at line:column 1:1 and 3:1"):
         read_yaml(top)
     fetch = _write(tmp_path, "fetch:\n  cache: a\n  cache: b\n")
-    with pytest.raises(ConfigError, match="duplicate key 'cache' at lines 2 and 3"):
+    with pytest.raises(ConfigError, match="duplicate key 'cache' at line:column 2:3 and 3:3"):
         load_fetch_config(fetch)
+    # the same key twice on one line (a flow mapping) is a duplicate too
+    flow = _write(
+        tmp_path, "inputs:\n  labels: a\ngeometry: {radius: 200, ray_stride: 8, radius: 5}\n"
+    )
+    with pytest.raises(ConfigError, match="duplicate key 'radius' at line:column 3:12 and 3:40"):
+        load_config(flow)
 
 
 def test_anchors_and_merge_keys_within_the_bound_still_load(tmp_path: Path) -> None:

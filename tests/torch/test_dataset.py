@@ -22,6 +22,7 @@ from torch_members import all_keys
 import mars_pairs.torch.datasets as mpd
 import mars_pairs.torch.streaming as mps
 from mars_pairs import Manifest
+from mars_pairs.errors import ArgumentError
 from mars_pairs.torch import MarsPairsDataset, MarsPairsIterableDataset, collate_samples
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -181,7 +182,7 @@ def test_filters_match_the_manifest(dataset_dir: Path) -> None:
     everything = all_keys(dataset_dir)
     cases: list[dict[str, Any]] = [{"split": s} for s in sorted(splits)]
     cases += [
-        {"split": "none-such"},
+        {"sol": (99_999, 99_999)},  # nothing
         {"near": (float(lat[0]), float(lon[0]), 1.0)},  # the first stop only
         {"near": (float(lat[0]), float(lon[0]), 1e6)},  # everything
         {
@@ -207,6 +208,9 @@ def test_filters_match_the_manifest(dataset_dir: Path) -> None:
     # the cases are not all trivial: some subset strictly between nothing and everything
     assert 0 in seen and len(everything) in seen and any(0 < n < len(everything) for n in seen)
     assert 0 < len(manifest_keys(dataset_dir, near=(float(lat[0]), float(lon[0]), 1.0))) < 9
+    # a split name the dataset does not know is refused, the known ones listed
+    with pytest.raises(ArgumentError, match=r"'none-such'; its splits are .*train"):
+        MarsPairsDataset(dataset_dir, split="none-such")
 
 
 # -- batching and workers ------------------------------------------------------------------------

@@ -103,8 +103,10 @@ def _pds4_context(area: etree._Element, obs: Observation) -> None:
 
 
 def _instrument_name(instrument: str) -> str:
-    """Observing_System_Component name of a Mastcam-Z eye."""
+    """Observing_System_Component name of a Mastcam-Z or Navcam eye."""
     side = "Right" if "RIGHT" in instrument.upper() else "Left"
+    if instrument.upper().startswith("NAVCAM"):
+        return f"Navigation Camera {side}"
     return f"Mast Camera Zoom {side}"
 
 
