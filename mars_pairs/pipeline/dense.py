@@ -38,6 +38,7 @@ from mars_pairs.geometry.body import MARS_RADIUS_M
 from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.kernels.raycast import cast_rays
 from mars_pairs.pipeline.encode import npy_bytes, png_bytes
+from mars_pairs.pipeline.ground import GroundImage
 from mars_pairs.pipeline.view import View
 from mars_pairs.raster.chips import ChipGrid
 from mars_pairs.raster.transfer import sample_at
@@ -131,13 +132,14 @@ def map_from_rover(
     return np.rint(ortho_u8).clip(0, 255).astype(np.uint8), dem_view, valid
 
 
-def chip_points(grid: ChipGrid, dem: np.ndarray) -> np.ndarray:
-    """(S, S, 3) map points of the chip's pixel centres: x, y (map units) and the DEM chip's
-    elevation (metres; NaN nodata)."""
-    n = grid.size_px
-    cols, rows = np.meshgrid(np.arange(n) + 0.5, np.arange(n) + 0.5)
-    x, y = grid.transform * (cols, rows)
-    return np.stack([x, y, dem.astype(np.float64)], axis=-1)
+def chip_points(grid: ChipGrid, dem: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """(N, 3) map points of chip pixels (``rows``, ``cols``): their centres' x, y (map units)
+    and the DEM chip's elevation there (metres; NaN nodata)."""
+    t = grid.transform
+    u, v = cols + 0.5, rows + 0.5
+    x = t.a * u + t.b * v + t.c
+    y = t.d * u + t.e * v + t.f
+    return np.column_stack([x, y, dem[rows, cols].astype(np.float64)])
 
 
 def ground_pixels_of_chip(
@@ -146,11 +148,11 @@ def ground_pixels_of_chip(
     """(S, S, 2) float32 image pixel (sample, line; centres at integers) of each visible chip
     pixel's terrain point, projected through the camera with the planet's curvature; NaN
     where ``visible`` (bool, the viewshed chip) is False or the point falls off the image."""
-    points = chip_points(grid, dem)
     out = np.full((*visible.shape, 2), np.nan, dtype=np.float32)
-    keep = visible & np.isfinite(points[..., 2])
-    if keep.any():
-        px = camera.camera.project(camera.local_points(points[keep], MARS_RADIUS_M))
+    rows, cols = np.nonzero(visible & np.isfinite(dem))
+    if len(rows):
+        points = chip_points(grid, dem, rows, cols)
+        px = camera.camera.project(camera.local_points(points, MARS_RADIUS_M))
         with np.errstate(invalid="ignore"):
             inside = (
                 np.isfinite(px).all(axis=1)
@@ -159,16 +161,21 @@ def ground_pixels_of_chip(
                 & (px[:, 1] >= -0.5)
                 & (px[:, 1] <= camera.height - 0.5)
             )
-        px[~inside] = np.nan
-        out[keep] = px.astype(np.float32)
+        out[rows[inside], cols[inside]] = px[inside]
     return out
 
 
 def ground_on_map(pixels: np.ndarray, ground_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(colours uint8 (S, S[, C]), cover bool (S, S)): the ground image ``pixels`` (H, W[, C]
     uint8) sampled bilinearly at ``ground_px``; 0 where not covered."""
-    values, cover = sample_at(pixels, ground_px[..., 0], ground_px[..., 1], nearest=False, fill=0)
-    return np.rint(values).clip(0, 255).astype(np.uint8), cover
+    rows, cols = np.nonzero(np.isfinite(ground_px[..., 0]))
+    px = ground_px[rows, cols]
+    values, ok = sample_at(pixels, px[:, 0], px[:, 1], nearest=False, fill=0)
+    colours = np.zeros(ground_px.shape[:2] + pixels.shape[2:], dtype=np.uint8)
+    cover = np.zeros(ground_px.shape[:2], dtype=bool)
+    colours[rows, cols] = np.rint(values).clip(0, 255).astype(np.uint8)
+    cover[rows, cols] = ok
+    return colours, cover
 
 
 def decode_ground(data: bytes) -> np.ndarray:
@@ -183,12 +190,13 @@ def dense_members(
     view: View,
     grid: ChipGrid,
     chips: dict[str, Any],
-    ground_data: bytes,
+    ground: GroundImage,
     members: tuple[str, ...],
     stride: int,
     max_range_m: float,
 ) -> tuple[dict[str, bytes], dict[str, Any]]:
-    """The member bytes of ``members`` (see the module docstring) and their meta entries."""
+    """The member bytes of ``members`` (see the module docstring) and their meta entries;
+    ``ground``: the ground member (its decoded pixels when kept, else its bytes decoded)."""
     out: dict[str, bytes] = {}
     meta: dict[str, Any] = {"dense_members": list(members)}
     wanted = set(members)
@@ -213,7 +221,8 @@ def dense_members(
         visible = np.asarray(chips["viewshed"]) > 0
         ground_px = ground_pixels_of_chip(view.camera, grid, chips["dem"], visible)
         if "ground_on_map" in wanted:
-            colours, cover = ground_on_map(decode_ground(ground_data), ground_px)
+            pixels = ground.pixels if ground.pixels is not None else decode_ground(ground.data)
+            colours, cover = ground_on_map(pixels, ground_px)
             out["ground_on_map.png"] = png_bytes(colours)
             out["ground_on_map_cover.png"] = png_bytes(cover.astype(np.uint8) * 255)
         if "ground_px" in wanted:

@@ -40,7 +40,8 @@ def build_sample(label: Path, ctx: SampleContext) -> Sample:
         with stage("label"):
             obs = read_observation(label)
         with stage("image"):  # decoded and checked; obs re-expressed for a resized image
-            ground = ground_image(obs, ctx.config.output.image_encoding)
+            keep = "ground_on_map" in ctx.config.output.members
+            ground = ground_image(obs, ctx.config.output.image_encoding, keep_pixels=keep)
             obs = ground.observation
         with stage("locate"):
             pose = ctx.places.locate(obs)
@@ -56,7 +57,7 @@ def build_sample(label: Path, ctx: SampleContext) -> Sample:
                 stride = out.dense_stride or ctx.config.geometry.ray_stride
                 radius = ctx.config.geometry.radius
                 dense, dense_meta = dense_members(
-                    view, grid, chips, ground.data, out.members, stride, radius
+                    view, grid, chips, ground, out.members, stride, radius
                 )
         with stage("encode"):
             row = manifest_row(obs, pose, view, grid, ctx, cover)
