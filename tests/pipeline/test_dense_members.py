@@ -294,3 +294,17 @@ def test_verify_checks_the_dense_members(dense: Path, tmp_path: Path) -> None:
     shard.write_bytes(bytes(data))
     damage = verify_dataset(copy).damage
     assert len(damage) == 1 and "depth" in str(damage[0]), damage
+
+
+def test_heading_up_chips_have_heading_zero(small_mission: Path, tmp_path: Path) -> None:
+    out = _build(
+        small_mission, tmp_path / "h", chips={"offset_m": 10.0, "orientation": "heading-up"}
+    )
+    for m in _samples(out).values():
+        meta = json.loads(m["meta.json"])
+        heading = (meta["heading_deg"] + 180.0) % 360.0 - 180.0
+        assert abs(heading) < 1e-6, meta["heading_deg"]
+        tr = Affine(*meta["chip_transform"])
+        assert np.allclose(meta["rover_px"], ~tr * (meta["easting"], meta["northing"]))
+        shift = np.subtract(meta["rover_px"], CHIP["size_px"] / 2)
+        assert np.all(np.abs(shift) * CHIP["size_m"] / CHIP["size_px"] <= 10.0 + 1e-6)
