@@ -26,7 +26,7 @@ from mars_pairs.store.manifest import MANIFEST_SCHEMA
 
 STRIDE = 8
 RADIUS_M = 300.0
-CHIP = {"size_m": 64, "size_px": 256}  # 0.25 m: the ortho's own resolution
+CHIP = {"size_m": 128, "size_px": 512}  # 0.25 m: the ortho's own resolution
 
 
 def _build(mission: Path, out: Path, **sections: Any) -> Path:
@@ -90,7 +90,7 @@ def test_members_written_located_and_checksummed(dense: Path) -> None:
         assert _npy(m["range.npy"]).shape == (h, w) and _npy(m["range.npy"]).dtype == np.float32
         assert _npy(m["depth.npy"]).dtype == np.float32
         assert _npy(m["hits.npy"]).shape == (h, w, 3) and _npy(m["hits.npy"]).dtype == np.float64
-        assert _npy(m["ground_px.npy"]).shape == (256, 256, 2)
+        assert _npy(m["ground_px.npy"]).shape == (CHIP["size_px"], CHIP["size_px"], 2)
         assert meta["dense_stride"] == STRIDE and set(meta["dense_members"]) >= {"range"}
         # range >= depth > 0 where the ray hit
         r, d = _npy(m["range.npy"]), _npy(m["depth.npy"])
@@ -130,11 +130,30 @@ def test_closure_ground_on_map_and_map_from_rover(dense: Path) -> None:
         ground = _grey(_img(m["ground.jpg"]))[::STRIDE, ::STRIDE]
         valid = _img(m["view_valid.png"]) > 0
         seen = _img(m["ortho_view.png"]).astype(np.float64)
-        if valid.sum() >= 500:
-            r = np.corrcoef(seen[valid], ground[valid])[0, 1]
-            assert r >= 0.95, (key, r)
+        # where one image pixel spans at most one ortho pixel on the ground: the renderer
+        # splats terrain samples up to half a pixel from the pixel centre, so at grazing
+        # views its colour is not the ortho at the centre ray's hit
+        fine = valid & (_ground_per_pixel(_npy(m["hits.npy"])) <= ORTHO_RES_M)
+        if fine.sum() >= 500:
+            r = np.corrcoef(seen[fine], ground[fine])[0, 1]
+            assert r >= 0.95, (key, r, fine.sum())
             checked_view += 1
-    assert checked_map >= 1 and checked_view >= 1
+        if valid.sum() >= 500:  # all valid pixels, grazing ones too
+            assert np.corrcoef(seen[valid], ground[valid])[0, 1] >= 0.9
+    assert checked_map >= 2 and checked_view >= 2
+
+
+ORTHO_RES_M = 0.25  # the small mission's ortho
+
+
+def _ground_per_pixel(hits: np.ndarray) -> np.ndarray:
+    """Ground distance (map units) spanned by one image pixel at each dense cell: the larger
+    of the spacings to the next cell down and right, over the stride (inf at the edges)."""
+    out = np.full(hits.shape[:2], np.inf)
+    down = np.hypot(*(hits[1:, :-1, :2] - hits[:-1, :-1, :2]).transpose(2, 0, 1))
+    right = np.hypot(*(hits[:-1, 1:, :2] - hits[:-1, :-1, :2]).transpose(2, 0, 1))
+    out[:-1, :-1] = np.fmax(down, right) / STRIDE
+    return np.where(np.isfinite(out), out, np.inf)
 
 
 def _truth_range_depth(label: Path, mission: Path, pixels: np.ndarray) -> tuple[Any, Any]:
@@ -274,7 +293,7 @@ def test_classes_move_between_image_and_chip(
             agree = (back[valid] == truth_cls[valid]).mean()
             assert agree >= 0.98, (key, agree, valid.sum())
             checked_back += 1
-    assert checked >= 1 and checked_back >= 1
+    assert checked >= 2 and checked_back >= 2
 
 
 def test_verify_checks_the_dense_members(dense: Path, tmp_path: Path) -> None:
