@@ -30,6 +30,7 @@ from mars_pairs.pipeline import worker
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.config_section import check_regular
 from mars_pairs.pipeline.context import SampleContext
+from mars_pairs.pipeline.dense import member_fields
 from mars_pairs.pipeline.finish import (
     finished_summary,
     merge_parts,
@@ -58,7 +59,7 @@ from mars_pairs.pipeline.plan import (
 from mars_pairs.pipeline.worker import WorkerStartError  # noqa: F401  (re-exported)
 from mars_pairs.store.manifest import (
     FAILURE_SCHEMA,
-    MANIFEST_SCHEMA,
+    manifest_schema,
     rows_to_table,
     write_parquet_atomic,
 )
@@ -176,7 +177,7 @@ def _write_chunk(
                     )
                 rows.append(row)
     write_parquet_atomic(rows_to_table(failures, FAILURE_SCHEMA), failures_part)
-    table = rows_to_table(rows, MANIFEST_SCHEMA)
+    table = rows_to_table(rows, manifest_schema(member_fields(config.output.members)))
     table = table.replace_schema_metadata({DROPPED_KEY: str(dropped).encode()})
     write_parquet_atomic(table, manifest_part)  # commit marker
     return len(samples)
