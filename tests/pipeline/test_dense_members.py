@@ -169,6 +169,12 @@ def _truth_range_depth(label: Path, mission: Path, pixels: np.ndarray) -> tuple[
     return np.linalg.norm(rel, axis=1), rel @ axis
 
 
+def _label(dataset: Path, row: dict) -> Path:
+    """The label of a manifest row: ``label_path`` is relative to dataset.json's labels_root."""
+    root = json.loads((dataset / "dataset.json").read_text())["labels_root"]
+    return (dataset / root / row["label_path"]).resolve()
+
+
 def test_range_and_depth_match_the_independent_march(dense: Path, small_mission: Path) -> None:
     errors_r, errors_d = [], []
     rows = {r["key"]: r for r in pq.read_table(dense / "manifest.parquet").to_pylist()}
@@ -177,7 +183,7 @@ def test_range_and_depth_match_the_independent_march(dense: Path, small_mission:
         h, w = r.shape
         lines, samples = np.meshgrid(np.arange(h)[::2], np.arange(w)[::2], indexing="ij")
         pixels = np.column_stack([samples.ravel() * STRIDE, lines.ravel() * STRIDE]).astype(float)
-        tr, td = _truth_range_depth(Path(rows[key]["label_path"]), small_mission, pixels)
+        tr, td = _truth_range_depth(_label(dense, rows[key]), small_mission, pixels)
         ours_r = r[lines.ravel(), samples.ravel()].astype(np.float64)
         ours_d = d[lines.ravel(), samples.ravel()].astype(np.float64)
         both = np.isfinite(ours_r) & np.isfinite(tr) & (tr < 0.9 * RADIUS_M)
@@ -274,7 +280,7 @@ def test_classes_move_between_image_and_chip(
         n = CHIP["size_px"]
         grid = ChipGrid(Affine(*meta["chip_transform"]), meta["crs"], n, 0.0, 0.0, CHIP["size_m"])
         chip_cls = np.abs(read_chip(str(path), grid, nearest=True)[..., None] - LEVELS).argmin(-1)
-        image_cls = _render_classes(Path(rows[key]["label_path"]), small_mission, codes)
+        image_cls = _render_classes(_label(dense, rows[key]), small_mission, codes)
         # image -> chip
         moved, cover = image_to_chip(image_cls.astype(np.int16), _npy(m["ground_px.npy"]),
                                      nearest=True, fill=-1)  # fmt: skip
