@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import io
+import json
 import tarfile
 from pathlib import Path
 
@@ -41,6 +42,7 @@ def built(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_range_and_depth_on_real_gale(built: Path) -> None:
     rows = {r["key"]: r for r in pq.read_table(built / "manifest.parquet").to_pylist()}
+    labels = built / json.loads((built / "dataset.json").read_text())["labels_root"]
     arrays: dict[str, dict[str, np.ndarray]] = {}
     for shard in sorted((built / "shards").glob("*.tar")):
         with tarfile.open(shard) as tar:
@@ -51,7 +53,7 @@ def test_range_and_depth_on_real_gale(built: Path) -> None:
                     arrays.setdefault(key, {})[name] = np.load(io.BytesIO(data))
     er, ed = [], []
     for key, a in arrays.items():
-        lab = truth.read_label_fields(rows[key]["label_path"])
+        lab = truth.read_label_fields(labels / rows[key]["label_path"])  # relative to the root
         places, dem = GALE / "rover_positions.csv", GALE / "dem.tif"
         cam = truth.place_camera(lab, places, dem)
         px = truth.pixel_grid(lab.width, lab.height, STRIDE)
