@@ -1,0 +1,229 @@
+"""The build engines' one contract: chunks of labels in, typed chunk results out, in order.
+
+An engine (:class:`Engine`: the in-process build, ``pipeline.local_pool.LocalPool``,
+``pipeline.dask_engine.DaskEngine``) runs :func:`build_chunk` once per chunk, wherever its
+workers are. A worker builds the chunk's samples one at a time and writes them straight
+into the chunk's shard in the output folder (``shards/shard-{k:06d}.tar``, through the
+temporary name ``.shard-{k:06d}.tar.tmp-<pid>`` and a rename: ``store.shards.ShardWriter``),
+so a sample's bytes never leave the worker that built it. What travels back to the driver is
+a :class:`ChunkResult`: one :class:`Outcome` per label (its manifest row with the member
+locations, or its failure row; a few hundred bytes a sample), the shard's name and size, and
+timings. The driver commits the chunks in order (``pipeline.build``): failure part, then
+manifest part (the chunk's commit marker).
+
+Duplicate sample keys (two labels with one product id): the first label in label order
+keeps the key, every later one becomes a ``record`` failure row (DuplicateKeyError naming
+the first). A worker resolves the duplicates inside its chunk: it writes the first and
+reports the later ones as ``duplicate`` outcomes. Duplicates of an earlier chunk's key are
+resolved by the driver at commit, which knows every earlier key: it turns them into failure
+rows and, when such a sample was written into the shard, rewrites the shard without it
+(``rewrite_shard``: a rare path, the only one where sample bytes pass through the driver).
+The output is therefore byte-identical to a build that wrote every chunk in the driver, for
+any engine and worker count. Samples in the split buffer are dropped by the worker when the
+config says so (``splits.buffer_policy: drop``) and reported as ``dropped`` outcomes.
+
+The workers need write access to the output folder, at the same path as the driver (a
+shared file system for a cluster).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Literal, Protocol
+
+from mars_pairs.errors import MarsPairsError
+from mars_pairs.pipeline import worker
+from mars_pairs.pipeline.config import BuildConfig
+from mars_pairs.pipeline.context import SampleContext
+from mars_pairs.pipeline.outputs import part_paths
+from mars_pairs.store.shards import MemberLocation, ShardWriter, read_member
+from mars_pairs.store.splits import BUFFER
+
+
+class DuplicateKeyError(MarsPairsError):
+    """Two labels give the same sample key (the same product id): the first one is kept."""
+
+
+@dataclass(frozen=True)
+class ChunkTask:
+    """Chunk ``index`` of the build: its labels, in label order."""
+
+    index: int
+    labels: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What became of one label of a chunk.
+
+    ``kind``: ``ok`` (written to the shard; ``row`` is its manifest row with the member
+    locations, ``members`` the member name -> location), ``dropped`` (in the split buffer,
+    not written), ``duplicate`` (its key was already built from an earlier label of the chunk,
+    not written), ``fail`` (``row`` is its failure row). ``key`` is the sample key (None for
+    a failure), ``label`` the label path as the manifest names it, ``seconds`` the sample's
+    stage times (s).
+    """
+
+    kind: Literal["ok", "dropped", "duplicate", "fail"]
+    label: str
+    key: str | None = None
+    row: dict[str, Any] = field(default_factory=dict)
+    members: dict[str, MemberLocation] = field(default_factory=dict)
+    seconds: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ChunkResult:
+    """A chunk built by a worker: its outcomes in label order, and the shard it wrote.
+
+    ``shard``: the shard's path relative to the output folder, None when no sample was
+    written (then there is no shard file); ``shard_bytes`` its final size. ``seconds``: the
+    worker's wall time for the chunk; ``worker``: ``host:pid`` of the process that built it.
+    """
+
+    index: int
+    outcomes: tuple[Outcome, ...]
+    shard: str | None
+    shard_bytes: int
+    seconds: float
+    worker: str
+
+    @property
+    def rows(self) -> list[dict[str, Any]]:
+        """The manifest rows of the samples written, in label order."""
+        return [o.row for o in self.outcomes if o.kind == "ok"]
+
+
+class Engine(Protocol):
+    """Runs :func:`build_chunk` for each chunk and yields the results in chunk order.
+
+    ``chunks`` may be a lazy iterator: an engine pulls it as it has room (never lists it)
+    and starts nothing when it is empty. WorkerStartError when a worker could not open the
+    build's inputs."""
+
+    def run(self, config: BuildConfig, chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
+        """The results of ``chunks``, in their order."""
+        ...
+
+
+def _located(row: dict[str, Any], locs: dict[str, MemberLocation]) -> dict[str, Any]:
+    """``row`` with the ``<field>_shard/_offset/_size/_crc32c`` columns of ``locs``."""
+    row = dict(row)
+    for name, loc in locs.items():
+        fld = name.split(".")[0]
+        row.update(
+            {
+                f"{fld}_shard": loc.shard,
+                f"{fld}_offset": loc.offset,
+                f"{fld}_size": loc.size,
+                f"{fld}_crc32c": loc.crc32c,
+            }
+        )
+    return row
+
+
+def build_chunk(config: BuildConfig, task: ChunkTask) -> ChunkResult:
+    """Build chunk ``task`` in this process (its context open: ``worker.open_context``) and
+    write its shard into ``config.output.dir``; WorkerStartError when the context could not
+    be opened. A sample is written as soon as it is built (one sample in memory)."""
+    start = time.perf_counter()
+    out = config.output.dir
+    shard_rel = part_paths(out, task.index)[0]
+    drop = config.splits.buffer_policy == "drop"
+    outcomes: list[Outcome] = []
+    first: dict[str, str] = {}
+    shard: ShardWriter | None = None
+    try:
+        for label in task.labels:
+            status, r = worker.work(label)
+            if status == "start":
+                raise worker.WorkerStartError(r)
+            if status == "fail":
+                outcomes.append(Outcome("fail", r["path"], row=r))
+                continue
+            name = r.row["label_path"]
+            if r.key in first:
+                outcomes.append(Outcome("duplicate", name, r.key))
+                continue
+            first[r.key] = name
+            if drop and r.row["split"] == BUFFER:
+                outcomes.append(Outcome("dropped", name, r.key))
+                continue
+            if shard is None:
+                shard = ShardWriter(out, shard_rel)
+            locs = shard.add(r.key, r.members)
+            outcomes.append(Outcome("ok", name, r.key, _located(r.row, locs), locs, r.seconds))
+    except BaseException:
+        if shard is not None:
+            shard.close(commit=False)
+        raise
+    size = 0
+    if shard is not None:
+        shard.close()
+        size = shard.path.stat().st_size
+    return ChunkResult(
+        task.index,
+        tuple(outcomes),
+        shard_rel if shard is not None else None,
+        size,
+        time.perf_counter() - start,
+        f"{os.uname().nodename}:{os.getpid()}",
+    )
+
+
+def rewrite_shard(out: Path, result: ChunkResult, drop: set[str]) -> ChunkResult:
+    """``result`` with the samples keyed in ``drop`` taken out of its shard: the shard is
+    written again without them (atomically, over the worker's) and the other samples'
+    locations and rows follow; the shard is removed when no sample is left. Dropped
+    outcomes become ``duplicate``."""
+    assert result.shard is not None
+    path = out / result.shard
+    kept: list[Outcome] = []
+    shard: ShardWriter | None = None
+    try:
+        for o in result.outcomes:
+            if o.kind != "ok" or o.key in drop:
+                kind = "duplicate" if o.kind == "ok" else o.kind
+                kept.append(replace(o, kind=kind, row={} if kind == "duplicate" else o.row))
+                continue
+            members = {
+                name: read_member(out, loc, name=f"{o.key}.{name}", verify=True)
+                for name, loc in o.members.items()
+            }
+            if shard is None:
+                shard = ShardWriter(out, result.shard)
+            locs = shard.add(o.key, members)
+            kept.append(replace(o, row=_located(o.row, locs), members=locs))
+    except BaseException:
+        if shard is not None:
+            shard.close(commit=False)
+        raise
+    if shard is None:
+        path.unlink()
+        return replace(result, outcomes=tuple(kept), shard=None, shard_bytes=0)
+    shard.close()
+    return replace(result, outcomes=tuple(kept), shard_bytes=path.stat().st_size)
+
+
+class InProcess:
+    """The engine of a one-worker build: every chunk built in this process, in order."""
+
+    def run(self, config: BuildConfig, chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
+        """The results of ``chunks`` built here; the context opens at the first chunk."""
+        todo = iter(chunks)
+        first = next(todo, None)
+        if first is None:
+            return
+        context = SampleContext.open(config)  # its error is the build's, as it is
+        worker.use_context(context)
+        try:
+            yield build_chunk(config, first)
+            for task in todo:
+                yield build_chunk(config, task)
+        finally:
+            worker.use_context(None)
+            context.close()
