@@ -14,6 +14,7 @@ receives rows only, and commits the chunks in order.
 from __future__ import annotations
 
 import json
+import os
 import time
 from collections import Counter
 from collections.abc import Iterable, Iterator
@@ -23,21 +24,19 @@ from pathlib import Path
 from tqdm import tqdm
 
 from mars_pairs.errors import ConfigError, MarsPairsError
-from mars_pairs.pipeline import worker
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.config_section import check_regular
 from mars_pairs.pipeline.engine import (
     ChunkResult,
     ChunkTask,
-    DuplicateKeyError,
     Engine,
     InProcess,
-    rewrite_shard,
+    part_tables,
+    resolve_duplicates,
 )
 from mars_pairs.pipeline.finish import merge_parts, write_dataset_json
 from mars_pairs.pipeline.local_pool import LocalPool
 from mars_pairs.pipeline.outputs import (
-    DROPPED_KEY,
     LabelDigest,
     built_keys,
     clear_outputs,
@@ -49,12 +48,7 @@ from mars_pairs.pipeline.outputs import (
 )
 from mars_pairs.pipeline.plan import chunks_of, is_done, labels_of, plan_build
 from mars_pairs.pipeline.worker import WorkerStartError  # noqa: F401  (re-exported)
-from mars_pairs.store.manifest import (
-    FAILURE_SCHEMA,
-    MANIFEST_SCHEMA,
-    rows_to_table,
-    write_parquet_atomic,
-)
+from mars_pairs.store.manifest import write_parquet_atomic
 from mars_pairs.store.shards import atomic_write_bytes
 from mars_pairs.store.wids_index import write_wids_index
 
@@ -127,10 +121,10 @@ def _commit_chunk(
     seen: dict[str, str],
 ) -> int:
     """Commit chunk ``result.index``, whose shard its worker wrote: its failure part, then its
-    manifest part (the commit marker). A sample whose key an earlier chunk built (``seen``:
-    key -> label, updated here) becomes a DuplicateKeyError failure row and leaves the shard
-    (``engine.rewrite_shard``); samples dropped in the split buffer are counted in the
-    manifest part's metadata. The number of samples committed."""
+    manifest part (the commit marker), renamed from where the worker staged them. A sample
+    whose key an earlier chunk built (``seen``: key -> label, updated here) becomes a
+    DuplicateKeyError failure row and leaves the shard, and the driver writes the parts
+    (``engine.resolve_duplicates``). The number of samples committed."""
     out = config.output.dir
     _, manifest_part, failures_part = part_paths(out, result.index)
     if result.shard is not None:
@@ -140,32 +134,29 @@ def _commit_chunk(
                 f"{out / result.shard}: {size} bytes, but its worker ({result.worker}) wrote "
                 f"{result.shard_bytes}; rerun the build with --resume"
             )
-    earlier = {o.key for o in result.outcomes if o.kind in ("ok", "dropped") and o.key in seen}
-    if earlier & {o.key for o in result.outcomes if o.kind == "ok"}:
-        result = rewrite_shard(out, result, earlier)
-    failures, dropped = [], 0
+    if result.staged is None or any(o.kind != "fail" and o.key in seen for o in result.outcomes):
+        result = resolve_duplicates(out, result, seen)
+    failed = next((o.row for o in result.outcomes if o.kind in ("fail", "duplicate")), None)
+    if strict and failed is not None:
+        for rel in result.staged or ():
+            (out / rel).unlink(missing_ok=True)
+        what = ": ".join(str(failed[c]) for c in ("path", "stage", "error_type", "message"))
+        raise BuildError(what)
+    if result.staged is None:
+        failures, manifest = part_tables(result.outcomes)
+        write_parquet_atomic(failures, failures_part)
+        write_parquet_atomic(manifest, manifest_part)  # commit marker
+    else:
+        os.replace(out / result.staged[0], failures_part)
+        os.replace(out / result.staged[1], manifest_part)  # commit marker
+    written = 0
     for o in result.outcomes:
-        row = o.row
-        if o.kind != "fail" and o.key in seen:
-            error = DuplicateKeyError(f"{o.label}: key {o.key}: already built from {seen[o.key]}")
-            row = worker.failure_row(o.label, "record", error)
-        elif o.kind in ("ok", "dropped"):
+        if o.kind in ("ok", "dropped"):
             seen[o.key] = o.label
-            dropped += o.kind == "dropped"
-            continue
-        if strict:
-            what = ": ".join(str(row[c]) for c in ("path", "stage", "error_type", "message"))
-            raise BuildError(what)
-        failures.append(row)
-    rows = result.rows
-    for o in result.outcomes:
         if o.kind == "ok":
             stage_seconds.update(o.seconds)
-    write_parquet_atomic(rows_to_table(failures, FAILURE_SCHEMA), failures_part)
-    table = rows_to_table(rows, MANIFEST_SCHEMA)
-    table = table.replace_schema_metadata({DROPPED_KEY: str(dropped).encode()})
-    write_parquet_atomic(table, manifest_part)  # commit marker
-    return len(rows)
+            written += 1
+    return written
 
 
 def _chunk_results(

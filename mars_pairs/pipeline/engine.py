@@ -35,11 +35,19 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal, Protocol
 
+import pyarrow as pa
+
 from mars_pairs.errors import MarsPairsError
 from mars_pairs.pipeline import worker
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.context import SampleContext
-from mars_pairs.pipeline.outputs import part_paths
+from mars_pairs.pipeline.outputs import DROPPED_KEY, part_paths
+from mars_pairs.store.manifest import (
+    FAILURE_SCHEMA,
+    MANIFEST_SCHEMA,
+    rows_to_table,
+    write_parquet_staged,
+)
 from mars_pairs.store.shards import MemberLocation, ShardWriter, read_member
 from mars_pairs.store.splits import BUFFER
 
@@ -62,8 +70,9 @@ class Outcome:
 
     ``kind``: ``ok`` (written to the shard; ``row`` is its manifest row with the member
     locations, ``members`` the member name -> location), ``dropped`` (in the split buffer,
-    not written), ``duplicate`` (its key was already built from an earlier label of the chunk,
-    not written), ``fail`` (``row`` is its failure row). ``key`` is the sample key (None for
+    not written), ``duplicate`` (its key was already built from an earlier label, not
+    written; ``row`` is its DuplicateKeyError failure row), ``fail`` (``row`` is its failure
+    row). ``key`` is the sample key (None for
     a failure), ``label`` the label path as the manifest names it, ``seconds`` the sample's
     stage times (s).
     """
@@ -83,6 +92,10 @@ class ChunkResult:
     ``shard``: the shard's path relative to the output folder, None when no sample was
     written (then there is no shard file); ``shard_bytes`` its final size. ``seconds``: the
     worker's wall time for the chunk; ``worker``: ``host:pid`` of the process that built it.
+    ``staged``: the temporary names (relative to the output folder) under which the worker
+    wrote the chunk's failure part and manifest part as they are when no earlier chunk
+    built one of its keys (``part_tables``); committing the chunk renames them into place.
+    None: the driver writes the parts.
     """
 
     index: int
@@ -91,6 +104,7 @@ class ChunkResult:
     shard_bytes: int
     seconds: float
     worker: str
+    staged: tuple[str, str] | None = None
 
     @property
     def rows(self) -> list[dict[str, Any]]:
@@ -126,6 +140,24 @@ def _located(row: dict[str, Any], locs: dict[str, MemberLocation]) -> dict[str, 
     return row
 
 
+def duplicate_row(label: str, key: str, first: str) -> dict[str, Any]:
+    """The failure row of ``label``, whose sample key ``key`` was built from ``first``."""
+    error = DuplicateKeyError(f"{label}: key {key}: already built from {first}")
+    return worker.failure_row(label, "record", error)
+
+
+def part_tables(outcomes: Iterable[Outcome]) -> tuple[pa.Table, pa.Table]:
+    """A chunk's failure part and manifest part (which holds the count of samples dropped in
+    the split buffer in its metadata) for its ``outcomes``, in label order."""
+    outcomes = list(outcomes)
+    failures = [o.row for o in outcomes if o.kind in ("fail", "duplicate")]
+    rows = [o.row for o in outcomes if o.kind == "ok"]
+    dropped = sum(o.kind == "dropped" for o in outcomes)
+    table = rows_to_table(rows, MANIFEST_SCHEMA)
+    table = table.replace_schema_metadata({DROPPED_KEY: str(dropped).encode()})
+    return rows_to_table(failures, FAILURE_SCHEMA), table
+
+
 def build_chunk(config: BuildConfig, task: ChunkTask) -> ChunkResult:
     """Build chunk ``task`` in this process (its context open: ``worker.open_context``) and
     write its shard into ``config.output.dir``; WorkerStartError when the context could not
@@ -147,7 +179,8 @@ def build_chunk(config: BuildConfig, task: ChunkTask) -> ChunkResult:
                 continue
             name = r.row["label_path"]
             if r.key in first:
-                outcomes.append(Outcome("duplicate", name, r.key))
+                row = duplicate_row(name, r.key, first[r.key])
+                outcomes.append(Outcome("duplicate", name, r.key, row))
                 continue
             first[r.key] = name
             if drop and r.row["split"] == BUFFER:
@@ -165,6 +198,12 @@ def build_chunk(config: BuildConfig, task: ChunkTask) -> ChunkResult:
     if shard is not None:
         shard.close()
         size = shard.path.stat().st_size
+    _, manifest_part, failures_part = part_paths(out, task.index)
+    failures, manifest = part_tables(outcomes)
+    staged = (
+        write_parquet_staged(failures, failures_part).relative_to(out).as_posix(),
+        write_parquet_staged(manifest, manifest_part).relative_to(out).as_posix(),
+    )
     return ChunkResult(
         task.index,
         tuple(outcomes),
@@ -172,23 +211,35 @@ def build_chunk(config: BuildConfig, task: ChunkTask) -> ChunkResult:
         size,
         time.perf_counter() - start,
         f"{os.uname().nodename}:{os.getpid()}",
+        staged,
     )
 
 
-def rewrite_shard(out: Path, result: ChunkResult, drop: set[str]) -> ChunkResult:
-    """``result`` with the samples keyed in ``drop`` taken out of its shard: the shard is
-    written again without them (atomically, over the worker's) and the other samples'
-    locations and rows follow; the shard is removed when no sample is left. Dropped
-    outcomes become ``duplicate``."""
-    assert result.shard is not None
+def resolve_duplicates(out: Path, result: ChunkResult, seen: dict[str, str]) -> ChunkResult:
+    """``result`` with every sample whose key an earlier chunk built (``seen``: key -> the
+    label it was built from) turned into a ``duplicate`` outcome; when one was written, the
+    shard is written again without it (atomically, over the worker's; removed when no
+    sample is left) and the other samples' locations and rows follow. The staged parts are
+    removed (``staged`` None: the driver writes the parts)."""
+    final = [
+        Outcome("duplicate", o.label, o.key, duplicate_row(o.label, o.key, seen[o.key]))
+        if o.kind != "fail" and o.key in seen
+        else o
+        for o in result.outcomes
+    ]
+    for rel in result.staged or ():
+        (out / rel).unlink(missing_ok=True)
+    result = replace(result, staged=None)
+    written = [o.kind == "ok" for o in result.outcomes]
+    if result.shard is None or sum(o.kind == "ok" for o in final) == sum(written):
+        return replace(result, outcomes=tuple(final))
     path = out / result.shard
     kept: list[Outcome] = []
     shard: ShardWriter | None = None
     try:
-        for o in result.outcomes:
-            if o.kind != "ok" or o.key in drop:
-                kind = "duplicate" if o.kind == "ok" else o.kind
-                kept.append(replace(o, kind=kind, row={} if kind == "duplicate" else o.row))
+        for o in final:
+            if o.kind != "ok":
+                kept.append(o)
                 continue
             members = {
                 name: read_member(out, loc, name=f"{o.key}.{name}", verify=True)
