@@ -6,14 +6,13 @@ from pathlib import Path
 
 import pytest
 from hypothesis import settings
+from real_samples import SAMPLES
 
 # Property tests give the same verdict on every machine: examples come from a fixed seed
 # (derandomize) and no example database carries failures from one run to the next; every
 # bug hypothesis found is kept as an explicit example in the tests.
 settings.register_profile("mars-pairs", derandomize=True, database=None, deadline=None)
 settings.load_profile("mars-pairs")
-
-SAMPLES = Path(__file__).resolve().parents[1].parent / "shared" / "pds-samples"
 
 
 @pytest.fixture(scope="session")
@@ -22,13 +21,6 @@ def samples_dir() -> Path:
     if not SAMPLES.is_dir():
         pytest.skip(f"real PDS samples not found at {SAMPLES} (../shared beside the checkout)")
     return SAMPLES
-
-
-def sample_labels() -> list[Path]:
-    """Every real label in the samples folder (empty when it is absent)."""
-    if not SAMPLES.is_dir():
-        return []
-    return sorted(SAMPLES.glob("msl/*.LBL")) + sorted(SAMPLES.glob("m2020/*.xml"))
 
 
 @pytest.fixture(scope="session")

@@ -68,12 +68,9 @@ def _cmd_build(args: argparse.Namespace) -> int:
     if args.out:
         config = replace(config, output=replace(config.output, dir=Path(args.out).resolve()))
     if args.dry_run:  # lists, chunks and checks; writes nothing (nor a synthetic mission)
-        from mars_pairs.pipeline.build import check_clearable
         from mars_pairs.pipeline.plan import plan_build
 
-        plan = plan_build(config, resume=args.resume, limit=args.limit)
-        if plan.clears:  # the build would refuse to clear a folder of other files
-            check_clearable(plan.out_dir)
+        plan = plan_build(config, resume=args.resume, limit=args.limit, generate=True)
         print(plan.format())
         return 0
     _ensure_synthetic(config)
@@ -213,7 +210,11 @@ def _cmd_report(args: argparse.Namespace) -> int:
 def _cmd_export_qgis(args: argparse.Namespace) -> int:
     from mars_pairs.cli.qgis import export_geopackage
 
-    print(export_geopackage(args.dataset, args.out, with_viewsheds=args.viewsheds))
+    print(
+        export_geopackage(
+            args.dataset, args.out, with_viewsheds=args.viewsheds, with_chips=args.chips
+        )
+    )
     return 0
 
 
@@ -387,6 +388,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dataset", help="dataset folder")
     p.add_argument("out", help="output .gpkg")
     p.add_argument("--viewsheds", action="store_true", help="also write viewshed GeoTIFFs")
+    p.add_argument(
+        "--chips",
+        action="store_true",
+        help="also write every sample's ortho, DEM and viewshed chips as GeoTIFFs (NAME_chips/)",
+    )
     p.set_defaults(func=_cmd_export_qgis)
 
     from mars_pairs.fetch.cli import add_fetch_parser

@@ -1,4 +1,5 @@
-"""``mars-pairs export-qgis``: a GeoPackage of rover positions, footprints and camera wedges."""
+"""``mars-pairs export-qgis``: a GeoPackage of rover positions, footprints and camera wedges;
+with ``--chips``, every sample's chips (ortho, DEM, viewshed) as georeferenced GeoTIFFs."""
 
 from __future__ import annotations
 
@@ -41,12 +42,16 @@ def _layer(rows: list[dict[str, Any]], geometries: list[Any]) -> pa.Table:
     return table.append_column("geometry", pa.array(shapely.to_wkb(geometries), pa.binary()))
 
 
-def export_geopackage(root: str | Path, out: str | Path, with_viewsheds: bool = False) -> Path:
+def export_geopackage(
+    root: str | Path, out: str | Path, with_viewsheds: bool = False, with_chips: bool = False
+) -> Path:
     """Write ``out`` (.gpkg) with layers rover_positions, footprints, camera_wedges.
 
     Geometries are in the dataset CRS; attributes come from the manifest. With
     ``with_viewsheds``, each sample's viewshed chip is written as ``KEY_viewshed.tif`` in the
-    folder ``viewsheds_folder(out)`` beside it.
+    folder ``viewsheds_folder(out)`` beside it; with ``with_chips``, its ortho, DEM and
+    viewshed chips as ``KEY_ortho.tif``, ``KEY_dem.tif``, ``KEY_viewshed.tif`` in
+    ``chips_folder(out)`` (``export_chips``).
     """
     from pyogrio.raw import write_arrow
 
@@ -87,6 +92,8 @@ def export_geopackage(root: str | Path, out: str | Path, with_viewsheds: bool = 
     os.replace(tmp, out)
     if with_viewsheds:
         _write_viewsheds(root, rows, viewsheds_folder(out), crs)
+    if with_chips:
+        export_chips(root, chips_folder(out), rows, crs)
     return out
 
 
@@ -108,6 +115,91 @@ def viewsheds_folder(out: str | Path) -> Path:
     """The folder of the viewshed GeoTIFFs written beside ``out`` (``NAME_viewsheds``)."""
     out = Path(out)
     return out.with_name(f"{out.stem}_viewsheds")
+
+
+def chips_folder(out: str | Path) -> Path:
+    """The folder of the chip GeoTIFFs written beside ``out`` (``NAME_chips``)."""
+    out = Path(out)
+    return out.with_name(f"{out.stem}_chips")
+
+
+def _member(root: Path, row: dict[str, Any], name: str) -> bytes:
+    loc = MemberLocation(row[f"{name}_shard"], row[f"{name}_offset"], row[f"{name}_size"])
+    return read_member(root, loc)
+
+
+def export_chips(
+    root: str | Path,
+    folder: str | Path,
+    rows: list[dict[str, Any]] | None = None,
+    crs: str | None = None,
+) -> list[Path]:
+    """Write each sample's chips as GeoTIFFs in ``folder``: ``KEY_ortho.tif`` (uint8, the
+    ortho member's values), ``KEY_dem.tif`` (float32 metres, NaN no data) and
+    ``KEY_viewshed.tif`` (1 visible, 0 hidden, colour table), on the chip grid of meta.json's
+    ``chip_transform`` (affine: chip pixel column, row from the top-left edge -> map x, y;
+    rotated for heading-up chips) in the dataset CRS (dataset.json); written atomically.
+    ``rows``: the manifest rows (None: every sample). Returns the paths written."""
+    from affine import Affine
+
+    from mars_pairs.raster.viewshed_tiff import write_viewshed_geotiff
+
+    root, folder = Path(root), Path(folder)
+    if rows is None:
+        rows = Manifest.open(root).require().to_table().to_pylist()
+    if crs is None:
+        crs = _dataset_crs(root)
+    folder.mkdir(parents=True, exist_ok=True)
+    written = []
+    for row in rows:
+        meta = json.loads(_member(root, row, "meta"))
+        transform = Affine(*meta["chip_transform"])
+        ortho = np.asarray(Image.open(io.BytesIO(_member(root, row, "ortho"))))
+        if ortho.ndim == 3:
+            ortho = ortho[..., 0]
+        dem = np.load(io.BytesIO(_member(root, row, "dem")), allow_pickle=False)
+        view = np.asarray(Image.open(io.BytesIO(_member(root, row, "viewshed"))))
+        key = row["key"]
+        for name, array, nodata in (
+            ("ortho", ortho.astype(np.uint8), None),
+            ("dem", dem.astype(np.float32), float("nan")),
+        ):
+            path = folder / f"{key}_{name}.tif"
+            _write_geotiff(path, array, transform, crs, nodata, f"{name} chip of {key}")
+            written.append(path)
+        path = folder / f"{key}_viewshed.tif"
+        write_viewshed_geotiff(path, (view > 0).astype(np.uint8), transform, crs)
+        written.append(path)
+    return written
+
+
+def _write_geotiff(
+    path: Path, array: np.ndarray, transform: Any, crs: str, nodata: float | None, what: str
+) -> None:
+    """One band GeoTIFF of ``array`` on ``transform`` in ``crs``, written atomically."""
+    import rasterio
+
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    profile = {
+        "driver": "GTiff",
+        "width": array.shape[1],
+        "height": array.shape[0],
+        "count": 1,
+        "dtype": array.dtype.name,
+        "crs": crs,
+        "transform": transform,
+        "compress": "deflate",
+    }
+    if nodata is not None:
+        profile["nodata"] = nodata
+    try:
+        with rasterio.open(tmp, "w", **profile) as dst:
+            dst.write(array, 1)
+            dst.set_band_description(1, what)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    os.replace(tmp, path)
 
 
 def _write_viewsheds(root: Path, rows: list[dict[str, Any]], folder: Path, crs: str) -> None:

@@ -16,7 +16,11 @@ import shapely
 from mars_pairs.errors import MarsPairsError
 from mars_pairs.geometry.body import MARS_LONLAT_AUTHORITY
 from mars_pairs.geometry.frames import map_to_lonlat
+from mars_pairs.store.geoparquet import GEOMETRY_COLUMNS, table_geo_metadata
 from mars_pairs.store.manifest import Manifest, write_parquet_atomic
+
+#: Columns of WKB or struct values, left out of CSV and GeoJSON properties.
+NOT_PLAIN = (*GEOMETRY_COLUMNS, "bbox")
 
 SHOWN = (
     "key",
@@ -142,11 +146,11 @@ def _geojson(table: pa.Table, crs: str | None) -> str:
     """
     features = []
     for row in table.to_pylist():
-        wkb = row.pop("footprint", None)
+        wkb = row.get("footprint")
         props = {
             k: (v.isoformat() if hasattr(v, "isoformat") else v)
             for k, v in row.items()
-            if not k.endswith(("_shard", "_offset", "_size", "_crc32c"))
+            if not k.endswith(("_shard", "_offset", "_size", "_crc32c")) and k not in NOT_PLAIN
         }
         if wkb and crs is not None:
             geom = shapely.transform(shapely.from_wkb(wkb), lambda xy: _lonlat(xy, crs))
@@ -167,17 +171,23 @@ def _lonlat(xy: np.ndarray, crs: str) -> np.ndarray:
 def run_query(
     dataset: str | Path, filters: dict[str, Any], fmt: str = "table", out: str | None = None
 ) -> int:
-    """Print (or write to ``out``) the rows matching ``filters``, as table/csv/parquet/geojson."""
+    """Print (or write to ``out``) the rows matching ``filters``, as table/csv/parquet/geojson.
+
+    Parquet is GeoParquet 1.1 (``store.geoparquet``: the manifest's geometry columns in the
+    dataset CRS, named); GeoJSON is longitude/latitude on the Mars sphere (IAU_2015:49900)."""
     manifest = Manifest.open(dataset).require()
     table = manifest.filter(**filters).to_table()
     if fmt == "parquet":
         if not out:
             raise MarsPairsError("--format parquet needs --out FILE")
+        crs = manifest.crs
+        if crs is not None:
+            table = table.replace_schema_metadata(table_geo_metadata(table, crs))
         write_parquet_atomic(table, Path(out))
         print(f"{out}: {table.num_rows} rows")
         return 0
     if fmt == "csv":
-        text = _csv(table.drop_columns(["footprint", "bbox"]))
+        text = _csv(table.drop_columns([c for c in NOT_PLAIN if c in table.column_names]))
     elif fmt == "geojson":
         text = _geojson(table, manifest.crs)
     else:

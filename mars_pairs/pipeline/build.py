@@ -5,10 +5,12 @@ Labels are streamed in one total order (``pipeline.label_list``) and cut into ch
 ``shards/shard-{k:06d}.tar`` plus ``parts/manifest-{k:06d}.parquet`` and
 ``parts/failures-{k:06d}.parquet``. The manifest part is renamed into place last and marks the
 chunk done, so a killed build rerun with ``resume`` redoes only unfinished chunks, and the
-output is the same whatever the worker count. The labels are never held: a planning pass
-counts them and sums their fingerprint (the stamp), the build pass streams them again to the
-engine, chunk by chunk. The engine's workers write the shards (``pipeline.engine``); the driver
-receives rows only, and commits the chunks in order.
+output is the same whatever the worker count. A finished build writes the folder's card
+(``pipeline.finish``) and removes ``parts/`` last (``output.keep_parts`` keeps it); its stamp
+lives on in dataset.json, so ``--resume`` over it does nothing. The labels are never held: a
+planning pass counts them and sums their fingerprint (the stamp), the build pass streams them
+again to the engine, chunk by chunk. The engine's workers write the shards and stage the parts
+(``pipeline.engine``); the driver receives rows only, and commits the chunks in order.
 """
 
 from __future__ import annotations
@@ -34,19 +36,30 @@ from mars_pairs.pipeline.engine import (
     part_tables,
     resolve_duplicates,
 )
-from mars_pairs.pipeline.finish import merge_parts, write_dataset_json
+from mars_pairs.pipeline.finish import (
+    finished_summary,
+    merge_parts,
+    write_card,
+    write_dataset_json,
+)
 from mars_pairs.pipeline.local_pool import LocalPool
 from mars_pairs.pipeline.outputs import (
     LabelDigest,
     built_keys,
     clear_outputs,
     dropped_count,
-    foreign_file,
     part_paths,
+    remove_parts,
     remove_temporaries,
     stamp_path,
 )
-from mars_pairs.pipeline.plan import chunks_of, is_done, labels_of, plan_build
+from mars_pairs.pipeline.plan import (
+    check_clearable,
+    chunks_of,
+    is_done,
+    labels_of,
+    plan_build,
+)
 from mars_pairs.pipeline.worker import WorkerStartError  # noqa: F401  (re-exported)
 from mars_pairs.store.manifest import write_parquet_atomic
 from mars_pairs.store.shards import atomic_write_bytes
@@ -93,19 +106,6 @@ def check_input_files(config: BuildConfig) -> None:
         check_regular(getattr(inputs, key), f"inputs.{key}")
     if inputs.images is not None:
         check_regular(inputs.images, "inputs.images", folder=True)
-
-
-def check_clearable(out: Path) -> None:
-    """ConfigError unless a build may clear ``out``: absent, empty, or holding only what an
-    earlier mars-pairs build wrote there, as its stamp lists (``outputs.foreign_file``). A
-    folder holding anything else is refused whole: nothing in it is removed."""
-    foreign = foreign_file(out)
-    if foreign is not None:
-        raise ConfigError(
-            f"output.dir: {out} holds {foreign}, which no mars-pairs build stamp there lists; "
-            "refusing to clear the folder (nothing was removed): build into a new or empty "
-            "folder (--out), or remove what is not the dataset's"
-        )
 
 
 def _in_process(config: BuildConfig, chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
@@ -214,9 +214,10 @@ def _run(
 ) -> BuildSummary:
     """run_build's work, its arguments checked and its workers starting."""
     out = config.output.dir
-    plan = plan_build(config, resume=resume, limit=limit)  # checks; the labels' first pass
-    if plan.clears:
-        check_clearable(out)
+    # checks (the inputs, the stamp, the folder's files); the labels' first pass
+    plan = plan_build(config, resume=resume, limit=limit)
+    if plan.finished:
+        return finished_summary(config, plan, start)
     out.mkdir(parents=True, exist_ok=True)
     remove_temporaries(out)  # of a killed build
     if plan.clears:
@@ -275,6 +276,11 @@ def _run(
         seconds=time.perf_counter() - start,
         stage_seconds=dict(stage_seconds),
     )
-    write_dataset_json(config, summary, manifest, dropped_count(out, plan.chunks))
+    doc = write_dataset_json(
+        config, summary, manifest, dropped_count(out, plan.chunks), plan.fingerprint
+    )
     write_wids_index(out, manifest)
+    write_card(config, manifest, doc)
+    if not config.output.keep_parts:
+        remove_parts(out, plan.chunks)  # the last step: a kill before it resumes
     return summary

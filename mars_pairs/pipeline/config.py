@@ -100,11 +100,18 @@ class ChipsConfig:
 
 @dataclass(frozen=True)
 class OutputConfig:
-    """Dataset folder, samples per shard and the encoding of decoded (IMG) ground images."""
+    """Dataset folder, samples per shard and the encoding of decoded (IMG) ground images.
+
+    ``license``: the SPDX id the dataset card and croissant.json give (None: CC0-1.0 for
+    NASA PDS data, public domain; the project's MIT for the synthetic mission).
+    ``keep_parts``: keep ``parts/`` (the chunk parts and build stamp) after a finished build,
+    so that deleting a chunk's part and resuming redoes that chunk alone."""
 
     dir: Path
     shard_size: int = 64
     image_encoding: str = "png"
+    license: str | None = None
+    keep_parts: bool = False
 
 
 @dataclass(frozen=True)
@@ -182,7 +189,7 @@ def _inputs(data: Any, base: Path) -> InputsConfig:
         )
     return InputsConfig(
         labels=tuple(str(base / Path(p).expanduser()) for p in labels),
-        places=sec.path("places", base),  # type: ignore[arg-type]
+        places=sec.path("places", base, folder=False),  # type: ignore[arg-type]
         dem=sec.raster("dem", base),
         ortho=sec.raster("ortho", base),
         images=sec.path("images", base, None),
@@ -292,7 +299,17 @@ def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConf
     min_coverage = chips.number("min_coverage", DEFAULT_MIN_COVERAGE, positive=False, maximum=1.0)
     if min_coverage < 0.0:
         raise ConfigError(f"chips.min_coverage: expected a fraction in [0, 1], got {min_coverage}")
-    out = Section(top.raw("output"), "output", {"dir", "shard_size", "image_encoding"})
+    out = Section(
+        top.raw("output"),
+        "output",
+        {"dir", "shard_size", "image_encoding", "license", "keep_parts"},
+    )
+    license = out.raw("license", None)
+    if license is not None and (not isinstance(license, str) or not license.strip()):
+        raise ConfigError(f"output.license: expected an SPDX licence id, got {license!r}")
+    keep_parts = out.raw("keep_parts", False)
+    if not isinstance(keep_parts, bool):
+        raise ConfigError(f"output.keep_parts: expected true or false, got {keep_parts!r}")
     return BuildConfig(
         inputs=_inputs(top.raw("inputs"), base),
         geometry=GeometryConfig(
@@ -312,6 +329,8 @@ def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConf
             dir=out.path("dir", base),  # type: ignore[arg-type]
             shard_size=out.integer("shard_size", 64),
             image_encoding=out.choice("image_encoding", IMAGE_ENCODINGS, "png"),
+            license=license,
+            keep_parts=keep_parts,
         ),
         splits=_splits(top.raw("splits", {})),
         source=source,

@@ -139,16 +139,16 @@ class Section:
         if isinstance(value, str) and is_remote(value):
             use_remote_defaults()
             return gdal_path(value)
-        return self.path(key, base)  # type: ignore[return-value]
+        return self.path(key, base, folder=False)  # type: ignore[return-value]
 
-    def path(self, key: str, base: Path, default: Any = ...) -> Path | None:
+    def path(self, key: str, base: Path, default: Any = ..., *, folder: bool = True) -> Path | None:
         """A path, relative to ``base``; ConfigError if it names a FIFO, a socket or a device
-        (``check_regular``: a regular file or a folder, or absent)."""
+        (``check_regular``: a regular file, a folder when ``folder``, or absent)."""
         value = self.raw(key, default)
         if value is None:
             return None
         if not isinstance(value, str) or not value:
             raise ConfigError(f"{self._name(key)}: expected a path, got {shown(value)}")
         resolved = (base / Path(value).expanduser()).resolve()
-        check_regular(resolved, self._name(key), folder=True)
+        check_regular(resolved, self._name(key), folder=folder)
         return resolved

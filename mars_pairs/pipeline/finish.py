@@ -1,20 +1,37 @@
-"""The end of a build: chunk parts merged into manifest.parquet and failures.parquet, and
-dataset.json."""
+"""The end of a build: chunk parts merged into manifest.parquet and failures.parquet, then the
+files that explain the folder (dataset.json, README.md, croissant.json), then ``parts/`` goes
+(``outputs.remove_parts``).
+
+Every path written in the folder is relative to it: dataset.json's config names its inputs
+relative to the dataset folder as they were at build time, the manifest's ``label_path`` is
+relative to the labels root (``labels_root``), croissant.json's files relative to the folder;
+moving the folder keeps it whole."""
 
 from __future__ import annotations
 
 import json
+import os
 import platform
+import time
 from collections import Counter
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mars_pairs.pipeline.config import BuildConfig
-from mars_pairs.pipeline.outputs import part_paths
+from mars_pairs.pipeline.outputs import (
+    FINISHED_KEY,
+    part_paths,
+    remove_empty_parts,
+    stamp_digest,
+)
+from mars_pairs.pipeline.record import labels_root
 from mars_pairs.pipeline.splitting import splits_report
-from mars_pairs.store.geoparquet import footprints_bbox, geo_metadata
+from mars_pairs.store.card import CardFacts, dataset_card, default_license
+from mars_pairs.store.croissant import croissant_metadata, dataset_description, sha256_of
+from mars_pairs.store.geoparquet import crs_name, named_crs, table_geo_metadata
 from mars_pairs.store.manifest import (
     FAILURE_SCHEMA,
     MANIFEST_SCHEMA,
@@ -24,6 +41,13 @@ from mars_pairs.store.shards import atomic_write_bytes
 
 if TYPE_CHECKING:
     from mars_pairs.pipeline.build import BuildSummary
+    from mars_pairs.pipeline.plan import BuildPlan
+
+#: What dataset.json says of its paths.
+PATHS_NOTE = (
+    "config paths are relative to this dataset folder, as they were when it was built "
+    "(inputs stay where they were; a moved folder still reads whole: it needs none of them)"
+)
 
 
 def merge_parts(config: BuildConfig, n_chunks: int) -> tuple[pa.Table, pa.Table]:
@@ -35,7 +59,7 @@ def merge_parts(config: BuildConfig, n_chunks: int) -> tuple[pa.Table, pa.Table]
     manifest = manifest.sort_by([("hilbert", "ascending"), ("key", "ascending")])
     failures = pa.concat_tables(fails) if fails else FAILURE_SCHEMA.empty_table()
     crs = dataset_crs(config)
-    manifest = manifest.replace_schema_metadata(geo_metadata(crs, footprints_bbox(manifest)))
+    manifest = manifest.replace_schema_metadata(table_geo_metadata(manifest, crs))
     write_parquet_atomic(manifest, out / "manifest.parquet", row_group_size=1024)
     write_parquet_atomic(failures, out / "failures.parquet")
     return manifest, failures
@@ -48,9 +72,49 @@ def dataset_crs(config: BuildConfig) -> str:
         return src.crs.to_wkt()
 
 
+def named_wkt(crs: str) -> str:
+    """``crs`` as WKT with the names ``geoparquet.named_crs`` gives it (the same CRS)."""
+    from pyproj import CRS
+
+    return str(CRS.from_json_dict(named_crs(crs)).to_wkt("WKT1_GDAL"))
+
+
+def relative_config(config: BuildConfig) -> dict[str, Any]:
+    """``config.to_dict()`` with every local path relative to the dataset folder (POSIX
+    separators); remote rasters (GDAL ``/vsi...`` paths) as given; ``output.dir`` is ``.``."""
+    out = config.output.dir
+
+    def rel(value: Any) -> Any:
+        if value is None or (isinstance(value, str) and value.startswith("/vsi")):
+            return value
+        return Path(os.path.relpath(str(value), out)).as_posix()
+
+    doc = config.to_dict()
+    inputs = doc["inputs"]
+    inputs["labels"] = [rel(p) for p in inputs["labels"]]
+    for key in ("places", "dem", "ortho", "images"):
+        inputs[key] = rel(inputs.get(key))
+    if isinstance(inputs.get("synthetic"), dict):
+        inputs["synthetic"]["root"] = rel(inputs["synthetic"].get("root"))
+    doc["output"]["dir"] = "."
+    doc["source"] = rel(doc.get("source"))
+    return doc
+
+
+def license_of(config: BuildConfig) -> str:
+    """``output.license``, or the default for the inputs (``card.default_license``)."""
+    return config.output.license or default_license(config.inputs.synthetic is not None)
+
+
 def write_dataset_json(
-    config: BuildConfig, summary: BuildSummary, manifest: pa.Table, dropped: int
-) -> None:
+    config: BuildConfig,
+    summary: BuildSummary,
+    manifest: pa.Table,
+    dropped: int,
+    fingerprint: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Write dataset.json (with the finished build's ``build_stamp`` when ``fingerprint``,
+    the build's stamp, is given); returns the document."""
     import numba
     import numpy
     import pyarrow
@@ -62,8 +126,14 @@ def write_dataset_json(
     if manifest.num_rows:
         counts["by_split"] = dict(Counter(manifest.column("split").to_pylist()))
         counts["by_mission"] = dict(Counter(manifest.column("mission").to_pylist()))
-    doc = {
-        "config": config.to_dict(),
+    crs = named_wkt(dataset_crs(config))
+    out = config.output.dir
+    doc: dict[str, Any] = {
+        "config": relative_config(config),
+        "paths": PATHS_NOTE,
+        # the folder the manifest's label_path is relative to (relative to this folder)
+        "labels_root": Path(os.path.relpath(labels_root(config.inputs.labels), out)).as_posix(),
+        "license": license_of(config),
         "versions": {
             "mars_pairs": __version__,
             "numpy": numpy.__version__,
@@ -72,7 +142,8 @@ def write_dataset_json(
             "numba": numba.__version__,
             "python": platform.python_version(),
         },
-        "crs": dataset_crs(config),
+        "crs": crs,
+        "crs_name": crs_name(crs),
         "chip": {
             "size_m": config.chips.size_m,
             "size_px": config.chips.size_px,
@@ -83,4 +154,69 @@ def write_dataset_json(
         "failures_by_reason": summary.failures_by_reason,
         "build_seconds": round(summary.seconds, 3),
     }
-    atomic_write_bytes(config.output.dir / "dataset.json", json.dumps(doc, indent=2).encode())
+    if fingerprint is not None:
+        doc[FINISHED_KEY] = stamp_digest(fingerprint)
+    atomic_write_bytes(out / "dataset.json", json.dumps(doc, indent=2).encode())
+    return doc
+
+
+def write_card(config: BuildConfig, manifest: pa.Table, doc: dict[str, Any]) -> None:
+    """README.md (the dataset card) and croissant.json, from dataset.json's ``doc`` and the
+    manifest written (``manifest.parquet`` must be in place: croissant.json holds its hash)."""
+    from mars_pairs import __version__
+
+    out = config.output.dir
+    synthetic = config.inputs.synthetic is not None
+    schema = pq.read_schema(out / "manifest.parquet")
+    shards = sorted(p.name for p in (out / "shards").glob("shard-*.tar"))
+    facts = CardFacts(
+        version=__version__,
+        config=doc["config"],
+        counts=doc["counts"],
+        splits=doc.get("splits") or {},
+        crs_name=doc["crs_name"],
+        license=doc["license"],
+        synthetic=synthetic,
+        schema=schema,
+        shards=shards,
+        failures_by_reason=doc.get("failures_by_reason") or {},
+    )
+    atomic_write_bytes(out / "README.md", dataset_card(facts).encode())
+    meta = croissant_metadata(
+        name="mars-pairs-dataset",
+        description=dataset_description(doc["counts"], synthetic),
+        version=__version__,
+        license=doc["license"],
+        synthetic=synthetic,
+        schema=schema,
+        manifest_sha256=sha256_of(out / "manifest.parquet"),
+        missions=list(doc["counts"].get("by_mission") or {}),
+    )
+    atomic_write_bytes(out / "croissant.json", json.dumps(meta, indent=2).encode())
+
+
+def finished_summary(config: BuildConfig, plan: BuildPlan, start: float) -> BuildSummary:
+    """The summary of a ``--resume`` over a finished build of the same config: nothing is
+    built or written (an empty ``parts/`` left by a kill is removed)."""
+    from mars_pairs.pipeline.build import BuildSummary
+
+    out = config.output.dir
+    remove_empty_parts(out)
+    samples = pq.read_metadata(out / "manifest.parquet").num_rows
+    failures = pq.read_table(out / "failures.parquet", columns=["stage", "error_type"])
+    reasons = Counter(
+        f"{s} ({e})"
+        for s, e in zip(
+            failures["stage"].to_pylist(), failures["error_type"].to_pylist(), strict=True
+        )
+    )
+    return BuildSummary(
+        out_dir=out,
+        samples=samples,
+        failures=failures.num_rows,
+        failures_by_reason=dict(reasons),
+        chunks_built=0,
+        chunks_resumed=plan.chunks,
+        seconds=time.perf_counter() - start,
+        stage_seconds={},
+    )

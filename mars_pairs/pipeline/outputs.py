@@ -1,10 +1,18 @@
 """What a build keeps in its output folder: chunk part paths, the build stamp, clearing.
 
-The stamp (``parts/build.json``) holds the fingerprint of the build that wrote the parts; a
-resumed build must match it. It also lists what that build writes: its label count and
-``output.shard_size`` give its chunks, and ``written_by`` names their files. A build clears
-only those (and its own temporary files): a folder holding anything else is refused, untouched
-(``foreign_file``). Clearing is ordered so that a kill at any point resumes.
+The stamp (``parts/build.json``) holds the fingerprint of the build that wrote the parts (its
+config, its label list, and its other inputs: the PLACES table, the DEM and the ortho, with a
+VRT's source tiles); a resumed build must match it. It also lists what that build writes: its
+label count and ``output.shard_size`` give its chunks, and ``written_by`` names their files.
+A build clears only those (and its own temporary files), and a resumed build keeps only
+those: a folder holding anything else is refused, untouched (``foreign_file``). A shard or
+failure part of an unfinished chunk must read as one a build writes (a tar of
+``<key>.<field>`` members, a parquet file of the failure columns). Clearing is ordered so
+that a kill at any point resumes.
+
+A finished build removes ``parts/`` (``remove_parts``, unless ``output.keep_parts``): its stamp
+lives on as ``build_stamp`` in dataset.json (``finished_stamp``: the label count, shard size and
+the SHA-256 of the fingerprint, no paths), written before the parts go.
 """
 
 from __future__ import annotations
@@ -13,6 +21,8 @@ import hashlib
 import json
 import os
 import re
+import tarfile
+import xml.etree.ElementTree as ET
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
@@ -20,6 +30,7 @@ from typing import Any
 import pyarrow.parquet as pq
 
 from mars_pairs.pipeline.config import BuildConfig
+from mars_pairs.store.manifest import FAILURE_SCHEMA
 from mars_pairs.store.wids_index import WIDS_INDEX
 
 DROPPED_KEY = b"mars_pairs:dropped_in_buffer"
@@ -33,7 +44,11 @@ BUILD_FILES = (
     "failures.parquet",
     "dataset.json",
     WIDS_INDEX,
+    "README.md",
+    "croissant.json",
 )
+#: dataset.json's key holding the stamp of the finished build (``stamp_digest``).
+FINISHED_KEY = "build_stamp"
 _CHUNK_FILE = re.compile(
     r"(shards/shard-([0-9]{6,})\.tar|parts/(?:manifest|failures)-([0-9]{6,})\.parquet)"
 )
@@ -86,9 +101,121 @@ class LabelDigest:
         return self._sha.hexdigest()
 
 
+#: Files up to this size are fingerprinted by content (sha256), larger ones by size and mtime.
+HASHED_BYTES = 4 << 20
+#: The inputs besides the labels whose files a resumed build must find unchanged.
+INPUT_KEYS = ("places", "dem", "ortho")
+
+
+#: The most bytes of a VRT read for its source list.
+VRT_BYTES = 64 << 20
+
+
+def file_fingerprint(path: Path | str, *, depth: int = 0) -> dict[str, Any]:
+    """What identifies the input file ``path``: its path, and its size and sha256 (a file
+    of up to ``HASHED_BYTES``) or its size and ``st_mtime_ns`` (a larger one); a VRT also
+    lists its source files' (``SourceFilename``, relative to the VRT when it says so; a VRT
+    of VRTs to 4 levels). A URL or GDAL ``/vsi`` path: the string only; an absent or
+    unreadable file: ``missing`` (the error's words)."""
+    text = str(path)
+    if text.startswith("/vsi") or "://" in text:
+        return {"path": text}
+    is_vrt = text.lower().endswith(".vrt")
+    try:
+        st = os.stat(text)
+        doc: dict[str, Any] = {"path": text, "size": st.st_size}
+        data = b""
+        if st.st_size <= HASHED_BYTES or is_vrt:
+            with open(text, "rb") as fh:
+                data = fh.read(max(HASHED_BYTES, VRT_BYTES if is_vrt else 0) + 1)
+        if st.st_size <= HASHED_BYTES:
+            doc["sha256"] = hashlib.sha256(data).hexdigest()
+        else:
+            doc["mtime_ns"] = st.st_mtime_ns
+    except OSError as exc:
+        return {"path": text, "missing": exc.strerror or type(exc).__name__}
+    if is_vrt and data and depth < 4:
+        sources = vrt_sources(Path(text), data)
+        doc["sources"] = [file_fingerprint(src, depth=depth + 1) for src in sources]
+    return doc
+
+
+def vrt_sources(vrt: Path, data: bytes) -> list[str]:
+    """The distinct ``SourceFilename`` paths of the VRT ``vrt`` (its bytes ``data``), in
+    order: relative ones (``relativeToVRT="1"``) joined to the VRT's folder; [] when the
+    bytes are not VRT XML (what opens the raster says why)."""
+    try:
+        root = ET.fromstring(data)
+    except ET.ParseError:
+        return []
+    seen: dict[str, None] = {}
+    for el in root.iter("SourceFilename"):
+        name = (el.text or "").strip()
+        if not name:
+            continue
+        relative = el.get("relativeToVRT", "0") == "1"
+        if relative and not (name.startswith("/vsi") or "://" in name):
+            name = str(vrt.parent / name)
+        seen.setdefault(name, None)
+    return list(seen)
+
+
+def inputs_fingerprint(config: BuildConfig) -> dict[str, Any]:
+    """``file_fingerprint`` of each input besides the labels (``INPUT_KEYS``)."""
+    return {key: file_fingerprint(getattr(config.inputs, key)) for key in INPUT_KEYS}
+
+
+def _change(before: Any, after: Any) -> str:
+    """What differs between two file fingerprints, in words."""
+    if not (isinstance(before, dict) and isinstance(after, dict)):
+        return "not recorded"
+    if before.get("path") != after.get("path"):
+        return f"path {before.get('path')} -> {after.get('path')}"
+    if "missing" in after:
+        return f"now missing ({after['missing']})"
+    if "missing" in before:
+        return "absent then, present now"
+    parts = []
+    if before.get("size") != after.get("size"):
+        parts.append(f"size {before.get('size')} -> {after.get('size')} bytes")
+    if before.get("sha256") != after.get("sha256"):
+        old, new = (str(d.get("sha256", "none"))[:12] for d in (before, after))
+        parts.append(f"content (sha256 {old}... -> {new}...)")
+    if before.get("mtime_ns") != after.get("mtime_ns"):
+        parts.append(f"mtime_ns {before.get('mtime_ns')} -> {after.get('mtime_ns')}")
+    old_src, new_src = before.get("sources", []), after.get("sources", [])
+    if [s.get("path") for s in old_src] != [s.get("path") for s in new_src]:
+        parts.append(f"its source files ({len(old_src)} then, {len(new_src)} now)")
+    else:
+        for a, b in zip(old_src, new_src, strict=True):
+            if a != b:
+                parts.append(f"source {b.get('path')}: {_change(a, b)}")
+                break
+    return "; ".join(parts) or "changed"
+
+
+def stamp_difference(previous: dict[str, Any], stamp: dict[str, Any]) -> str | None:
+    """Why a build of fingerprint ``stamp`` cannot resume one of ``previous`` (one phrase:
+    the config or label list, or the input and what changed); None when they match."""
+    for key in ("config", "labels", "count"):
+        if previous.get(key) != stamp.get(key):
+            return "the config or the label list changed since the interrupted build"
+    old, new = previous.get("inputs"), stamp.get("inputs", {})
+    if not isinstance(old, dict):
+        return "the interrupted build's stamp records no fingerprint of its inputs"
+    for key in INPUT_KEYS:
+        if old.get(key) != new.get(key):
+            return (
+                f"inputs.{key} changed since the interrupted build: {new[key].get('path')}: "
+                f"{_change(old.get(key), new[key])}"
+            )
+    return None if previous == stamp else "the build stamp differs"
+
+
 def fingerprint(config: BuildConfig, labels: Iterable[str | Path]) -> dict[str, Any]:
     """What a resumed build must share with the interrupted one: the config (without its
-    source and output folder) and the label list's digest and count, in one streaming pass."""
+    source and output folder), the label list's digest and count (in one streaming pass),
+    and the fingerprint of the other inputs (``inputs_fingerprint``)."""
     digest = LabelDigest()
     for label in labels:
         digest.add(str(label))
@@ -100,7 +227,12 @@ def stamp_of(config: BuildConfig, digest: LabelDigest) -> dict[str, Any]:
     doc = config.to_dict()
     doc.pop("source", None)
     doc["output"].pop("dir", None)
-    return {"config": doc, "labels": digest.hexdigest(), "count": digest.count}
+    return {
+        "config": doc,
+        "labels": digest.hexdigest(),
+        "count": digest.count,
+        "inputs": inputs_fingerprint(config),
+    }
 
 
 def read_stamp(stamp: Path) -> dict[str, Any] | None:
@@ -112,11 +244,34 @@ def read_stamp(stamp: Path) -> dict[str, Any] | None:
     return doc if isinstance(doc, dict) else None
 
 
+def stamp_digest(stamp: dict[str, Any]) -> dict[str, Any]:
+    """What dataset.json keeps of a build's fingerprint: its label count, shard size and the
+    SHA-256 of the fingerprint (canonical JSON), so that no input path is written there."""
+    text = json.dumps(stamp, sort_keys=True, separators=(",", ":")).encode()
+    return {
+        "count": stamp["count"],
+        "shard_size": stamp["config"]["output"]["shard_size"],
+        "sha256": hashlib.sha256(text).hexdigest(),
+    }
+
+
+def finished_stamp(out: Path) -> dict[str, Any] | None:
+    """The ``stamp_digest`` of the finished build in ``out`` (dataset.json's ``build_stamp``);
+    None when there is none."""
+    doc = read_stamp(out / "dataset.json")
+    digest = doc.get(FINISHED_KEY) if doc is not None else None
+    return digest if isinstance(digest, dict) else None
+
+
 def stamp_chunks(stamp: Any) -> int | None:
     """The chunk count of the build a stamp describes (its label count over its
-    ``output.shard_size``); None when ``stamp`` is not a build's fingerprint."""
+    ``output.shard_size``); None when ``stamp`` is not a build's fingerprint. A finished
+    build's dataset.json (its ``build_stamp``) describes that build."""
     try:
-        count, size = stamp["count"], stamp["config"]["output"]["shard_size"]
+        if isinstance(stamp, dict) and isinstance(stamp.get(FINISHED_KEY), dict):
+            count, size = stamp[FINISHED_KEY]["count"], stamp[FINISHED_KEY]["shard_size"]
+        else:
+            count, size = stamp["count"], stamp["config"]["output"]["shard_size"]
     except (KeyError, TypeError):
         return None
     ints = all(isinstance(v, int) and not isinstance(v, bool) for v in (count, size))
@@ -149,18 +304,22 @@ def is_temporary(rel: str) -> bool:
 def stamped_chunks(out: Path) -> int | None:
     """The chunks of the build(s) whose stamp the folder holds (the build's, and a clearing's
     left by a killed clearing); None when it holds no valid stamp."""
-    counts = [stamp_chunks(read_stamp(out / rel)) for rel in ("parts/build.json", CLEARING)]
+    stamps = ("parts/build.json", CLEARING, "dataset.json")
+    counts = [stamp_chunks(read_stamp(out / rel)) for rel in stamps]
     valid = [n for n in counts if n is not None]
     return max(valid) if valid else None
 
 
 def foreign_file(out: Path) -> str | None:
     """The first entry of ``out`` (sorted, relative, with ``/``) that the build that stamped
-    it did not write: a file it does not list, a symbolic link, a folder other than
-    ``shards`` and ``parts``; None when a build may clear the folder."""
+    it did not write: a file it does not list, a shard or failure part of an unfinished
+    chunk that does not read as one (``_as_built``; a finished build's chunks are all
+    finished, vouched for by its dataset.json), a symbolic link, a folder other than
+    ``shards`` and ``parts``; None when a build may clear or resume the folder."""
     if not out.is_dir():
         return None
     chunks = stamped_chunks(out)
+    finished = finished_stamp(out) is not None and not stamp_path(out).exists()
     for folder, dirs, files in os.walk(out):
         dirs.sort()
         rel_dir = os.path.relpath(folder, out).replace(os.sep, "/")
@@ -172,6 +331,8 @@ def foreign_file(out: Path) -> str | None:
                 return rel
             if not (written_by(chunks, rel) or is_temporary(rel)):
                 return rel
+            if not (finished or _as_built(out, rel)):
+                return rel
         for name in dirs:
             if (
                 prefix
@@ -180,6 +341,32 @@ def foreign_file(out: Path) -> str | None:
             ):
                 return prefix + name + "/"
     return None
+
+
+_MEMBER = re.compile(r"[^./]+\.[^/]+")  # <key>.<field> (``ShardWriter``)
+
+
+def _as_built(out: Path, rel: str) -> bool:
+    """Whether the chunk file ``rel`` reads as one a build writes, when its chunk is not
+    finished (no manifest part: no build vouches for it): a shard is a tar of regular
+    ``<key>.<field>`` members, a failure part a parquet file of the failure columns. Other
+    files: True. Reads tar headers and the parquet footer only."""
+    m = _CHUNK_FILE.fullmatch(rel)
+    if m is None or rel.startswith("parts/manifest-"):
+        return True
+    if part_paths(out, int(m[2] or m[3]))[1].exists():
+        return True
+    path = out / rel
+    if m[2] is not None:
+        try:
+            with tarfile.open(path, mode="r:") as tar:
+                return all(t.isreg() and _MEMBER.fullmatch(t.name) for t in tar)
+        except (OSError, tarfile.TarError):
+            return False
+    try:
+        return pq.read_schema(path).names == FAILURE_SCHEMA.names
+    except (OSError, ValueError):
+        return False
 
 
 def remove_temporaries(out: Path) -> None:
@@ -193,6 +380,25 @@ def remove_temporaries(out: Path) -> None:
             path = folder / name
             if is_temporary(sub + name) and path.is_file() and not path.is_symlink():
                 path.unlink()
+
+
+def remove_parts(out: Path, chunks: int) -> None:
+    """Remove ``parts/`` of a finished build (its dataset.json holds the stamp): the chunk
+    commit markers first, then the failure parts, the stamp, the folder. A kill at any point
+    resumes: a chunk without its manifest part is rebuilt, byte for byte."""
+    for k in range(chunks):
+        part_paths(out, k)[1].unlink(missing_ok=True)
+    for k in range(chunks):
+        part_paths(out, k)[2].unlink(missing_ok=True)
+    stamp_path(out).unlink(missing_ok=True)
+    remove_empty_parts(out)
+
+
+def remove_empty_parts(out: Path) -> None:
+    """Remove ``parts/`` when it is an empty folder."""
+    parts = out / "parts"
+    if parts.is_dir() and not parts.is_symlink() and not any(parts.iterdir()):
+        parts.rmdir()
 
 
 def built_keys(out: Path, done: Iterable[int]) -> dict[str, str]:
@@ -209,17 +415,23 @@ def clear_outputs(out: Path) -> None:
     has checked that the folder holds nothing else: ``foreign_file``), crash-safely. The
     stamp is renamed first (``parts/clearing.json``): a build killed at any point of the
     clearing leaves no build stamp, so its rerun (resumed or not) clears again, and the
-    renamed stamp still lists what is left. Then the dataset's own commit marker
-    (manifest.parquet) goes, so no reader sees a manifest whose shards are going; then the
-    chunk commit markers (manifest parts) before the failure parts and shards they vouch
-    for; the renamed stamp goes last."""
+    renamed stamp still lists what is left (a finished build's stamp is its dataset.json,
+    renamed the same way). Then the dataset's own commit marker (manifest.parquet) goes, so
+    no reader sees a manifest whose shards are going; then the chunk commit markers (manifest
+    parts) before the failure parts and shards they vouch for; the renamed stamp goes last."""
     chunks = stamped_chunks(out)
     stamp = stamp_path(out)
+    finished = out / "dataset.json"
     if stamp.is_file():
         os.replace(stamp, out / CLEARING)
+    elif finished_stamp(out) is not None and not (out / CLEARING).is_file():
+        (out / "parts").mkdir(exist_ok=True)
+        os.replace(finished, out / CLEARING)
     for pattern in (
         "manifest.parquet",
         "dataset.json",
+        "README.md",
+        "croissant.json",
         WIDS_INDEX,
         "failures.parquet",
         "parts/manifest-*.parquet",

@@ -3,9 +3,11 @@
 The labels are streamed (``pipeline.label_list``), never held: the plan is one pass that
 counts them and sums their fingerprint; chunk k is labels ``[k*S, (k+1)*S)`` of that order
 (S = ``output.shard_size``), so the chunk count and sizes follow from the count, and a chunk
-is done when its manifest part exists (and the build stamp matches, for ``--resume``). The
-driver's memory is flat in the number of labels (``benchmarks/bench_plan.py``). Planning
-writes nothing: ``mars-pairs build --dry-run`` prints the plan and stops.
+is done when its manifest part exists (and the build stamp matches, for ``--resume``: the
+config, the label list and the other inputs' files). The driver's memory is flat in the
+number of labels (``benchmarks/bench_plan.py``). Planning writes nothing: ``mars-pairs build
+--dry-run`` prints the plan and stops (a synthetic mission still to generate is planned from
+its preset, ``generate``).
 """
 
 from __future__ import annotations
@@ -18,8 +20,19 @@ from pathlib import Path
 from typing import Any
 
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline.config import BuildConfig
-from mars_pairs.pipeline.outputs import fingerprint, part_paths, read_stamp, stamp_path
+from mars_pairs.pipeline.config import BuildConfig, SyntheticSpec
+from mars_pairs.pipeline.outputs import (
+    fingerprint,
+    finished_stamp,
+    foreign_file,
+    part_paths,
+    read_stamp,
+    stamp_difference,
+    stamp_digest,
+    stamp_path,
+    stamped_chunks,
+    written_by,
+)
 from mars_pairs.pipeline.splitting import split_rule
 
 
@@ -41,6 +54,38 @@ def check_inputs(config: BuildConfig) -> None:
             raise ConfigError(f"inputs.{key}: cannot open {path}: {exc}") from None
     with rasterio.open(config.inputs.dem) as src:  # a split config error stops it here
         split_rule(config, src.crs.to_wkt(), tuple(src.bounds), src.res)
+
+
+def check_clearable(out: Path, *, resume: bool = False) -> None:
+    """ConfigError unless a build may clear (``resume``: resume in) ``out``: absent, empty, or
+    holding only what an earlier mars-pairs build wrote there, as its stamp lists
+    (``outputs.foreign_file``). A folder holding anything else is refused whole: nothing in
+    it is removed or overwritten."""
+    foreign = foreign_file(out)
+    if foreign is not None:
+        what = "resume in" if resume else "clear"
+        why = (
+            "which does not read as the file a mars-pairs build writes there"
+            if written_by(stamped_chunks(out), foreign)
+            else "which no mars-pairs build stamp there lists"
+        )
+        raise ConfigError(
+            f"output.dir: {out} holds {foreign}, {why}; "
+            f"refusing to {what} the folder (nothing was removed): build into a new or empty "
+            "folder (--out), or remove what is not the dataset's"
+        )
+
+
+def mission_pending(config: BuildConfig) -> SyntheticSpec | None:
+    """The config's synthetic mission when the build would generate it first (its DEM, its
+    PLACES table or every label absent); None otherwise."""
+    spec, inputs = config.inputs.synthetic, config.inputs
+    if spec is None:
+        return None
+    dem_there = not isinstance(inputs.dem, Path) or inputs.dem.exists()
+    if dem_there and inputs.places.exists() and next(inputs.iter_label_paths(), None):
+        return None
+    return spec
 
 
 def labels_of(config: BuildConfig, limit: int | None = None) -> Iterator[str]:
@@ -75,19 +120,32 @@ class BuildPlan:
     clears: bool  # the build clears the output folder first (no --resume, or no stamp)
     seconds: float  # planning wall time, s
     fingerprint: dict[str, Any] = field(repr=False, compare=False)  # the stamp it writes
+    finished: bool = False  # --resume over a finished build of the same config: nothing to do
+    mission: SyntheticSpec | None = None  # the synthetic mission generated first (labels: its)
 
     def format(self) -> str:
         """The plan as ``mars-pairs build --dry-run`` prints it."""
         if not self.resume:
             done = "no --resume: the build clears the folder and starts afresh"
+        elif self.finished:
+            done = "--resume: the build in the folder is finished, nothing to do"
         elif self.clears:
             done = "--resume: no earlier build in the folder, the build starts afresh"
         else:
             done = "kept by --resume"
         todo = self.chunks - self.chunks_done
+        generated = []
+        if self.mission is not None:
+            m = self.mission
+            generated = [
+                f"inputs.synthetic: the {m.mission} mission is absent: the build generates it "
+                f"at {m.root} first (size {m.size}: {m.stops} stops x {m.images_per_stop} "
+                f"images = {m.stops * m.images_per_stop} labels)"
+            ]
         return "\n".join(
             [
                 f"dry run: nothing written to {self.out_dir}",
+                *generated,
                 f"labels: {self.labels}   planned in {self.seconds:.2f} s",
                 f"chunks: {self.chunks} of up to {self.chunk_size} labels (output.shard_size)",
                 f"chunks done: {self.chunks_done} ({done})",
@@ -97,30 +155,69 @@ class BuildPlan:
         )
 
 
-def plan_build(config: BuildConfig, *, resume: bool = False, limit: int | None = None) -> BuildPlan:
-    """Check the config and inputs, list and chunk the labels, and find the chunks done;
-    writes nothing. ConfigError as the build would raise it (a bad ``--limit``, no label,
-    an input that does not open, a ``--resume`` over a build of another config or label
-    list)."""
+def plan_build(
+    config: BuildConfig,
+    *,
+    resume: bool = False,
+    limit: int | None = None,
+    generate: bool = False,
+) -> BuildPlan:
+    """Check the config, inputs and output folder, list and chunk the labels, and find the
+    chunks done; writes nothing. ConfigError as the build would raise it (a bad ``--limit``,
+    no label, an input that does not open, a ``--resume`` over a build of another config,
+    label list or input file, an output folder holding files no build stamp there lists).
+
+    ``generate``: a synthetic mission still to generate (``mission_pending``) is planned
+    from its preset (stops x images labels) instead of refused; the inputs it generates are
+    not checked (those outside its root must exist) and its plan has no fingerprint
+    (``mars-pairs build --dry-run``)."""
     start = time.perf_counter()
     check_limit(limit)
-    check_inputs(config)
-    stamp = fingerprint(config, labels_of(config, limit))
-    n = stamp["count"]
-    if n == 0:  # the files went between the check and the listing
-        raise ConfigError(f"inputs.labels: no file matches {list(config.inputs.labels)}")
     out = config.output.dir
     previous = read_stamp(stamp_path(out))
-    if resume and previous is not None and previous != stamp:
-        raise ConfigError(
-            f"{out}: cannot resume: the config or the label list changed since the "
-            "interrupted build; rerun without --resume"
-        )
-    clears = not resume or previous is None  # no stamp: no part can be trusted
+    pending = mission_pending(config) if generate else None
+    finished = None
+    if pending is not None:
+        if resume and previous is not None:
+            raise ConfigError(
+                f"{out}: cannot resume: the synthetic mission at {pending.root} is absent and "
+                "the build generates it anew; rerun without --resume"
+            )
+        for key in ("places", "dem", "ortho"):  # the inputs the generation does not write
+            path = getattr(config.inputs, key)
+            outside = isinstance(path, Path) and not path.is_relative_to(pending.root)
+            if outside and not path.exists():
+                raise ConfigError(
+                    f"inputs.{key}: no such file {path} (outside inputs.synthetic.root "
+                    f"{pending.root}: not generated)"
+                )
+        stamp: dict[str, Any] = {}
+        n = pending.stops * pending.images_per_stop
+        n = n if limit is None else min(n, limit)
+    else:
+        check_inputs(config)
+        stamp = fingerprint(config, labels_of(config, limit))
+        n = stamp["count"]
+        if n == 0:  # the files went between the check and the listing
+            raise ConfigError(f"inputs.labels: no file matches {list(config.inputs.labels)}")
+        why = stamp_difference(previous, stamp) if resume and previous is not None else None
+        if why is not None:
+            raise ConfigError(f"{out}: cannot resume: {why}; rerun without --resume")
+        finished = finished_stamp(out) if previous is None else None  # parts/ removed
+        if resume and finished is not None and finished != stamp_digest(stamp):
+            raise ConfigError(
+                f"{out}: cannot resume: the config, the label list or an input file changed "
+                "since the finished build; rerun without --resume"
+            )
+    is_finished = resume and finished is not None and (out / "manifest.parquet").is_file()
+    clears = not resume or (previous is None and not is_finished)  # no stamp: no part trusted
+    check_clearable(out, resume=not clears)  # a stranger's file is never touched
     size = config.output.shard_size
     chunks = -(-n // size)
     done = labels_done = 0
-    for k in range(0 if clears else chunks):
+    if is_finished:
+        done, labels_done = chunks, n
+    for k in range(0 if clears or is_finished else chunks):
         if is_done(out, k):
             done += 1
             labels_done += min(size, n - k * size)
@@ -135,6 +232,8 @@ def plan_build(config: BuildConfig, *, resume: bool = False, limit: int | None =
         clears=clears,
         seconds=time.perf_counter() - start,
         fingerprint=stamp,
+        finished=is_finished,
+        mission=pending,
     )
 
 

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import re
+from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import shapely
@@ -19,6 +23,29 @@ from mars_pairs.raster.chips import ChipGrid
 from mars_pairs.store.geoparquet import footprint_bounds
 from mars_pairs.store.splits import hilbert_index
 
+_MAGIC = re.compile(r"[*?[]")
+
+
+def labels_root(patterns: Sequence[str]) -> str:
+    """The folder the label globs ``patterns`` (absolute) start from: the common folder of
+    their leading components without a wildcard. ``label_path`` is relative to it."""
+    heads = []
+    for pattern in patterns:
+        parts = Path(pattern).parts
+        fixed = []
+        for part in parts[:-1]:
+            if _MAGIC.search(part):
+                break
+            fixed.append(part)
+        heads.append(str(Path(*fixed)) if fixed else os.sep)
+    return os.path.commonpath(heads) if heads else os.sep
+
+
+def relative_label_path(label: str | Path, patterns: Sequence[str]) -> str:
+    """``label`` relative to ``labels_root(patterns)``, with ``/``: the same on every machine
+    that holds the labels under one root, and no machine's absolute path in the dataset."""
+    return Path(os.path.relpath(str(label), labels_root(patterns))).as_posix()
+
 
 def sample_key(obs: Observation) -> str:
     """The WebDataset key of an observation: mission and product id, no dots."""
@@ -34,7 +61,8 @@ def manifest_row(
     cover: ChipCoverage,
 ) -> dict[str, Any]:
     """The manifest row (member locations are added when the shard is written); ``cover``:
-    the chips' coverage fractions.
+    the chips' coverage fractions. ``label_path`` is relative to the labels root
+    (``labels_root``); ``rover_point`` and ``chip_box`` are WKB in the dataset CRS.
 
     ``azimuth_deg``/``elevation_deg``: the ray through the image centre, SITE_FRAME (azimuth
     clockwise from true north, elevation up, degrees), from the camera model and the pose's
@@ -42,6 +70,7 @@ def manifest_row(
     (the camera's, not the centre of a subframe), None when the label has none.
     """
     cfg = ctx.config
+    label_path = relative_label_path(obs.label_path, cfg.inputs.labels)
     rover_x, rover_y = (float(v) for v in view.camera.origin_map[:2])
     if pose.quaternion is None:  # MapCamera.from_observation refuses it before this
         raise PlacesError(f"{obs.label_path}: no rover attitude in the label or PLACES table")
@@ -54,7 +83,7 @@ def manifest_row(
     hilbert = int(hilbert_index([rover_x], [rover_y], ctx.terrain.bounds)[0])
     return {
         "key": sample_key(obs), "mission": obs.mission, "instrument": obs.instrument,
-        "product_id": obs.product_id, "label_path": str(obs.label_path), "sol": obs.sol,
+        "product_id": obs.product_id, "label_path": label_path, "sol": obs.sol,
         "site": obs.rmc.site, "drive": obs.rmc.drive, "pose": obs.rmc.pose,
         "time": obs.start_time, "latitude": pose.latitude, "longitude": pose.longitude,
         "easting": rover_x, "northing": rover_y, "elevation_m": pose.elevation_m,
@@ -68,6 +97,8 @@ def manifest_row(
         **view_statistics(view),
         "footprint": None if footprint is None else shapely.to_wkb(footprint),
         "bbox": footprint_bounds(footprint),
+        "rover_point": shapely.to_wkb(shapely.Point(rover_x, rover_y)),
+        "chip_box": shapely.to_wkb(shapely.Polygon(grid.corners())),
         "chip_xmin": xmin, "chip_ymin": ymin, "chip_xmax": xmax, "chip_ymax": ymax,
         "chip_rotation_deg": grid.rotation_deg, "split": split, "hilbert": hilbert,
         "ortho_coverage": cover.ortho, "dem_coverage": cover.dem,
@@ -83,7 +114,8 @@ def sample_meta(
     ground_size: tuple[int, int],
 ) -> dict[str, Any]:
     """meta.json: the row's plain values plus what a reader needs to use the members."""
-    meta = {k: v for k, v in row.items() if k not in ("footprint", "time")}
+    binary = ("footprint", "rover_point", "chip_box", "time")
+    meta = {k: v for k, v in row.items() if k not in binary}
     meta.update(
         time=obs.start_time.isoformat() if obs.start_time else None,
         crs=ctx.crs_wkt,

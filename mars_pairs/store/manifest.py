@@ -61,6 +61,8 @@ _FIELDS: list[tuple[str, pa.DataType]] = [
     ("ray_hit_fraction", pa.float64()),
     ("footprint", pa.binary()),  # WKB polygon, dataset CRS
     ("bbox", BBOX_TYPE),  # the footprint's bounds: GeoParquet 1.1 bbox covering column
+    ("rover_point", pa.binary()),  # WKB point (easting, northing), dataset CRS
+    ("chip_box", pa.binary()),  # WKB polygon of the chip's corners (rotated: heading-up)
     ("chip_xmin", pa.float64()),
     ("chip_ymin", pa.float64()),
     ("chip_xmax", pa.float64()),
@@ -90,7 +92,8 @@ POINTING_PLACES_COLUMNS = (
     "places_pose",
     "places_match",
 )
-OPTIONAL_COLUMNS = COVERAGE_COLUMNS + POINTING_PLACES_COLUMNS
+GEOMETRY_VALUE_COLUMNS = ("rover_point", "chip_box")
+OPTIONAL_COLUMNS = COVERAGE_COLUMNS + POINTING_PLACES_COLUMNS + GEOMETRY_VALUE_COLUMNS
 
 #: The columns every reader may rely on (checksums and later columns are absent from older
 #: datasets).

@@ -334,7 +334,7 @@ def report_html(root: str | Path, samples: int = DEFAULT_SAMPLES) -> str:
     n_failed = failures.num_rows if failures is not None else 0
     crs_name, unit = _crs(info, manifest)
     ortho = (info.get("config") or {}).get("inputs", {}).get("ortho")
-    ortho_path = Path(ortho) if ortho else None
+    ortho_path = root / ortho if ortho else None  # relative to the dataset folder (or absolute)
 
     title = f"mars-pairs dataset {root}"
     missions = ", ".join(sorted({str(r["mission"]) for r in rows}))

@@ -68,9 +68,7 @@ def test_orbital_and_places_urls_are_attested_and_sourced(name):
 
 def test_a_build_config_may_name_a_remote_raster(tmp_path):
     text = (CONFIGS / "msl_gale.yaml").read_text()
-    text = text.replace(
-        "dem: ../data/msl/orbital/dem.vrt", "dem: https://example.invalid/dem.tif"
-    )
+    text = text.replace("dem: ../data/msl/orbital/dem.vrt", "dem: https://example.invalid/dem.tif")
     path = tmp_path / "remote.yaml"
     path.write_text(text)
     assert load_config(path).inputs.dem == "/vsicurl/https://example.invalid/dem.tif"

@@ -72,7 +72,7 @@ def _samples(mission: Path, out: Path) -> list[dict]:
                     fh.seek(row[f"{field}_offset"])
                     members[field] = fh.read(row[f"{field}_size"])
             found.append({
-                "label": Path(row["label_path"]), "places": places,
+                "label": sub / "labels" / row["label_path"], "places": places,
                 "dem": sub / "orbital" / "dem.tif",
                 "viewshed": np.asarray(Image.open(io.BytesIO(members["viewshed"]))),
                 "corr": np.load(io.BytesIO(members["corr"])),

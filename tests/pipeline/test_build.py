@@ -132,7 +132,7 @@ def test_every_offset_reads_back_the_tar_member(built: Path) -> None:
 def test_ground_member_is_the_original_image(mission: Path, built: Path) -> None:
     members = member_bytes(built)
     row = read_rows(built)[0]
-    original = Path(row["label_path"]).with_suffix(".jpg")
+    original = (mission / "labels" / row["label_path"]).with_suffix(".jpg")  # labels root
     assert members[f"{row['key']}.{row['ground_member']}"] == original.read_bytes()
 
 

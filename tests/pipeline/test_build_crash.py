@@ -58,15 +58,20 @@ def test_a_rebuild_killed_at_every_file_operation_resumes_byte_identical(
     assert report["mismatched"] == [], report["mismatched"]
     assert report["killed"] == len(ops)  # every kill point was reached and killed the build
     # only kills before the first change leave the old dataset (which resume refuses, its
-    # config being another): the ops before the stamp goes
-    first_change = ops.index(("replace", "parts/build.json")) + 1
+    # config being another): the ops before its stamp goes (a finished build's stamp is its
+    # dataset.json, renamed to parts/clearing.json)
+    first_change = ops.index(("replace", "dataset.json")) + 1
     assert report["untouched"] == list(range(1, first_change + 1))
     # the kill points cover the clearing of every old output and every commit of the new one
     unlinked = {path for op, path in ops if op == "unlink"}
-    for stale in ("parts/clearing.json", "manifest.parquet", "failures.parquet", "dataset.json"):
+    old = ("parts/clearing.json", "manifest.parquet", "failures.parquet", "README.md")
+    for stale in (*old, "croissant.json"):
         assert stale in unlinked
     assert {f"shards/shard-00000{k}.tar" for k in range(4)} <= unlinked
-    assert {f"parts/manifest-00000{k}.parquet" for k in range(4)} <= unlinked
+    # the finished old build left no parts; the new one removes its own as it finishes
+    assert {f"parts/manifest-00000{k}.parquet" for k in range(2)} <= unlinked
+    assert "parts/build.json" in unlinked and ops[-1] == ("rmdir", "parts")
+    assert not [f for f in report["files"] if f.startswith("parts/")]
     replaced = [path for op, path in ops if op == "replace"]
     assert {"shards/.shard-000000.tar.tmp-" in p for p in replaced} != {False}
     assert sum(p.startswith("parts/.manifest-") for p in replaced) == 2

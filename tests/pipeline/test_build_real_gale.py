@@ -309,7 +309,7 @@ def test_ray_hits_match_an_independent_ray_cast_on_the_sphere(gale, built):
     compared = 0
     for key, files in _members(built).items():
         meta = json.loads(files["meta.json"])
-        obs = read_observation(meta["label_path"])
+        obs = read_observation(built.parent / "labels" / meta["label_path"])  # labels root
         if obs.camera.model_type != "CAHV":
             continue  # CAHVOR needs its distortion inverted: the CAHV views are checked here
         rays = SphereRays(los, row["easting"], row["northing"], np.asarray(obs.rover_quaternion))

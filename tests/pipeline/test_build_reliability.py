@@ -38,7 +38,7 @@ def write_config(path: Path, mission: Path, out: Path, labels: Path, places: Pat
         "inputs": mission_inputs(mission, labels=labels / "*.xml", places=places),
         "geometry": {"radius": 300, "ray_stride": 32},
         "chips": {"size_m": 64, "size_px": 32},
-        "output": {"dir": str(out), "shard_size": 2},
+        "output": {"dir": str(out), "shard_size": 2, "keep_parts": True},  # a part is deleted
         "splits": {"block_m": 100},
     }
     path.write_text(yaml.safe_dump(doc))

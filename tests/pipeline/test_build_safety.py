@@ -3,7 +3,7 @@
 - Built without ``--resume`` into a folder of someone else's files (tar shards, a
   ``manifest.parquet``, a ``parts/`` folder), the build refuses with one line (exit 2) and
   every file stays byte-identical; a finished dataset the user added a file to is refused as
-  well; ``--resume`` over a matching stamp keeps the stranger and builds.
+  well, with or without ``--resume``; once the stranger's files are gone, it resumes.
 - A FIFO given as the DEM, the ortho, the PLACES table or the config is refused with one line
   naming the key and the path, within a second, before anything opens it.
 """
@@ -86,6 +86,7 @@ def test_a_finished_dataset_with_a_strangers_file_is_refused_but_resumes(
 ) -> None:
     out = tmp_path / "ds"
     run_build(cheap_config(small_mission, out, output={"shard_size": 2}), progress=False)
+    (out / "parts").mkdir()  # a finished build left none
     (out / "parts" / "my-notes.txt").write_text("mine\n")
     hidden = out / "shards" / ".scratch.tmp-1"  # like a temporary name, not one of ours
     hidden.write_text("mine too\n")
@@ -94,12 +95,15 @@ def test_a_finished_dataset_with_a_strangers_file_is_refused_but_resumes(
     with pytest.raises(ConfigError, match=r"parts/my-notes\.txt.*nothing was removed"):
         run_build(other, progress=False)
     assert _files(out) == before
-    # the same config resumed: nothing to clear, the stranger's files are left alone
+    # the same config resumed: refused the same way, the stranger's files left alone
     same = cheap_config(small_mission, out, output={"shard_size": 2})
+    with pytest.raises(ConfigError, match=r"parts/my-notes\.txt.*nothing was removed"):
+        run_build(same, resume=True, progress=False)
+    assert _files(out) == before
+    (out / "parts" / "my-notes.txt").unlink()
+    hidden.unlink()
     summary = run_build(same, resume=True, progress=False)
     assert summary.chunks_resumed == summary.chunks_built + summary.chunks_resumed > 0
-    assert (out / "parts" / "my-notes.txt").read_text() == "mine\n"
-    assert hidden.read_text() == "mine too\n"
 
 
 def test_a_rebuild_clears_its_own_dataset_and_its_killed_temporaries(
@@ -109,6 +113,7 @@ def test_a_rebuild_clears_its_own_dataset_and_its_killed_temporaries(
     run_build(cheap_config(small_mission, out, output={"shard_size": 1}), progress=False)
     assert (out / "shards" / "shard-000003.tar").exists()
     (out / "shards" / ".shard-000001.tar.tmp-4242").write_bytes(b"half a shard")
+    (out / "parts").mkdir()  # a finished build left none
     (out / "parts" / ".build.json.tmp-4242").write_bytes(b"{")
     run_build(cheap_config(small_mission, out, output={"shard_size": 2}), progress=False)
     names = set(_files(out))

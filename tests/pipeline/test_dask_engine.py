@@ -49,7 +49,7 @@ def config(tmp: Path, mission: Path, out: str, shard_size: int = 2) -> Path:
         "inputs": mission_inputs(mission),
         "geometry": {"radius": 600, "ray_stride": 16},
         "chips": {"size_m": 128, "size_px": 128},
-        "output": {"dir": str(tmp / out), "shard_size": shard_size},
+        "output": {"dir": str(tmp / out), "shard_size": shard_size, "keep_parts": True},
         "splits": {"block_m": 100},
     }
     path = tmp / f"{out}.yaml"

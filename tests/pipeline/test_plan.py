@@ -90,7 +90,7 @@ def _cheap_config(path: Path, mission: Path, out: Path) -> Path:
         "inputs": mission_inputs(mission),
         "geometry": {"radius": 200, "ray_stride": 64},
         "chips": {"size_m": 32, "size_px": 16},
-        "output": {"dir": str(out), "shard_size": 1},
+        "output": {"dir": str(out), "shard_size": 1, "keep_parts": True},  # parts deleted below
         "splits": {"block_m": 100},
     }
     path.write_text(yaml.safe_dump(doc))
@@ -134,6 +134,7 @@ def _failing(chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
 def test_engines_get_the_chunks_lazily(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     pattern = write_label_tree(tmp_path / "in", 10, per_dir=4)
     config = plan_config(tmp_path / "in", pattern, tmp_path / "ds", shard_size=3)
+    config = replace(config, output=replace(config.output, keep_parts=True))  # a part is deleted
     pulled: list[int] = []
 
     class Engine:

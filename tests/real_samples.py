@@ -1,0 +1,14 @@
+"""Where the real PDS samples lie (``../shared/pds-samples`` beside the checkout)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+SAMPLES = Path(__file__).resolve().parents[1].parent / "shared" / "pds-samples"
+
+
+def sample_labels() -> list[Path]:
+    """Every real label in the samples folder (empty when it is absent)."""
+    if not SAMPLES.is_dir():
+        return []
+    return sorted(SAMPLES.glob("msl/*.LBL")) + sorted(SAMPLES.glob("m2020/*.xml"))
