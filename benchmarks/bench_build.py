@@ -187,8 +187,9 @@ def main() -> None:
         )
     print("\ndriver CPU: getrusage(RUSAGE_SELF) of this process over the build; streaming: "
           "without the planning and finishing steps (plan_build, merge_parts, dataset.json, "
-          "the shard index, the card, removing parts/), which run once per build; the driver saturates at worker ms per "
-          f"sample / streaming driver ms per sample; target <= {TARGET_DRIVER_MS} ms")  # fmt: skip
+          "the shard index, the card, removing parts/), which run once per build; the driver "
+          "saturates at worker ms per sample / streaming driver ms per sample; target <= "
+          f"{TARGET_DRIVER_MS} ms")  # fmt: skip
     print("\n| stage (1 worker) | ms per sample |")
     print("|---|---:|")
     for name, secs in stages.items():
