@@ -38,7 +38,7 @@ STUDY_SECONDS_PER_IMAGE = 20.0  # "tens of seconds per image" (Sheppard and Skin
 TARGET_DRIVER_MS = 0.3  # driver CPU per sample that lets one driver feed ~100 workers
 
 
-def _config(mission: Path, out: Path, size_px: int) -> dict:
+def _config(mission: Path, out: Path, size_px: int, shard_size: int = 16) -> dict:
     return {
         "inputs": {
             "labels": str(mission / "labels" / "*.xml"),
@@ -48,7 +48,7 @@ def _config(mission: Path, out: Path, size_px: int) -> dict:
         },
         "geometry": {"radius": 1000, "viewshed": "both", "ray_stride": 8},
         "chips": {"size_m": 256, "size_px": size_px},
-        "output": {"dir": str(out), "shard_size": 16},
+        "output": {"dir": str(out), "shard_size": shard_size},
         "splits": {"block_m": 200},
     }
 
@@ -124,6 +124,7 @@ def main() -> None:
     parser.add_argument("--stops", type=int, default=64)
     parser.add_argument("--images-per-stop", type=int, default=8)
     parser.add_argument("--size-px", type=int, default=512)
+    parser.add_argument("--shard-size", type=int, default=16)
     parser.add_argument("--mission", type=Path, help="keep (or reuse) the mission here")
     parser.add_argument("--engines", default="local,dask")
     args = parser.parse_args()
@@ -151,8 +152,8 @@ def main() -> None:
                 cluster = _ExternalCluster(root, workers)
                 engine = DaskEngine(scheduler=cluster.address, announce=False)
             try:
-                cfg = parse_config(_config(mission, root / f"ds-{name}{workers}", args.size_px),
-                                   root)  # fmt: skip
+                out = root / f"ds-{name}{workers}"
+                cfg = parse_config(_config(mission, out, args.size_px, args.shard_size), root)
                 before = os.getloadavg()[0]
                 _ENDS_CPU[0], cpu = 0.0, _cpu()
                 summary = run_build(cfg, workers=workers, progress=False, engine=engine)
@@ -170,7 +171,7 @@ def main() -> None:
                 stages = {k: v / n for k, v in summary.stage_seconds.items()}
     worker_ms = sum(stages.values()) * 1000
     print(f"build benchmark: {rows[0][2]} samples, {args.size_px} px chips, radius 1000 m, "
-          f"ray stride 8, 16 samples a shard; mission ready in {gen:.1f} s; "
+          f"ray stride 8, {args.shard_size} samples a shard; mission ready in {gen:.1f} s; "
           f"{os.cpu_count()} cores; dask: external scheduler + workers\n")  # fmt: skip
     anchor = rows[0][4]
     print("| engine | workers | samples | seconds | samples/s | vs local 1 | driver CPU ms/sample "

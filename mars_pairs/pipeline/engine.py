@@ -5,19 +5,23 @@ An engine (:class:`Engine`: the in-process build, ``pipeline.local_pool.LocalPoo
 workers are. A worker builds the chunk's samples one at a time and writes them straight
 into the chunk's shard in the output folder (``shards/shard-{k:06d}.tar``, through the
 temporary name ``.shard-{k:06d}.tar.tmp-<pid>`` and a rename: ``store.shards.ShardWriter``),
-so a sample's bytes never leave the worker that built it. What travels back to the driver is
-a :class:`ChunkResult`: one :class:`Outcome` per label (its manifest row with the member
-locations, or its failure row; a few hundred bytes a sample), the shard's name and size, and
-timings. The driver commits the chunks in order (``pipeline.build``): failure part, then
-manifest part (the chunk's commit marker).
+so a sample's bytes never leave the worker that built it; the worker also writes the chunk's
+failure part and manifest part under their temporary names (``.NAME.tmp-<pid>``, synced, not
+renamed). What travels back to the driver is a :class:`ChunkResult`: one :class:`Outcome`
+per label (its manifest row with the member locations, or its failure row; a few KB a
+sample at most), the shard's name and size, the staged parts' names, and timings. The driver
+commits the chunks in order (``pipeline.build``): it renames the failure part, then the
+manifest part (the chunk's commit marker) into place. A killed build leaves temporary names
+and shards of uncommitted chunks, which the next build removes or writes again.
 
 Duplicate sample keys (two labels with one product id): the first label in label order
 keeps the key, every later one becomes a ``record`` failure row (DuplicateKeyError naming
 the first). A worker resolves the duplicates inside its chunk: it writes the first and
 reports the later ones as ``duplicate`` outcomes. Duplicates of an earlier chunk's key are
 resolved by the driver at commit, which knows every earlier key: it turns them into failure
-rows and, when such a sample was written into the shard, rewrites the shard without it
-(``rewrite_shard``: a rare path, the only one where sample bytes pass through the driver).
+rows, writes the chunk's parts itself, and, when such a sample was written into the shard,
+rewrites the shard without it (``resolve_duplicates``: a rare path, the only one where sample
+bytes pass through the driver).
 The output is therefore byte-identical to a build that wrote every chunk in the driver, for
 any engine and worker count. Samples in the split buffer are dropped by the worker when the
 config says so (``splits.buffer_policy: drop``) and reported as ``dropped`` outcomes.
@@ -29,6 +33,7 @@ shared file system for a cluster).
 from __future__ import annotations
 
 import os
+import socket
 import time
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
@@ -210,7 +215,7 @@ def build_chunk(config: BuildConfig, task: ChunkTask) -> ChunkResult:
         shard_rel if shard is not None else None,
         size,
         time.perf_counter() - start,
-        f"{os.uname().nodename}:{os.getpid()}",
+        f"{socket.gethostname()}:{os.getpid()}",
         staged,
     )
 
