@@ -1,7 +1,8 @@
 """Build throughput and the driver's own CPU per sample, on the local and the Dask engine.
 
     python benchmarks/bench_build.py [--stops K] [--images-per-stop M] [--size-px P]
-                                     [--mission DIR] [--engines local,dask]
+                                     [--shard-size S] [--mission DIR] [--engines local,dask]
+                                     [--dense]
 
 Generates a synthetic mission (64 stops x 8 images = 512 samples by default; generating it
 takes minutes, so ``--mission DIR`` keeps it in DIR and reuses it) and builds it with
@@ -15,8 +16,10 @@ The driver's CPU is ``resource.getrusage(RUSAGE_SELF)`` of this process over the
 without the planning and finishing steps, timed apart); the target is <= 0.3 ms per sample.
 The driver saturates at about (worker ms per sample) / (streaming driver ms per sample)
 workers: the projection column, with the worker cost taken from the 1-worker build's stage
-times. Prints markdown tables with
-the load average; the other anchor is the study's QGIS tool: tens of seconds per image.
+times. Prints markdown tables with the load average; the other anchor is the study's QGIS
+tool: tens of seconds per image. ``--dense`` adds, in the same run, the local 1-worker build
+with every dense member on (``output.members: all``) against the same build without them,
+alternated, best of 2 each, and each dense member's mean size per sample.
 """
 
 from __future__ import annotations
@@ -38,8 +41,10 @@ STUDY_SECONDS_PER_IMAGE = 20.0  # "tens of seconds per image" (Sheppard and Skin
 TARGET_DRIVER_MS = 0.3  # driver CPU per sample that lets one driver feed ~100 workers
 
 
-def _config(mission: Path, out: Path, size_px: int, shard_size: int = 16) -> dict:
-    return {
+def _config(
+    mission: Path, out: Path, size_px: int, shard_size: int = 16, members: str | None = None
+) -> dict:
+    doc = {
         "inputs": {
             "labels": str(mission / "labels" / "*.xml"),
             "places": str(mission / "places" / "best_interp.csv"),
@@ -51,6 +56,39 @@ def _config(mission: Path, out: Path, size_px: int, shard_size: int = 16) -> dic
         "output": {"dir": str(out), "shard_size": shard_size},
         "splits": {"block_m": 200},
     }
+    if members is not None:
+        doc["output"]["members"] = members  # type: ignore[index]
+    return doc
+
+
+def dense_rows(mission: Path, root: Path, size_px: int) -> list[str]:
+    """The lines of samples/s without and with every dense member (local, 1 worker, alternated,
+    best of 2) and the dense members' mean sizes."""
+    import pyarrow.parquet as pq
+
+    from mars_pairs.store.manifest import DENSE_FIELDS
+
+    best = {"off": 0.0, "on": 0.0}
+    n = 0
+    for rep in range(2):
+        for mode in ("off", "on"):
+            out = root / f"dense-{mode}{rep}"
+            members = "all" if mode == "on" else None
+            cfg = parse_config(_config(mission, out, size_px, members=members), root)
+            summary = run_build(cfg, workers=1, progress=False)
+            n = summary.samples
+            best[mode] = max(best[mode], summary.samples / summary.seconds)
+    lines = [f"\n| dense members ({n} samples, local, 1 worker) | samples/s | vs off |",
+             "|---|---:|---:|"]  # fmt: skip
+    for mode in ("off", "on"):
+        lines.append(f"| {mode} | {best[mode]:.1f} | {best[mode] / best['off']:.2f}x |")
+    table = pq.read_table(root / "dense-on0" / "manifest.parquet")
+    lines += ["\n| member | mean KiB per sample |", "|---|---:|"]
+    for field in ("ground", "ortho", "dem", "viewshed", "corr", *DENSE_FIELDS):
+        if f"{field}_size" in table.column_names:
+            size = table[f"{field}_size"].to_numpy().mean() / 1024
+            lines.append(f"| {field} | {size:.1f} |")
+    return lines
 
 
 def _cpu() -> float:
@@ -127,6 +165,7 @@ def main() -> None:
     parser.add_argument("--shard-size", type=int, default=16)
     parser.add_argument("--mission", type=Path, help="keep (or reuse) the mission here")
     parser.add_argument("--engines", default="local,dask")
+    parser.add_argument("--dense", action="store_true", help="add the dense members' cost")
     args = parser.parse_args()
     runs = [("local", 1), ("local", 2)] if "local" in args.engines else []
     runs += [("dask", 2)] if "dask" in args.engines else []
@@ -142,6 +181,9 @@ def main() -> None:
         # warm numba caches and the OS file cache, not timed
         run_build(parse_config(_config(mission, root / "warm", args.size_px), root),
                   progress=False, limit=4)  # fmt: skip
+        if args.dense:
+            warm = _config(mission, root / "warm-dense", args.size_px, members="all")
+            run_build(parse_config(warm, root), progress=False, limit=4)
         rows = []
         stages: dict[str, float] = {}
         for name, workers in runs:
@@ -169,6 +211,7 @@ def main() -> None:
                          load))  # fmt: skip
             if workers == 1 and name == "local":
                 stages = {k: v / n for k, v in summary.stage_seconds.items()}
+        dense = dense_rows(mission, root, args.size_px) if args.dense else []
     worker_ms = sum(stages.values()) * 1000
     print(f"build benchmark: {rows[0][2]} samples, {args.size_px} px chips, radius 1000 m, "
           f"ray stride 8, {args.shard_size} samples a shard; mission ready in {gen:.1f} s; "
@@ -196,6 +239,7 @@ def main() -> None:
     for name, secs in stages.items():
         print(f"| {name} | {secs * 1000:.1f} |")
     print(f"| **total** (worker ms per sample) | {worker_ms:.1f} |")
+    print("\n".join(dense))
 
 
 if __name__ == "__main__":

@@ -22,7 +22,7 @@ from typing import BinaryIO
 from mars_pairs.errors import DatasetError
 from mars_pairs.store.dataset_info import read_dataset_info
 from mars_pairs.store.integrity import MemberSpec, check_member, shard_path
-from mars_pairs.store.manifest import MEMBERS, Manifest
+from mars_pairs.store.manifest import DENSE_FIELDS, MEMBERS, Manifest
 
 
 @dataclass(frozen=True)
@@ -66,9 +66,12 @@ def verify_dataset(root: str | Path) -> VerifyReport:
     read or lacks a location column raises DatasetError naming it and the column."""
     root = Path(root)
     manifest = Manifest.open(root)
-    location = [f"{m}_{s}" for m in MEMBERS for s in ("shard", "offset", "size")]
+    names = set(manifest.schema.names)
+    # the optional dense members (output.members) that this manifest locates
+    members = (*MEMBERS, *(m for m in DENSE_FIELDS if f"{m}_offset" in names))
+    location = [f"{m}_{s}" for m in members for s in ("shard", "offset", "size")]
     manifest.require(["key", "ground_member", *location])
-    checksums = [f"{m}_crc32c" for m in MEMBERS if f"{m}_crc32c" in manifest.schema.names]
+    checksums = [f"{m}_crc32c" for m in members if f"{m}_crc32c" in names]
     rows = manifest.to_table(columns=["key", "ground_member", *location, *checksums]).to_pylist()
     damage = _dataset_json_damage(root)
     repeated = Counter(row["key"] for row in rows)
@@ -79,7 +82,7 @@ def verify_dataset(root: str | Path) -> VerifyReport:
     ]
     by_shard: dict[str, list[MemberSpec]] = defaultdict(list)
     for row in rows:
-        for m in MEMBERS:
+        for m in members:
             shard = row.get(f"{m}_shard")
             if shard is None:
                 continue

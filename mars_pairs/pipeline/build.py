@@ -143,7 +143,7 @@ def _commit_chunk(
         what = ": ".join(str(failed[c]) for c in ("path", "stage", "error_type", "message"))
         raise BuildError(what)
     if result.staged is None:
-        failures, manifest = part_tables(result.outcomes)
+        failures, manifest = part_tables(config, result.outcomes)
         write_parquet_atomic(failures, failures_part)
         write_parquet_atomic(manifest, manifest_part)  # commit marker
     else:

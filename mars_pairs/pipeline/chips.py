@@ -3,6 +3,8 @@ correspondence."""
 
 from __future__ import annotations
 
+import math
+import zlib
 from dataclasses import dataclass
 from typing import Any
 
@@ -58,9 +60,10 @@ def cut_chips(
     if spec.orientation == "heading-up":
         # the chip's up is the camera azimuth, as a map (grid) azimuth
         rotation = float(view.camera.grid_azimuth_deg(view.camera.pointing_az_el()[0]))
+    dx, dy = chip_offset(spec.offset_m, obs_key(obs), rotation)
     grid = ChipGrid.around(
-        float(rover[0]),
-        float(rover[1]),
+        float(rover[0]) + dx,
+        float(rover[1]) + dy,
         spec.size_m,
         spec.size_px,
         ctx.crs_wkt,
@@ -85,6 +88,44 @@ def cut_chips(
         },
         cover,
     )
+
+
+def obs_key(obs: Observation) -> str:
+    """The sample key of ``obs`` (``record.sample_key``; repeated here to avoid a cycle)."""
+    return f"{obs.mission}_{obs.product_id}".replace(".", "_").lower()
+
+
+def chip_offset(offset_m: float | None, key: str, rotation_deg: float) -> tuple[float, float]:
+    """The chip centre's shift from the rover (map x, y, map units) for ``chips.offset_m``:
+    uniform in [-offset_m, offset_m] along the chip's column and row axes, drawn from a
+    generator seeded by the sample key's CRC-32 (the same shift on every build and worker).
+    (0, 0) when the key is unset or 0."""
+    if not offset_m:
+        return 0.0, 0.0
+    rng = np.random.default_rng([zlib.crc32(key.encode()), 23])
+    right, down = rng.uniform(-offset_m, offset_m, size=2)
+    t = math.radians(rotation_deg)
+    # chip column axis (right) and row axis (down) in map x, y, as in ChipGrid.around
+    return (
+        float(right * math.cos(t) - down * math.sin(t)),
+        float(-right * math.sin(t) - down * math.cos(t)),
+    )
+
+
+def localization_fields(view: View, grid: ChipGrid) -> dict[str, Any]:
+    """``rover_px`` (the rover origin) and ``camera_px`` (the camera centre) as chip pixels
+    (column, row; pixel-edge coordinates: the first pixel's centre is (0.5, 0.5)), and
+    ``heading_deg``: the camera axis's map azimuth, clockwise from the chip's up (row 0)
+    direction, degrees in [0, 360)."""
+    camera = view.camera
+    rover = grid.to_pixel(camera.origin_map[0], camera.origin_map[1])
+    centre = grid.to_pixel(camera.center_map[0], camera.center_map[1])
+    grid_az = float(camera.grid_azimuth_deg(camera.pointing_az_el()[0]))
+    return {
+        "rover_px": [float(v) for v in rover],
+        "camera_px": [float(v) for v in centre],
+        "heading_deg": (grid_az - grid.rotation_deg) % 360.0,
+    }
 
 
 def chip_view(visible: np.ndarray, dem: np.ndarray, grid: ChipGrid, view: View) -> np.ndarray:

@@ -96,6 +96,7 @@ class ChipsConfig:
     size_px: int = 512
     orientation: str = "north-up"  # or heading-up (the camera azimuth points up)
     min_coverage: float = DEFAULT_MIN_COVERAGE
+    offset_m: float | None = None  # largest chip-centre shift from the rover (per axis, metres)
 
 
 @dataclass(frozen=True)
@@ -112,6 +113,8 @@ class OutputConfig:
     image_encoding: str = "png"
     license: str | None = None
     keep_parts: bool = False
+    members: tuple[str, ...] = ()  # optional dense members (pipeline.dense.DENSE_MEMBERS)
+    dense_stride: int | None = None  # pixels of the dense grid (None: geometry.ray_stride)
 
 
 @dataclass(frozen=True)
@@ -161,7 +164,20 @@ class BuildConfig:
                 return [plain(v) for v in value]
             return value
 
-        return plain(asdict(self))
+        doc = plain(asdict(self))
+        # opt-in keys appear only when set: a default config's fingerprint stays as it was
+        for section, key, unset in _OPT_IN_KEYS:
+            if doc[section].get(key) == unset:
+                doc[section].pop(key)
+        return doc
+
+
+#: (section, key, unset value) of the opt-in keys left out of ``BuildConfig.to_dict``.
+_OPT_IN_KEYS = (
+    ("chips", "offset_m", None),
+    ("output", "members", []),
+    ("output", "dense_stride", None),
+)
 
 
 def _inputs(data: Any, base: Path) -> InputsConfig:
@@ -241,6 +257,24 @@ def _splits(data: Any) -> SplitsConfig:
     )
 
 
+def _members(value: Any) -> tuple[str, ...]:
+    """``output.members``: a list of optional member names, or "all" (in the list or alone)."""
+    from mars_pairs.pipeline.dense import DENSE_MEMBERS
+
+    items = [value] if isinstance(value, str) else value
+    if not isinstance(items, list) or not all(isinstance(v, str) for v in items):
+        raise ConfigError(f"output.members: expected a list of member names, got {shown(value)}")
+    unknown = [v for v in items if v != "all" and v not in DENSE_MEMBERS]
+    if unknown:
+        raise ConfigError(
+            f"output.members: unknown member {unknown[0]!r}; expected some of "
+            f"{list(DENSE_MEMBERS)} or 'all'"
+        )
+    if "all" in items:
+        return DENSE_MEMBERS
+    return tuple(m for m in DENSE_MEMBERS if m in items)
+
+
 def _is_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
@@ -294,7 +328,9 @@ def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConf
         {"observer_height", "radius", "viewshed", "view_mask", "ray_stride"},
     )
     chips = Section(
-        top.raw("chips", {}), "chips", {"size_m", "size_px", "orientation", "min_coverage"}
+        top.raw("chips", {}),
+        "chips",
+        {"size_m", "size_px", "orientation", "min_coverage", "offset_m"},
     )
     min_coverage = chips.number("min_coverage", DEFAULT_MIN_COVERAGE, positive=False, maximum=1.0)
     if min_coverage < 0.0:
@@ -302,7 +338,7 @@ def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConf
     out = Section(
         top.raw("output"),
         "output",
-        {"dir", "shard_size", "image_encoding", "license", "keep_parts"},
+        {"dir", "shard_size", "image_encoding", "license", "keep_parts", "members", "dense_stride"},
     )
     license = out.raw("license", None)
     if license is not None and (not isinstance(license, str) or not license.strip()):
@@ -310,6 +346,9 @@ def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConf
     keep_parts = out.raw("keep_parts", False)
     if not isinstance(keep_parts, bool):
         raise ConfigError(f"output.keep_parts: expected true or false, got {keep_parts!r}")
+    offset_m = chips.number("offset_m", None, positive=False, maximum=MAX_CHIP_SIZE_M)
+    if offset_m is not None and offset_m < 0.0:
+        raise ConfigError(f"chips.offset_m: expected a distance >= 0 (metres), got {offset_m}")
     return BuildConfig(
         inputs=_inputs(top.raw("inputs"), base),
         geometry=GeometryConfig(
@@ -324,6 +363,7 @@ def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConf
             size_px=chips.integer("size_px", 512, minimum=8, maximum=MAX_CHIP_SIZE_PX),
             orientation=chips.choice("orientation", ORIENTATIONS, "north-up"),
             min_coverage=min_coverage,
+            offset_m=offset_m,
         ),
         output=OutputConfig(
             dir=out.path("dir", base),  # type: ignore[arg-type]
@@ -331,6 +371,10 @@ def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConf
             image_encoding=out.choice("image_encoding", IMAGE_ENCODINGS, "png"),
             license=license,
             keep_parts=keep_parts,
+            members=_members(out.raw("members", [])),
+            dense_stride=None
+            if out.raw("dense_stride", None) is None
+            else out.integer("dense_stride", maximum=100_000),
         ),
         splits=_splits(top.raw("splits", {})),
         source=source,

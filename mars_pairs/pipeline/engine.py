@@ -46,10 +46,11 @@ from mars_pairs.errors import MarsPairsError
 from mars_pairs.pipeline import worker
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.context import SampleContext
+from mars_pairs.pipeline.dense import member_fields
 from mars_pairs.pipeline.outputs import DROPPED_KEY, part_paths
 from mars_pairs.store.manifest import (
     FAILURE_SCHEMA,
-    MANIFEST_SCHEMA,
+    manifest_schema,
     rows_to_table,
     write_parquet_staged,
 )
@@ -151,14 +152,15 @@ def duplicate_row(label: str, key: str, first: str) -> dict[str, Any]:
     return worker.failure_row(label, "record", error)
 
 
-def part_tables(outcomes: Iterable[Outcome]) -> tuple[pa.Table, pa.Table]:
-    """A chunk's failure part and manifest part (which holds the count of samples dropped in
-    the split buffer in its metadata) for its ``outcomes``, in label order."""
+def part_tables(config: BuildConfig, outcomes: Iterable[Outcome]) -> tuple[pa.Table, pa.Table]:
+    """A chunk's failure part and manifest part (of the schema of ``config``'s members; the
+    count of samples dropped in the split buffer in its metadata) for its ``outcomes``, in
+    label order."""
     outcomes = list(outcomes)
     failures = [o.row for o in outcomes if o.kind in ("fail", "duplicate")]
     rows = [o.row for o in outcomes if o.kind == "ok"]
     dropped = sum(o.kind == "dropped" for o in outcomes)
-    table = rows_to_table(rows, MANIFEST_SCHEMA)
+    table = rows_to_table(rows, manifest_schema(member_fields(config.output.members)))
     table = table.replace_schema_metadata({DROPPED_KEY: str(dropped).encode()})
     return rows_to_table(failures, FAILURE_SCHEMA), table
 
@@ -204,7 +206,7 @@ def build_chunk(config: BuildConfig, task: ChunkTask) -> ChunkResult:
         shard.close()
         size = shard.path.stat().st_size
     _, manifest_part, failures_part = part_paths(out, task.index)
-    failures, manifest = part_tables(outcomes)
+    failures, manifest = part_tables(config, outcomes)
     staged = (
         write_parquet_staged(failures, failures_part).relative_to(out).as_posix(),
         write_parquet_staged(manifest, manifest_part).relative_to(out).as_posix(),

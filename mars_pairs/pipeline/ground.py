@@ -45,10 +45,13 @@ class GroundImage:
     size: tuple[int, int]  # (width, height) pixels of the member
     observation: Observation
     meta: dict[str, Any] = field(default_factory=dict)
+    pixels: np.ndarray | None = None  # uint8 (H, W) or (H, W, 3), when asked for
 
 
-def ground_image(obs: Observation, encoding: str) -> GroundImage:
-    """The checked ground member of ``obs``; ImageError (naming the file) on any fault."""
+def ground_image(obs: Observation, encoding: str, keep_pixels: bool = False) -> GroundImage:
+    """The checked ground member of ``obs``; ImageError (naming the file) on any fault.
+    ``keep_pixels``: also hand on the decoded pixels (uint8 (H, W) or (H, W, 3), the
+    member's own decode) for the dense members."""
     path = obs.image_path
     if path is None or not Path(path).is_file():
         raise ImageError(f"{obs.label_path}: no image file beside the label")
@@ -56,15 +59,22 @@ def ground_image(obs: Observation, encoding: str) -> GroundImage:
     suffix = path.suffix.lower()
     if suffix in _BROWSE and path != obs.label_path:
         data = _read(path)
-        size = decoded_size(data, path)
+        kept: list[np.ndarray] = []
+        size = decoded_size(data, path, kept if keep_pixels else None)
         checked, meta = fit_to_label(obs, size, path)
-        return GroundImage(_BROWSE[suffix], data, size, checked, meta)
+        pixels = kept[0] if kept else None
+        return GroundImage(_BROWSE[suffix], data, size, checked, meta, pixels)
     pixels, meta = read_product_pixels(obs)
     size = (pixels.shape[1], pixels.shape[0])
     checked, scale_meta = fit_to_label(obs, size, path)
     buf = io.BytesIO()
     Image.fromarray(pixels).save(buf, format="PNG" if encoding == "png" else "JPEG", quality=95)
-    return GroundImage(f"ground.{encoding}", buf.getvalue(), size, checked, meta | scale_meta)
+    kept_pixels = pixels if keep_pixels else None
+    if kept_pixels is not None and encoding != "png":  # what a reader decodes: the JPEG's
+        kept_pixels = _decoded(buf.getvalue())
+    return GroundImage(
+        f"ground.{encoding}", buf.getvalue(), size, checked, meta | scale_meta, kept_pixels
+    )
 
 
 def _read(path: Path) -> bytes:
@@ -74,8 +84,23 @@ def _read(path: Path) -> bytes:
         raise ImageError(f"{path}: cannot read image: {exc.strerror or exc}") from exc
 
 
-def decoded_size(data: bytes, path: Path) -> tuple[int, int]:
-    """(width, height) of a JPEG/PNG after decoding every pixel; ImageError if it cannot be."""
+def _decoded(data: bytes) -> np.ndarray:
+    """The pixels of an encoded image: uint8 (H, W) or (H, W, 3)."""
+    with Image.open(io.BytesIO(data)) as im:
+        return _as_pixels(im)
+
+
+def _as_pixels(im: Image.Image) -> np.ndarray:
+    if im.mode not in ("L", "RGB"):
+        im = im.convert("RGB")
+    return np.asarray(im)
+
+
+def decoded_size(
+    data: bytes, path: Path, pixels: list[np.ndarray] | None = None
+) -> tuple[int, int]:
+    """(width, height) of a JPEG/PNG after decoding every pixel; ImageError if it cannot be.
+    ``pixels``: a list that receives the decoded pixels (uint8 (H, W) or (H, W, 3))."""
     if ImageFile.LOAD_TRUNCATED_IMAGES:
         raise ImageError(f"{path}: PIL.ImageFile.LOAD_TRUNCATED_IMAGES is on; refusing to decode")
     try:
@@ -86,6 +111,8 @@ def decoded_size(data: bytes, path: Path) -> tuple[int, int]:
             with Image.open(io.BytesIO(data)) as im:
                 im.load()  # every pixel: a truncated or corrupted stream fails here
                 size = im.size
+                if pixels is not None:
+                    pixels.append(_as_pixels(im))
     except Exception as exc:  # Pillow raises OSError, SyntaxError, ValueError, ... on bad data
         raise ImageError(f"{path}: corrupted or truncated image: {exc}") from exc
     if data[:2] == b"\xff\xd8" and not data.rstrip(b"\x00").endswith(b"\xff\xd9"):

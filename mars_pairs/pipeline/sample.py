@@ -1,7 +1,7 @@
 """One observation -> one dataset sample: the stages in order, each one call.
 
 Stages (named in failure rows and timed): label, image, locate, terrain, viewshed, raycast,
-chips, encode.
+chips, encode, and dense when ``output.members`` names optional members.
 """
 
 from __future__ import annotations
@@ -13,8 +13,9 @@ from typing import Any
 from mars_pairs.errors import MarsPairsError
 from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.pds import read_observation
-from mars_pairs.pipeline.chips import correspondence, cut_chips
+from mars_pairs.pipeline.chips import correspondence, cut_chips, localization_fields
 from mars_pairs.pipeline.context import SampleContext
+from mars_pairs.pipeline.dense import dense_members
 from mars_pairs.pipeline.encode import encode_members
 from mars_pairs.pipeline.ground import ground_image
 from mars_pairs.pipeline.record import manifest_row, sample_meta
@@ -39,7 +40,8 @@ def build_sample(label: Path, ctx: SampleContext) -> Sample:
         with stage("label"):
             obs = read_observation(label)
         with stage("image"):  # decoded and checked; obs re-expressed for a resized image
-            ground = ground_image(obs, ctx.config.output.image_encoding)
+            keep = "ground_on_map" in ctx.config.output.members
+            ground = ground_image(obs, ctx.config.output.image_encoding, keep_pixels=keep)
             obs = ground.observation
         with stage("locate"):
             pose = ctx.places.locate(obs)
@@ -47,11 +49,23 @@ def build_sample(label: Path, ctx: SampleContext) -> Sample:
         view = compute_view(obs, pose, camera, ctx, stage)
         with stage("chips"):
             grid, chips, cover = cut_chips(view, ctx, obs)
+        out = ctx.config.output
+        dense: dict[str, bytes] = {}
+        dense_meta: dict[str, Any] = {}
+        if out.members:
+            with stage("dense"):
+                stride = out.dense_stride or ctx.config.geometry.ray_stride
+                radius = ctx.config.geometry.radius
+                dense, dense_meta = dense_members(
+                    view, grid, chips, ground, out.members, stride, radius
+                )
         with stage("encode"):
             row = manifest_row(obs, pose, view, grid, ctx, cover)
             meta = sample_meta(row, obs, view, grid, ctx, ground.size)
             meta["ground_image"] = ground.meta
-            members = encode_members(chips, correspondence(view, grid), meta)
+            if out.members or ctx.config.chips.offset_m is not None:
+                meta.update(localization_fields(view, grid), **dense_meta)
+            members = encode_members(chips, correspondence(view, grid), meta) | dense
     except (MarsPairsError, ValueError, OSError) as exc:
         raise StageError(stage.name, exc) from exc
     row["ground_member"] = ground.name

@@ -84,6 +84,31 @@ for _m in MEMBERS:
 
 MANIFEST_SCHEMA = pa.schema(_FIELDS)
 
+#: Optional members (``output.members``, see ``pipeline.dense``): their location columns are
+#: in the manifest of a build that writes them, after the default ones.
+DENSE_FIELDS = (
+    "range", "depth", "hits", "ortho_view", "view_valid", "dem_view", "ground_on_map",
+    "ground_on_map_cover", "ground_px",
+)  # fmt: skip
+
+
+def manifest_schema(fields: Sequence[str] = ()) -> pa.Schema:
+    """The manifest schema of a build writing the optional member ``fields`` as well
+    (``MANIFEST_SCHEMA`` itself when none)."""
+    unknown = [f for f in fields if f not in DENSE_FIELDS]
+    if unknown:
+        raise ValueError(f"unknown optional member field(s) {unknown}")
+    extra = [
+        (f"{m}_{suffix}", kind)
+        for m in fields
+        for suffix, kind in (
+            ("shard", pa.string()), ("offset", pa.int64()), ("size", pa.int64()),
+            ("crc32c", pa.int64()),
+        )
+    ]  # fmt: skip
+    return pa.schema(_FIELDS + extra) if extra else MANIFEST_SCHEMA
+
+
 #: Columns added after the first datasets: absent from older manifests, so not required.
 COVERAGE_COLUMNS = ("ortho_coverage", "dem_coverage")
 POINTING_PLACES_COLUMNS = (

@@ -10,6 +10,15 @@ ground pixel of each strided ray, NaN for no hit); ``crs``, ``bounds``, ``transf
 ``rotation`` place the chips on the map (:mod:`mars_pairs.torch.georef`); ``meta`` holds
 plain Python values of the manifest row.
 
+Datasets built with ``output.members`` also give the dense fields (``DENSE_FIELDS``, see
+:mod:`mars_pairs.pipeline.dense`): ``range``, ``depth`` and ``dem_view`` float32 [1, H', W'],
+``hits`` float64 [3, H', W'] (map x, y, z), ``ortho_view`` and ``view_valid`` on the ground
+image's dense grid, with ``dense_ground`` float32 [2, H', W'] (each cell's ground pixel, as
+``corr_ground``); ``ground_on_map`` [3, h, w], ``ground_on_map_cover`` and ``ground_px``
+float32 [2, h, w] (the ground pixel of each chip pixel, for the decoded ground image's size)
+on the chip grid. ``localization=True`` adds ``rover_px``, ``camera_px`` and ``heading_deg``
+from ``meta.json`` (datasets built with ``chips.offset_m`` or ``output.members``).
+
 Every error a user can catch is a :class:`~mars_pairs.errors.MarsPairsError`: a bad
 argument an ArgumentError (also a TypeError / ValueError), a damaged shard or member a
 DatasetError naming the shard and the member. A dataset opens only with its dataset.json
@@ -23,6 +32,7 @@ the manifest has ``<member>_crc32c`` columns; and no key may be on two manifest 
 
 from __future__ import annotations
 
+import json
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -46,8 +56,10 @@ from mars_pairs.store.integrity import MemberSpec, check_member
 from mars_pairs.store.manifest import MEMBERS, SUMMARY_COLUMNS, Manifest
 from mars_pairs.store.member_index import MemberIndex
 from mars_pairs.torch.decode import (
-    ALL_FIELDS,
+    ALL_FIELDS,  # noqa: F401  (re-exported)
     DEFAULT_FIELDS,
+    DENSE_GROUND_FIELDS,
+    KNOWN_FIELDS,
     MEMBER_SUFFIXES,
     chw_shape,
     decode_raw,
@@ -72,6 +84,14 @@ FILTER_KEYS = (
 )
 
 
+def _dense_stride(doc: dict[str, Any], ray_stride: int) -> int:
+    """The dense members' stride from dataset.json (``output.dense_stride``; default the ray
+    stride)."""
+    output = doc.get("config", {}).get("output", {}) if isinstance(doc, dict) else {}
+    value = output.get("dense_stride") if isinstance(output, dict) else None
+    return value if isinstance(value, int) and value >= 1 else ray_stride
+
+
 def _ground_size(value: int | Sequence[int] | None) -> tuple[int, int] | None:
     if value is None:
         return None
@@ -91,9 +111,11 @@ def _ground_size(value: int | Sequence[int] | None) -> tuple[int, int] | None:
 def _check_fields(fields: Sequence[str]) -> tuple[str, ...]:
     if isinstance(fields, str):
         fields = (fields,)
-    bad = [f for f in fields if f not in ALL_FIELDS]
+    bad = [f for f in fields if f not in KNOWN_FIELDS]
     if bad or not fields:
-        raise ArgumentError(f"fields: unknown field(s) {bad}; expected some of {list(ALL_FIELDS)}")
+        raise ArgumentError(
+            f"fields: unknown field(s) {bad}; expected some of {list(KNOWN_FIELDS)}"
+        )
     return tuple(fields)
 
 
@@ -134,6 +156,7 @@ class MarsPairsDataset(Dataset):
         normalize_dem: bool = False,
         image_dtype: torch.dtype = torch.uint8,
         verify: bool = False,
+        localization: bool = False,
         **filters: Any,
     ) -> None:
         unknown = set(filters) - set(FILTER_KEYS)
@@ -155,8 +178,13 @@ class MarsPairsDataset(Dataset):
         self.chip_px = info.chip_px
         self.ray_stride = info.ray_stride
         self.verify = bool(verify)
+        self.localization = bool(localization)
+        self.dense_stride = _dense_stride(info.doc, self.ray_stride)
         # verify=True checks every member of a sample read, like `mars-pairs verify`
-        self._located = tuple(MEMBERS) if self.verify else self.fields
+        located = (*MEMBERS, *self.fields) if self.verify else self.fields
+        if self.localization:
+            located = (*located, "meta")
+        self._located = tuple(dict.fromkeys(located))
         locations = [f"{m}_{s}" for m in self._located for s in ("shard", "offset", "size")]
         required = [*META_COLUMNS, *GEO_COLUMNS, "width", "height", *locations]
         manifest.require(required)
@@ -320,12 +348,51 @@ class MarsPairsDataset(Dataset):
                 raw["corr"].shape[:2], self.ray_stride, (width, height), ground_hw
             )
             out["corr_ground"] = torch.from_numpy(grid)
+        dense = next((f for f in DENSE_GROUND_FIELDS if f in raw), None)
+        if dense is not None:
+            width, height = (int(v) for v in self._size[index])
+            ground_hw = raw["ground"].shape[:2] if "ground" in raw else (height, width)
+            grid = corr_ground_grid(
+                raw[dense].shape[:2], self.dense_stride, (width, height), ground_hw
+            )
+            out["dense_ground"] = torch.from_numpy(grid)
+        if self.localization:
+            out.update(self._localization(index))
         return out
+
+    def _scaled_ground_px(
+        self, index: int, ground_px: torch.Tensor, raw: dict[str, np.ndarray]
+    ) -> torch.Tensor:
+        """``ground_px`` (label image pixels, centres at integers) re-expressed for the decoded
+        ground image's size (``ground_size``): x' + 0.5 = (x + 0.5) * scale."""
+        width, height = (int(v) for v in self._size[index])
+        h, w = raw["ground"].shape[:2]
+        if (h, w) == (height, width) or not (width and height):
+            return ground_px
+        scale = torch.tensor([w / width, h / height], dtype=ground_px.dtype)[:, None, None]
+        return (ground_px + 0.5) * scale - 0.5
+
+    def _localization(self, index: int) -> dict[str, torch.Tensor]:
+        """rover_px, camera_px ([2] chip column, row, pixel-edge) and heading_deg (clockwise
+        from the chip's up) of sample ``index``, from its meta.json."""
+        data = self._bytes(index, "meta")
+        try:
+            meta = json.loads(bytes(data))
+            values = {k: meta[k] for k in ("rover_px", "camera_px", "heading_deg")}
+        except (ValueError, KeyError) as exc:
+            raise DatasetError(
+                self.root / self._index.location(index, "meta")[0],
+                self.member_name(index, "meta"),
+                f"no localization targets ({exc}): build with chips.offset_m or output.members",
+            ) from None
+        return {k: torch.tensor(v, dtype=torch.float64) for k, v in values.items()}
 
     def _finish_sample(
         self, tensors: dict[str, torch.Tensor], index: int, raw: dict[str, np.ndarray]
     ) -> dict[str, Any]:
         sample: dict[str, Any] = dict(tensors)
+        if "ground_px" in sample and "ground" in raw:
+            sample["ground_px"] = self._scaled_ground_px(index, sample["ground_px"], raw)
         sample.update(self._georef(index, raw))
         sample["meta"] = self._index.meta(index)
         return self.transform(sample) if self.transform is not None else sample
@@ -374,10 +441,14 @@ class MarsPairsDataset(Dataset):
             self._finish_sample(t, i, r) for t, i, r in zip(tensors, checked, raws, strict=True)
         ]
 
-    def plot(self, sample: dict[str, Any], *, title: str | None = None) -> Any:
+    def plot(self, sample: dict[str, Any], *, title: str | None = None, dense: bool = False) -> Any:
         """A matplotlib Figure of one sample (as returned by ``ds[i]``, transformed or not):
         the ground image, the ortho chip with the viewshed and the camera wedge, the DEM as a
-        hillshade and the keypoints, colour-linked (needs the ``viz`` extra)."""
-        from mars_pairs.viz.sample import sample_figure
+        hillshade and the keypoints, colour-linked (needs the ``viz`` extra). ``dense``: the
+        figure of its dense members instead (range, depth, the map seen from the rover, the
+        ground image laid on the map)."""
+        from mars_pairs.viz.sample import dense_figure, sample_figure
 
+        if dense:
+            return dense_figure(sample, title=title)
         return sample_figure(sample, title=title)

@@ -20,10 +20,26 @@ from mars_pairs.errors import ArgumentError
 DEFAULT_FIELDS = ("ground", "ortho", "dem", "viewshed")
 
 
+#: Optional dense members (``output.members``; see ``mars_pairs.pipeline.dense``): on the
+#: ground image's dense grid (range, depth, hits, ortho_view, view_valid, dem_view) and on
+#: the chip grid (ground_on_map, ground_on_map_cover, ground_px).
+DENSE_FIELDS = (
+    "range", "depth", "hits", "ortho_view", "view_valid", "dem_view", "ground_on_map",
+    "ground_on_map_cover", "ground_px",
+)  # fmt: skip
+DENSE_GROUND_FIELDS = ("range", "depth", "hits", "ortho_view", "view_valid", "dem_view")
+DENSE_CHIP_FIELDS = ("ground_on_map", "ground_on_map_cover", "ground_px")
+
+
+#: Every default member's field (the optional dense ones are in ``DENSE_FIELDS``).
 ALL_FIELDS = ("ground", "ortho", "dem", "viewshed", "corr")
+KNOWN_FIELDS = ALL_FIELDS + DENSE_FIELDS
 
 
-IMAGE_FIELDS = ("ground", "ortho", "viewshed")  # uint8 with image_dtype=torch.uint8
+#: uint8 with image_dtype=torch.uint8
+IMAGE_FIELDS = ("ground", "ortho", "viewshed", "ortho_view", "view_valid", "ground_on_map",
+                "ground_on_map_cover")  # fmt: skip
+MASK_FIELDS = ("viewshed", "view_valid", "ground_on_map_cover")  # {0, 1}
 
 
 #: tar member suffixes of the fields (the ground image's is in the manifest's ground_member)
@@ -34,6 +50,15 @@ MEMBER_SUFFIXES = {
     "viewshed": "viewshed.png",
     "corr": "corr.npy",
     "meta": "meta.json",
+    "range": "range.npy",
+    "depth": "depth.npy",
+    "hits": "hits.npy",
+    "ortho_view": "ortho_view.png",
+    "view_valid": "view_valid.png",
+    "dem_view": "dem_view.npy",
+    "ground_on_map": "ground_on_map.png",
+    "ground_on_map_cover": "ground_on_map_cover.png",
+    "ground_px": "ground_px.npy",
 }
 
 
@@ -120,9 +145,15 @@ def decode_raw(
             centre = float(np.median(dem[finite])) if finite.any() else 0.0
             dem = np.where(finite, dem - centre, np.float32(0.0)).astype(np.float32)
         return dem
-    if field == "corr":
-        return _decode_npy(data)
-    raise ArgumentError(f"unknown field {field!r}; expected one of {list(ALL_FIELDS)}")
+    if field in ("corr", "range", "depth", "dem_view", "ground_px"):
+        return _decode_npy(data).astype(np.float32, copy=False)
+    if field == "hits":  # float64: map coordinates in the millions
+        return _decode_npy(data).astype(np.float64, copy=False)
+    if field == "ground_on_map":
+        return _image_u8(data, "RGB")
+    if field in ("ortho_view", "view_valid", "ground_on_map_cover"):
+        return _image_u8(data, "L")
+    raise ArgumentError(f"unknown field {field!r}; expected one of {list(KNOWN_FIELDS)}")
 
 
 def chw_shape(raw: np.ndarray) -> tuple[int, int, int]:
@@ -130,11 +161,18 @@ def chw_shape(raw: np.ndarray) -> tuple[int, int, int]:
     return (1, *raw.shape) if raw.ndim == 2 else (raw.shape[2], raw.shape[0], raw.shape[1])
 
 
-TORCH_DTYPES = {np.dtype(np.uint8): torch.uint8, np.dtype(np.float32): torch.float32}
+TORCH_DTYPES = {
+    np.dtype(np.uint8): torch.uint8,
+    np.dtype(np.float32): torch.float32,
+    np.dtype(np.float64): torch.float64,
+}
 
 
 def out_dtype(field: str, image_dtype: torch.dtype) -> np.dtype:
-    """The numpy dtype of a field's tensor: ``image_dtype`` for images, else float32."""
+    """The numpy dtype of a field's tensor: ``image_dtype`` for images, float64 for ``hits``
+    (map coordinates), else float32."""
+    if field == "hits":
+        return np.dtype(np.float64)
     if field in IMAGE_FIELDS and image_dtype == torch.uint8:
         return np.dtype(np.uint8)
     if image_dtype not in (torch.float32, torch.uint8):
@@ -154,10 +192,10 @@ def finish_chw(field: str, raw: np.ndarray, out: np.ndarray) -> None:
     spawns intra-op threads in the main process.)
     """
     chw = raw[None] if raw.ndim == 2 else raw.transpose(2, 0, 1)
-    if field in ("ground", "ortho") and out.dtype != np.uint8:
+    if field in ("ground", "ortho", "ortho_view", "ground_on_map") and out.dtype != np.uint8:
         # transposing uint8 then dividing contiguously beats one strided divide (~1.4x)
         np.divide(np.ascontiguousarray(chw), np.float32(255.0), out=out)
-    elif field == "viewshed":
+    elif field in MASK_FIELDS:
         np.greater(chw, 127, out=out, casting="unsafe")
     else:
         np.copyto(out, chw, casting="same_kind")

@@ -405,7 +405,7 @@ def show_sample(root: str | Path, key: str, out: str | Path | None = None, dpi: 
         raise MarsPairsError(f"{root}: no such dataset folder")
     Manifest.open(root).require()  # a damaged or column-less manifest: one error naming it
     plt = pyplot()
-    with MarsPairsDataset(root, fields=ALL_FIELDS) as ds:
+    with MarsPairsDataset(root, fields=ALL_FIELDS + _dense_fields_of(root)) as ds:
         sample = ds[ds.index_of(key)]
         out = Path(out) if out is not None else Path(f"{sample['meta']['key']}.png")
         centre = _camera_centre(root, sample["meta"]["key"])
@@ -417,7 +417,89 @@ def show_sample(root: str | Path, key: str, out: str | Path | None = None, dpi: 
         fig.savefig(out, dpi=dpi)
     finally:
         plt.close(fig)
+    if has_dense(sample):
+        _save_dense(sample, out, dpi)
     return out
+
+
+def _dense_fields_of(root: Path) -> tuple[str, ...]:
+    """The optional dense fields whose members the dataset's manifest locates."""
+    from mars_pairs.store.manifest import Manifest
+    from mars_pairs.torch.decode import DENSE_FIELDS
+
+    names = set(Manifest.open(root).column_names)
+    return tuple(f for f in DENSE_FIELDS if f"{f}_offset" in names)
+
+
+def _save_dense(sample: dict[str, Any], out: Path, dpi: int) -> Path:
+    """The dense members' figure beside ``out``: ``<stem>_dense<suffix>``."""
+    plt = pyplot()
+    path = out.with_name(f"{out.stem}_dense{out.suffix}")
+    fig = dense_figure(sample)
+    try:
+        fig.savefig(path, dpi=dpi)
+    finally:
+        plt.close(fig)
+    return path
+
+
+# -- dense members (output.members) ---------------------------------------------------------------
+DENSE_PANELS = ("range", "depth", "ortho_view", "dem_view", "ground_on_map")
+
+
+def has_dense(sample: dict[str, Any]) -> bool:
+    """Whether the sample holds a dense member to draw (:func:`dense_figure`)."""
+    return any(name in sample for name in DENSE_PANELS)
+
+
+def _dense_image(sample: dict[str, Any], name: str, mask: str | None) -> np.ndarray | None:
+    """[H, W] (first band) or [H, W, 3] float display array, NaN where ``mask`` is 0."""
+    value = sample.get(name)
+    if value is None:
+        return None
+    a = np.asarray(value).astype(np.float64)
+    a = a[0] if a.shape[0] == 1 else a.transpose(1, 2, 0)
+    if np.asarray(value).dtype == np.uint8:
+        a = a / 255.0
+    if mask is not None and mask in sample:
+        keep = np.asarray(sample[mask])[0] > 0
+        a = np.where(keep[..., None] if a.ndim == 3 else keep, a, np.nan)
+    return a
+
+
+def dense_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
+    """A matplotlib Figure of a sample's dense members: range and depth (metres along the ray
+    and the camera axis) and the ortho and DEM seen from the rover (ground image's dense
+    grid, blank where invalid); the ground image laid on the map over the ortho chip (chip
+    grid, only covered pixels coloured)."""
+    plt = pyplot()
+    fig, axes = plt.subplots(2, 3, figsize=SHOW_SIZE)
+    panels = (
+        ("ground", None, "ground image", "gray"),
+        ("range", None, "range (m along the ray)", "viridis"),
+        ("depth", None, "depth (m along the camera axis)", "viridis"),
+        ("ortho_view", "view_valid", "ortho seen from the rover", "gray"),
+        ("dem_view", "view_valid", "DEM seen from the rover (m)", "terrain"),
+        ("ground_on_map", "ground_on_map_cover", "ground image laid on the map", "gray"),
+    )
+    for ax, (name, mask, label, cmap) in zip(axes.ravel(), panels, strict=True):
+        image = _dense_image(sample, name, mask)
+        if image is None:
+            _missing(ax, name)
+        else:
+            if name == "ground_on_map" and "ortho" in sample:
+                ortho = _dense_image(sample, "ortho", None)
+                ax.imshow(ortho, cmap="gray", alpha=0.5)
+            shown = ax.imshow(np.clip(image, 0, 1) if image.ndim == 3 else image, cmap=cmap)
+            if image.ndim == 2 and name in ("range", "depth", "dem_view"):
+                fig.colorbar(shown, ax=ax, fraction=0.046, pad=0.02)
+        ax.set_title(label, fontsize=9)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    return fig
 
 
 def _camera_centre(root: Path, key: str) -> list[float] | None:

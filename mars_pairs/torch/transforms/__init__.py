@@ -19,10 +19,13 @@ dependency.)
 """
 
 from mars_pairs.torch.transforms.augment import ColorJitter, RandomCrop, RandomFlip, RandomRotate
+from mars_pairs.torch.transforms.carry import CarryToChip, CarryToImage
 from mars_pairs.torch.transforms.common import Compose, ToFloat, keypoints
 from mars_pairs.torch.transforms.geometric import Crop, Flip, NorthUp, Resize, Rotate
 
 __all__ = [
+    "CarryToChip",
+    "CarryToImage",
     "ColorJitter",
     "Compose",
     "Crop",

@@ -16,7 +16,10 @@ class ToFloat:
     """uint8 images to float32: ground and ortho in [0, 1], viewshed {0, 1} (numpy's division,
     bit for bit what ``image_dtype=torch.float32`` gives)."""
 
-    DIVISORS: ClassVar[dict[str, float]] = {"ground": 255.0, "ortho": 255.0, "viewshed": 1.0}
+    DIVISORS: ClassVar[dict[str, float]] = {
+        "ground": 255.0, "ortho": 255.0, "viewshed": 1.0, "ortho_view": 255.0,
+        "ground_on_map": 255.0, "view_valid": 1.0, "ground_on_map_cover": 1.0,
+    }  # fmt: skip
 
     def __call__(self, sample: Sample) -> Sample:
         out = dict(sample)

@@ -15,6 +15,18 @@ from mars_pairs.errors import ArgumentError
 from mars_pairs.torch.georef import bounds_of, rotation_of
 
 CHIP_FIELDS = ("ortho", "dem", "viewshed")
+#: Optional chip-grid members (``output.members``) that move with the chips.
+DENSE_CHIP_FIELDS = ("ground_on_map", "ground_on_map_cover", "ground_px")
+_NEAREST = ("viewshed", "ground_on_map_cover", "ground_px")  # masks and pixel maps
+_NAN_FILL = ("dem", "ground_px")
+
+
+def _chip_mode(name: str) -> str:
+    return "nearest" if name in _NEAREST else "bilinear"
+
+
+def _chip_fill(name: str) -> float:
+    return math.nan if name in _NAN_FILL else 0.0
 
 
 Sample = dict[str, Any]
@@ -99,28 +111,32 @@ class _Geometric:
     def _apply_chip(
         self, name: str, image: torch.Tensor, m: np.ndarray, hw: tuple[int, int]
     ) -> torch.Tensor:
-        mode = "nearest" if name == "viewshed" else "bilinear"
-        return _warp(image, m, hw, mode, math.nan if name == "dem" else 0.0)
+        return _warp(image, m, hw, _chip_mode(name), _chip_fill(name))
 
     def __call__(self, sample: Sample) -> Sample:
         out = dict(sample)
         if self.target in ("ground", "both"):
-            made = self._ground_map(*_ground_hw(sample, "corr_ground"))
+            made = self._ground_map(*_ground_hw(sample, "corr_ground", "dense_ground"))
             if made is not None:
                 m, new_hw = made
                 if "ground" in out:
                     out["ground"] = self._apply_ground(sample["ground"], m, new_hw)
-                if "corr_ground" in out:
-                    out["corr_ground"] = _move_points(sample["corr_ground"], np.linalg.inv(m))
+                for name in ("corr_ground", "dense_ground"):
+                    if name in out:
+                        out[name] = _move_points(sample[name], np.linalg.inv(m))
+                if "ground_px" in out:  # image pixel centres (integers): edges are +0.5
+                    moved = _move_points(out["ground_px"] + 0.5, np.linalg.inv(m))
+                    out["ground_px"] = moved - 0.5
         if self.target in ("chip", "both"):
-            made = self._chip_map(*_chip_hw(sample, "corr", "transform"))
+            made = self._chip_map(*_chip_hw(sample, "corr", "transform", *LOCALIZATION_POINTS))
             if made is not None:
                 m, new_hw = made
-                for name in CHIP_FIELDS:
+                for name in CHIP_FIELDS + DENSE_CHIP_FIELDS:
                     if name in out:
-                        out[name] = self._apply_chip(name, sample[name], m, new_hw)
+                        out[name] = self._apply_chip(name, out[name], m, new_hw)
                 if "corr" in out:
                     out["corr"] = _move_points(sample["corr"], np.linalg.inv(m))
+                out.update(move_localization(sample, np.linalg.inv(m)))
                 if "transform" in out:
                     t = sample["transform"].double().numpy()
                     affine = (np.array([t[0:3], t[3:6], [0.0, 0.0, 1.0]]) @ m)[:2].ravel()
@@ -128,6 +144,26 @@ class _Geometric:
                     out["bounds"] = torch.tensor(bounds_of(affine, *new_hw), dtype=torch.float64)
                     out["rotation"] = torch.tensor(rotation_of(affine), dtype=torch.float64)
         return out
+
+
+LOCALIZATION_POINTS = ("rover_px", "camera_px")
+
+
+def move_localization(sample: Sample, m_inv: np.ndarray) -> Sample:
+    """The localization targets of ``sample`` under the chip map ``m_inv`` (old chip pixel ->
+    new, pixel-edge coordinates): ``rover_px`` and ``camera_px`` ([2] column, row) move as
+    points; ``heading_deg`` (clockwise from the chip's up, degrees) turns with the direction
+    (sin h, -cos h) it names in chip pixels (a mirror reverses its sense)."""
+    out: Sample = {}
+    for name in LOCALIZATION_POINTS:
+        if name in sample:
+            out[name] = _move_points(torch.as_tensor(sample[name]), m_inv)
+    if "heading_deg" in sample:
+        h = math.radians(float(sample["heading_deg"]))
+        dx, dy = m_inv[:2, :2] @ np.array([math.sin(h), -math.cos(h)])
+        heading = math.degrees(math.atan2(dx, -dy)) % 360.0
+        out["heading_deg"] = torch.tensor(heading, dtype=torch.float64)
+    return out
 
 
 def _ground_hw(sample: Sample, *needing: str) -> tuple[int, int]:
@@ -143,7 +179,7 @@ def _ground_hw(sample: Sample, *needing: str) -> tuple[int, int]:
 def _chip_hw(sample: Sample, *needing: str) -> tuple[int, int]:
     """The chips' (H, W); ArgumentError when a field that moves with them is there without
     any chip."""
-    for name in CHIP_FIELDS:
+    for name in CHIP_FIELDS + DENSE_CHIP_FIELDS:
         if name in sample:
             return tuple(sample[name].shape[-2:])  # type: ignore[return-value]
     if any(k in sample for k in needing):
@@ -204,7 +240,7 @@ class Resize(_Geometric):
     def _apply_chip(
         self, name: str, image: torch.Tensor, m: np.ndarray, hw: tuple[int, int]
     ) -> torch.Tensor:
-        if name == "viewshed":
+        if _chip_mode(name) == "nearest":
             return _resize(image, hw, "nearest-exact")
         return _resize(image, hw, "bilinear")  # NaN in the DEM spreads to its neighbours
 
@@ -303,8 +339,7 @@ class Rotate(_Geometric):
     def _apply_chip(
         self, name: str, image: torch.Tensor, m: np.ndarray, hw: tuple[int, int]
     ) -> torch.Tensor:
-        mode = "nearest" if name == "viewshed" else "bilinear"
-        return self._turn(image, m, hw, mode=mode, fill=math.nan if name == "dem" else 0.0)
+        return self._turn(image, m, hw, mode=_chip_mode(name), fill=_chip_fill(name))
 
 
 class NorthUp:

@@ -1,0 +1,231 @@
+"""Dense geometry members (opt-in, ``output.members``): the sample's geometry per pixel, in
+both directions.
+
+On the ground image's dense grid (every ``output.dense_stride``-th pixel, default the ray
+stride; pixel (i, j) is image line i * stride, sample j * stride):
+
+- ``range`` (H', W') float32: metres along the ray from its origin to its first terrain hit;
+  ``depth`` float32: metres along the camera axis (A) from the camera centre to the hit. NaN
+  for sky and for rays that leave the DEM window, meet nodata or pass ``geometry.radius``
+  (metres along the ray).
+- ``hits`` (H', W', 3) float64: the hit's map x, y (dataset CRS, map units) and elevation z
+  (metres above the areoid).
+- ``ortho_view`` (uint8) and ``dem_view`` (float32 metres, NaN invalid): the ortho and DEM
+  chips sampled (bilinear) at each hit: the map seen from the rover; ``view_valid`` (uint8
+  0/255): a hit that lies on the chip with DEM data there.
+
+On the chip grid (S x S, the chip's affine):
+
+- ``ground_on_map`` (uint8, the ground image's bands): the ground image sampled (bilinear) at
+  the image point of each visible chip pixel's terrain point (map x, y of its centre, the DEM
+  chip's height), i.e. the nearest ray through it; ``ground_on_map_cover`` (uint8 0/255):
+  visible (the viewshed chip: line of sight and the exact view test) and inside the image;
+- ``ground_px`` (S, S, 2) float32: the image point of each visible chip pixel (sample, line;
+  NaN where not covered), the map ``mars_pairs.raster.transfer.image_to_chip`` uses (its
+  own member: 8 bytes a chip pixel, 2 MiB for a 512 px chip).
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from PIL import Image
+
+from mars_pairs.geometry.body import MARS_RADIUS_M
+from mars_pairs.geometry.mapcam import MapCamera
+from mars_pairs.kernels.raycast import cast_rays
+from mars_pairs.pipeline.encode import npy_bytes, png_bytes
+from mars_pairs.pipeline.ground import GroundImage
+from mars_pairs.pipeline.view import View
+from mars_pairs.raster.chips import ChipGrid
+from mars_pairs.raster.transfer import sample_at
+
+#: The names ``output.members`` accepts (``all``: every one), in member order.
+DENSE_MEMBERS = (
+    "range", "depth", "hits", "ortho_view", "dem_view", "ground_on_map", "ground_px",
+)  # fmt: skip
+
+#: The tar members each written member name brings (companions: validity and pixel maps).
+MEMBER_FILES: dict[str, tuple[str, ...]] = {
+    "range": ("range.npy",),
+    "depth": ("depth.npy",),
+    "hits": ("hits.npy",),
+    "ortho_view": ("ortho_view.png", "view_valid.png"),
+    "dem_view": ("dem_view.npy", "view_valid.png"),
+    "ground_on_map": ("ground_on_map.png", "ground_on_map_cover.png"),
+    "ground_px": ("ground_px.npy",),
+}
+
+#: Every field (manifest column prefix) the dense members can add, in tar order.
+DENSE_FIELDS = tuple(dict.fromkeys(f.split(".")[0] for m in DENSE_MEMBERS for f in MEMBER_FILES[m]))
+
+
+def member_fields(members: tuple[str, ...]) -> tuple[str, ...]:
+    """The fields (manifest column prefixes) that ``members`` write, in tar order."""
+    files = {f.split(".")[0] for m in members for f in MEMBER_FILES[m]}
+    return tuple(f for f in DENSE_FIELDS if f in files)
+
+
+@dataclass(frozen=True)
+class DenseRays:
+    """Rays of every ``stride``-th pixel: ``range`` and ``depth`` (H', W') metres, ``hits``
+    (H', W', 3) map x, y (map units) and z (metres); NaN where a ray hits nothing."""
+
+    range: np.ndarray
+    depth: np.ndarray
+    hits: np.ndarray
+    stride: int
+
+
+def dense_rays(view: View, stride: int, max_range_m: float) -> DenseRays:
+    """Cast every ``stride``-th pixel's ray of ``view.camera`` over ``view.window`` (or reuse
+    ``view.hits`` when they were cast at that stride).
+
+    Ray parameter t (metres along the true ray: directions are map images of unit local NED
+    vectors) from hits: t = (hit - o) . d / |d|^2. Depth: (o_local + t d_local - C) . A in
+    the camera's local NED frame (metres), A the unit camera axis.
+    """
+    camera = view.camera
+    pixels = camera.pixel_grid(stride)
+    shape = (len(range(0, camera.height, stride)), len(range(0, camera.width, stride)))
+    o_local, d_local = camera.camera.unproject(pixels)  # local NED metres, unit directions
+    origins = camera.origin_map + _times_transposed(o_local, camera.jacobian)
+    dirs = _times_transposed(d_local, camera.jacobian)  # as MapCamera.pixel_rays
+    if view.hits is not None and view.grid_shape == shape:
+        hits = view.hits
+    else:
+        cx, cy = (float(v) for v in camera.center_map[:2])
+        hits, _ = cast_rays(origins, dirs, view.window, max_range=max_range_m, observer_xy=(cx, cy))
+    t = np.einsum("ij,ij->i", hits - origins, dirs) / np.einsum("ij,ij->i", dirs, dirs)
+    axis = np.asarray(camera.camera.a, dtype=np.float64)
+    axis = axis / np.linalg.norm(axis)
+    c = np.asarray(camera.camera.c, dtype=np.float64)
+    depth = (o_local - c) @ axis + t * (d_local @ axis)
+    return DenseRays(
+        t.reshape(shape).astype(np.float32),
+        depth.reshape(shape).astype(np.float32),
+        hits.reshape(*shape, 3),
+        stride,
+    )
+
+
+def _times_transposed(rows: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    """``rows @ matrix.T`` for (N, 3) rows, column by column (numpy's matmul on (N, 3) rows
+    is several times slower, and slower still with BLAS threads on a busy machine)."""
+    return rows[:, 0:1] * matrix[:, 0] + rows[:, 1:2] * matrix[:, 1] + rows[:, 2:3] * matrix[:, 2]
+
+
+def map_from_rover(
+    rays: DenseRays, grid: ChipGrid, ortho: np.ndarray, dem: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ortho_view uint8, dem_view float32 metres, valid bool) on the dense grid: the ortho
+    (uint8 chip) and DEM (float32 chip, NaN nodata) sampled bilinearly at each ray's hit;
+    valid where the hit lies on the chip and the DEM chip has data around it."""
+    px = grid.to_pixel(rays.hits[..., 0], rays.hits[..., 1])
+    u, v = px[..., 0] - 0.5, px[..., 1] - 0.5
+    dem_view, valid = sample_at(dem, u, v, nearest=False)
+    ortho_view, _ = sample_at(ortho, u, v, nearest=False, fill=0.0)
+    ortho_u8 = np.where(valid[..., None] if ortho_view.ndim == 3 else valid, ortho_view, 0.0)
+    return np.rint(ortho_u8).clip(0, 255).astype(np.uint8), dem_view, valid
+
+
+def chip_points(grid: ChipGrid, dem: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """(N, 3) map points of chip pixels (``rows``, ``cols``): their centres' x, y (map units)
+    and the DEM chip's elevation there (metres; NaN nodata)."""
+    t = grid.transform
+    u, v = cols + 0.5, rows + 0.5
+    x = t.a * u + t.b * v + t.c
+    y = t.d * u + t.e * v + t.f
+    return np.column_stack([x, y, dem[rows, cols].astype(np.float64)])
+
+
+def ground_pixels_of_chip(
+    camera: MapCamera, grid: ChipGrid, dem: np.ndarray, visible: np.ndarray
+) -> np.ndarray:
+    """(S, S, 2) float32 image pixel (sample, line; centres at integers) of each visible chip
+    pixel's terrain point, projected through the camera with the planet's curvature; NaN
+    where ``visible`` (bool, the viewshed chip) is False or the point falls off the image."""
+    out = np.full((*visible.shape, 2), np.nan, dtype=np.float32)
+    rows, cols = np.nonzero(visible & np.isfinite(dem))
+    if len(rows):
+        points = chip_points(grid, dem, rows, cols)
+        px = camera.camera.project(camera.local_points(points, MARS_RADIUS_M))
+        with np.errstate(invalid="ignore"):
+            inside = (
+                np.isfinite(px).all(axis=1)
+                & (px[:, 0] >= -0.5)
+                & (px[:, 0] <= camera.width - 0.5)
+                & (px[:, 1] >= -0.5)
+                & (px[:, 1] <= camera.height - 0.5)
+            )
+        out[rows[inside], cols[inside]] = px[inside]
+    return out
+
+
+def ground_on_map(pixels: np.ndarray, ground_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(colours uint8 (S, S[, C]), cover bool (S, S)): the ground image ``pixels`` (H, W[, C]
+    uint8) sampled bilinearly at ``ground_px``; 0 where not covered."""
+    rows, cols = np.nonzero(np.isfinite(ground_px[..., 0]))
+    px = ground_px[rows, cols]
+    values, ok = sample_at(pixels, px[:, 0], px[:, 1], nearest=False, fill=0)
+    colours = np.zeros(ground_px.shape[:2] + pixels.shape[2:], dtype=np.uint8)
+    cover = np.zeros(ground_px.shape[:2], dtype=bool)
+    colours[rows, cols] = np.rint(values).clip(0, 255).astype(np.uint8)
+    cover[rows, cols] = ok
+    return colours, cover
+
+
+def decode_ground(data: bytes) -> np.ndarray:
+    """The ground member's pixels: uint8 (H, W) or (H, W, 3)."""
+    with Image.open(io.BytesIO(data)) as im:
+        if im.mode not in ("L", "RGB"):
+            im = im.convert("RGB")
+        return np.asarray(im)
+
+
+def dense_members(
+    view: View,
+    grid: ChipGrid,
+    chips: dict[str, Any],
+    ground: GroundImage,
+    members: tuple[str, ...],
+    stride: int,
+    max_range_m: float,
+) -> tuple[dict[str, bytes], dict[str, Any]]:
+    """The member bytes of ``members`` (see the module docstring) and their meta entries;
+    ``ground``: the ground member (its decoded pixels when kept, else its bytes decoded)."""
+    out: dict[str, bytes] = {}
+    meta: dict[str, Any] = {"dense_members": list(members)}
+    wanted = set(members)
+    if wanted & {"range", "depth", "hits", "ortho_view", "dem_view"}:
+        rays = dense_rays(view, stride, max_range_m)
+        meta["dense_stride"] = stride
+        meta["dense_shape"] = list(rays.range.shape)
+        if "range" in wanted:
+            out["range.npy"] = npy_bytes(rays.range)
+        if "depth" in wanted:
+            out["depth.npy"] = npy_bytes(rays.depth)
+        if "hits" in wanted:
+            out["hits.npy"] = npy_bytes(rays.hits)
+        if wanted & {"ortho_view", "dem_view"}:
+            ortho_view, dem_view, valid = map_from_rover(rays, grid, chips["ortho"], chips["dem"])
+            if "ortho_view" in wanted:
+                out["ortho_view.png"] = png_bytes(ortho_view)
+            out["view_valid.png"] = png_bytes(valid.astype(np.uint8) * 255)
+            if "dem_view" in wanted:
+                out["dem_view.npy"] = npy_bytes(dem_view.astype(np.float32))
+    if wanted & {"ground_on_map", "ground_px"}:
+        visible = np.asarray(chips["viewshed"]) > 0
+        ground_px = ground_pixels_of_chip(view.camera, grid, chips["dem"], visible)
+        if "ground_on_map" in wanted:
+            pixels = ground.pixels if ground.pixels is not None else decode_ground(ground.data)
+            colours, cover = ground_on_map(pixels, ground_px)
+            out["ground_on_map.png"] = png_bytes(colours)
+            out["ground_on_map_cover.png"] = png_bytes(cover.astype(np.uint8) * 255)
+        if "ground_px" in wanted:
+            out["ground_px.npy"] = npy_bytes(ground_px)
+    order = [f for m in DENSE_MEMBERS for f in MEMBER_FILES[m]]
+    return {f: out[f] for f in dict.fromkeys(order) if f in out}, meta

@@ -1,0 +1,73 @@
+"""Dense range and depth on the real Gale DEM at the sol-1051 pose (the views of
+``test_build_real_gale``), against the independent ray march of ``independent_truth``."""
+
+from __future__ import annotations
+
+import io
+import tarfile
+from pathlib import Path
+
+import independent_truth as truth
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from test_build_real_gale import GALE, _make_labels
+
+from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.config import parse_config
+
+RADIUS_M = 90.0
+STRIDE = 16
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    if not (GALE / "dem.tif").is_file():
+        pytest.skip(f"real Gale terrain not found at {GALE} (../shared beside the checkout)")
+    root = tmp_path_factory.mktemp("dense-gale")
+    (root / "labels").mkdir()
+    _make_labels(GALE, root / "labels")
+    doc = {
+        "inputs": {"labels": "labels/*.LBL", "places": str(GALE / "rover_positions.csv"),
+                   "dem": str(GALE / "dem.tif"), "ortho": str(GALE / "ortho.tif")},
+        "geometry": {"radius": RADIUS_M, "ray_stride": 8},
+        "chips": {"size_m": 120, "size_px": 240},
+        "output": {"dir": "dataset", "members": ["range", "depth"], "dense_stride": STRIDE},
+    }  # fmt: skip
+    summary = run_build(parse_config(doc, root), progress=False)
+    assert summary.samples == 4 and summary.failures == 0, summary.failures_by_reason
+    return root / "dataset"
+
+
+def test_range_and_depth_on_real_gale(built: Path) -> None:
+    rows = {r["key"]: r for r in pq.read_table(built / "manifest.parquet").to_pylist()}
+    arrays: dict[str, dict[str, np.ndarray]] = {}
+    for shard in sorted((built / "shards").glob("*.tar")):
+        with tarfile.open(shard) as tar:
+            for m in tar.getmembers():
+                key, _, name = m.name.partition(".")
+                if name in ("range.npy", "depth.npy"):
+                    data = tar.extractfile(m).read()  # type: ignore[union-attr]
+                    arrays.setdefault(key, {})[name] = np.load(io.BytesIO(data))
+    er, ed = [], []
+    for key, a in arrays.items():
+        lab = truth.read_label_fields(rows[key]["label_path"])
+        places, dem = GALE / "rover_positions.csv", GALE / "dem.tif"
+        cam = truth.place_camera(lab, places, dem)
+        px = truth.pixel_grid(lab.width, lab.height, STRIDE)
+        hits = truth.ground_hits(lab, places, dem, radius_m=RADIUS_M, step_m=0.25, pixels=px)
+        ok = np.isfinite(hits[:, 0])
+        rel = np.full((len(hits), 3), np.nan)
+        rel[ok] = cam.enu.from_map(hits[ok]) - cam.centre_enu
+        t_range = np.linalg.norm(rel, axis=1)
+        t_depth = rel @ (cam.rot @ (lab.a / np.linalg.norm(lab.a)))
+        r = a["range.npy"].ravel().astype(np.float64)
+        d = a["depth.npy"].ravel().astype(np.float64)
+        both = np.isfinite(r) & np.isfinite(t_range) & (t_range < 0.9 * RADIUS_M)
+        assert both.sum() >= 0.9 * (np.isfinite(t_range) & (t_range < 0.9 * RADIUS_M)).sum() - 5
+        er.append(np.abs(r[both] - t_range[both]))
+        ed.append(np.abs(d[both] - t_depth[both]))
+    e_r, e_d = np.concatenate(er), np.concatenate(ed)
+    assert len(e_r) > 300
+    assert np.median(e_r) <= 0.05, np.median(e_r)
+    assert np.median(e_d) <= 0.05, np.median(e_d)

@@ -1,0 +1,148 @@
+"""The dense members read by MarsPairsDataset, moved by the transforms, and carried between
+the views by CarryToChip / CarryToImage (which must reproduce ground_on_map and ortho_view,
+before and after geometric transforms)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+from mission_inputs import mission_inputs
+
+from mars_pairs.errors import MarsPairsError
+from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.config import parse_config
+from mars_pairs.torch import MarsPairsDataset
+from mars_pairs.torch.decode import DENSE_FIELDS
+from mars_pairs.torch.transforms import CarryToChip, CarryToImage, Compose, Flip, Rotate
+
+STRIDE = 8
+
+
+@pytest.fixture(scope="module")
+def dense_dir(small_mission: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("dense-torch")
+    doc: dict[str, Any] = {
+        "inputs": mission_inputs(small_mission),
+        "geometry": {"radius": 300, "ray_stride": STRIDE},
+        "chips": {"size_m": 64, "size_px": 256},
+        "output": {"dir": str(out), "members": ["all"]},
+    }
+    assert run_build(parse_config(doc, small_mission)).failures == 0
+    return out
+
+
+FIELDS = ("ground", "ortho", "dem", "viewshed", *DENSE_FIELDS)
+
+
+def _best(ds: MarsPairsDataset) -> dict[str, Any]:
+    """The sample with the most covered chip pixels."""
+    samples = [ds[i] for i in range(len(ds))]
+    return max(samples, key=lambda s: int(s["ground_on_map_cover"].sum()))
+
+
+def test_dense_fields_shapes_dtypes_and_targets(dense_dir: Path) -> None:
+    with MarsPairsDataset(dense_dir, fields=FIELDS, localization=True) as ds:
+        s = ds[0]
+    h, w = s["range"].shape[-2:]
+    assert s["range"].dtype == torch.float32 and s["range"].shape[0] == 1
+    assert s["hits"].dtype == torch.float64 and s["hits"].shape == (3, h, w)
+    assert s["ortho_view"].dtype == torch.uint8 and s["view_valid"].max() <= 1
+    assert s["ground_on_map"].shape == (3, 256, 256) and s["ground_px"].shape == (2, 256, 256)
+    assert s["dense_ground"].shape == (2, h, w)
+    assert float(s["dense_ground"][0, 0, 1]) == pytest.approx(STRIDE + 0.5)
+    assert s["rover_px"].shape == (2,) and 0.0 <= float(s["heading_deg"]) < 360.0
+
+
+def test_carry_reproduces_ground_on_map_and_ortho_view(dense_dir: Path) -> None:
+    with MarsPairsDataset(dense_dir, fields=FIELDS) as ds:
+        s = _best(ds)
+    cover = s["ground_on_map_cover"][0].bool()
+    assert cover.sum() >= 500
+    to_chip = CarryToChip("ground", "carried", nearest=False)
+    to_image = CarryToImage("ortho", "seen", nearest=False)
+
+    def check(sample: dict[str, Any], what: str) -> None:
+        got = to_chip(sample)
+        ok = got["carried_valid"] & sample["ground_on_map_cover"][0].bool()
+        assert ok.sum() >= 0.95 * cover.sum(), what
+        diff = (got["carried"][:, ok] - sample["ground_on_map"][:, ok].float()).abs()
+        assert float(diff.max()) <= 1.0, what
+        seen = to_image(sample)
+        valid = seen["seen_valid"] & sample["view_valid"][0].bool()
+        assert valid.sum() >= 100, what
+        diff = (seen["seen"][0][valid] - sample["ortho_view"][0][valid].float()).abs()
+        assert float(diff.max()) <= 1.0, what
+
+    check(s, "as read")
+    # the chips turned and mirrored, the ground image mirrored: the maps move along
+    moved = Compose([Rotate(90.0), Flip("horizontal", target="chip"),
+                     Flip("vertical", target="ground")])(s)  # fmt: skip
+    check(moved, "after transforms")
+
+
+def test_classes_round_trip_nearest(dense_dir: Path) -> None:
+    """A label raster on the chip carried into the image and back lands on its own class."""
+    with MarsPairsDataset(dense_dir, fields=FIELDS) as ds:
+        s = _best(ds)
+    cols = torch.arange(256)[None, :].expand(256, 256)
+    labels = ((cols // 32) % 4).to(torch.int16)[None]  # vertical class stripes
+    s["classes"] = labels
+    back = CarryToImage("classes", "image_classes", nearest=True, fill=-1)(s)
+    assert back["image_classes"].dtype == torch.int16
+    valid = back["image_classes_valid"]
+    assert valid.sum() >= 100
+    assert set(np.unique(back["image_classes"][0][valid].numpy())) <= {0, 1, 2, 3}
+
+
+def test_dense_fields_of_a_default_dataset_are_refused(small_mission: Path, tmp_path: Path) -> None:
+    doc: dict[str, Any] = {
+        "inputs": mission_inputs(small_mission),
+        "geometry": {"radius": 300, "ray_stride": 32},
+        "chips": {"size_m": 64, "size_px": 64},
+        "output": {"dir": str(tmp_path / "plain")},
+    }
+    run_build(parse_config(doc, small_mission))
+    with pytest.raises(MarsPairsError, match="range"):
+        MarsPairsDataset(tmp_path / "plain", fields=("ground", "range"))
+    ds = MarsPairsDataset(tmp_path / "plain", fields=("ortho",), localization=True)
+    with ds, pytest.raises(MarsPairsError, match="localization"):
+        ds[0]
+
+
+def test_dense_figure_and_show(dense_dir: Path, tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    import matplotlib.pyplot as plt
+    from PIL import Image
+
+    from mars_pairs.viz import show_sample
+
+    with MarsPairsDataset(dense_dir, fields=FIELDS) as ds:
+        s = _best(ds)
+        fig = ds.plot(s, dense=True)
+        key = s["meta"]["key"]
+    titles = [a.get_title() for a in fig.axes]
+    plt.close(fig)
+    assert any("range" in t for t in titles) and any("laid on the map" in t for t in titles)
+    out = show_sample(dense_dir, key, tmp_path / "show.png")
+    dense_png = tmp_path / "show_dense.png"
+    assert out.is_file() and dense_png.is_file()
+    pixels = np.asarray(Image.open(dense_png).convert("L"))
+    assert pixels.std() > 10  # something is drawn
+
+
+def test_ground_px_follows_ground_size(dense_dir: Path) -> None:
+    with MarsPairsDataset(dense_dir, fields=FIELDS) as ds:
+        full = ds[0]
+    with MarsPairsDataset(dense_dir, fields=FIELDS, ground_size=(300, 412)) as ds:
+        small = ds[0]
+    h, w = full["ground"].shape[-2:]
+    scale = torch.tensor([412 / w, 300 / h], dtype=torch.float32)[:, None, None]
+    expected = (full["ground_px"] + 0.5) * scale - 0.5
+    assert torch.allclose(small["ground_px"], expected, equal_nan=True)
+    ok = small["ground_on_map_cover"][0].bool()
+    carried = CarryToChip("ground", "c", nearest=False)(small)
+    assert carried["c_valid"][ok].float().mean() > 0.99
