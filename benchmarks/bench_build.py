@@ -1,22 +1,34 @@
-"""Build throughput: samples/s with 1 and 2 workers on the local and the Dask engine.
+"""Build throughput and the driver's own CPU per sample, on the local and the Dask engine.
 
-    python benchmarks/bench_build.py [--stops K] [--images-per-stop M] [--mission DIR]
+    python benchmarks/bench_build.py [--stops K] [--images-per-stop M] [--size-px P]
+                                     [--shard-size S] [--mission DIR] [--engines local,dask]
                                      [--dense]
 
 Generates a synthetic mission (64 stops x 8 images = 512 samples by default; generating it
-takes minutes, so ``--mission DIR`` keeps it in DIR and reuses it) and builds it with 512 px
-chips on each engine (Dask: a LocalCluster of processes, one thread each; the times include
-the start-up of the cluster or the pool), and prints a markdown table with the load average.
-The anchor is the study's QGIS tool: tens of seconds per image. ``--dense`` adds, in the
-same run, the local 1-worker build with every dense member on (``output.members: all``)
-against the same build without them, alternated, best of 2 each, and each dense member's
-mean size per sample.
+takes minutes, so ``--mission DIR`` keeps it in DIR and reuses it) and builds it with
+``--size-px`` chips: on the local engine with 1 worker (the build in the driver process: the
+anchor) and 2 worker processes, and on Dask with an external scheduler and 2 workers
+(``dask scheduler`` and ``dask worker`` started here as subprocesses, so the driver's CPU
+is the client's alone). The times include the start-up of the pool or the client.
+
+The driver's CPU is ``resource.getrusage(RUSAGE_SELF)`` of this process over the build
+(worker processes excluded), and of it the part that grows with the samples (streaming:
+without the planning and finishing steps, timed apart); the target is <= 0.3 ms per sample.
+The driver saturates at about (worker ms per sample) / (streaming driver ms per sample)
+workers: the projection column, with the worker cost taken from the 1-worker build's stage
+times. Prints markdown tables with the load average; the other anchor is the study's QGIS
+tool: tens of seconds per image. ``--dense`` adds, in the same run, the local 1-worker build
+with every dense member on (``output.members: all``) against the same build without them,
+alternated, best of 2 each, and each dense member's mean size per sample.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import resource
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -26,9 +38,12 @@ from mars_pairs.pipeline.config import parse_config
 from mars_pairs.synth import generate_mission
 
 STUDY_SECONDS_PER_IMAGE = 20.0  # "tens of seconds per image" (Sheppard and Skinner)
+TARGET_DRIVER_MS = 0.3  # driver CPU per sample that lets one driver feed ~100 workers
 
 
-def _config(mission: Path, out: Path, members: str | None = None) -> dict:
+def _config(
+    mission: Path, out: Path, size_px: int, shard_size: int = 16, members: str | None = None
+) -> dict:
     doc = {
         "inputs": {
             "labels": str(mission / "labels" / "*.xml"),
@@ -37,8 +52,8 @@ def _config(mission: Path, out: Path, members: str | None = None) -> dict:
             "ortho": str(mission / "orbital" / "ortho.tif"),
         },
         "geometry": {"radius": 1000, "viewshed": "both", "ray_stride": 8},
-        "chips": {"size_m": 256, "size_px": 512},
-        "output": {"dir": str(out), "shard_size": 16},
+        "chips": {"size_m": 256, "size_px": size_px},
+        "output": {"dir": str(out), "shard_size": shard_size},
         "splits": {"block_m": 200},
     }
     if members is not None:
@@ -46,7 +61,7 @@ def _config(mission: Path, out: Path, members: str | None = None) -> dict:
     return doc
 
 
-def dense_rows(mission: Path, root: Path) -> list[str]:
+def dense_rows(mission: Path, root: Path, size_px: int) -> list[str]:
     """The lines of samples/s without and with every dense member (local, 1 worker, alternated,
     best of 2) and the dense members' mean sizes."""
     import pyarrow.parquet as pq
@@ -58,7 +73,8 @@ def dense_rows(mission: Path, root: Path) -> list[str]:
     for rep in range(2):
         for mode in ("off", "on"):
             out = root / f"dense-{mode}{rep}"
-            cfg = parse_config(_config(mission, out, "all" if mode == "on" else None), root)
+            members = "all" if mode == "on" else None
+            cfg = parse_config(_config(mission, out, size_px, members=members), root)
             summary = run_build(cfg, workers=1, progress=False)
             n = summary.samples
             best[mode] = max(best[mode], summary.samples / summary.seconds)
@@ -75,22 +91,85 @@ def dense_rows(mission: Path, root: Path) -> list[str]:
     return lines
 
 
-def _engine(name: str, workers: int) -> object:
-    if name == "local":
-        return None
-    from mars_pairs.pipeline.dask_engine import DaskEngine
+def _cpu() -> float:
+    """This process's CPU seconds (user + system, all its threads, no children)."""
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
 
-    return DaskEngine(workers=workers, announce=False)
+
+_ENDS = ("plan_build", "merge_parts", "write_dataset_json", "write_wids_index", "write_card",
+         "remove_parts")  # fmt: skip
+_ENDS_CPU = [0.0]
+
+
+def _time_the_ends() -> None:
+    """Count the driver's CPU in the build's planning and finishing steps (once per build,
+    whatever its size) in ``_ENDS_CPU``, to tell them from the CPU that grows with the
+    samples (streaming the chunks and committing them)."""
+    from mars_pairs.pipeline import build
+
+    for name in _ENDS:
+        fn = getattr(build, name, None)
+        if fn is None:  # an older build without this step
+            continue
+
+        def timed(*args: object, _fn=fn, **kw: object) -> object:
+            start = _cpu()
+            try:
+                return _fn(*args, **kw)
+            finally:
+                _ENDS_CPU[0] += _cpu() - start
+
+        setattr(build, name, timed)
+
+
+class _ExternalCluster:
+    """A Dask scheduler and ``workers`` single-threaded workers, each its own subprocess."""
+
+    def __init__(self, root: Path, workers: int) -> None:
+        dask = Path(sys.executable).with_name("dask")
+        file = root / "scheduler.json"
+        quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
+        self.procs = [
+            subprocess.Popen([str(dask), "scheduler", "--host", "127.0.0.1", "--port", "0",
+                              "--no-dashboard", "--scheduler-file", str(file)], **quiet)
+        ]  # fmt: skip
+        deadline = time.monotonic() + 60
+        while not file.is_file() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        self.procs.append(
+            subprocess.Popen([str(dask), "worker", "--scheduler-file", str(file), "--nworkers",
+                              str(workers), "--nthreads", "1", "--no-dashboard"], **quiet)
+        )  # fmt: skip
+        from distributed import Client
+
+        with Client(scheduler_file=str(file), timeout="60s") as client:
+            client.wait_for_workers(workers, timeout=120)
+            self.address = client.scheduler.address
+
+    def close(self) -> None:
+        for proc in reversed(self.procs):
+            proc.terminate()
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--stops", type=int, default=64)
     parser.add_argument("--images-per-stop", type=int, default=8)
+    parser.add_argument("--size-px", type=int, default=512)
+    parser.add_argument("--shard-size", type=int, default=16)
     parser.add_argument("--mission", type=Path, help="keep (or reuse) the mission here")
     parser.add_argument("--engines", default="local,dask")
-    parser.add_argument("--dense", action="store_true", help="dense members on vs off")
+    parser.add_argument("--dense", action="store_true", help="add the dense members' cost")
     args = parser.parse_args()
+    runs = [("local", 1), ("local", 2)] if "local" in args.engines else []
+    runs += [("dask", 2)] if "dask" in args.engines else []
+    _time_the_ends()
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         mission = args.mission or root / "mission"
@@ -100,40 +179,66 @@ def main() -> None:
                              images_per_stop=args.images_per_stop, size="small")  # fmt: skip
         gen = time.perf_counter() - t
         # warm numba caches and the OS file cache, not timed
-        run_build(parse_config(_config(mission, root / "warm"), root), progress=False,
-                  limit=4)  # fmt: skip
+        run_build(parse_config(_config(mission, root / "warm", args.size_px), root),
+                  progress=False, limit=4)  # fmt: skip
         if args.dense:
-            run_build(parse_config(_config(mission, root / "warm-dense", "all"), root),
-                      progress=False, limit=4)  # fmt: skip
+            warm = _config(mission, root / "warm-dense", args.size_px, members="all")
+            run_build(parse_config(warm, root), progress=False, limit=4)
         rows = []
         stages: dict[str, float] = {}
-        for name in args.engines.split(","):
-            for workers in (1, 2):
-                engine = _engine(name, workers)
-                cfg = parse_config(_config(mission, root / f"ds-{name}{workers}"), root)
+        for name, workers in runs:
+            cluster, engine = None, None
+            if name == "dask":
+                from mars_pairs.pipeline.dask_engine import DaskEngine
+
+                cluster = _ExternalCluster(root, workers)
+                engine = DaskEngine(scheduler=cluster.address, announce=False)
+            try:
+                out = root / f"ds-{name}{workers}"
+                cfg = parse_config(_config(mission, out, args.size_px, args.shard_size), root)
                 before = os.getloadavg()[0]
+                _ENDS_CPU[0], cpu = 0.0, _cpu()
                 summary = run_build(cfg, workers=workers, progress=False, engine=engine)
-                rate = summary.samples / summary.seconds
-                load = max(before, os.getloadavg()[0])
-                rows.append((name, workers, summary.samples, summary.seconds, rate, load))
-                if workers == 1 and name == "local":
-                    stages = {k: v / max(summary.samples, 1)
-                              for k, v in summary.stage_seconds.items()}  # fmt: skip
-        dense = dense_rows(mission, root) if args.dense else []
-    print(f"build benchmark: {rows[0][2]} samples, 512 px chips, radius 1000 m, "
-          f"ray stride 8; mission ready in {gen:.1f} s; {os.cpu_count()} cores\n")  # fmt: skip
-    print("| engine | workers | samples | seconds | samples/s | load (1 min) | vs study |")
-    print("|---|---:|---:|---:|---:|---:|---:|")
-    for name, workers, n, secs, rate, load in rows:
+                cpu = _cpu() - cpu
+                ends = _ENDS_CPU[0]
+            finally:
+                if cluster is not None:
+                    cluster.close()
+            n = max(summary.samples, 1)
+            load = max(before, os.getloadavg()[0])
+            rows.append((name, workers, summary.samples, summary.seconds, summary.samples /
+                         summary.seconds, cpu * 1000 / n, (cpu - ends) * 1000 / n,
+                         load))  # fmt: skip
+            if workers == 1 and name == "local":
+                stages = {k: v / n for k, v in summary.stage_seconds.items()}
+        dense = dense_rows(mission, root, args.size_px) if args.dense else []
+    worker_ms = sum(stages.values()) * 1000
+    print(f"build benchmark: {rows[0][2]} samples, {args.size_px} px chips, radius 1000 m, "
+          f"ray stride 8, {args.shard_size} samples a shard; mission ready in {gen:.1f} s; "
+          f"{os.cpu_count()} cores; dask: external scheduler + workers\n")  # fmt: skip
+    anchor = rows[0][4]
+    print("| engine | workers | samples | seconds | samples/s | vs local 1 | driver CPU ms/sample "
+          "| of it streaming | streaming vs target | driver saturates at (workers) "
+          "| load (1 min) | vs study |")  # fmt: skip
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for name, workers, n, secs, rate, driver_ms, streaming_ms, load in rows:
+        in_driver = name == "local" and workers == 1  # the samples are built in the driver
+        saturates = "-" if in_driver or not worker_ms else f"{worker_ms / streaming_ms:.0f}"
         print(
-            f"| {name} | {workers} | {n} | {secs:.2f} | {rate:.1f} | {load:.2f} "
-            f"| {rate * STUDY_SECONDS_PER_IMAGE:.0f}x |"
+            f"| {name} | {workers} | {n} | {secs:.2f} | {rate:.1f} | {rate / anchor:.2f}x "
+            f"| {driver_ms:.2f} | {streaming_ms:.2f} | {streaming_ms / TARGET_DRIVER_MS:.1f}x "
+            f"| {saturates} | {load:.2f} | {rate * STUDY_SECONDS_PER_IMAGE:.0f}x |"
         )
+    print("\ndriver CPU: getrusage(RUSAGE_SELF) of this process over the build; streaming: "
+          "without the planning and finishing steps (plan_build, merge_parts, dataset.json, "
+          "the shard index, the card, removing parts/), which run once per build; the driver "
+          "saturates at worker ms per sample / streaming driver ms per sample; target <= "
+          f"{TARGET_DRIVER_MS} ms")  # fmt: skip
     print("\n| stage (1 worker) | ms per sample |")
     print("|---|---:|")
     for name, secs in stages.items():
         print(f"| {name} | {secs * 1000:.1f} |")
-    print(f"| **total** | {sum(stages.values()) * 1000:.1f} |")
+    print(f"| **total** (worker ms per sample) | {worker_ms:.1f} |")
     print("\n".join(dense))
 
 

@@ -8,6 +8,7 @@ import math
 import sys
 import warnings
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -17,6 +18,9 @@ from mars_pairs.cli.viewshed import cmd_viewshed
 from mars_pairs.errors import MarsPairsError, UsageError
 from mars_pairs.pipeline.config import MAX_RADIUS_M
 from mars_pairs.store.splits import EmptySplitWarning
+
+if TYPE_CHECKING:
+    from mars_pairs.pipeline.engine import Engine
 
 
 def _cmd_locate(args: argparse.Namespace) -> int:
@@ -96,7 +100,7 @@ def _cmd_build(args: argparse.Namespace) -> int:
     return 0
 
 
-def _engine(args: argparse.Namespace) -> object:
+def _engine(args: argparse.Namespace) -> Engine | None:
     """The build engine the options name: None (the local pool) or a DaskEngine."""
     if args.engine == "local":
         if args.scheduler:
@@ -259,7 +263,8 @@ def _add_build_arguments(p: argparse.ArgumentParser) -> None:
         "--scheduler",
         metavar="tcp://HOST:PORT",
         help="with --engine dask: a running cluster's scheduler (default: a local cluster "
-        "of --workers processes)",
+        "of --workers processes); its workers write the shards into --out, which they must "
+        "reach at the same path",
     )
 
 

@@ -9,28 +9,33 @@ output is the same whatever the worker count. A finished build writes the folder
 (``pipeline.finish``) and removes ``parts/`` last (``output.keep_parts`` keeps it); its stamp
 lives on in dataset.json, so ``--resume`` over it does nothing. The labels are never held: a
 planning pass counts them and sums their fingerprint (the stamp), the build pass streams them
-again to the engine, chunk by chunk.
+again to the engine, chunk by chunk. The engine's workers write the shards and stage the parts
+(``pipeline.engine``); the driver receives rows only, and commits the chunks in order.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import time
-from collections import Counter, deque
+from collections import Counter
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
-from itertools import chain
 from pathlib import Path
-from typing import Any
 
 from tqdm import tqdm
 
 from mars_pairs.errors import ConfigError, MarsPairsError
-from mars_pairs.pipeline import worker
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.config_section import check_regular
-from mars_pairs.pipeline.context import SampleContext
-from mars_pairs.pipeline.dense import member_fields
+from mars_pairs.pipeline.engine import (
+    ChunkResult,
+    ChunkTask,
+    Engine,
+    InProcess,
+    part_tables,
+    resolve_duplicates,
+)
 from mars_pairs.pipeline.finish import (
     finished_summary,
     merge_parts,
@@ -39,7 +44,6 @@ from mars_pairs.pipeline.finish import (
 )
 from mars_pairs.pipeline.local_pool import LocalPool
 from mars_pairs.pipeline.outputs import (
-    DROPPED_KEY,
     LabelDigest,
     built_keys,
     clear_outputs,
@@ -57,14 +61,8 @@ from mars_pairs.pipeline.plan import (
     plan_build,
 )
 from mars_pairs.pipeline.worker import WorkerStartError  # noqa: F401  (re-exported)
-from mars_pairs.store.manifest import (
-    FAILURE_SCHEMA,
-    manifest_schema,
-    rows_to_table,
-    write_parquet_atomic,
-)
-from mars_pairs.store.shards import ShardWriter, atomic_write_bytes
-from mars_pairs.store.splits import BUFFER
+from mars_pairs.store.manifest import write_parquet_atomic
+from mars_pairs.store.shards import atomic_write_bytes
 from mars_pairs.store.wids_index import write_wids_index
 
 
@@ -110,103 +108,69 @@ def check_input_files(config: BuildConfig) -> None:
         check_regular(inputs.images, "inputs.images", folder=True)
 
 
-def _in_process(config: BuildConfig, labels: Iterable[str]) -> Iterator[tuple[str, Any]]:
-    """Results in label order, built in this process (one worker)."""
-    context = SampleContext.open(config)  # its error is the build's, as it is
-    worker.use_context(context)
-    try:
-        yield from map(worker.work, labels)
-    finally:
-        worker.use_context(None)
-        context.close()
+def _in_process(config: BuildConfig, chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
+    """The results of ``chunks`` built in this process (one worker), in order."""
+    return InProcess().run(config, chunks)
 
 
-class DuplicateKeyError(MarsPairsError):
-    """Two labels give the same sample key (the same product id): the first one is kept."""
-
-
-def _write_chunk(
+def _commit_chunk(
     config: BuildConfig,
-    k: int,
-    results: list[tuple[str, Any]],
+    result: ChunkResult,
     strict: bool,
     stage_seconds: Counter[str],
     seen: dict[str, str],
 ) -> int:
-    """Write chunk k's shard and parts; samples in the split buffer are dropped when the
-    config says so (their count goes in the manifest part's metadata)."""
+    """Commit chunk ``result.index``, whose shard its worker wrote: its failure part, then its
+    manifest part (the commit marker), renamed from where the worker staged them. A sample
+    whose key an earlier chunk built (``seen``: key -> label, updated here) becomes a
+    DuplicateKeyError failure row and leaves the shard, and the driver writes the parts
+    (``engine.resolve_duplicates``). The number of samples committed."""
     out = config.output.dir
-    shard_rel, manifest_part, failures_part = part_paths(out, k)
-    rows, failures = [], []
-    samples = []
-    for i, (status, r) in enumerate(results):
-        if status != "ok":
-            continue
-        label = r.row["label_path"]
-        if r.key in seen:
-            error = DuplicateKeyError(f"{label}: key {r.key}: already built from {seen[r.key]}")
-            results[i] = ("fail", worker.failure_row(label, "record", error))
-            continue
-        seen[r.key] = label
-        samples.append(r)
-    dropped = 0
-    if config.splits.buffer_policy == "drop":
-        kept = [s for s in samples if s.row["split"] != BUFFER]
-        dropped, samples = len(samples) - len(kept), kept
-    for sample in samples:
-        stage_seconds.update(sample.seconds)
-    for status, r in results:
-        if status == "fail":
-            if strict:
-                raise BuildError(f"{r['path']}: {r['stage']}: {r['error_type']}: {r['message']}")
-            failures.append(r)
-    if samples:
-        with ShardWriter(out, shard_rel) as shard:
-            for sample in samples:
-                locs = shard.add(sample.key, sample.members)
-                row = dict(sample.row)
-                for name, loc in locs.items():
-                    fld = name.split(".")[0]
-                    row.update(
-                        {
-                            f"{fld}_shard": loc.shard,
-                            f"{fld}_offset": loc.offset,
-                            f"{fld}_size": loc.size,
-                            f"{fld}_crc32c": loc.crc32c,
-                        }
-                    )
-                rows.append(row)
-    write_parquet_atomic(rows_to_table(failures, FAILURE_SCHEMA), failures_part)
-    table = rows_to_table(rows, manifest_schema(member_fields(config.output.members)))
-    table = table.replace_schema_metadata({DROPPED_KEY: str(dropped).encode()})
-    write_parquet_atomic(table, manifest_part)  # commit marker
-    return len(samples)
+    _, manifest_part, failures_part = part_paths(out, result.index)
+    if result.shard is not None:
+        size = (out / result.shard).stat().st_size
+        if size != result.shard_bytes:
+            raise MarsPairsError(
+                f"{out / result.shard}: {size} bytes, but its worker ({result.worker}) wrote "
+                f"{result.shard_bytes}; rerun the build with --resume"
+            )
+    if result.staged is None or any(o.kind != "fail" and o.key in seen for o in result.outcomes):
+        result = resolve_duplicates(out, result, seen)
+    failed = next((o.row for o in result.outcomes if o.kind in ("fail", "duplicate")), None)
+    if strict and failed is not None:
+        for rel in result.staged or ():
+            (out / rel).unlink(missing_ok=True)
+        what = ": ".join(str(failed[c]) for c in ("path", "stage", "error_type", "message"))
+        raise BuildError(what)
+    if result.staged is None:
+        failures, manifest = part_tables(config, result.outcomes)
+        write_parquet_atomic(failures, failures_part)
+        write_parquet_atomic(manifest, manifest_part)  # commit marker
+    else:
+        os.replace(out / result.staged[0], failures_part)
+        os.replace(out / result.staged[1], manifest_part)  # commit marker
+    written = 0
+    for o in result.outcomes:
+        if o.kind in ("ok", "dropped"):
+            seen[o.key] = o.label
+        if o.kind == "ok":
+            stage_seconds.update(o.seconds)
+            written += 1
+    return written
 
 
 def _chunk_results(
     config: BuildConfig,
     todo: Iterator[tuple[int, list[str]]],
-    handed: deque[tuple[int, int]],
     pool: LocalPool | None,
-    engine: Any,
-) -> Iterator[tuple[str, Any]]:
-    """Every result of the chunks ``todo`` ((k, labels), streamed), in order, from the local
-    pool (this process when None) or ``engine``; each chunk's (k, length) goes into
-    ``handed`` as the engine takes it, before any of its results. No cluster starts when
-    there is nothing to build."""
-    first = next(todo, None)
-    if first is None:
-        return iter(())
-
-    def taken() -> Iterator[list[str]]:
-        for k, labels in chain([first], todo):
-            handed.append((k, len(labels)))
-            yield labels
-
-    if engine is None:
-        labels = chain.from_iterable(taken())
-        return pool.results(labels) if pool is not None else _in_process(config, labels)
-    return engine.results(config, taken())  # one task per chunk, results in label order
+    engine: Engine | None,
+) -> Iterator[ChunkResult]:
+    """The results of the chunks ``todo`` ((k, labels), streamed), in order, from the local
+    pool, this process (pool and engine None) or ``engine``."""
+    tasks = (ChunkTask(k, tuple(labels)) for k, labels in todo)
+    if engine is not None:
+        return engine.run(config, tasks)
+    return pool.run(config, tasks) if pool is not None else _in_process(config, tasks)
 
 
 def run_build(
@@ -217,12 +181,12 @@ def run_build(
     limit: int | None = None,
     strict: bool = False,
     progress: bool = True,
-    engine: Any = None,
+    engine: Engine | None = None,
 ) -> BuildSummary:
     """Build the dataset described by ``config`` into ``config.output.dir``.
 
-    ``engine``: None for this machine's process pool of ``workers``, or an engine with a
-    ``results(config, chunks)`` method (``pipeline.dask_engine.DaskEngine``).
+    ``engine``: None for this machine's process pool of ``workers`` (this process when 1),
+    or another :class:`~mars_pairs.pipeline.engine.Engine` (``dask_engine.DaskEngine``).
     """
     start = time.perf_counter()
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
@@ -245,7 +209,7 @@ def _run(
     limit: int | None,
     strict: bool,
     progress: bool,
-    engine: Any,
+    engine: Engine | None,
     pool: LocalPool | None,
 ) -> BuildSummary:
     """run_build's work, its arguments checked and its workers starting."""
@@ -264,9 +228,8 @@ def _run(
     seen = built_keys(out, (k for k in range(plan.chunks) if is_done(out, k)))
     digest = LabelDigest()  # the second pass must list what the first did
     chunks = enumerate(chunks_of(digest.tally(labels_of(config, limit)), plan.chunk_size))
-    handed: deque[tuple[int, int]] = deque()
     todo = ((k, labels) for k, labels in chunks if not is_done(out, k))
-    results = _chunk_results(config, todo, handed, pool, engine)
+    results = _chunk_results(config, todo, pool, engine)
     bar = tqdm(
         total=plan.labels,
         initial=plan.labels - plan.labels_to_build,
@@ -277,20 +240,16 @@ def _run(
     stage_seconds: Counter[str] = Counter()
     built = 0
     try:
-        for first in results:
-            k, length = handed.popleft()
-            batch = [first]
-            bar.update(1)
-            for _ in range(length - 1):
-                batch.append(next(results))
-                bar.update(1)
-            _write_chunk(config, k, batch, strict, stage_seconds, seen)
+        for result in results:
+            bar.update(len(result.outcomes))
+            _commit_chunk(config, result, strict, stage_seconds, seen)
             built += 1
     finally:
         bar.close()
         close = getattr(results, "close", None)
         if close:
             close()
+    remove_temporaries(out)  # of a worker killed mid-shard, whose chunk was built again
     listed = plan.fingerprint
     if (digest.count, digest.hexdigest()) != (listed["count"], listed["labels"]):
         raise ConfigError(

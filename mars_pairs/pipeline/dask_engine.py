@@ -1,25 +1,28 @@
-"""The build on a Dask cluster: one task per chunk, results written by the driver in order.
+"""The build on a Dask cluster: one task per chunk; each worker writes its chunk's shard.
 
 ``run_build(..., engine=DaskEngine(...))`` hands the chunks still to build to a Dask
 cluster: an existing one (``scheduler="tcp://HOST:PORT"``) or a ``LocalCluster`` of
 ``workers`` processes with one thread each. A task receives the build config (paths or
-GDAL URLs, never open handles) and the label paths of one chunk, and returns the chunk's
-results: the very ``worker.work`` results the local engine's pool returns, built by the very
-worker initializer (``worker.open_context``) in each Dask worker process, once (a worker
-plugin opens the rasters and loads the numba kernels before the first task; a task that
-lands on a worker whose context is for another config reopens it).
+GDAL URLs, never open handles) and one chunk (``engine.ChunkTask``), builds its samples with
+the very ``worker.work`` the local engine runs, in a context opened by the very worker
+initializer (``worker.open_context``) once per worker process (a worker plugin opens the
+rasters and loads the numba kernels before the first task; a task that lands on a worker
+whose context is for another config reopens it), and writes the chunk's shard into the
+output folder (``engine.build_chunk``).
 
-The driver keeps at most ``window`` chunks in flight and writes them in chunk order with
-the local engine's writer, so the shards, parts and manifest are byte-identical to the
-local engine's, ``--resume`` works across engines (the chunk parts are the same files),
-and the driver's memory is bounded by the window, not by the number of chunks. The
-trade-off: chunk bytes travel to the driver (~1 MB per 512 px sample), which caps a
-build at the driver's network and disk (hundreds of samples/s); the workers need read
-access to the inputs only, never write access to the output.
+The driver receives only each chunk's rows and member locations (``engine.ChunkResult``, a
+few hundred bytes a sample), keeps at most ``window`` chunks in flight and commits them in
+chunk order, as the local engine does, so the shards, parts and manifest are byte-identical
+to the local engine's, ``--resume`` works across engines (the chunk parts are the same
+files), and the driver's memory is bounded by the window. The workers need write access to
+the output folder, at the driver's path (a shared file system).
 
 A worker that dies mid-task (killed, out of memory) costs a retry: the scheduler reruns
 its tasks elsewhere (``distributed.scheduler.allowed-failures`` deaths per task, default
-3, before the build fails with ``KilledWorker``), and the output is the same.
+3, before the build fails with ``KilledWorker``), and the output is the same (the dead
+worker's temporary shard is removed when the build ends). A task still running when the
+build fails may yet rename its shard into place: a shard of an uncommitted chunk, which
+``--resume`` writes again.
 """
 
 from __future__ import annotations
@@ -29,30 +32,32 @@ import sys
 import threading
 import uuid
 from collections import deque
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from itertools import chain
 from typing import Any
 
 from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.config import BuildConfig
+from mars_pairs.pipeline.engine import ChunkResult, ChunkTask
 
 _LOCK = threading.Lock()  # one chunk at a time per worker process (rasterio is not thread-safe)
 PLUGIN_NAME = "mars-pairs-build"
 
 
-def build_chunk(config: BuildConfig, labels: Sequence[str]) -> list[tuple[str, Any]]:
-    """A Dask task: the local engine's worker results for ``labels``, in order.
+def run_chunk(config: BuildConfig, task: ChunkTask | None) -> ChunkResult | None:
+    """A Dask task: chunk ``task`` built and its shard written (``engine.build_chunk``).
 
     Runs in a Dask worker process; opens the worker's context for ``config`` unless it is
-    already open for it.
+    already open for it (``task`` None: only that).
     """
     from mars_pairs.pipeline import worker
+    from mars_pairs.pipeline.engine import build_chunk
 
     with _LOCK:
         if worker.current_config() != config:
             worker.open_context(config)
-        return [worker.work(label) for label in labels]
+        return None if task is None else build_chunk(config, task)
 
 
 def close_context() -> None:
@@ -73,7 +78,7 @@ def _plugin(config: BuildConfig) -> Any:
             self.config = config
 
         def setup(self, worker: Any) -> None:
-            build_chunk(self.config, [])
+            run_chunk(self.config, None)
 
         def teardown(self, worker: Any) -> None:
             close_context()
@@ -90,15 +95,12 @@ class DaskEngine:
     window: int = 0  # chunks in flight; 0: 2 per worker thread + 2
     announce: bool = True  # print the dashboard address on stderr
 
-    def results(
-        self, config: BuildConfig, chunks: Iterable[Sequence[str]]
-    ) -> Iterator[tuple[str, Any]]:
-        """Every label's result, chunk after chunk, in order (as the local engine's).
+    def run(self, config: BuildConfig, chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
+        """The :class:`~mars_pairs.pipeline.engine.Engine` contract: one task per chunk, whose
+        worker writes the shard; results in chunk order.
 
         ``chunks`` may be a lazy iterator: it is pulled one chunk at a time as the window
         frees, never listed; no cluster starts when it is empty."""
-        from mars_pairs.pipeline.worker import WorkerStartError
-
         pending = iter(chunks)
         first = next(pending, None)
         if first is None:
@@ -110,29 +112,22 @@ class DaskEngine:
             threads = sum(client.nthreads().values()) or 1
             window = self.window or 2 * threads + 2
             run = uuid.uuid4().hex[:8]
-            todo = enumerate(chain([first], pending))
+            todo = chain([first], pending)
             flight: deque[Any] = deque()
 
             def submit() -> None:
-                for k, labels in todo:
-                    flight.append(
-                        client.submit(
-                            build_chunk, config, list(labels), key=f"chunk-{run}-{k}", pure=False
-                        )
-                    )
+                for task in todo:
+                    key = f"chunk-{run}-{task.index}"
+                    flight.append(client.submit(run_chunk, config, task, key=key, pure=False))
                     return
 
             try:
                 for _ in range(window):
                     submit()
                 while flight:
-                    future = flight.popleft()
-                    batch = future.result()
+                    result = flight.popleft().result()
                     submit()
-                    for status, result in batch:
-                        if status == "start":
-                            raise WorkerStartError(result)
-                        yield status, result
+                    yield result
             finally:
                 for future in flight:
                     future.cancel()

@@ -7,8 +7,10 @@
   pyarrow: ~0.7 s a process when each spawned worker imported them itself); each worker is
   a fork of that clean server, never of the driver, whose numba OpenMP threads make forking
   unsafe. Where there is no fork server (Windows), workers are spawned.
-- At most ``window`` labels are in flight (4 per worker): the driver's memory does not grow
-  with the label count, and results come back in label order.
+- A build hands the pool whole chunks (``run``, the ``pipeline.engine.Engine`` contract): a
+  worker builds a chunk's samples and writes its shard itself, and returns only rows; at most
+  2 chunks per worker are in flight, and results come back in chunk order. (``results``
+  hands out single labels, at most ``window`` in flight, 4 per worker, results in order.)
 - A worker that dies (killed, out of memory, a crash) fails the build at once, naming a
   label in flight; the chunks already written stay, and ``--resume`` goes on from there.
 - The workers die with their build. Each watches the driver: a thread waits on the pipe only
@@ -38,8 +40,9 @@ from typing import Any
 from mars_pairs.errors import MarsPairsError
 from mars_pairs.pipeline import worker
 from mars_pairs.pipeline.config import BuildConfig
+from mars_pairs.pipeline.engine import ChunkResult, ChunkTask, build_chunk
 
-_PRELOAD = ["mars_pairs.pipeline.worker"]
+_PRELOAD = ["mars_pairs.pipeline.worker", "mars_pairs.pipeline.engine"]
 
 
 def worker_context() -> BaseContext:
@@ -165,6 +168,33 @@ class LocalPool:
             raise WorkerDiedError(
                 f"a build worker process died (killed, out of memory or crashed) while "
                 f"{label} or a label near it was in flight; rerun with --resume"
+            ) from None
+
+    def run(self, config: BuildConfig, chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
+        """The :class:`~mars_pairs.pipeline.engine.Engine` contract: each chunk built and its
+        shard written by one worker (``engine.build_chunk``), results in chunk order, at most
+        ``2 * workers`` chunks in flight; WorkerStartError if a worker could not open the
+        inputs, WorkerDiedError if one died. ``config`` is the pool's."""
+        todo = iter(chunks)
+        flight: deque[tuple[ChunkTask, Future]] = deque()
+
+        def submit(count: int) -> None:
+            for task in islice(todo, count):
+                flight.append((task, self._pool.submit(build_chunk, config, task)))
+
+        task = None
+        try:
+            submit(2 * self.workers)
+            while flight:
+                task, future = flight.popleft()
+                result = future.result()
+                submit(1)
+                yield result
+        except BrokenProcessPool:
+            where = f"chunk {task.index} ({task.labels[0]} ...)" if task else "the first chunk"
+            raise WorkerDiedError(
+                f"a build worker process died (killed, out of memory or crashed) while "
+                f"{where} or a chunk near it was in flight; rerun with --resume"
             ) from None
 
     def close(self, abort: bool = False) -> None:

@@ -148,6 +148,12 @@ FAILURE_SCHEMA = pa.schema(
 
 def write_parquet_atomic(table: pa.Table, path: Path, row_group_size: int = 4096) -> None:
     """Write a Parquet file through a temporary name and a rename."""
+    os.replace(write_parquet_staged(table, path, row_group_size), path)
+
+
+def write_parquet_staged(table: pa.Table, path: Path, row_group_size: int = 4096) -> Path:
+    """Write the Parquet file of ``path`` under its temporary name (``.NAME.tmp-PID`` beside
+    it, synced) and return that name: renaming it to ``path`` is the caller's."""
     path.parent.mkdir(parents=True, exist_ok=True)
     from mars_pairs.store.shards import naming
 
@@ -162,7 +168,7 @@ def write_parquet_atomic(table: pa.Table, path: Path, row_group_size: int = 4096
         except OSError:
             tmp.unlink(missing_ok=True)
             raise
-    os.replace(tmp, path)
+    return tmp
 
 
 def rows_to_table(rows: list[dict[str, Any]], schema: pa.Schema) -> pa.Table:

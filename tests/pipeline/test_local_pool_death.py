@@ -30,9 +30,9 @@ def _digest(root: Path) -> dict[str, str]:
 def test_a_killed_worker_fails_the_build_and_resume_finishes_it(
     small_mission: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    results = local_pool.LocalPool.results
+    run = local_pool.LocalPool.run
 
-    def kill_a_worker_first(self, labels):  # the pool's processes are up, its work not begun
+    def kill_a_worker_first(self, config, chunks):  # the processes are up, no work begun
         pid = next(iter(self._pool._processes))
         os.kill(pid, signal.SIGKILL)
         while True:  # until it is gone (the fork server reaps it)
@@ -41,9 +41,9 @@ def test_a_killed_worker_fails_the_build_and_resume_finishes_it(
             except ProcessLookupError:
                 break
             time.sleep(0.01)
-        yield from results(self, labels)
+        yield from run(self, config, chunks)
 
-    monkeypatch.setattr(local_pool.LocalPool, "results", kill_a_worker_first)
+    monkeypatch.setattr(local_pool.LocalPool, "run", kill_a_worker_first)
     start = time.perf_counter()
     with pytest.raises(WorkerDiedError, match="rerun with --resume"):
         run_build(

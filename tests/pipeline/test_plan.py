@@ -20,6 +20,7 @@ from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline import build, worker
 from mars_pairs.pipeline.build import run_build
 from mars_pairs.pipeline.config import load_config
+from mars_pairs.pipeline.engine import ChunkResult, ChunkTask, Outcome
 from mars_pairs.pipeline.outputs import fingerprint, part_paths
 from mars_pairs.pipeline.plan import plan_build
 from mars_pairs.synth.label_tree import plan_config, write_label_tree
@@ -122,9 +123,12 @@ def test_dry_run_after_a_partial_build_counts_the_chunks_done_and_writes_nothing
     assert (resumed.chunks_built, resumed.chunks_resumed, resumed.samples) == (2, 2, 4)
 
 
-def _failing(labels: Iterable[str]) -> Iterator[tuple[str, Any]]:
-    for label in labels:
-        yield "fail", worker.failure_row(label, "label", ValueError("not built"))
+def _failing(chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
+    for task in chunks:
+        error = ValueError("not built")
+        rows = [worker.failure_row(label, "label", error) for label in task.labels]
+        fails = tuple(Outcome("fail", row["path"], row=row) for row in rows)
+        yield ChunkResult(task.index, fails, None, 0, 0.0, "test")
 
 
 def test_engines_get_the_chunks_lazily(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -134,12 +138,12 @@ def test_engines_get_the_chunks_lazily(tmp_path: Path, monkeypatch: pytest.Monke
     pulled: list[int] = []
 
     class Engine:
-        def results(self, config: Any, chunks: Iterable[list[str]]) -> Iterator[Any]:
+        def run(self, config: Any, chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
             assert not isinstance(chunks, (list, tuple))
             for chunk in chunks:
-                pulled.append(len(chunk))
+                pulled.append(len(chunk.labels))
                 assert len(list((tmp_path / "ds" / "parts").glob("manifest-*"))) == len(pulled) - 1
-                yield from _failing(chunk)
+                yield from _failing([chunk])
 
     summary = run_build(config, engine=Engine(), progress=False)
     assert pulled == [3, 3, 3, 1]
@@ -147,10 +151,10 @@ def test_engines_get_the_chunks_lazily(tmp_path: Path, monkeypatch: pytest.Monke
 
     seen: list[type] = []
 
-    def local(config: Any, labels: Iterable[str]) -> Iterator[Any]:
-        seen.append(type(labels))
-        assert not isinstance(labels, (list, tuple))
-        return _failing(labels)
+    def local(config: Any, chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
+        seen.append(type(chunks))
+        assert not isinstance(chunks, (list, tuple))
+        return _failing(chunks)
 
     monkeypatch.setattr(build, "_in_process", local)
     part_paths(tmp_path / "ds", 2)[1].unlink()
@@ -165,10 +169,10 @@ def test_a_label_list_that_changes_during_the_build_is_refused(tmp_path: Path) -
     late = tmp_path / "in" / "sol" / "00003" / "ids" / "ZLF_00003_9999.xml"
 
     class Engine:
-        def results(self, config: Any, chunks: Iterable[list[str]]) -> Iterator[Any]:
+        def run(self, config: Any, chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
             for chunk in chunks:
                 late.touch()  # a label appears in a folder the second pass has not listed
-                yield from _failing(chunk)
+                yield from _failing([chunk])
 
     with pytest.raises(ConfigError, match=r"inputs\.labels: .*10 labels listed, then 11"):
         run_build(config, engine=Engine(), progress=False)

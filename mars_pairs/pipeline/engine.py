@@ -1,0 +1,287 @@
+"""The build engines' one contract: chunks of labels in, typed chunk results out, in order.
+
+An engine (:class:`Engine`: the in-process build, ``pipeline.local_pool.LocalPool``,
+``pipeline.dask_engine.DaskEngine``) runs :func:`build_chunk` once per chunk, wherever its
+workers are. A worker builds the chunk's samples one at a time and writes them straight
+into the chunk's shard in the output folder (``shards/shard-{k:06d}.tar``, through the
+temporary name ``.shard-{k:06d}.tar.tmp-<pid>`` and a rename: ``store.shards.ShardWriter``),
+so a sample's bytes never leave the worker that built it; the worker also writes the chunk's
+failure part and manifest part under their temporary names (``.NAME.tmp-<pid>``, synced, not
+renamed). What travels back to the driver is a :class:`ChunkResult`: one :class:`Outcome`
+per label (its manifest row with the member locations, or its failure row; a few KB a
+sample at most), the shard's name and size, the staged parts' names, and timings. The driver
+commits the chunks in order (``pipeline.build``): it renames the failure part, then the
+manifest part (the chunk's commit marker) into place. A killed build leaves temporary names
+and shards of uncommitted chunks, which the next build removes or writes again.
+
+Duplicate sample keys (two labels with one product id): the first label in label order
+keeps the key, every later one becomes a ``record`` failure row (DuplicateKeyError naming
+the first). A worker resolves the duplicates inside its chunk: it writes the first and
+reports the later ones as ``duplicate`` outcomes. Duplicates of an earlier chunk's key are
+resolved by the driver at commit, which knows every earlier key: it turns them into failure
+rows, writes the chunk's parts itself, and, when such a sample was written into the shard,
+rewrites the shard without it (``resolve_duplicates``: a rare path, the only one where sample
+bytes pass through the driver).
+The output is therefore byte-identical to a build that wrote every chunk in the driver, for
+any engine and worker count. Samples in the split buffer are dropped by the worker when the
+config says so (``splits.buffer_policy: drop``) and reported as ``dropped`` outcomes.
+
+The workers need write access to the output folder, at the same path as the driver (a
+shared file system for a cluster).
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import time
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Literal, Protocol
+
+import pyarrow as pa
+
+from mars_pairs.errors import MarsPairsError
+from mars_pairs.pipeline import worker
+from mars_pairs.pipeline.config import BuildConfig
+from mars_pairs.pipeline.context import SampleContext
+from mars_pairs.pipeline.dense import member_fields
+from mars_pairs.pipeline.outputs import DROPPED_KEY, part_paths
+from mars_pairs.store.manifest import (
+    FAILURE_SCHEMA,
+    manifest_schema,
+    rows_to_table,
+    write_parquet_staged,
+)
+from mars_pairs.store.shards import MemberLocation, ShardWriter, read_member
+from mars_pairs.store.splits import BUFFER
+
+
+class DuplicateKeyError(MarsPairsError):
+    """Two labels give the same sample key (the same product id): the first one is kept."""
+
+
+@dataclass(frozen=True)
+class ChunkTask:
+    """Chunk ``index`` of the build: its labels, in label order."""
+
+    index: int
+    labels: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What became of one label of a chunk.
+
+    ``kind``: ``ok`` (written to the shard; ``row`` is its manifest row with the member
+    locations, ``members`` the member name -> location), ``dropped`` (in the split buffer,
+    not written), ``duplicate`` (its key was already built from an earlier label, not
+    written; ``row`` is its DuplicateKeyError failure row), ``fail`` (``row`` is its failure
+    row). ``key`` is the sample key (None for
+    a failure), ``label`` the label path as the manifest names it, ``seconds`` the sample's
+    stage times (s).
+    """
+
+    kind: Literal["ok", "dropped", "duplicate", "fail"]
+    label: str
+    key: str | None = None
+    row: dict[str, Any] = field(default_factory=dict)
+    members: dict[str, MemberLocation] = field(default_factory=dict)
+    seconds: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ChunkResult:
+    """A chunk built by a worker: its outcomes in label order, and the shard it wrote.
+
+    ``shard``: the shard's path relative to the output folder, None when no sample was
+    written (then there is no shard file); ``shard_bytes`` its final size. ``seconds``: the
+    worker's wall time for the chunk; ``worker``: ``host:pid`` of the process that built it.
+    ``staged``: the temporary names (relative to the output folder) under which the worker
+    wrote the chunk's failure part and manifest part as they are when no earlier chunk
+    built one of its keys (``part_tables``); committing the chunk renames them into place.
+    None: the driver writes the parts.
+    """
+
+    index: int
+    outcomes: tuple[Outcome, ...]
+    shard: str | None
+    shard_bytes: int
+    seconds: float
+    worker: str
+    staged: tuple[str, str] | None = None
+
+    @property
+    def rows(self) -> list[dict[str, Any]]:
+        """The manifest rows of the samples written, in label order."""
+        return [o.row for o in self.outcomes if o.kind == "ok"]
+
+
+class Engine(Protocol):
+    """Runs :func:`build_chunk` for each chunk and yields the results in chunk order.
+
+    ``chunks`` may be a lazy iterator: an engine pulls it as it has room (never lists it)
+    and starts nothing when it is empty. WorkerStartError when a worker could not open the
+    build's inputs."""
+
+    def run(self, config: BuildConfig, chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
+        """The results of ``chunks``, in their order."""
+        ...
+
+
+def _located(row: dict[str, Any], locs: dict[str, MemberLocation]) -> dict[str, Any]:
+    """``row`` with the ``<field>_shard/_offset/_size/_crc32c`` columns of ``locs``."""
+    row = dict(row)
+    for name, loc in locs.items():
+        fld = name.split(".")[0]
+        row.update(
+            {
+                f"{fld}_shard": loc.shard,
+                f"{fld}_offset": loc.offset,
+                f"{fld}_size": loc.size,
+                f"{fld}_crc32c": loc.crc32c,
+            }
+        )
+    return row
+
+
+def duplicate_row(label: str, key: str, first: str) -> dict[str, Any]:
+    """The failure row of ``label``, whose sample key ``key`` was built from ``first``."""
+    error = DuplicateKeyError(f"{label}: key {key}: already built from {first}")
+    return worker.failure_row(label, "record", error)
+
+
+def part_tables(config: BuildConfig, outcomes: Iterable[Outcome]) -> tuple[pa.Table, pa.Table]:
+    """A chunk's failure part and manifest part (of the schema of ``config``'s members; the
+    count of samples dropped in the split buffer in its metadata) for its ``outcomes``, in
+    label order."""
+    outcomes = list(outcomes)
+    failures = [o.row for o in outcomes if o.kind in ("fail", "duplicate")]
+    rows = [o.row for o in outcomes if o.kind == "ok"]
+    dropped = sum(o.kind == "dropped" for o in outcomes)
+    table = rows_to_table(rows, manifest_schema(member_fields(config.output.members)))
+    table = table.replace_schema_metadata({DROPPED_KEY: str(dropped).encode()})
+    return rows_to_table(failures, FAILURE_SCHEMA), table
+
+
+def build_chunk(config: BuildConfig, task: ChunkTask) -> ChunkResult:
+    """Build chunk ``task`` in this process (its context open: ``worker.open_context``) and
+    write its shard into ``config.output.dir``; WorkerStartError when the context could not
+    be opened. A sample is written as soon as it is built (one sample in memory)."""
+    start = time.perf_counter()
+    out = config.output.dir
+    shard_rel = part_paths(out, task.index)[0]
+    drop = config.splits.buffer_policy == "drop"
+    outcomes: list[Outcome] = []
+    first: dict[str, str] = {}
+    shard: ShardWriter | None = None
+    try:
+        for label in task.labels:
+            status, r = worker.work(label)
+            if status == "start":
+                raise worker.WorkerStartError(r)
+            if status == "fail":
+                outcomes.append(Outcome("fail", r["path"], row=r))
+                continue
+            name = r.row["label_path"]
+            if r.key in first:
+                row = duplicate_row(name, r.key, first[r.key])
+                outcomes.append(Outcome("duplicate", name, r.key, row))
+                continue
+            first[r.key] = name
+            if drop and r.row["split"] == BUFFER:
+                outcomes.append(Outcome("dropped", name, r.key))
+                continue
+            if shard is None:
+                shard = ShardWriter(out, shard_rel)
+            locs = shard.add(r.key, r.members)
+            outcomes.append(Outcome("ok", name, r.key, _located(r.row, locs), locs, r.seconds))
+    except BaseException:
+        if shard is not None:
+            shard.close(commit=False)
+        raise
+    size = 0
+    if shard is not None:
+        shard.close()
+        size = shard.path.stat().st_size
+    _, manifest_part, failures_part = part_paths(out, task.index)
+    failures, manifest = part_tables(config, outcomes)
+    staged = (
+        write_parquet_staged(failures, failures_part).relative_to(out).as_posix(),
+        write_parquet_staged(manifest, manifest_part).relative_to(out).as_posix(),
+    )
+    return ChunkResult(
+        task.index,
+        tuple(outcomes),
+        shard_rel if shard is not None else None,
+        size,
+        time.perf_counter() - start,
+        f"{socket.gethostname()}:{os.getpid()}",
+        staged,
+    )
+
+
+def resolve_duplicates(out: Path, result: ChunkResult, seen: dict[str, str]) -> ChunkResult:
+    """``result`` with every sample whose key an earlier chunk built (``seen``: key -> the
+    label it was built from) turned into a ``duplicate`` outcome; when one was written, the
+    shard is written again without it (atomically, over the worker's; removed when no
+    sample is left) and the other samples' locations and rows follow. The staged parts are
+    removed (``staged`` None: the driver writes the parts)."""
+    final = [
+        Outcome("duplicate", o.label, o.key, duplicate_row(o.label, o.key, seen[o.key]))
+        if o.kind != "fail" and o.key in seen
+        else o
+        for o in result.outcomes
+    ]
+    for rel in result.staged or ():
+        (out / rel).unlink(missing_ok=True)
+    result = replace(result, staged=None)
+    written = [o.kind == "ok" for o in result.outcomes]
+    if result.shard is None or sum(o.kind == "ok" for o in final) == sum(written):
+        return replace(result, outcomes=tuple(final))
+    path = out / result.shard
+    kept: list[Outcome] = []
+    shard: ShardWriter | None = None
+    try:
+        for o in final:
+            if o.kind != "ok":
+                kept.append(o)
+                continue
+            members = {
+                name: read_member(out, loc, name=f"{o.key}.{name}", verify=True)
+                for name, loc in o.members.items()
+            }
+            if shard is None:
+                shard = ShardWriter(out, result.shard)
+            locs = shard.add(o.key, members)
+            kept.append(replace(o, row=_located(o.row, locs), members=locs))
+    except BaseException:
+        if shard is not None:
+            shard.close(commit=False)
+        raise
+    if shard is None:
+        path.unlink()
+        return replace(result, outcomes=tuple(kept), shard=None, shard_bytes=0)
+    shard.close()
+    return replace(result, outcomes=tuple(kept), shard_bytes=path.stat().st_size)
+
+
+class InProcess:
+    """The engine of a one-worker build: every chunk built in this process, in order."""
+
+    def run(self, config: BuildConfig, chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
+        """The results of ``chunks`` built here; the context opens at the first chunk."""
+        todo = iter(chunks)
+        first = next(todo, None)
+        if first is None:
+            return
+        context = SampleContext.open(config)  # its error is the build's, as it is
+        worker.use_context(context)
+        try:
+            yield build_chunk(config, first)
+            for task in todo:
+                yield build_chunk(config, task)
+        finally:
+            worker.use_context(None)
+            context.close()
