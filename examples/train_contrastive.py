@@ -1,28 +1,42 @@
-"""Cross-view contrastive learning on a mars-pairs dataset: ground image <-> orbital chip.
+"""Cross-view retrieval on a mars-pairs dataset: ground image -> orbital chip.
 
-    python examples/train_contrastive.py --dataset out/demo/dataset --steps 400
+    python examples/train_contrastive.py --dataset out/demo/dataset [--method polar|global|both]
 
-Two tiny CNN encoders embed the ground image (resized to --image-size) and the ortho chip
-(+ the normalised DEM as a second channel, unless --no-dem) into a shared unit sphere; the
-loss is a symmetric InfoNCE over the batch. It trains on the ``train`` split only and
-evaluates on the held-out areas (VIGOR's cross-area protocol: the dataset's ``val`` and
-``test`` areas are far from every train sample, see dataset.json ``splits``).
+It trains on the ``train`` split only and evaluates on the held-out areas (VIGOR's
+cross-area protocol: the dataset's ``val`` and ``test`` areas are far from every train
+sample, see dataset.json ``splits``). Evaluation ranks every distinct chip of the split for
+each ground image: recall@1/@5 of the own chip, and hit@1 (the top chip lies within
+--near-m, default 64 m: half a 128 m chip, so it contains the query's rover position), each
+printed beside its chance level.
 
-Positives are distance-aware, after VIGOR: a ground image's positive is its own chip (images
-taken at the same rover position share one chip: multi-positive InfoNCE). Chips of other
-positions within --near-m metres (default 64: half a 128 m chip, so they contain the query's
-rover position; VIGOR's semi-positives) are left out of its negatives while training, neither
-pulled nor pushed. Evaluation ranks every distinct chip of the split (the own chip must win
-over its near neighbours too): recall@1/@5 of the own chip, and hit@1 (the top chip lies
-within --near-m, so it contains the query's position), each printed beside its chance level.
+``--method polar`` (default): orientation-aligned polar matching (the polar transform of Shi
+et al. 2019, SAFA; VIGOR/CVR's known-orientation setting). The camera's pointing is known at
+query time (manifest ``azimuth_deg``, ``elevation_deg``, ``hfov_deg``, ``vfov_deg``), so for
+every candidate chip its centre is taken as the rover position and the ortho is resampled on a
+(ground distance x azimuth) grid: rows 3..60 m log-spaced, columns across the query camera's
+horizontal field of view around its azimuth. The ground image is resampled on the same grid
+(inverse perspective: a pinhole pitched by ``elevation_deg``, --camera-height above the
+candidate DEM's centre, terrain heights from the candidate's DEM, occlusion ignored). Only
+the query's own pointing and the candidate's chips are used, never its true position or
+viewshed. The score of a pair is a per-channel normalised cross-correlation of the two
+branches over the grid cells both see: channel 0 is the grey image itself (step 0 is plain
+NCC, printed first), the other channels come from two small learnt convolutions per branch,
+weighted by learnt weights. Training: each train query against every train chip, softmax
+cross-entropy (InfoNCE) with its own chip the positive, chips of other positions within
+--near-m left out (VIGOR's semi-positives), azimuth mirroring of both branches.
 
-The dataset's transforms resize the chips and make float32 images; the dataset is small, so
-it is decoded once and kept in memory (for a large dataset, give the augmentations to
-``MarsPairsDataset(transform=...)`` and iterate a ``mars_pairs.torch.MarsPairsLoader``, a
-DataLoader whose workers reuse their shared memory). Every training step augments
-its samples with transforms that keep the pairing (``mars_pairs.torch.transforms``: a random
-chip crop, which moves the chip's georeferencing and keypoints with it, and colour jitter of
-the ground image); ``--plot PNG`` writes ``MarsPairsDataset.plot`` of an augmented sample.
+``--method global``: the global-embedding baseline. Two tiny CNN encoders embed the ground
+image (resized to --image-size) and the ortho chip (+ the normalised DEM as a second channel,
+unless --no-dem) into a shared unit sphere; symmetric multi-positive InfoNCE over the batch
+(images taken at the same rover position share one chip), near chips left out of the
+negatives. The dataset's transforms resize the chips and make float32 images; the dataset is
+small, so it is decoded once and kept in memory (for a large dataset, give the augmentations
+to ``MarsPairsDataset(transform=...)`` and iterate a ``mars_pairs.torch.MarsPairsLoader``, a
+DataLoader whose workers reuse their shared memory). Every training step augments its
+samples with transforms that keep the pairing (``mars_pairs.torch.transforms``: a random chip
+crop, which moves the chip's georeferencing and keypoints with it, and colour jitter of the
+ground image); ``--plot PNG`` writes ``MarsPairsDataset.plot`` of an augmented sample (polar:
+the ground image and both branches on the polar grid of a train sample).
 Deterministic for a given --seed (single-threaded CPU by default).
 """
 
