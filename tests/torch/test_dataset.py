@@ -367,8 +367,18 @@ def test_train_contrastive_example_runs_and_learns(dataset_dir: Path) -> None:
     assert len(losses) >= 3, proc.stdout
     assert losses[-1] < losses[0], proc.stdout
     assert re.search(r"recall@1", proc.stdout) and re.search(r"chance", proc.stdout)
-    with Image.open(plot) as im:  # MarsPairsDataset.plot of an augmented sample
+    # the polar method prints the untrained (plain NCC) table, then the trained one
+    assert re.search(r"untrained.*\n(.*\n)*.*trained,", proc.stdout), proc.stdout
+    with Image.open(plot) as im:  # the ground image and both polar grids of a sample
         assert im.format == "PNG" and im.size[0] > 500
+    baseline = subprocess.run(
+        [sys.executable, str(script), *args[:-2], "--method", "global", "--steps", "10"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert baseline.returncode == 0, baseline.stderr[-3000:]
+    assert re.search(r"recall@1", baseline.stdout), baseline.stdout
 
 
 def test_meta_names_units_and_reads_the_old_name(dataset_dir: Path) -> None:
