@@ -260,11 +260,14 @@ def _gallery_section(root: Path, rows: list[dict[str, Any]], n: int) -> str:
     order = sorted(range(len(rows)), key=lambda i: (rows[i]["sol"] or 0, str(rows[i]["key"])))
     spread = np.linspace(0, len(rows) - 1, min(n, len(rows)))
     picks = sorted({order[round(float(k))] for k in spread})
+    from mars_pairs.viz.sample import _camera_centre
+
     cards = []
     with MarsPairsDataset(root, fields=("ground", "ortho", "viewshed")) as ds:
         for i in sorted(picks, key=lambda i: order.index(i)):
             r = rows[i]
-            png = sample_card(ds[ds.index_of(str(r["key"]))])
+            centre = _camera_centre(root, str(r["key"]))  # the wedge's apex (meta.json)
+            png = sample_card(ds[ds.index_of(str(r["key"]))], camera_center_map=centre)
             caption = (
                 f"<b>{_esc(r['key'])}</b><br>{_esc(r['instrument'])}, sol {_esc(r['sol'])}, "
                 f"split <b>{_esc(r['split'])}</b><br>camera az {_fmt(r['azimuth_deg'], '.1f')}°, "

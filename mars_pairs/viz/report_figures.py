@@ -359,13 +359,17 @@ def _finite(x: Any) -> bool:
 # -- a gallery card ------------------------------------------------------------------------------
 
 
-def sample_card(sample: dict[str, Any]) -> bytes:
+def sample_card(sample: dict[str, Any], camera_center_map: list[float] | None = None) -> bytes:
     """One sample (a :class:`MarsPairsDataset` item with ground, ortho, viewshed): its ground
-    image beside its ortho chip with the viewshed (green), the camera wedge and the rover."""
+    image beside its ortho chip with the viewshed (green), the camera wedge (from
+    ``camera_center_map``, map x, y of the dataset CRS, when given, else the rover origin) and
+    the rover."""
     from mars_pairs.viz.sample import _apply, _inverse, _numpy_parts, _ortho_panel, _wedge_pixels
 
     plt = pyplot()
     row = dict(sample.get("meta") or {})
+    if camera_center_map is not None:
+        row["camera_center_map"] = camera_center_map
     parts = _numpy_parts(sample)
     ground, ortho, vis = parts["ground"], parts["ortho"], parts["viewshed"]
     ratio = ground.shape[1] / ground.shape[0] if ground is not None else 1.0

@@ -366,3 +366,36 @@ def test_report_rejects_a_negative_sample_count(dataset: Path) -> None:
     with pytest.raises(SystemExit) as exc:
         main(["report", str(dataset), "--samples", "-1"])
     assert exc.value.code == 2
+
+
+def test_gallery_wedges_start_at_the_camera_centre(
+    dataset: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Each gallery card's wedge apex is the sample's camera centre (meta.json), not the rover."""
+    import json
+
+    from mars_pairs.store.manifest import Manifest
+    from mars_pairs.store.shards import MemberLocation, read_member
+    from mars_pairs.viz import sample as viz_sample
+    from mars_pairs.viz.report import write_report
+
+    apexes: list[tuple[float, float]] = []
+    original = viz_sample._wedge_pixels
+
+    def spy(row, inv):  # type: ignore[no-untyped-def]
+        x0, y0, known = viz_sample.wedge_apex(row)
+        assert known, "no camera centre reached the card"
+        apexes.append((x0, y0))
+        return original(row, inv)
+
+    monkeypatch.setattr(viz_sample, "_wedge_pixels", spy)
+    write_report(dataset, out=dataset.parent / "gallery-check.html", samples=2)
+    rows = Manifest.open(dataset).to_table(
+        columns=["key", "meta_shard", "meta_offset", "meta_size"]
+    )
+    centres = []
+    for r in rows.to_pylist():
+        loc = MemberLocation(r["meta_shard"], int(r["meta_offset"]), int(r["meta_size"]))
+        meta = json.loads(read_member(dataset, loc, name=f"{r['key']}.meta.json"))
+        centres.append(tuple(meta["camera_center_map"][:2]))
+    assert apexes and all(a in centres for a in apexes)
