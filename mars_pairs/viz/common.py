@@ -104,3 +104,17 @@ def scale_bar(
         path_effects=[pe.withStroke(linewidth=3, foreground="white")],
     )  # fmt: skip
     return length
+
+
+def map_axes(ax: Any, box: tuple[float, float, float, float], unit: str) -> None:
+    """A map panel showing ``box`` (xmin, ymin, xmax, ymax in the dataset CRS's map units,
+    named ``unit``): its limits, equal aspect, plain tick labels, easting/northing axis labels
+    and a scale bar."""
+    ax.set_xlim(box[0], box[2])
+    ax.set_ylim(box[1], box[3])
+    ax.set_aspect("equal")
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.tick_params(labelsize=7)
+    ax.set_xlabel(f"easting ({unit})", fontsize=9)
+    ax.set_ylabel(f"northing ({unit})", fontsize=9)
+    scale_bar(ax, box, unit=unit)

@@ -16,8 +16,8 @@ from mars_pairs.viz.common import (
     OVERVIEW_SIZE,
     SPLIT_COLOURS,
     manifest_rows,
+    map_axes,
     pyplot,
-    scale_bar,
 )
 
 
@@ -97,14 +97,7 @@ def overview_figure(
         found = _draw_held_out(ax, held, SPLIT_COLOURS, label=_few_regions(held.regions, box))
         held_handles = held_handles or found
         _traverse(ax, rows, xs, ys, label_sols=ax is ax_near)
-        ax.set_xlim(box[0], box[2])
-        ax.set_ylim(box[1], box[3])
-        ax.set_aspect("equal")
-        ax.ticklabel_format(useOffset=False, style="plain")
-        ax.tick_params(labelsize=7)
-        ax.set_xlabel(f"easting ({unit})", fontsize=9)
-        ax.set_ylabel(f"northing ({unit})", fontsize=9)
-        scale_bar(ax, box, unit=unit)
+        map_axes(ax, box, unit)
         if image is None:
             ax.text(0.5, 0.02, "orthoimage not found: no background", transform=ax.transAxes,
                     ha="center", fontsize=9)  # fmt: skip

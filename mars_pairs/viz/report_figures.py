@@ -17,7 +17,7 @@ import numpy as np
 import shapely
 
 from mars_pairs.store.splits import BUFFER, TRAIN, SplitRule
-from mars_pairs.viz.common import DPI, SPLIT_COLOURS, pyplot
+from mars_pairs.viz.common import DPI, SPLIT_COLOURS, map_axes, pyplot
 from mars_pairs.viz.overview import _ortho_overview, _square
 
 MAX_BLOCKS_DRAWN = 2500  # same-area blocks tested for held-out ones inside a map panel
@@ -97,35 +97,6 @@ def held_out_regions(info: dict[str, Any], box: tuple[float, float, float, float
                         )
                         regions.setdefault(name, []).append(cell)
     return HeldOut(regions, zone, reach, buffer_m, note)
-
-
-def _nice(length: float) -> float:
-    """The largest 1, 2 or 5 times a power of ten not above ``length`` (> 0)."""
-    power = 10.0 ** math.floor(math.log10(length))
-    return max(m * power for m in (1.0, 2.0, 5.0) if m * power <= length)
-
-
-def _scale_bar(ax: Any, box: tuple[float, float, float, float], unit: str) -> None:
-    """A black and white scale bar in the lower-left corner of a panel showing ``box``."""
-    import matplotlib.patheffects as pe
-    from matplotlib.patches import Rectangle
-
-    width, height = box[2] - box[0], box[3] - box[1]
-    length = _nice(width * 0.22)
-    x0, y0 = box[0] + 0.05 * width, box[1] + 0.05 * height
-    thick = 0.012 * height
-    for k in range(2):
-        ax.add_patch(
-            Rectangle(
-                (x0 + k * length / 2, y0), length / 2, thick,
-                facecolor="black" if k == 0 else "white", edgecolor="black", lw=0.8, zorder=6,
-            )
-        )  # fmt: skip
-    label = f"{length / 1000:g} km" if length >= 1000 and unit == "m" else f"{length:g} {unit}"
-    ax.text(
-        x0 + length / 2, y0 + 2.2 * thick, label, ha="center", va="bottom", fontsize=9,
-        color="black", zorder=6, path_effects=[pe.withStroke(linewidth=3, foreground="white")],
-    )  # fmt: skip
 
 
 def _rings(geom: Any) -> list[np.ndarray]:
@@ -268,14 +239,7 @@ def map_figure(
         if ax is ax_near:
             handles = found
         _traverse(ax, rows, box, labels=ax is ax_near)
-        ax.set_xlim(box[0], box[2])
-        ax.set_ylim(box[1], box[3])
-        ax.set_aspect("equal")
-        ax.ticklabel_format(useOffset=False, style="plain")
-        ax.tick_params(labelsize=7)
-        ax.set_xlabel(f"easting ({unit})", fontsize=9)
-        ax.set_ylabel(f"northing ({unit})", fontsize=9)
-        _scale_bar(ax, box, unit)
+        map_axes(ax, box, unit)
         if image is None:
             ax.text(0.5, 0.02, "orthoimage not found: no background", transform=ax.transAxes,
                     ha="center", fontsize=9)  # fmt: skip
