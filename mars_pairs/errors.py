@@ -104,3 +104,31 @@ class SampleKeyError(UsageError, KeyError):
 
 class SampleIndexError(UsageError, IndexError):
     """A dataset index out of range (an IndexError, so ``for s in ds`` still ends)."""
+
+
+class StageError(MarsPairsError):
+    """A failure at a named stage of one observation; becomes a row of failures.parquet."""
+
+    def __init__(self, stage: str, error: BaseException) -> None:
+        self.stage, self.error = stage, error
+        super().__init__(f"{stage}: {type(error).__name__}: {error}")
+
+
+class WorkerStartError(MarsPairsError):
+    """A worker could not open the build's inputs (the message is the worker's error)."""
+
+
+class WorkerDiedError(MarsPairsError):
+    """A build worker process died (killed, out of memory, crashed) with samples in flight."""
+
+
+class DuplicateKeyError(MarsPairsError):
+    """Two labels give the same sample key (the same product id): the first one is kept."""
+
+
+class BuildError(MarsPairsError):
+    """A strict build stopped at its first failure."""
+
+
+class ContentError(FetchError):
+    """A downloaded file is not what its kind requires; names the URL (or file) and why."""

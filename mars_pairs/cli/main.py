@@ -65,7 +65,8 @@ def _cmd_build(args: argparse.Namespace) -> int:
     from dataclasses import replace
     from pathlib import Path
 
-    from mars_pairs.pipeline.build import BuildError, run_build
+    from mars_pairs.errors import BuildError
+    from mars_pairs.pipeline.build import run_build
     from mars_pairs.pipeline.config import load_config
 
     config = load_config(args.config)

@@ -41,11 +41,10 @@ import requests
 from requests.adapters import HTTPAdapter
 from urllib3.util.retry import Retry
 
-from mars_pairs.errors import FetchError
+from mars_pairs.errors import ContentError, FetchError
 from mars_pairs.fetch.cache import Cache, atomic_write
 from mars_pairs.fetch.validate import (
     KINDS,
-    ContentError,
     check_content_type,
     check_file,
     kind_of,

@@ -37,7 +37,7 @@ import re
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-from mars_pairs.errors import FetchError, ImageError, LabelError
+from mars_pairs.errors import ContentError, ImageError, LabelError
 
 KINDS = (
     "pds3_label",
@@ -79,10 +79,6 @@ _HTML_HEAD = re.compile(
     rb"^(\xef\xbb\xbf)?\s*<(!doctype\s+html|html[\s>]|head[\s>]|body[\s>])", re.I
 )
 _PDS4_BYTES = re.compile(r"(\d+)$")
-
-
-class ContentError(FetchError):
-    """A downloaded file is not what its kind requires; names the URL (or file) and why."""
 
 
 def kind_of(rel: PurePosixPath | str) -> str:

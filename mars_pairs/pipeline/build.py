@@ -25,7 +25,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from mars_pairs.errors import ConfigError, MarsPairsError
+from mars_pairs.errors import BuildError, ConfigError, MarsPairsError
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.config_section import check_regular
 from mars_pairs.pipeline.engine import (
@@ -60,7 +60,6 @@ from mars_pairs.pipeline.plan import (
     labels_of,
     plan_build,
 )
-from mars_pairs.pipeline.worker import WorkerStartError  # noqa: F401  (re-exported)
 from mars_pairs.store.manifest import write_parquet_atomic
 from mars_pairs.store.shards import atomic_write_bytes
 from mars_pairs.store.wids_index import write_wids_index
@@ -92,10 +91,6 @@ class BuildSummary:
             f"  failed at {reason}: {n}" for reason, n in sorted(self.failures_by_reason.items())
         ]
         return "\n".join(lines)
-
-
-class BuildError(MarsPairsError):
-    """A strict build stopped at its first failure."""
 
 
 def check_input_files(config: BuildConfig) -> None:

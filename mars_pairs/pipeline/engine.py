@@ -42,7 +42,7 @@ from typing import Any, Literal, Protocol
 
 import pyarrow as pa
 
-from mars_pairs.errors import MarsPairsError
+from mars_pairs.errors import DuplicateKeyError, WorkerStartError
 from mars_pairs.pipeline import worker
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.context import SampleContext
@@ -56,10 +56,6 @@ from mars_pairs.store.manifest import (
 )
 from mars_pairs.store.shards import MemberLocation, ShardWriter, read_member
 from mars_pairs.store.splits import BUFFER
-
-
-class DuplicateKeyError(MarsPairsError):
-    """Two labels give the same sample key (the same product id): the first one is kept."""
 
 
 @dataclass(frozen=True)
@@ -180,7 +176,7 @@ def build_chunk(config: BuildConfig, task: ChunkTask) -> ChunkResult:
         for label in task.labels:
             status, r = worker.work(label)
             if status == "start":
-                raise worker.WorkerStartError(r)
+                raise WorkerStartError(r)
             if status == "fail":
                 outcomes.append(Outcome("fail", r["path"], row=r))
                 continue

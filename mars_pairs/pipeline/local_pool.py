@@ -37,7 +37,7 @@ from itertools import islice
 from multiprocessing.context import BaseContext
 from typing import Any
 
-from mars_pairs.errors import MarsPairsError
+from mars_pairs.errors import WorkerDiedError, WorkerStartError
 from mars_pairs.pipeline import worker
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.engine import ChunkResult, ChunkTask, build_chunk
@@ -113,10 +113,6 @@ def _start_worker(config: BuildConfig, environ: dict[str, str]) -> None:
     worker.open_context(config, environ)
 
 
-class WorkerDiedError(MarsPairsError):
-    """A build worker process died (killed, out of memory, crashed) with samples in flight."""
-
-
 class LocalPool:
     """``workers`` processes building samples for ``config``; a context manager.
 
@@ -162,7 +158,7 @@ class LocalPool:
                 status, result = future.result()
                 submit(1)
                 if status == "start":
-                    raise worker.WorkerStartError(result)
+                    raise WorkerStartError(result)
                 yield status, result
         except BrokenProcessPool:
             raise WorkerDiedError(

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mars_pairs.errors import MarsPairsError
+from mars_pairs.errors import MarsPairsError, StageError
 from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.pds import read_observation
 from mars_pairs.pipeline.chips import correspondence, cut_chips, localization_fields
@@ -19,7 +19,7 @@ from mars_pairs.pipeline.dense import dense_members
 from mars_pairs.pipeline.encode import encode_members
 from mars_pairs.pipeline.ground import ground_image
 from mars_pairs.pipeline.record import manifest_row, sample_meta
-from mars_pairs.pipeline.stages import StageError, Stages
+from mars_pairs.pipeline.stages import Stages
 from mars_pairs.pipeline.view import compute_view
 
 

@@ -6,16 +6,6 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-from mars_pairs.errors import MarsPairsError
-
-
-class StageError(MarsPairsError):
-    """A failure at a named stage of one observation; becomes a row of failures.parquet."""
-
-    def __init__(self, stage: str, error: BaseException) -> None:
-        self.stage, self.error = stage, error
-        super().__init__(f"{stage}: {type(error).__name__}: {error}")
-
 
 class Stages:
     """Names the running stage (for failure rows) and times each one."""

@@ -16,12 +16,11 @@ from typing import Any
 import pyarrow as pa
 
 from mars_pairs.allocator import reuse_freed_memory
-from mars_pairs.errors import MarsPairsError
+from mars_pairs.errors import MarsPairsError, StageError
 from mars_pairs.kernels.warm import warm_kernels
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.context import SampleContext
 from mars_pairs.pipeline.sample import Sample, build_sample
-from mars_pairs.pipeline.stages import StageError
 from mars_pairs.store.manifest import MANIFEST_SCHEMA
 
 #: The longest sample key: ``<key>.<member>`` must fit tar's 100-byte USTAR name field.
@@ -31,10 +30,6 @@ _KEY = re.compile(r"[a-z0-9_\-]+", re.ASCII)
 # One per worker process (a pool initializer cannot hand its worker anything else).
 _CONTEXT: SampleContext | None = None
 _START_ERROR: str | None = None  # why the process could not open its context, if it could not
-
-
-class WorkerStartError(MarsPairsError):
-    """A worker could not open the build's inputs (the message is the worker's error)."""
 
 
 def open_context(config: BuildConfig, environ: dict[str, str] | None = None) -> None:

@@ -15,7 +15,8 @@ import yaml
 from mission_inputs import mission_inputs
 
 from mars_pairs.cli.main import main
-from mars_pairs.pipeline.build import WorkerStartError, run_build
+from mars_pairs.errors import WorkerStartError
+from mars_pairs.pipeline.build import run_build
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.synth import generate_mission
 

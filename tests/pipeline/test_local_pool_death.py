@@ -14,9 +14,9 @@ from pathlib import Path
 import pytest
 from mission_config import cheap_config
 
+from mars_pairs.errors import WorkerDiedError
 from mars_pairs.pipeline import local_pool
 from mars_pairs.pipeline.build import run_build
-from mars_pairs.pipeline.local_pool import WorkerDiedError
 
 
 def _digest(root: Path) -> dict[str, str]:
