@@ -149,22 +149,10 @@ def recall(
     """Ground->ortho retrieval over the distinct chips of these samples: recall@1/@5 of the
     own chip, hit@1 (top chip within ``near_m`` metres of the query's rover), their chance
     levels (a random ranking), the number of chips ("chips") and of queries ("queries")."""
-    uniq, first = np.unique(loc.numpy(), return_index=True)
+    _, first = np.unique(loc.numpy(), return_index=True)
     pick = torch.from_numpy(first)
-    gallery = oenc(chip[pick])
-    sims = genc(ground) @ gallery.T
-    order = sims.argsort(dim=1, descending=True)
-    truth = torch.from_numpy(np.searchsorted(uniq, loc.numpy()))
-    rank = (order == truth[:, None]).float().argmax(dim=1)
-    close = torch.cdist(xy, xy[pick]) <= near_m  # [queries, chips]: chips holding the query
-    top_close = close.gather(1, order[:, :1]).squeeze(1)
-    m = len(uniq)
-    return {
-        "r1": float((rank < 1).float().mean()), "r5": float((rank < 5).float().mean()),
-        "hit1": float(top_close.float().mean()), "chance_r1": 1 / m,
-        "chance_r5": min(5, m) / m, "chance_hit1": float(close.float().mean()),
-        "chips": m, "queries": len(loc),
-    }  # fmt: skip
+    sims = genc(ground) @ oenc(chip[pick]).T
+    return rank_metrics(sims, loc, xy, loc[pick], xy[pick], near_m)
 
 
 # ---- polar method -------------------------------------------------------------------------------
