@@ -42,8 +42,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from mars_pairs.errors import ConfigError
 from mars_pairs.fetch.download import FetchPolicy
 from mars_pairs.fetch.products import ProductFilter
@@ -271,17 +269,24 @@ def parse_fetch(data: Any, base: Path, radius_m: float, chip_size_m: float = 256
 def load_fetch_config(path: str | Path) -> FetchConfig:
     """Read the ``fetch:`` section of a YAML build config."""
     path = Path(path)
-    try:
-        data = read_yaml(path)  # refuses duplicate keys, alias bombs, FIFOs
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read config: {exc.strerror}") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    data = read_yaml(path)  # ConfigError naming the file: unreadable, bad YAML, duplicate keys
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a mapping at the top level")
-    radius = (data.get("geometry") or {}).get("radius", 2000.0)
-    chip = (data.get("chips") or {}).get("size_m", 256.0)
     try:
-        return parse_fetch(data.get("fetch"), path.resolve().parent, float(radius), float(chip))
+        radius = _section_number(data, "geometry", "radius", 2000.0)
+        chip = _section_number(data, "chips", "size_m", 256.0)
+        return parse_fetch(data.get("fetch"), path.resolve().parent, radius, chip)
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
+
+
+def _section_number(data: dict[str, Any], section: str, key: str, default: float) -> float:
+    """``data[section][key]`` as a positive number (metres), ``default`` when absent;
+    ConfigError naming ``section.key`` otherwise (the build config checks it fully)."""
+    block = data.get(section) or {}
+    if not isinstance(block, dict):
+        raise ConfigError(f"{section}: expected a mapping, got {type(block).__name__}")
+    value = block.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+        raise ConfigError(f"{section}.{key}: expected a positive number, got {value!r}")
+    return float(value)

@@ -13,6 +13,7 @@ import numpy as np
 from mars_pairs.errors import CoverageError
 from mars_pairs.pds.observation import Observation
 from mars_pairs.pipeline.context import SampleContext
+from mars_pairs.pipeline.record import sample_key
 from mars_pairs.pipeline.view import View, in_view
 from mars_pairs.raster.chips import ChipGrid, ChipReader, coverage, resample_array
 
@@ -60,7 +61,7 @@ def cut_chips(
     if spec.orientation == "heading-up":
         # the chip's up is the camera azimuth, as a map (grid) azimuth
         rotation = float(view.camera.grid_azimuth_deg(view.camera.pointing_az_el()[0]))
-    dx, dy = chip_offset(spec.offset_m, obs_key(obs), rotation)
+    dx, dy = chip_offset(spec.offset_m, sample_key(obs), rotation)
     grid = ChipGrid.around(
         float(rover[0]) + dx,
         float(rover[1]) + dy,
@@ -88,11 +89,6 @@ def cut_chips(
         },
         cover,
     )
-
-
-def obs_key(obs: Observation) -> str:
-    """The sample key of ``obs`` (``record.sample_key``; repeated here to avoid a cycle)."""
-    return f"{obs.mission}_{obs.product_id}".replace(".", "_").lower()
 
 
 def chip_offset(offset_m: float | None, key: str, rotation_deg: float) -> tuple[float, float]:

@@ -27,12 +27,10 @@ On the chip grid (S x S, the chip's affine):
 
 from __future__ import annotations
 
-import io
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from PIL import Image
 
 from mars_pairs.geometry.body import MARS_RADIUS_M
 from mars_pairs.geometry.mapcam import MapCamera
@@ -178,14 +176,6 @@ def ground_on_map(pixels: np.ndarray, ground_px: np.ndarray) -> tuple[np.ndarray
     return colours, cover
 
 
-def decode_ground(data: bytes) -> np.ndarray:
-    """The ground member's pixels: uint8 (H, W) or (H, W, 3)."""
-    with Image.open(io.BytesIO(data)) as im:
-        if im.mode not in ("L", "RGB"):
-            im = im.convert("RGB")
-        return np.asarray(im)
-
-
 def dense_members(
     view: View,
     grid: ChipGrid,
@@ -221,8 +211,8 @@ def dense_members(
         visible = np.asarray(chips["viewshed"]) > 0
         ground_px = ground_pixels_of_chip(view.camera, grid, chips["dem"], visible)
         if "ground_on_map" in wanted:
-            pixels = ground.pixels if ground.pixels is not None else decode_ground(ground.data)
-            colours, cover = ground_on_map(pixels, ground_px)
+            assert ground.pixels is not None  # build_sample keeps them when ground_on_map is on
+            colours, cover = ground_on_map(ground.pixels, ground_px)
             out["ground_on_map.png"] = png_bytes(colours)
             out["ground_on_map_cover.png"] = png_bytes(cover.astype(np.uint8) * 255)
         if "ground_px" in wanted:

@@ -6,7 +6,7 @@ import os
 import re
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import shapely
 
@@ -14,7 +14,6 @@ from mars_pairs.errors import PlacesError
 from mars_pairs.geometry.attitude import image_centre_pointing_deg
 from mars_pairs.geometry.places import Pose
 from mars_pairs.pds.observation import Observation
-from mars_pairs.pipeline.chips import ChipCoverage
 from mars_pairs.pipeline.context import SampleContext
 from mars_pairs.pipeline.footprint import footprint_polygon, view_statistics
 from mars_pairs.pipeline.splitting import split_rule
@@ -22,6 +21,9 @@ from mars_pairs.pipeline.view import View
 from mars_pairs.raster.chips import ChipGrid
 from mars_pairs.store.geoparquet import footprint_bounds
 from mars_pairs.store.splits import hilbert_index
+
+if TYPE_CHECKING:  # chips uses sample_key: imported for the annotation only
+    from mars_pairs.pipeline.chips import ChipCoverage
 
 _MAGIC = re.compile(r"[*?[]")
 

@@ -67,8 +67,9 @@ def overview_figure(
         raise MarsPairsError(f"{root}: the dataset has no samples")
     info = _dataset_json(root)
     crs_name, unit = _crs(info, Manifest.open(root))
-    if ortho_path is None:
-        ortho_path = (info.get("config") or {}).get("inputs", {}).get("ortho")
+    if ortho_path is None:  # dataset.json's path is relative to the dataset folder
+        ortho = (info.get("config") or {}).get("inputs", {}).get("ortho")
+        ortho_path = Path(root) / ortho if ortho else None
     xs = np.array([r["easting"] for r in rows], dtype=np.float64)
     ys = np.array([r["northing"] for r in rows], dtype=np.float64)
     geoms = [shapely.from_wkb(r["footprint"]) if r["footprint"] is not None else None for r in rows]
