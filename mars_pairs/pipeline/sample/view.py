@@ -1,4 +1,6 @@
-"""Stage view: the camera anchored on the DEM, its viewshed and its per-pixel ray hits."""
+"""The view of one observation, in pure steps: the camera anchored on the DEM (one function for
+the build and ``viewshed --label``), its line of sight and its per-pixel ray hits; the build
+runs and times them as stages (``build_sample.view_stages``)."""
 
 from __future__ import annotations
 
