@@ -16,7 +16,7 @@ def label_viewshed(args: argparse.Namespace, terrain: object) -> int:
 
     from mars_pairs.geometry.places import Places
     from mars_pairs.pds import read_observation
-    from mars_pairs.pipeline.view import label_view
+    from mars_pairs.pipeline.sample.view import label_view
     from mars_pairs.raster.viewshed_tiff import NODATA, write_viewshed_geotiff
 
     obs = read_observation(args.label)

@@ -41,8 +41,8 @@ from rasterio.warp import transform_bounds
 from rasterio.windows import Window, from_bounds
 
 from mars_pairs.errors import FetchError
-from mars_pairs.fetch.vsi import gdal_path, remote_env
 from mars_pairs.fetch.windows import PlannedWindow, RasterGrid
+from mars_pairs.raster.vsi import gdal_path, remote_env
 
 Bounds = tuple[float, float, float, float]
 SCALE_PAD = 1.1  # ground metres -> map units, generous for eqc at |lat| < 25 deg

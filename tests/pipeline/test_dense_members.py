@@ -20,7 +20,7 @@ from affine import Affine
 from mission_inputs import mission_inputs
 from PIL import Image
 
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import parse_config
 from mars_pairs.store.manifest import MANIFEST_SCHEMA
 

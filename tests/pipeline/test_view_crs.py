@@ -20,9 +20,9 @@ from mars_pairs.errors import TerrainError
 from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.pds import read_observation
 from mars_pairs.pipeline.config import parse_config
-from mars_pairs.pipeline.context import SampleContext
-from mars_pairs.pipeline.stages import Stages
-from mars_pairs.pipeline.view import View, compute_view
+from mars_pairs.pipeline.sample.context import SampleContext
+from mars_pairs.pipeline.sample.stages import Stages
+from mars_pairs.pipeline.sample.view import View, compute_view
 from mars_pairs.raster.terrain import Terrain
 from mars_pairs.synth import generate_mission
 

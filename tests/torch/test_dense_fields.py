@@ -14,10 +14,10 @@ from affine import Affine
 from mission_inputs import mission_inputs
 
 from mars_pairs.errors import MarsPairsError
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import parse_config
+from mars_pairs.store.members import DENSE_FIELDS
 from mars_pairs.torch import MarsPairsDataset
-from mars_pairs.torch.decode import DENSE_FIELDS
 from mars_pairs.torch.transforms import CarryToChip, CarryToImage, Compose, Flip, Rotate
 
 STRIDE = 8

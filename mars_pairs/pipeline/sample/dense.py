@@ -37,36 +37,12 @@ import numpy as np
 from mars_pairs.geometry.body import MARS_RADIUS_M
 from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.kernels.raycast import cast_rays
-from mars_pairs.pipeline.encode import npy_bytes, png_bytes
-from mars_pairs.pipeline.ground import GroundImage
-from mars_pairs.pipeline.view import View
+from mars_pairs.pipeline.sample.encode import npy_bytes, png_bytes
+from mars_pairs.pipeline.sample.ground import GroundImage
+from mars_pairs.pipeline.sample.view import View
 from mars_pairs.raster.chips import ChipGrid, ChipReader
 from mars_pairs.raster.transfer import sample_at
-
-#: The names ``output.members`` accepts (``all``: every one), in member order.
-DENSE_MEMBERS = (
-    "range", "depth", "hits", "ortho_view", "dem_view", "ground_on_map", "ground_px",
-)  # fmt: skip
-
-#: The tar members each written member name brings (companions: validity and pixel maps).
-MEMBER_FILES: dict[str, tuple[str, ...]] = {
-    "range": ("range.npy",),
-    "depth": ("depth.npy",),
-    "hits": ("hits.npy",),
-    "ortho_view": ("ortho_view.png", "view_valid.png"),
-    "dem_view": ("dem_view.npy", "view_valid.png"),
-    "ground_on_map": ("ground_on_map.png", "ground_on_map_cover.png"),
-    "ground_px": ("ground_px.npy",),
-}
-
-#: Every field (manifest column prefix) the dense members can add, in tar order.
-DENSE_FIELDS = tuple(dict.fromkeys(f.split(".")[0] for m in DENSE_MEMBERS for f in MEMBER_FILES[m]))
-
-
-def member_fields(members: tuple[str, ...]) -> tuple[str, ...]:
-    """The fields (manifest column prefixes) that ``members`` write, in tar order."""
-    files = {f.split(".")[0] for m in members for f in MEMBER_FILES[m]}
-    return tuple(f for f in DENSE_FIELDS if f in files)
+from mars_pairs.store.members import DENSE_MEMBERS, MEMBER_FILES
 
 
 @dataclass(frozen=True)

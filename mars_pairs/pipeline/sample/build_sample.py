@@ -13,14 +13,14 @@ from typing import Any
 from mars_pairs.errors import MarsPairsError, StageError
 from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.pds import read_observation
-from mars_pairs.pipeline.chips import correspondence, cut_chips, localization_fields
-from mars_pairs.pipeline.context import SampleContext
-from mars_pairs.pipeline.dense import dense_members
-from mars_pairs.pipeline.encode import encode_members
-from mars_pairs.pipeline.ground import ground_image
-from mars_pairs.pipeline.record import manifest_row, sample_meta
-from mars_pairs.pipeline.stages import Stages
-from mars_pairs.pipeline.view import compute_view
+from mars_pairs.pipeline.sample.chips import correspondence, cut_chips, localization_fields
+from mars_pairs.pipeline.sample.context import SampleContext
+from mars_pairs.pipeline.sample.dense import dense_members
+from mars_pairs.pipeline.sample.encode import encode_members
+from mars_pairs.pipeline.sample.ground import ground_image
+from mars_pairs.pipeline.sample.record import manifest_row, sample_meta
+from mars_pairs.pipeline.sample.stages import Stages
+from mars_pairs.pipeline.sample.view import compute_view
 
 
 @dataclass

@@ -14,9 +14,9 @@ from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.geometry.places import Pose
 from mars_pairs.kernels.raycast import cast_rays
 from mars_pairs.kernels.viewshed import compute_viewshed
-from mars_pairs.pds.observation import Observation
-from mars_pairs.pipeline.context import SampleContext
-from mars_pairs.pipeline.stages import Stages
+from mars_pairs.observation import Observation
+from mars_pairs.pipeline.sample.context import SampleContext
+from mars_pairs.pipeline.sample.stages import Stages
 from mars_pairs.raster.terrain import DemWindow, Terrain
 
 _AZ_MARGIN_DEG = 2.0  # the kernel's wedge is a prefilter: the exact test follows

@@ -11,10 +11,10 @@ from typing import Any
 import numpy as np
 
 from mars_pairs.errors import CoverageError
-from mars_pairs.pds.observation import Observation
-from mars_pairs.pipeline.context import SampleContext
-from mars_pairs.pipeline.record import sample_key
-from mars_pairs.pipeline.view import View, in_view
+from mars_pairs.observation import Observation
+from mars_pairs.pipeline.sample.context import SampleContext
+from mars_pairs.pipeline.sample.key import sample_key
+from mars_pairs.pipeline.sample.view import View, in_view
 from mars_pairs.raster.chips import ChipGrid, ChipReader, coverage, resample_array
 
 
