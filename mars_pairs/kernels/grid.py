@@ -6,6 +6,7 @@ x = c + a (u + 0.5), y = f + e (v + 0.5) in the raster's map units.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -38,11 +39,11 @@ def as_grid(window: Any, transform: Any = None) -> tuple[np.ndarray, Affine]:
     return arr, tr
 
 
-def _as_affine(tr: Any) -> Affine:
+def _as_affine(tr: Affine | Iterable[float]) -> Affine:
     """Affine from an Affine or a sequence of 6 (or 9) coefficients a, b, c, d, e, f."""
     if isinstance(tr, Affine):
         return tr
-    coeffs = [float(v) for v in tr]  # type: ignore[union-attr]
+    coeffs = [float(v) for v in tr]
     if len(coeffs) not in (6, 9):
         raise ValueError(f"transform needs 6 coefficients (a, b, c, d, e, f), got {len(coeffs)}")
     return Affine(*coeffs[:6])
