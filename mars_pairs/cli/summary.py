@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from collections import Counter
+from collections.abc import Sequence
 from pathlib import Path
 
 import pyarrow as pa
@@ -13,7 +14,7 @@ from mars_pairs.errors import DatasetError
 from mars_pairs.store.manifest import Manifest
 
 
-def _counts(title: str, values: list[object]) -> list[str]:
+def _counts(title: str, values: Sequence[object]) -> list[str]:
     lines = [f"{title}:"]
     lines += [f"  {value!s:<24} {n:>8}" for value, n in sorted(Counter(values).items(), key=str)]
     return lines
