@@ -374,21 +374,21 @@ def test_gallery_wedges_start_at_the_camera_centre(
     """Each gallery card's wedge apex is the sample's camera centre (meta.json), not the rover."""
     import json
 
+    from mars_pairs.report import write_report
     from mars_pairs.store.manifest import Manifest
     from mars_pairs.store.shards import MemberLocation, read_member
-    from mars_pairs.viz import sample as viz_sample
-    from mars_pairs.viz.report import write_report
+    from mars_pairs.viz import report_figures, sample
 
     apexes: list[tuple[float, float]] = []
-    original = viz_sample._wedge_pixels
+    original = sample.wedge_pixels
 
     def spy(row, inv):  # type: ignore[no-untyped-def]
-        x0, y0, known = viz_sample.wedge_apex(row)
+        x0, y0, known = sample.wedge_apex(row)
         assert known, "no camera centre reached the card"
         apexes.append((x0, y0))
         return original(row, inv)
 
-    monkeypatch.setattr(viz_sample, "_wedge_pixels", spy)
+    monkeypatch.setattr(report_figures, "wedge_pixels", spy)  # the card's own reference
     write_report(dataset, out=dataset.parent / "gallery-check.html", samples=2)
     rows = Manifest.open(dataset).to_table(
         columns=["key", "meta_shard", "meta_offset", "meta_size"]
