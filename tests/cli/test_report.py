@@ -371,9 +371,11 @@ def test_report_rejects_a_negative_sample_count(dataset: Path) -> None:
 def test_gallery_wedges_start_at_the_camera_centre(
     dataset: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Each gallery card's wedge apex is the sample's camera centre (meta.json), not the rover."""
+    """Each gallery card's wedge apex is the sample's camera centre (meta.json), not the rover;
+    the centres of all cards come from one read of the manifest."""
     import json
 
+    from mars_pairs.report import meta as report_meta
     from mars_pairs.report import write_report
     from mars_pairs.store.manifest import Manifest
     from mars_pairs.store.shards import MemberLocation, read_member
@@ -388,8 +390,18 @@ def test_gallery_wedges_start_at_the_camera_centre(
         apexes.append((x0, y0))
         return original(row, inv)
 
+    opened: list[Path] = []
+
+    class CountingManifest:
+        @staticmethod
+        def open(root: Path) -> Manifest:
+            opened.append(root)
+            return Manifest.open(root)
+
     monkeypatch.setattr(report_figures, "wedge_pixels", spy)  # the card's own reference
+    monkeypatch.setattr(report_meta, "Manifest", CountingManifest)
     write_report(dataset, out=dataset.parent / "gallery-check.html", samples=2)
+    assert len(apexes) == 2 and len(opened) == 1, (apexes, opened)
     rows = Manifest.open(dataset).to_table(
         columns=["key", "meta_shard", "meta_offset", "meta_size"]
     )
