@@ -163,7 +163,7 @@ def test_dense_figure_and_show(dense_dir: Path, tmp_path: Path) -> None:
     import matplotlib.pyplot as plt
     from PIL import Image
 
-    from mars_pairs.viz import show_sample
+    from mars_pairs.report import show_sample
 
     with MarsPairsDataset(dense_dir, fields=FIELDS) as ds:
         s = _best(ds)
