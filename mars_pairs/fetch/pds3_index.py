@@ -12,10 +12,11 @@ from __future__ import annotations
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-from mars_pairs.errors import FetchError
+from mars_pairs.errors import FetchError, LabelError
 from mars_pairs.fetch.cache import archive_path, join_url
 from mars_pairs.fetch.download import RemoteFile
 from mars_pairs.fetch.products import Failure, Listing, Product, mmm_version
+from mars_pairs.fetch.validate import label_fault, read_pds3_label
 
 # field -> index column names that carry it, in order of preference
 COLUMNS: dict[str, tuple[str, ...]] = {
@@ -38,9 +39,17 @@ def index_files(volume: str, index: str = "RDRINDEX") -> tuple[PurePosixPath, Pu
 
 
 def read_index_table(label_path: Path) -> Any:
-    """The index table (a pandas DataFrame) that ``label_path`` describes, read by pdr."""
+    """The index table (a pandas DataFrame) that ``label_path`` describes, read by pdr.
+
+    The label passes the bounded label loader (``validate.read_pds3_label``) before pdr is
+    given it, so an oversized or pathological label is a ``FetchError`` naming it, not a hang.
+    """
     import pdr
 
+    try:
+        read_pds3_label(label_path)
+    except LabelError as exc:
+        raise FetchError(label_path, f"unreadable index label: {label_fault(exc)}") from None
     try:
         data = pdr.read(str(label_path))
         keys = list(data.keys())

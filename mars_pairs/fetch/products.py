@@ -44,9 +44,10 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path, PurePosixPath
 
-from mars_pairs.errors import FetchError
+from mars_pairs.errors import FetchError, LabelError
 from mars_pairs.fetch.cache import archive_path, join_url
 from mars_pairs.fetch.download import RemoteFile
+from mars_pairs.fetch.validate import label_fault, read_pds3_label
 
 PDS4_NS = "http://pds.nasa.gov/pds4/pds/v1"
 _DIGITS = "0123456789"
@@ -439,16 +440,15 @@ def _sibling(label: RemoteFile, name: str, where: str) -> PurePosixPath:
 
 
 def pds3_label_facts(path: Path) -> dict[str, object]:
-    """Image file name (``^IMAGE``), site and drive of a downloaded PDS3 label, via pdr."""
-    import pdr
-
+    """Image file name (``^IMAGE``), site and drive of a downloaded PDS3 label, read by the
+    bounded label loader (``validate.read_pds3_label``); ``FetchError`` naming ``path``."""
     try:
-        meta = pdr.read(str(path)).metadata
-        pointer = meta.get("^IMAGE")
-        names = meta.get("ROVER_MOTION_COUNTER_NAME")
-        values = meta.get("ROVER_MOTION_COUNTER")
-    except Exception as exc:  # pdr raises many types on damaged labels
-        raise FetchError(path, f"unreadable PDS3 label: {type(exc).__name__}: {exc}") from None
+        meta = read_pds3_label(path)
+    except LabelError as exc:
+        raise FetchError(path, f"unreadable PDS3 label: {label_fault(exc)}") from None
+    pointer = meta.get("^IMAGE")
+    names = meta.get("ROVER_MOTION_COUNTER_NAME")
+    values = meta.get("ROVER_MOTION_COUNTER")
     if isinstance(pointer, (list, tuple)):
         pointer = pointer[0]
     facts: dict[str, object] = {"image": str(pointer) if pointer else None}

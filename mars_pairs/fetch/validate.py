@@ -34,6 +34,7 @@ import csv
 import io
 import math
 import re
+from collections.abc import Mapping
 from pathlib import Path, PurePosixPath
 from typing import Any
 
@@ -245,15 +246,31 @@ def _inventory_facts(label: Path, where: object) -> tuple[str, int | None]:
 
 
 # -- tables and arrays described by a label ------------------------------------------------
-def _pds3_meta(label: Path, where: object) -> Any:
-    import pdr
+def read_pds3_label(path: Path) -> Mapping[str, Any]:
+    """The PDS3 label in the file at ``path``, parsed by the bounded loader of the label
+    readers (``pds.pds3.load_label``: at most ``pds.common.MAX_LABEL_BYTES`` read, then a
+    structural pre-scan that refuses an oversized or pathological label before pdr parses it),
+    so that parsing is bounded in time and memory on a fetch worker thread too.
 
+    Raises ``LabelError`` naming ``path`` (and the keyword at fault, if any).
+    """
+    from mars_pairs.pds.common import read_bytes
+    from mars_pairs.pds.pds3 import load_label
+
+    data, longer = read_bytes(path)
+    return load_label(data, path, longer)
+
+
+def label_fault(exc: LabelError) -> str:
+    """What a ``LabelError`` says is wrong, without its path: ``[FIELD: ]reason``."""
+    return f"{exc.field}: {exc.reason}" if exc.field else exc.reason
+
+
+def _pds3_meta(label: Path, where: object) -> Mapping[str, Any]:
     try:
-        return pdr.read(str(label)).metadata
-    except Exception as exc:  # pdr raises many types on damaged labels
-        raise ContentError(
-            where, f"its label {label} is unreadable: {type(exc).__name__}"
-        ) from None
+        return read_pds3_label(label)
+    except LabelError as exc:
+        raise ContentError(where, f"its label {label} is unreadable: {label_fault(exc)}") from None
 
 
 def _pointer_target(meta: Any, name: str) -> tuple[str, Any] | None:
