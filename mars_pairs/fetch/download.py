@@ -45,6 +45,7 @@ from mars_pairs.errors import ContentError, FetchError
 from mars_pairs.fetch.cache import Cache, atomic_write
 from mars_pairs.fetch.validate import (
     KINDS,
+    Extent,
     check_content_type,
     check_file,
     kind_of,
@@ -70,6 +71,10 @@ class RemoteFile:
     #: the local label describing this file (a PDS3 index label for its table, a product
     #: label for its image, the collection label for its inventory), for the content check
     label: Path | None = None
+    #: for an ``.IMG``, the size its label gives it, read with the label's other facts
+    #: (``products.with_label_facts``) so that the checks do not parse the label again;
+    #: None: read from ``label`` when checked
+    extent: Extent | None = None
 
     def __post_init__(self) -> None:
         if self.kind is not None and self.kind not in KINDS:
@@ -239,7 +244,13 @@ class Downloader:
         if target.is_file() and (remote.size is None or target.stat().st_size == remote.size):
             if not remote.mutable:
                 try:
-                    quick_check(target, remote.file_kind, label=remote.label, where=remote.url)
+                    quick_check(
+                        target,
+                        remote.file_kind,
+                        label=remote.label,
+                        where=remote.url,
+                        extent=remote.extent,
+                    )
                     return FetchResult(remote, target, "cached", 0)
                 except ContentError:
                     target.unlink()  # damaged in the cache (e.g. kept by an older release)
@@ -380,7 +391,9 @@ class Downloader:
     def _verify_kind(self, remote: RemoteFile, part: Path) -> None:
         """Check the part is a file of its kind; a failure discards the part."""
         try:
-            check_file(part, remote.file_kind, label=remote.label, where=remote.url)
+            check_file(
+                part, remote.file_kind, label=remote.label, where=remote.url, extent=remote.extent
+            )
         except ContentError as exc:
             _discard(part)
             raise _Retryable(exc.reason) from None

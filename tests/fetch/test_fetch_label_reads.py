@@ -1,13 +1,19 @@
-"""Labels read on fetch worker threads go through the bounded label loader: a pathological
-PDS3 label (an index label or a product label) is a failure row naming the file within
-seconds, never a hang or an unbounded parse (pdr alone takes ~1 min on 10,000 repeated
-pointers, and no wall-clock limit runs off the main thread)."""
+"""Labels in the fetch path: read by the bounded loaders, once per product and run.
+
+Labels read on fetch worker threads go through the bounded label loader: a pathological PDS3
+label (an index label or a product label) is a failure row naming the file within seconds,
+never a hang or an unbounded parse (pdr alone takes ~1 min on 10,000 repeated pointers, and
+no wall-clock limit runs off the main thread). A product's label is parsed once per run: what
+it says of its ``.IMG`` (``Extent``) travels with the image's ``RemoteFile`` to the checks of a
+download and of a cached image."""
 
 from __future__ import annotations
 
 import threading
 import time
-from pathlib import Path
+from collections import Counter
+from dataclasses import replace
+from pathlib import Path, PurePosixPath
 
 import fetch_archive
 import fetch_server
@@ -15,13 +21,19 @@ import pytest
 from test_fetch_archive import write_config
 
 from mars_pairs.errors import FetchError
+from mars_pairs.fetch.cache import Cache
 from mars_pairs.fetch.config import load_fetch_config
+from mars_pairs.fetch.download import Downloader, FetchPolicy, RemoteFile
 from mars_pairs.fetch.pds3_index import read_index_table
-from mars_pairs.fetch.products import pds3_label_facts
+from mars_pairs.fetch.products import Product, pds3_label_facts, with_label_facts
 from mars_pairs.fetch.run import fetch_products
-from mars_pairs.fetch.validate import check_file
+from mars_pairs.fetch.validate import Extent, check_file
+from mars_pairs.pds import pds3
+from mars_pairs.pds import xml as pds_xml
 
 served = fetch_server.served  # the loopback server fixture
+FAST = FetchPolicy(retries=1, backoff_s=0.01, connect_timeout_s=2.0, read_timeout_s=2.0)
+PDS4 = fetch_archive.PDS4
 BUDGET_S = 20.0
 #: what pdr parses quadratically (its index_duplicate_pointers); the pre-scan refuses it
 PATHOLOGICAL = "PDS_VERSION_ID = PDS3\r\n" + "^A = 1\r\n" * 10_000 + "END\r\n"
@@ -60,14 +72,14 @@ def _product_label(product_id: str) -> str:
     )
 
 
-def _volume(root: Path) -> Path:
-    """``msl/<VOLUME>`` with an index of two products: GOOD (label + .IMG) and BAD (a
+def _volume(root: Path, products: tuple[str, ...] = (GOOD, BAD)) -> Path:
+    """``msl/<VOLUME>`` with an index of ``products``: GOOD (label + .IMG), BAD (a
     pathological label)."""
     volume = root / "msl" / VOLUME
     data = volume / SURFACE
     data.mkdir(parents=True)
     rows = []
-    for pid in (GOOD, BAD):
+    for pid in products:
         text = _product_label(pid) if pid == GOOD else PATHOLOGICAL
         (data / f"{pid}.LBL").write_text(text)
         rows.append({"VOLUME_ID": VOLUME, "PATH_NAME": SURFACE, "FILE_NAME": f"{pid}.LBL",
@@ -124,3 +136,64 @@ def test_each_fetch_label_reader_refuses_a_pathological_label_naming_it(tmp_path
     assert isinstance(error, FetchError), error
     assert "^A: repeated more than 64 times" in error.reason
     assert str(label) in str(error)
+
+
+def test_a_warm_rerun_parses_a_product_label_once(served, tmp_path, monkeypatch):
+    """Once for its facts; the checks of its .IMG (downloaded or cached) use the extent."""
+    srv, root = served
+    _volume(root, (GOOD,))
+    parses: Counter[str] = Counter()
+    real = pds3.load_label
+
+    def counting(data: bytes, path: Path, longer: bool = False):  # type: ignore[no-untyped-def]
+        parses[Path(path).name] += 1
+        return real(data, path, longer)
+
+    monkeypatch.setattr(pds3, "load_label", counting)
+    cfg = load_fetch_config(write_config(tmp_path, srv.url, "msl"))
+    first = fetch_products(cfg, progress=False)
+    assert (first.downloaded, first.cached, first.failures) == (2, 0, [])
+    assert parses[f"{GOOD}.LBL"] == 1
+    parses.clear()
+    again = fetch_products(cfg, progress=False)
+    assert (again.downloaded, again.cached, again.failures) == (0, 2, [])
+    assert parses[f"{GOOD}.LBL"] == 1
+    # the carried extent still guards the cached image: a cut one is fetched again, whole
+    image = cfg.cache / VOLUME / SURFACE / f"{GOOD}.IMG"
+    image.write_bytes(bytes(500))
+    parses.clear()
+    third = fetch_products(cfg, progress=False)
+    assert (third.downloaded, third.cached, third.failures) == (1, 1, [])
+    assert image.stat().st_size == 1000 and parses[f"{GOOD}.LBL"] == 1
+
+
+def test_a_pds4_image_is_checked_without_parsing_its_label_again(served, tmp_path, monkeypatch):
+    srv, root = served
+    rel = PurePosixPath("data/sol/00052/ids/rdr/zcam/ZLF_TEST.IMG")
+    lrel = rel.with_suffix(".xml")
+    (root / rel).parent.mkdir(parents=True)
+    (root / rel).write_bytes(bytes(1000 + 3 * 20 * 30 * 2))
+    (root / lrel).write_text(
+        f'<?xml version="1.0"?>\n<Product_Observational xmlns="{PDS4}">'
+        "<File_Area_Observational><File><file_name>ZLF_TEST.IMG</file_name></File>"
+        '<Array_3D_Image><offset unit="byte">1000</offset><axes>3</axes>'
+        "<Element_Array><data_type>SignedMSB2</data_type></Element_Array>"
+        "<Axis_Array><elements>3</elements></Axis_Array><Axis_Array><elements>20</elements>"
+        "</Axis_Array><Axis_Array><elements>30</elements></Axis_Array></Array_3D_Image>"
+        "</File_Area_Observational></Product_Observational>\n"
+    )
+    dl = Downloader(Cache(tmp_path / "c"), FAST)
+    label = dl.fetch(RemoteFile(lrel, f"{srv.url}/{lrel}")).path
+    p = Product("m2020", "ZLF_TEST", RemoteFile(lrel, f"{srv.url}/{lrel}"))
+    image = replace(with_label_facts(p, label, srv.url).image, label=label)
+    assert image.extent == Extent(4600, "4600 (Array_3D_Image at byte 1000)")
+    parses = []
+    real = pds_xml.load_xml
+    monkeypatch.setattr(
+        pds_xml, "load_xml", lambda data, path: parses.append(path) or real(data, path)
+    )
+    assert dl.fetch(image).status == "downloaded"
+    assert dl.fetch(image).status == "cached"
+    assert parses == []
+    (tmp_path / "c" / rel).write_bytes(bytes(2300))  # cut: the carried extent refuses it
+    assert dl.fetch(image).status == "downloaded" and parses == []
