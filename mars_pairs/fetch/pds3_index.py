@@ -9,12 +9,13 @@ from each product's label).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any
 
 from mars_pairs.errors import FetchError, LabelError
 from mars_pairs.fetch.cache import archive_path, join_url
-from mars_pairs.fetch.download import RemoteFile
+from mars_pairs.fetch.download import Downloader, RemoteFile
 from mars_pairs.fetch.products import Failure, Listing, Product, mmm_version
 from mars_pairs.fetch.validate import label_fault, read_pds3_label
 
@@ -36,6 +37,30 @@ def index_files(volume: str, index: str = "RDRINDEX") -> tuple[PurePosixPath, Pu
     """Archive paths of a volume's index label and table."""
     vol = archive_path(volume, where="fetch.products.volumes")
     return vol / "INDEX" / f"{index}.LBL", vol / "INDEX" / f"{index}.TAB"
+
+
+@dataclass(frozen=True)
+class VolumeIndex:
+    """A volume's index as fetched: the table, its label in the cache and the table's URL."""
+
+    table: Any  # a pandas DataFrame
+    label: Path
+    url: str
+
+
+def fetch_index(dl: Downloader, archive: str, volume: str, index: str = "RDRINDEX") -> VolumeIndex:
+    """Fetch a volume's index label and table into ``dl``'s cache and read the table.
+
+    Both are mutable archive tables (revalidated on every fetch: a re-released index replaces
+    the cached one); the table is checked against its label (``validate``: exactly offset +
+    ROWS x ROW_BYTES bytes) before it is kept. ``archive``: the root URL of the volumes.
+    Raises ``FetchError`` naming the file."""
+    lbl, tab = index_files(volume, index)
+    url = join_url(archive, tab)
+    dl.fetch(RemoteFile(lbl, join_url(archive, lbl), mutable=True))
+    label = dl.cache.path(lbl)
+    dl.fetch(RemoteFile(tab, url, mutable=True, label=label))
+    return VolumeIndex(read_index_table(label), label, url)
 
 
 def read_index_table(label_path: Path) -> Any:
