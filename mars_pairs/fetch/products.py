@@ -247,6 +247,11 @@ def zcam_fields(product_id: str) -> dict[str, object]:
         pid = parse_m2020_id(product_id)
     except FetchError:
         return {}
+    return zcam_fields_of(pid)
+
+
+def zcam_fields_of(pid: M2020Id) -> dict[str, object]:
+    """``zcam_fields`` of an id already parsed ({} when it is not a Mastcam-Z id)."""
     if not pid.is_mastcamz:
         return {}
     return {

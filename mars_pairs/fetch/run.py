@@ -126,16 +126,17 @@ def list_products(spec: ProductsSpec, dl: Downloader) -> Listing:
         dl.fetch(RemoteFile(coll, join_url(spec.archive, coll), mutable=True))
         coll_path = dl.cache.path(coll)
         inv = inventory_of(coll_path, coll)
+        delimiter = inventory_delimiter(coll_path)  # an unusable label: before the download
         url = join_url(spec.archive, inv)
         dl.fetch(RemoteFile(inv, url, kind="inventory", mutable=True, label=coll_path))
         out.extend(
             products_from_inventory(
                 dl.cache.path(inv),
-                inventory_delimiter(coll_path),
+                delimiter,
                 bundle,
                 spec.label_path,
                 spec.archive,
-                inventory_url=join_url(spec.archive, inv),
+                inventory_url=url,
             )
         )
     kept = []

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-from mars_pairs.errors import ContentError, ImageError, LabelError
+from mars_pairs.errors import ContentError, FetchError, ImageError, LabelError
 
 KINDS = (
     "pds3_label",
@@ -255,15 +255,17 @@ def _inventory(path: Path, label: Path | None, where: object) -> None:
 
 def _inventory_facts(label: Path, where: object) -> tuple[str, int | None]:
     """(delimiter, records) of the collection label's ``File_Area_Inventory/Inventory``."""
-    from mars_pairs.fetch.pds4_inventory import DELIMITERS
+    from mars_pairs.fetch.pds4_inventory import delimiter_of
 
-    root = _pds4_root(label, f"{where} (its collection label {label})", "collection label")
+    about = f"{where} (its collection label {label})"
+    root = _pds4_root(label, about, "collection label")
+    try:
+        delimiter = delimiter_of(root, label)
+    except FetchError as exc:
+        raise ContentError(about, exc.reason) from None
     inv = root.find(f"{{{PDS4_NS}}}File_Area_Inventory/{{{PDS4_NS}}}Inventory")
-    if inv is None:
-        return ",", None
-    text = (inv.findtext(f"{{{PDS4_NS}}}field_delimiter") or "Comma").strip()
-    records = (inv.findtext(f"{{{PDS4_NS}}}records") or "").strip()
-    return DELIMITERS.get(text, ","), int(records) if records.isdigit() else None
+    records = "" if inv is None else (inv.findtext(f"{{{PDS4_NS}}}records") or "").strip()
+    return delimiter, int(records) if records.isdigit() else None
 
 
 # -- tables and arrays described by a label ------------------------------------------------
