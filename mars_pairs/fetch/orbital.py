@@ -41,8 +41,8 @@ from rasterio.windows import Window
 
 from mars_pairs.errors import FetchError
 from mars_pairs.fetch.cache import atomic_write
-from mars_pairs.fetch.vsi import gdal_path, remote_env
 from mars_pairs.fetch.windows import PlannedWindow, RasterGrid
+from mars_pairs.raster.vsi import gdal_path, remote_env
 
 Bounds = tuple[float, float, float, float]
 LABEL_SUFFIXES = (".xml", ".lbl", ".LBL", ".XML")  # detached labels tried before a .img itself

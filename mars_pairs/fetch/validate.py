@@ -461,7 +461,7 @@ def _int_text(text: str | None) -> int | None:
 
 # -- images and rasters --------------------------------------------------------------------
 def _picture(path: Path, kind: str, where: object) -> None:
-    from mars_pairs.pipeline.ground import decoded_size
+    from mars_pairs.pipeline.sample.ground import decoded_size
 
     data = path.read_bytes()
     magic = b"\xff\xd8" if kind == "jpeg" else b"\x89PNG\r\n\x1a\n"

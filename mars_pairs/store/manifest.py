@@ -23,9 +23,7 @@ from mars_pairs.store.columns import (
 )
 from mars_pairs.store.filter_args import geometry, integers, numbers, shapely_module, strings
 from mars_pairs.store.geoparquet import BBOX_TYPE
-
-MEMBERS = ("ground", "ortho", "dem", "viewshed", "corr", "meta")
-
+from mars_pairs.store.members import DENSE_FIELDS, MEMBERS
 
 _FIELDS: list[tuple[str, pa.DataType]] = [
     ("key", pa.string()),
@@ -79,17 +77,10 @@ for _m in MEMBERS:
         (f"{_m}_shard", pa.string()),
         (f"{_m}_offset", pa.int64()),
         (f"{_m}_size", pa.int64()),
-        (f"{_m}_crc32c", pa.int64()),  # CRC-32C of the member's bytes (store.shards.checksum)
+        (f"{_m}_crc32c", pa.int64()),  # CRC-32C of the member's bytes (store.integrity.checksum)
     ]
 
 MANIFEST_SCHEMA = pa.schema(_FIELDS)
-
-#: Optional members (``output.members``, see ``pipeline.dense``): their location columns are
-#: in the manifest of a build that writes them, after the default ones.
-DENSE_FIELDS = (
-    "range", "depth", "hits", "ortho_view", "view_valid", "dem_view", "ground_on_map",
-    "ground_on_map_cover", "ground_px",
-)  # fmt: skip
 
 
 def manifest_schema(fields: Sequence[str] = ()) -> pa.Schema:

@@ -13,9 +13,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 
-import crc32c as _crc32c
-
 from mars_pairs.errors import DatasetError
+from mars_pairs.store.integrity import bounds_problem, checksum, shard_path
 
 
 @dataclass(frozen=True)
@@ -27,11 +26,6 @@ class MemberLocation:
     offset: int
     size: int
     crc32c: int | None = None
-
-
-def checksum(data: bytes) -> int:
-    """CRC-32C (Castagnoli) of ``data`` as an unsigned 32-bit int (fits the int64 column)."""
-    return int(_crc32c.crc32c(data))
 
 
 @contextmanager
@@ -146,7 +140,6 @@ def read_member(
     shard_path`), a location past the shard's end, a short read, a missing shard or a
     checksum mismatch raise DatasetError naming the shard and the member.
     """
-    from mars_pairs.store.integrity import bounds_problem, shard_path
 
     try:
         with open(shard_path(Path(root), location.shard, name), "rb") as fh:

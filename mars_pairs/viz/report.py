@@ -287,7 +287,7 @@ def _gallery_section(root: Path, rows: list[dict[str, Any]], n: int) -> str:
 
 
 def _provenance_section(root: Path, info: dict[str, Any], crs_name: str) -> str:
-    from mars_pairs import __version__
+    from mars_pairs.version import __version__
 
     head = '<section id="provenance"><h2>Provenance</h2>'
     if not info:

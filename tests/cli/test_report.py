@@ -32,7 +32,7 @@ from mission_inputs import mission_inputs
 from PIL import Image
 
 from mars_pairs.cli.main import main
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.synth import generate_mission
 

@@ -17,7 +17,7 @@ from PIL import Image
 from pyproj import CRS
 
 from mars_pairs.cli.main import main
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.store.shards import MemberLocation, read_member
 from mars_pairs.synth import generate_mission
@@ -191,7 +191,7 @@ def test_bad_input_through_the_console_script(dataset: Path, tmp_path: Path) -> 
 
 def test_matplotlib_is_imported_only_by_the_picture_commands() -> None:
     code = (
-        "import mars_pairs.pipeline.build, mars_pairs.torch.datasets, mars_pairs.cli.main, "
+        "import mars_pairs.pipeline.build.run, mars_pairs.torch.datasets, mars_pairs.cli.main, "
         "mars_pairs.cli.qgis; "
         "import sys; assert 'matplotlib' not in sys.modules, 'matplotlib imported'"
     )

@@ -7,8 +7,10 @@ from pathlib import Path
 import pytest
 
 from mars_pairs.errors import DatasetError
-from mars_pairs.store.manifest import MANIFEST_SCHEMA, MEMBERS
-from mars_pairs.store.shards import MemberLocation, ShardWriter, checksum, read_member
+from mars_pairs.store.integrity import checksum
+from mars_pairs.store.manifest import MANIFEST_SCHEMA
+from mars_pairs.store.members import MEMBERS
+from mars_pairs.store.shards import MemberLocation, ShardWriter, read_member
 
 
 def test_checksum_is_crc32c() -> None:
