@@ -5,7 +5,7 @@
 
 Writes a synthetic manifest (every ``MANIFEST_SCHEMA`` column; seeded random rover positions
 over Jezero crater, sorted by ``mars_pairs.store.splits.hilbert_index``) with
-``mars_pairs.store.manifest.write_parquet_atomic`` to a temp dir, then prints a markdown table of
+``mars_pairs.store.atomic.write_parquet_atomic`` to a temp dir, then prints a markdown table of
 median wall times (ms; warm-up first) for one small box (--box-deg on a side):
 
 - ``Manifest.open(dir).filter(bbox_lonlat=...)``: ``len()``, ``to_table(columns=[key,
@@ -35,12 +35,12 @@ import pyarrow.parquet as pq
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from mars_pairs.store.atomic import write_parquet_atomic  # noqa: E402
 from mars_pairs.store.manifest import (  # noqa: E402
     MANIFEST_SCHEMA,
     MARS_RADIUS_M,
     MEMBERS,
     Manifest,
-    write_parquet_atomic,
 )
 from mars_pairs.store.splits import hilbert_index  # noqa: E402
 

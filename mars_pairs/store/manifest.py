@@ -4,14 +4,12 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from mars_pairs.geometry.frames import MARS_RADIUS_M
 from mars_pairs.store.columns import (
@@ -135,31 +133,6 @@ FAILURE_SCHEMA = pa.schema(
         ("message", pa.string()),
     ]
 )
-
-
-def write_parquet_atomic(table: pa.Table, path: Path, row_group_size: int = 4096) -> None:
-    """Write a Parquet file through a temporary name and a rename."""
-    os.replace(write_parquet_staged(table, path, row_group_size), path)
-
-
-def write_parquet_staged(table: pa.Table, path: Path, row_group_size: int = 4096) -> Path:
-    """Write the Parquet file of ``path`` under its temporary name (``.NAME.tmp-PID`` beside
-    it, synced) and return that name: renaming it to ``path`` is the caller's."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    from mars_pairs.store.shards import naming
-
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    with naming(path):
-        try:
-            pq.write_table(
-                table, tmp, row_group_size=row_group_size, compression="zstd", write_statistics=True
-            )
-            with open(tmp, "rb") as fh:
-                os.fsync(fh.fileno())
-        except OSError:
-            tmp.unlink(missing_ok=True)
-            raise
-    return tmp
 
 
 def rows_to_table(rows: list[dict[str, Any]], schema: pa.Schema) -> pa.Table:

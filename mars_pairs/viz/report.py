@@ -23,8 +23,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mars_pairs.errors import DatasetError, MarsPairsError, UsageError
+from mars_pairs.store.atomic import atomic_write_bytes
 from mars_pairs.store.manifest import Manifest
-from mars_pairs.store.shards import atomic_write_bytes
 
 COLUMNS = (
     "key", "mission", "instrument", "product_id", "sol", "site", "drive", "split", "easting",

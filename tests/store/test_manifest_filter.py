@@ -12,13 +12,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mars_pairs.geometry.frames import M2020_PLACES_CRS, lonlat_to_map
+from mars_pairs.store.atomic import write_parquet_atomic
 from mars_pairs.store.geoparquet import geo_metadata
 from mars_pairs.store.manifest import (
     MANIFEST_SCHEMA,
     Manifest,
     great_circle_m,
     rows_to_table,
-    write_parquet_atomic,
 )
 from mars_pairs.store.splits import hilbert_index
 

@@ -47,12 +47,8 @@ from mars_pairs.pipeline.build import worker
 from mars_pairs.pipeline.build.outputs import DROPPED_KEY, part_paths
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.sample.context import SampleContext
-from mars_pairs.store.manifest import (
-    FAILURE_SCHEMA,
-    manifest_schema,
-    rows_to_table,
-    write_parquet_staged,
-)
+from mars_pairs.store.atomic import write_parquet_staged
+from mars_pairs.store.manifest import FAILURE_SCHEMA, manifest_schema, rows_to_table
 from mars_pairs.store.members import member_fields
 from mars_pairs.store.shards import MemberLocation, ShardWriter, read_member
 from mars_pairs.store.splits import BUFFER

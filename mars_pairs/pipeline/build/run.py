@@ -16,7 +16,6 @@ again to the engine, chunk by chunk. The engine's workers write the shards and s
 from __future__ import annotations
 
 import json
-import os
 import time
 from collections import Counter
 from collections.abc import Iterable, Iterator
@@ -59,8 +58,7 @@ from mars_pairs.pipeline.build.plan import (
 )
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.config_section import check_regular
-from mars_pairs.store.manifest import write_parquet_atomic
-from mars_pairs.store.shards import atomic_write_bytes
+from mars_pairs.store.atomic import atomic_write_bytes, rename_into_place, write_parquet_atomic
 from mars_pairs.store.wids_index import write_wids_index
 
 
@@ -113,8 +111,8 @@ def _commit_chunk(
         write_parquet_atomic(failures, failures_part)
         write_parquet_atomic(manifest, manifest_part)  # commit marker
     else:
-        os.replace(out / result.staged[0], failures_part)
-        os.replace(out / result.staged[1], manifest_part)  # commit marker
+        rename_into_place(out / result.staged[0], failures_part)
+        rename_into_place(out / result.staged[1], manifest_part)  # commit marker
     written = 0
     for o in result.outcomes:
         if o.kind in ("ok", "dropped"):
