@@ -1,4 +1,7 @@
-"""The dataset manifest: one Parquet row per sample, GeoParquet 1.1 footprints, atomic writes."""
+"""The manifest row: its schema (one Parquet row per sample, GeoParquet 1.1 footprints), its
+check (:func:`check_row`), its member-location columns (:func:`with_locations`), and the
+failure row's schema. The row's values are built by ``pipeline.sample.record``; the manifest
+is read and filtered by ``store.query.Manifest``."""
 
 from __future__ import annotations
 
@@ -22,6 +25,7 @@ from mars_pairs.store.columns import (
 from mars_pairs.store.filter_args import geometry, integers, numbers, shapely_module, strings
 from mars_pairs.store.geoparquet import BBOX_TYPE
 from mars_pairs.store.members import DENSE_FIELDS, MEMBERS
+from mars_pairs.store.shards import MemberLocation
 
 _FIELDS: list[tuple[str, pa.DataType]] = [
     ("key", pa.string()),
@@ -70,13 +74,24 @@ _FIELDS: list[tuple[str, pa.DataType]] = [
     ("hilbert", pa.int64()),
     ("ground_member", pa.string()),  # e.g. "ground.jpg"
 ]
+#: The columns locating a member ``m``: ``m_shard`` (the shard, relative to the dataset),
+#: ``m_offset`` and ``m_size`` (bytes within it), ``m_crc32c`` (CRC-32C of the member's bytes:
+#: ``store.integrity.checksum``).
+LOCATION_COLUMNS: tuple[tuple[str, pa.DataType], ...] = (
+    ("shard", pa.string()),
+    ("offset", pa.int64()),
+    ("size", pa.int64()),
+    ("crc32c", pa.int64()),
+)
+
+
+def _location_fields(member: str) -> list[tuple[str, pa.DataType]]:
+    """The schema fields locating ``member`` (:data:`LOCATION_COLUMNS`)."""
+    return [(f"{member}_{suffix}", kind) for suffix, kind in LOCATION_COLUMNS]
+
+
 for _m in MEMBERS:
-    _FIELDS += [
-        (f"{_m}_shard", pa.string()),
-        (f"{_m}_offset", pa.int64()),
-        (f"{_m}_size", pa.int64()),
-        (f"{_m}_crc32c", pa.int64()),  # CRC-32C of the member's bytes (store.integrity.checksum)
-    ]
+    _FIELDS += _location_fields(_m)
 
 MANIFEST_SCHEMA = pa.schema(_FIELDS)
 
@@ -87,14 +102,7 @@ def manifest_schema(fields: Sequence[str] = ()) -> pa.Schema:
     unknown = [f for f in fields if f not in DENSE_FIELDS]
     if unknown:
         raise ValueError(f"unknown optional member field(s) {unknown}")
-    extra = [
-        (f"{m}_{suffix}", kind)
-        for m in fields
-        for suffix, kind in (
-            ("shard", pa.string()), ("offset", pa.int64()), ("size", pa.int64()),
-            ("crc32c", pa.int64()),
-        )
-    ]  # fmt: skip
+    extra = [f for m in fields for f in _location_fields(m)]
     return pa.schema(_FIELDS + extra) if extra else MANIFEST_SCHEMA
 
 
@@ -133,6 +141,41 @@ FAILURE_SCHEMA = pa.schema(
         ("message", pa.string()),
     ]
 )
+
+
+def with_locations(row: dict[str, Any], locs: dict[str, MemberLocation]) -> dict[str, Any]:
+    """A copy of ``row`` with the location columns (:data:`LOCATION_COLUMNS`) of each member
+    in ``locs`` (member name ``<field>.<ext>`` -> where the shard holds its bytes)."""
+    row = dict(row)
+    for name, loc in locs.items():
+        fld = name.split(".")[0]
+        row.update(
+            {
+                f"{fld}_shard": loc.shard,
+                f"{fld}_offset": loc.offset,
+                f"{fld}_size": loc.size,
+                f"{fld}_crc32c": loc.crc32c,
+            }
+        )
+    return row
+
+
+_UNFIT = (ValueError, TypeError, OverflowError, pa.ArrowException)
+
+
+def check_row(row: dict[str, Any], schema: pa.Schema = MANIFEST_SCHEMA) -> None:
+    """ValueError naming the column (and its value) unless ``row`` fits ``schema`` (a sol too
+    large for int32, a string where a number goes); a missing column is a null."""
+    try:  # the whole row at once (0.3 ms; column by column takes 3 ms)
+        pa.RecordBatch.from_pylist([row], schema=schema)
+    except _UNFIT as whole:
+        for f in schema:  # column by column, to name the one at fault
+            try:
+                pa.array([row.get(f.name)], type=f.type)
+            except _UNFIT as exc:
+                value = repr(row.get(f.name))[:60]
+                raise ValueError(f"{f.name}: {value} does not fit {f.type}: {exc}") from None
+        raise ValueError(f"the manifest row does not fit its schema: {whole}") from None
 
 
 def rows_to_table(rows: list[dict[str, Any]], schema: pa.Schema) -> pa.Table:

@@ -48,7 +48,12 @@ from mars_pairs.pipeline.build.outputs import DROPPED_KEY, part_paths
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.sample.context import SampleContext
 from mars_pairs.store.atomic import write_parquet_staged
-from mars_pairs.store.manifest import FAILURE_SCHEMA, manifest_schema, rows_to_table
+from mars_pairs.store.manifest import (
+    FAILURE_SCHEMA,
+    manifest_schema,
+    rows_to_table,
+    with_locations,
+)
 from mars_pairs.store.members import member_fields
 from mars_pairs.store.shards import MemberLocation, ShardWriter, read_member
 from mars_pairs.store.splits import BUFFER
@@ -122,22 +127,6 @@ class Engine(Protocol):
         ...
 
 
-def _located(row: dict[str, Any], locs: dict[str, MemberLocation]) -> dict[str, Any]:
-    """``row`` with the ``<field>_shard/_offset/_size/_crc32c`` columns of ``locs``."""
-    row = dict(row)
-    for name, loc in locs.items():
-        fld = name.split(".")[0]
-        row.update(
-            {
-                f"{fld}_shard": loc.shard,
-                f"{fld}_offset": loc.offset,
-                f"{fld}_size": loc.size,
-                f"{fld}_crc32c": loc.crc32c,
-            }
-        )
-    return row
-
-
 def duplicate_row(label: str, key: str, first: str) -> dict[str, Any]:
     """The failure row of ``label``, whose sample key ``key`` was built from ``first``."""
     error = DuplicateKeyError(f"{label}: key {key}: already built from {first}")
@@ -188,7 +177,9 @@ def build_chunk(config: BuildConfig, task: ChunkTask) -> ChunkResult:
             if shard is None:
                 shard = ShardWriter(out, shard_rel)
             locs = shard.add(r.key, r.members)
-            outcomes.append(Outcome("ok", name, r.key, _located(r.row, locs), locs, r.seconds))
+            outcomes.append(
+                Outcome("ok", name, r.key, with_locations(r.row, locs), locs, r.seconds)
+            )
     except BaseException:
         if shard is not None:
             shard.close(commit=False)
@@ -247,7 +238,7 @@ def resolve_duplicates(out: Path, result: ChunkResult, seen: dict[str, str]) -> 
             if shard is None:
                 shard = ShardWriter(out, result.shard)
             locs = shard.add(o.key, members)
-            kept.append(replace(o, row=_located(o.row, locs), members=locs))
+            kept.append(replace(o, row=with_locations(o.row, locs), members=locs))
     except BaseException:
         if shard is not None:
             shard.close(commit=False)
