@@ -15,7 +15,8 @@ from PIL import Image
 
 from mars_pairs.errors import DatasetError, MarsPairsError
 from mars_pairs.store.atomic import atomic_path
-from mars_pairs.store.manifest import SUMMARY_COLUMNS, Manifest
+from mars_pairs.store.manifest import SUMMARY_COLUMNS
+from mars_pairs.store.query import Manifest
 from mars_pairs.store.shards import MemberLocation, read_member
 
 ATTRIBUTES = SUMMARY_COLUMNS

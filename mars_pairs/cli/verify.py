@@ -22,8 +22,8 @@ from typing import BinaryIO
 from mars_pairs.errors import DatasetError
 from mars_pairs.store.dataset_info import read_dataset_info
 from mars_pairs.store.integrity import MemberSpec, check_member, shard_path
-from mars_pairs.store.manifest import Manifest
 from mars_pairs.store.members import DENSE_FIELDS, MEMBERS
+from mars_pairs.store.query import Manifest
 
 
 @dataclass(frozen=True)

@@ -53,9 +53,10 @@ from mars_pairs.errors import (
 from mars_pairs.store.dataset_info import read_dataset_info
 from mars_pairs.store.filter_args import check_split_names, configured_splits, sample_index
 from mars_pairs.store.integrity import MemberSpec, check_member
-from mars_pairs.store.manifest import SUMMARY_COLUMNS, Manifest
+from mars_pairs.store.manifest import SUMMARY_COLUMNS
 from mars_pairs.store.member_index import MemberIndex
 from mars_pairs.store.members import DENSE_GROUND_FIELDS, MEMBERS
+from mars_pairs.store.query import Manifest
 from mars_pairs.torch.decode import (
     ALL_FIELDS,  # noqa: F401  (re-exported)
     DEFAULT_FIELDS,

@@ -10,7 +10,7 @@ import numpy as np
 import shapely
 
 from mars_pairs.errors import MarsPairsError
-from mars_pairs.store.manifest import Manifest
+from mars_pairs.store.query import Manifest
 from mars_pairs.viz.common import (
     DPI,
     OVERVIEW_SIZE,

@@ -24,7 +24,7 @@ import pyarrow.parquet as pq
 
 from mars_pairs.errors import DatasetError, MarsPairsError, UsageError
 from mars_pairs.store.atomic import atomic_write_bytes
-from mars_pairs.store.manifest import Manifest
+from mars_pairs.store.query import Manifest
 
 COLUMNS = (
     "key", "mission", "instrument", "product_id", "sol", "site", "drive", "split", "easting",

@@ -397,7 +397,7 @@ def show_sample(root: str | Path, key: str, out: str | Path | None = None, dpi: 
     """The figure of the sample named ``key`` (its key or product id, any case) drawn by
     :meth:`MarsPairsDataset.plot` and written to ``out`` (PNG of ``SHOW_SIZE`` inches at
     ``dpi``; default ``<key>.png`` in the current directory, the sample's own key)."""
-    from mars_pairs.store.manifest import Manifest
+    from mars_pairs.store.query import Manifest
     from mars_pairs.torch import ALL_FIELDS, MarsPairsDataset
 
     root = Path(root)
@@ -424,8 +424,8 @@ def show_sample(root: str | Path, key: str, out: str | Path | None = None, dpi: 
 
 def _dense_fields_of(root: Path) -> tuple[str, ...]:
     """The optional dense fields whose members the dataset's manifest locates."""
-    from mars_pairs.store.manifest import Manifest
     from mars_pairs.store.members import DENSE_FIELDS
+    from mars_pairs.store.query import Manifest
 
     names = set(Manifest.open(root).column_names)
     return tuple(f for f in DENSE_FIELDS if f"{f}_offset" in names)
@@ -509,7 +509,7 @@ def _camera_centre(root: Path, key: str) -> list[float] | None:
 
     import pyarrow.dataset as ds
 
-    from mars_pairs.store.manifest import Manifest
+    from mars_pairs.store.query import Manifest
     from mars_pairs.store.shards import MemberLocation, read_member
 
     columns = ["meta_shard", "meta_offset", "meta_size"]

@@ -374,7 +374,7 @@ def test_gallery_wedges_start_at_the_camera_centre(
     """Each gallery card's wedge apex is the sample's camera centre (meta.json), not the rover."""
     import json
 
-    from mars_pairs.store.manifest import Manifest
+    from mars_pairs.store.query import Manifest
     from mars_pairs.store.shards import MemberLocation, read_member
     from mars_pairs.viz import sample as viz_sample
     from mars_pairs.viz.report import write_report
