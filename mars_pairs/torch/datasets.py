@@ -269,7 +269,7 @@ class MarsPairsDataset(Dataset):
         try:
             return self._files.read(shard, offset, size)
         except DatasetError as exc:  # a shard path outside the dataset, a read past its end
-            raise DatasetError(exc.shard, self.member_name(index, field), exc.reason) from None
+            raise DatasetError(exc.path, self.member_name(index, field), exc.reason) from None
         except OSError as exc:
             name = self.member_name(index, field)
             raise DatasetError(self.root / shard, name, f"cannot read: {exc}") from None
@@ -299,7 +299,7 @@ class MarsPairsDataset(Dataset):
                     self._files.size(shard),
                 )
             except DatasetError as exc:
-                raise DatasetError(exc.shard, name, exc.reason) from None
+                raise DatasetError(exc.path, name, exc.reason) from None
             except OSError as exc:
                 raise DatasetError(self.root / shard, name, f"cannot read: {exc}") from None
             if problem is not None:
