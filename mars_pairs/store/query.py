@@ -208,10 +208,10 @@ class Manifest:
     def __len__(self) -> int:
         if not self._exact:
             try:
-                return self._dataset.count_rows(filter=self._expression)
+                return int(self._dataset.count_rows(filter=self._expression))
             except (pa.ArrowException, OSError) as exc:
                 raise DatasetError(self.root / "manifest.parquet", None, str(exc)) from None
-        return self.to_table(columns=["key"]).num_rows
+        return int(self.to_table(columns=["key"]).num_rows)
 
 
 def _longitude_range(field: Any, west: float, east: float) -> Any:
