@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from mars_pairs.errors import MarsPairsError
-from mars_pairs.store.manifest import Manifest
+from mars_pairs.store.query import Manifest
 
 DPI = 90
 
