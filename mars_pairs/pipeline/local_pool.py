@@ -37,6 +37,7 @@ from itertools import islice
 from multiprocessing.context import BaseContext
 from typing import Any
 
+from mars_pairs import runtime
 from mars_pairs.errors import WorkerDiedError, WorkerStartError
 from mars_pairs.pipeline import worker
 from mars_pairs.pipeline.config import BuildConfig
@@ -107,10 +108,14 @@ def _exit_with_driver() -> None:
     threading.Thread(target=watch, name="exit-with-driver", daemon=True).start()
 
 
-def _start_worker(config: BuildConfig, environ: dict[str, str]) -> None:
-    """A worker's initializer: watch the driver, then open the build context."""
+def _start_worker(config: BuildConfig, settings: dict[str, str]) -> None:
+    """A worker's initializer: watch the driver, take the driver's build ``settings``
+    (``runtime.build_settings``: a fork server's workers inherit the server's environment,
+    from when it started), set the process defaults, then open the build context."""
     _exit_with_driver()
-    worker.open_context(config, environ)
+    runtime.take_build_settings(settings)
+    runtime.configure_process()
+    worker.open_context(config)
 
 
 class LocalPool:
@@ -130,7 +135,7 @@ class LocalPool:
             workers,
             mp_context=ctx,
             initializer=_start_worker,
-            initargs=(config, dict(os.environ)),  # this build's environment, not the server's
+            initargs=(config, runtime.build_settings()),  # this build's, not the server's
         )
         try:
             with _sigint_deferred():  # a Ctrl-C mid-start would orphan a starting worker
