@@ -231,6 +231,15 @@ class MarsPairsDataset(Dataset):
     def __len__(self) -> int:
         return len(self._index)
 
+    def shard_order(self, field: str | None = None) -> dict[str, np.ndarray]:
+        """Each shard's sample indices (int64, into this dataset) in the order ``field``'s
+        members (default the first of ``fields``) lie in the shard file; shards as the
+        manifest names them (relative to ``root``). ``field``: one this dataset reads."""
+        field = self.fields[0] if field is None else field
+        if field not in self._located:
+            raise ArgumentError(f"shard_order: {field!r} is not read; one of {self._located}")
+        return self._index.shard_order(field)
+
     def index_of(self, key: str) -> int:
         """The index of the sample named by ``key``: its key or its product id, in any case
         (SampleKeyError, a KeyError too, if absent; see ``filter_args.sample_index``)."""
