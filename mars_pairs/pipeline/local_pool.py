@@ -4,9 +4,10 @@
   build starts, and each opens the rasters and the PLACES table while the driver lists the
   labels and clears the output.
 - Processes come from a fork server that imported the build's modules once (numba, GDAL,
-  pyarrow: ~0.7 s a process when each spawned worker imported them itself); each worker is
-  a fork of that clean server, never of the driver, whose numba OpenMP threads make forking
-  unsafe. Where there is no fork server (Windows), workers are spawned.
+  pyarrow), so a worker does not import them again; each worker is a fork of that clean
+  server, never of the driver, whose numba OpenMP threads make forking unsafe. Where there is
+  no fork server (Windows), workers are spawned. A worker takes the driver's build settings
+  and the process defaults (:mod:`mars_pairs.runtime`) before it opens its context.
 - A build hands the pool whole chunks (``run``, the ``pipeline.engine.Engine`` contract): a
   worker builds a chunk's samples and writes its shard itself, and returns only rows; at most
   2 chunks per worker are in flight, and results come back in chunk order. (``results``

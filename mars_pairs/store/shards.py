@@ -1,5 +1,5 @@
 """WebDataset-style tar shards, written atomically, with each member's byte offset, size and
-CRC-32C checksum (the ``crc32c`` package: hardware CRC, ~10 GB/s)."""
+CRC-32C checksum (the ``crc32c`` package: hardware CRC where the CPU has it)."""
 
 from __future__ import annotations
 

@@ -425,9 +425,10 @@ class MarsPairsDataset(Dataset):
         Members are decoded to compact arrays first; each field whose shapes agree across the
         batch is then converted into one [B, C, H, W] buffer whose rows are the samples'
         tensors, so ``collate_samples`` hands it on without another copy. The buffers are in
-        this process's memory, also in a DataLoader worker (numpy reuses freed pages; fresh
-        shared memory costs ~1 ms/MB): the worker's collate stage moves the batch to shared
-        memory, into a recycled slot under :class:`~mars_pairs.torch.loader.MarsPairsLoader`.
+        this process's memory, also in a DataLoader worker (numpy reuses freed pages, where
+        fresh shared memory is the costly part of transport): the worker's collate stage moves
+        the batch to shared memory, into a recycled slot under
+        :class:`~mars_pairs.torch.loader.MarsPairsLoader`.
         """
         checked = [self._checked(i) for i in indices]
         raws = [self._raw(i) for i in checked]
@@ -437,8 +438,8 @@ class MarsPairsDataset(Dataset):
             dtype = self._dtypes[name]
             if len(shapes) == 1:
                 shape = (len(raws), *shapes.pop())
-                # private memory, also in a worker: numpy reuses freed pages (fresh shared
-                # memory costs ~1 ms/MB); the collate stage writes the batch into shared memory
+                # private memory, also in a worker (see the docstring); the collate stage
+                # writes the batch into shared memory
                 batch = torch.from_numpy(np.empty(shape, dtype=dtype))
                 for j, r in enumerate(raws):
                     finish_chw(name, r[name], batch[j].numpy())
