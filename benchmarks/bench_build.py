@@ -67,7 +67,7 @@ def dense_rows(mission: Path, root: Path, size_px: int) -> list[str]:
     best of 2) and the dense members' mean sizes."""
     import pyarrow.parquet as pq
 
-    from mars_pairs.store.manifest import DENSE_FIELDS
+    from mars_pairs.store.members import DENSE_FIELDS
 
     best = {"off": 0.0, "on": 0.0}
     n = 0

@@ -54,7 +54,7 @@ from mars_pairs.store.manifest import (
     rows_to_table,
     write_parquet_staged,
 )
-from mars_pairs.store.shards import MemberLocation, ShardWriter, read_member
+from mars_pairs.store.shards import MemberLocation, ShardWriter, read_members
 from mars_pairs.store.splits import BUFFER
 
 
@@ -244,10 +244,7 @@ def resolve_duplicates(out: Path, result: ChunkResult, seen: dict[str, str]) -> 
             if o.kind != "ok":
                 kept.append(o)
                 continue
-            members = {
-                name: read_member(out, loc, name=f"{o.key}.{name}", verify=True)
-                for name, loc in o.members.items()
-            }
+            members = read_members(out, o.members, key=o.key, verify=True)
             if shard is None:
                 shard = ShardWriter(out, result.shard)
             locs = shard.add(o.key, members)

@@ -23,6 +23,7 @@ from mars_pairs.store.columns import (
 )
 from mars_pairs.store.filter_args import geometry, integers, numbers, shapely_module, strings
 from mars_pairs.store.geoparquet import BBOX_TYPE
+from mars_pairs.store.members import DENSE_FIELDS
 
 MEMBERS = ("ground", "ortho", "dem", "viewshed", "corr", "meta")
 
@@ -83,13 +84,6 @@ for _m in MEMBERS:
     ]
 
 MANIFEST_SCHEMA = pa.schema(_FIELDS)
-
-#: Optional members (``output.members``, see ``pipeline.dense``): their location columns are
-#: in the manifest of a build that writes them, after the default ones.
-DENSE_FIELDS = (
-    "range", "depth", "hits", "ortho_view", "view_valid", "dem_view", "ground_on_map",
-    "ground_on_map_cover", "ground_px",
-)  # fmt: skip
 
 
 def manifest_schema(fields: Sequence[str] = ()) -> pa.Schema:

@@ -16,22 +16,12 @@ import torch
 from PIL import Image
 
 from mars_pairs.errors import ArgumentError
+from mars_pairs.store.members import DENSE_FIELDS
 
 DEFAULT_FIELDS = ("ground", "ortho", "dem", "viewshed")
 
 
-#: Optional dense members (``output.members``; see ``mars_pairs.pipeline.dense``): on the
-#: ground image's dense grid (range, depth, hits, ortho_view, view_valid, dem_view) and on
-#: the chip grid (ground_on_map, ground_on_map_cover, ground_px).
-DENSE_FIELDS = (
-    "range", "depth", "hits", "ortho_view", "view_valid", "dem_view", "ground_on_map",
-    "ground_on_map_cover", "ground_px",
-)  # fmt: skip
-DENSE_GROUND_FIELDS = ("range", "depth", "hits", "ortho_view", "view_valid", "dem_view")
-DENSE_CHIP_FIELDS = ("ground_on_map", "ground_on_map_cover", "ground_px")
-
-
-#: Every default member's field (the optional dense ones are in ``DENSE_FIELDS``).
+#: Every default member's field (the optional dense ones: ``store.members.DENSE_FIELDS``).
 ALL_FIELDS = ("ground", "ortho", "dem", "viewshed", "corr")
 KNOWN_FIELDS = ALL_FIELDS + DENSE_FIELDS
 

@@ -55,7 +55,8 @@ def overview_figure(
     rover traverse, a scale bar, and the held-out areas of the build's split rule (hatched,
     named) with their buffer zones (dashed), as ``mars-pairs report`` draws them. Left: the
     whole dataset; right: a zoom on the traverse."""
-    from mars_pairs.viz.report import _crs, _dataset_json
+    from mars_pairs.store.dataset_info import read_dataset_doc
+    from mars_pairs.viz.report import _crs
     from mars_pairs.viz.report_figures import _draw_held_out, held_out_regions
 
     if colour_by not in ("sol", "split"):
@@ -65,7 +66,7 @@ def overview_figure(
     rows = manifest_rows(root)
     if not rows:
         raise MarsPairsError(f"{root}: the dataset has no samples")
-    info = _dataset_json(root)
+    info = read_dataset_doc(root, missing_ok=True)
     crs_name, unit = _crs(info, Manifest.open(root))
     if ortho_path is None:  # dataset.json's path is relative to the dataset folder
         ortho = (info.get("config") or {}).get("inputs", {}).get("ortho")

@@ -23,6 +23,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mars_pairs.errors import DatasetError, MarsPairsError, UsageError
+from mars_pairs.store.dataset_info import dataset_json_path, read_dataset_doc
 from mars_pairs.store.manifest import Manifest
 from mars_pairs.store.shards import atomic_write_bytes
 
@@ -103,19 +104,6 @@ def _span(values: list[int]) -> str:
 
 
 # -- reading ------------------------------------------------------------------------------------
-
-
-def _dataset_json(root: Path) -> dict[str, Any]:
-    path = root / "dataset.json"
-    if not path.is_file():
-        return {}
-    try:
-        doc = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise DatasetError(path, None, f"unreadable JSON: {exc}") from None
-    if not isinstance(doc, dict):
-        raise DatasetError(path, None, "expected a JSON object")
-    return doc
 
 
 def _failures(root: Path) -> pa.Table | None:
@@ -292,7 +280,7 @@ def _provenance_section(root: Path, info: dict[str, Any], crs_name: str) -> str:
     head = '<section id="provenance"><h2>Provenance</h2>'
     if not info:
         return head + '<p class="sub">no dataset.json in the dataset folder</p></section>'
-    written = datetime.fromtimestamp((root / "dataset.json").stat().st_mtime, tz=timezone.utc)
+    written = datetime.fromtimestamp(dataset_json_path(root).stat().st_mtime, tz=timezone.utc)
     seconds = info.get("build_seconds")
     facts = [
         ["dataset", _esc(root.resolve())],
@@ -332,7 +320,7 @@ def report_html(root: str | Path, samples: int = DEFAULT_SAMPLES) -> str:
         raise MarsPairsError(f"{root}: no such dataset folder")
     manifest = Manifest.open(root).require(COLUMNS)
     rows = manifest.to_table(columns=list(COLUMNS)).to_pylist()
-    info = _dataset_json(root)
+    info = read_dataset_doc(root, missing_ok=True)
     failures = _failures(root)
     n_failed = failures.num_rows if failures is not None else 0
     crs_name, unit = _crs(info, manifest)

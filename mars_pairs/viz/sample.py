@@ -425,7 +425,7 @@ def show_sample(root: str | Path, key: str, out: str | Path | None = None, dpi: 
 def _dense_fields_of(root: Path) -> tuple[str, ...]:
     """The optional dense fields whose members the dataset's manifest locates."""
     from mars_pairs.store.manifest import Manifest
-    from mars_pairs.torch.decode import DENSE_FIELDS
+    from mars_pairs.store.members import DENSE_FIELDS
 
     names = set(Manifest.open(root).column_names)
     return tuple(f for f in DENSE_FIELDS if f"{f}_offset" in names)

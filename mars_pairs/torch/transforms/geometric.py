@@ -12,11 +12,10 @@ import torch
 import torch.nn.functional as F
 
 from mars_pairs.errors import ArgumentError
+from mars_pairs.store.members import DENSE_CHIP_FIELDS
 from mars_pairs.torch.georef import bounds_of, rotation_of
 
 CHIP_FIELDS = ("ortho", "dem", "viewshed")
-#: Optional chip-grid members (``output.members``) that move with the chips.
-DENSE_CHIP_FIELDS = ("ground_on_map", "ground_on_map_cover", "ground_px")
 _NEAREST = ("viewshed", "ground_on_map_cover", "ground_px")  # masks and pixel maps
 _NAN_FILL = ("dem", "ground_px")
 
