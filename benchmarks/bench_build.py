@@ -33,7 +33,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import parse_config
 from mars_pairs.runtime import configure_process
 from mars_pairs.synth import generate_mission
@@ -107,7 +107,7 @@ def _time_the_ends() -> None:
     """Count the driver's CPU in the build's planning and finishing steps (once per build,
     whatever its size) in ``_ENDS_CPU``, to tell them from the CPU that grows with the
     samples (streaming the chunks and committing them)."""
-    from mars_pairs.pipeline import build
+    from mars_pairs.pipeline.build import run as build
 
     for name in _ENDS:
         fn = getattr(build, name, None)
@@ -191,7 +191,7 @@ def main() -> None:
         for name, workers in runs:
             cluster, engine = None, None
             if name == "dask":
-                from mars_pairs.pipeline.dask_engine import DaskEngine
+                from mars_pairs.pipeline.build.dask_engine import DaskEngine
 
                 cluster = _ExternalCluster(root, workers)
                 engine = DaskEngine(scheduler=cluster.address, announce=False)

@@ -2,10 +2,9 @@
 
 from mars_pairs.errors import ConfigError, LabelError, MarsPairsError, PlacesError, TerrainError
 from mars_pairs.geometry.camera import CameraModel
-from mars_pairs.pds.observation import MotionCounter, Observation
+from mars_pairs.observation import MotionCounter, Observation
 from mars_pairs.store.manifest import Manifest
-
-__version__ = "0.1.0"
+from mars_pairs.version import __version__
 
 __all__ = [
     "CameraModel",

@@ -7,7 +7,7 @@ from typing import Any
 
 from mission_inputs import mission_inputs
 
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import parse_config
 
 

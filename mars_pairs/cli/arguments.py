@@ -70,7 +70,7 @@ def version_text() -> str:
     import platform
     from importlib import metadata
 
-    from mars_pairs import __version__
+    from mars_pairs.version import __version__
 
     parts = []
     for name in VERSIONED:

@@ -16,16 +16,17 @@ from mars_pairs.cli.arguments import VersionAction, bounded, count, finite
 from mars_pairs.cli.summary import split_warnings
 from mars_pairs.cli.viewshed import cmd_viewshed
 from mars_pairs.errors import MarsPairsError, UsageError
+from mars_pairs.pipeline.build.label_list import iter_matches
 from mars_pairs.pipeline.config import MAX_RADIUS_M
 from mars_pairs.runtime import configure_process
 from mars_pairs.store.splits import EmptySplitWarning
 
 if TYPE_CHECKING:
-    from mars_pairs.pipeline.engine import Engine
+    from mars_pairs.pipeline.build.engine import Engine
 
 
 def _cmd_locate(args: argparse.Namespace) -> int:
-    from mars_pairs.geometry.locate import describe
+    from mars_pairs.cli.locate import describe
     from mars_pairs.geometry.places import Places
     from mars_pairs.pds import read_observation
 
@@ -67,14 +68,14 @@ def _cmd_build(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from mars_pairs.errors import BuildError
-    from mars_pairs.pipeline.build import run_build
+    from mars_pairs.pipeline.build.run import run_build
     from mars_pairs.pipeline.config import load_config
 
     config = load_config(args.config)
     if args.out:
         config = replace(config, output=replace(config.output, dir=Path(args.out).resolve()))
     if args.dry_run:  # lists, chunks and checks; writes nothing (nor a synthetic mission)
-        from mars_pairs.pipeline.plan import plan_build
+        from mars_pairs.pipeline.build.plan import plan_build
 
         plan = plan_build(config, resume=args.resume, limit=args.limit, generate=True)
         print(plan.format())
@@ -108,7 +109,7 @@ def _engine(args: argparse.Namespace) -> Engine | None:
         if args.scheduler:
             raise UsageError("--scheduler needs --engine dask")
         return None
-    from mars_pairs.pipeline.dask_engine import DaskEngine
+    from mars_pairs.pipeline.build.dask_engine import DaskEngine
 
     return DaskEngine(scheduler=args.scheduler, workers=args.workers)
 
@@ -119,7 +120,7 @@ def _ensure_synthetic(config: object) -> None:
     inputs = config.inputs  # type: ignore[attr-defined]
     if spec is None:
         return
-    if inputs.dem.exists() and inputs.places.exists() and next(inputs.iter_label_paths(), None):
+    if inputs.dem.exists() and inputs.places.exists() and next(iter_matches(inputs.labels), None):
         return
     import subprocess
     import time
@@ -193,7 +194,7 @@ def _cmd_synth(args: argparse.Namespace) -> int:
 
 
 def _cmd_show(args: argparse.Namespace) -> int:
-    from mars_pairs.viz import show_sample
+    from mars_pairs.report import show_sample
 
     print(show_sample(args.dataset, args.key, args.out))
     return 0
@@ -207,7 +208,7 @@ def _cmd_overview(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from mars_pairs.viz.report import write_report
+    from mars_pairs.report import write_report
 
     print(write_report(args.dataset, args.out, samples=args.samples))
     return 0

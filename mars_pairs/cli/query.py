@@ -104,7 +104,7 @@ def check_query_splits(dataset: str | Path, split: Any) -> None:
     rows = Manifest.open(root).require(["split"]).to_table(["split"])["split"]
     known = {str(v) for v in pc.unique(rows).to_pylist() if v is not None}
     try:
-        doc = read_dataset_doc(root, missing_ok=True)
+        doc = read_dataset_doc(root)
     except DatasetError:
         doc = {}  # a damaged dataset.json: the names on the rows
     check_split_names(split, known | (configured_splits(doc) or set()), str(root))

@@ -28,7 +28,7 @@ def split_warnings(dataset: str | Path) -> list[str]:
     configured split left empty); none for a dataset built before they were recorded or
     without a readable dataset.json."""
     try:
-        doc = read_dataset_doc(dataset, missing_ok=True)
+        doc = read_dataset_doc(dataset)
     except DatasetError:
         return []
     splits = doc.get("splits")

@@ -22,8 +22,8 @@ from typing import BinaryIO
 from mars_pairs.errors import DatasetError
 from mars_pairs.store.dataset_info import DATASET_JSON, read_dataset_info
 from mars_pairs.store.integrity import MemberSpec, check_member, repeated_keys, shard_path
-from mars_pairs.store.manifest import MEMBERS, Manifest
-from mars_pairs.store.members import DENSE_FIELDS
+from mars_pairs.store.manifest import Manifest
+from mars_pairs.store.members import DENSE_FIELDS, MEMBERS
 
 
 @dataclass(frozen=True)

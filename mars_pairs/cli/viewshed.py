@@ -4,24 +4,28 @@ viewshed, as a QGIS-ready GeoTIFF."""
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from mars_pairs.cli.arguments import band
 from mars_pairs.errors import UsageError
 
+if TYPE_CHECKING:
+    from mars_pairs.raster.terrain import Terrain
 
-def label_viewshed(args: argparse.Namespace, terrain: object) -> int:
+
+def label_viewshed(args: argparse.Namespace, terrain: Terrain) -> int:
     """``viewshed --label``: the image's view (frustum or the study's band) as a GeoTIFF."""
 
     from mars_pairs.geometry.places import Places
     from mars_pairs.pds import read_observation
-    from mars_pairs.pipeline.view import label_view
+    from mars_pairs.pipeline.sample.view import label_view
     from mars_pairs.raster.viewshed_tiff import NODATA, write_viewshed_geotiff
 
     obs = read_observation(args.label)
     pose = Places.from_csv(args.places).locate(obs)
-    view = label_view(obs, pose, terrain, args.radius, args.height, args.mask)  # type: ignore[arg-type]
+    view = label_view(obs, pose, terrain, args.radius, args.height, args.mask)
     rows, cols = np.indices(view.mask.shape)
     x, y = view.window.colrow_to_xy(cols, rows)
     points = np.stack([x, y, view.window.data.astype(np.float64)], axis=-1).reshape(-1, 3)

@@ -17,8 +17,8 @@ from mars_pairs.geometry.frames import (
     quaternion_to_matrix,
     site_to_local_ned,
 )
+from mars_pairs.geometry.labelled import LabelledImage
 from mars_pairs.geometry.places import Pose
-from mars_pairs.pds.observation import Observation
 
 FloatArray = NDArray[np.float64]
 
@@ -45,7 +45,9 @@ class MapCamera:
     height: int
 
     @classmethod
-    def from_observation(cls, obs: Observation, pose: Pose, crs: object | None = None) -> MapCamera:
+    def from_observation(
+        cls, obs: LabelledImage, pose: Pose, crs: object | None = None
+    ) -> MapCamera:
         """Place ``obs``'s camera at ``pose`` in ``crs`` (default: the pose's table CRS)."""
         if pose.quaternion is None:
             raise PlacesError(f"{obs.label_path}: no rover attitude in the label or PLACES table")

@@ -19,7 +19,7 @@ from mars_pairs.geometry.frames import (
     TangentFrame,
     lonlat_to_map,
 )
-from mars_pairs.pds.observation import Observation
+from mars_pairs.geometry.labelled import LabelledImage
 
 MISSING = -9999.0
 
@@ -320,7 +320,7 @@ class Places:
             match=match,
         )
 
-    def locate(self, obs: Observation) -> Pose:
+    def locate(self, obs: LabelledImage) -> Pose:
         """The rover Pose for an observation, by the fallback in DESIGN.md.
 
         1. the ROVER row for the label's (site, drive), at its pose as in ``rover_pose`` ->

@@ -10,8 +10,8 @@ import re
 from pathlib import Path
 
 from mars_pairs.errors import LabelError
+from mars_pairs.observation import Observation
 from mars_pairs.pds.common import PathLike, read_bytes
-from mars_pairs.pds.observation import Observation
 from mars_pairs.pds.pds3 import parse_pds3, read_pds3
 from mars_pairs.pds.pds4 import parse_pds4, read_pds4
 

@@ -32,6 +32,7 @@ import numpy as np
 
 from mars_pairs.errors import LabelError
 from mars_pairs.geometry.camera import CameraModel
+from mars_pairs.observation import MotionCounter, Observation
 from mars_pairs.pds.common import (
     PARSE_SECONDS,
     Fields,
@@ -41,7 +42,6 @@ from mars_pairs.pds.common import (
     read_bytes,
     time_limit,
 )
-from mars_pairs.pds.observation import MotionCounter, Observation
 
 MISSION = "msl"
 CAMERA_GROUPS = ("GEOMETRIC_CAMERA_MODEL_PARMS", "GEOMETRIC_CAMERA_MODEL")

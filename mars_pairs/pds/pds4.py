@@ -19,8 +19,8 @@ from lxml import etree
 
 from mars_pairs.errors import LabelError
 from mars_pairs.geometry.camera import CameraModel
+from mars_pairs.observation import MotionCounter, Observation
 from mars_pairs.pds.common import PathLike, image_beside, read_bytes
-from mars_pairs.pds.observation import MotionCounter, Observation
 from mars_pairs.pds.xml import (
     XmlLabel,
     load_xml,

@@ -7,7 +7,6 @@ the key (``geometry.radius``) and what was expected.
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -16,7 +15,7 @@ import yaml
 
 from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.config_section import Section, file_kind, shown
-from mars_pairs.pipeline.label_list import iter_matches
+from mars_pairs.store.members import DENSE_MEMBERS
 
 VIEWSHED_MODES = ("wedge", "raycast", "both")
 #: View masks: "frustum" (default) = cells visible from the camera centre whose terrain point
@@ -62,16 +61,6 @@ class InputsConfig:
     images: Path | None = None  # a folder to look for images in, besides the label's folder
     synthetic: SyntheticSpec | None = None
 
-    def iter_label_paths(self) -> Iterator[str]:
-        """Every label the globs match, once, in ``Path`` order, streamed: memory bounded by
-        the largest folder, not the label count (``pipeline.label_list``)."""
-        return iter_matches(self.labels)
-
-    def label_paths(self) -> list[Path]:
-        """Every label the globs match, sorted and de-duplicated, as a list (the build streams
-        ``iter_label_paths`` instead)."""
-        return [Path(p) for p in iter_matches(self.labels)]
-
 
 @dataclass(frozen=True)
 class GeometryConfig:
@@ -113,7 +102,7 @@ class OutputConfig:
     image_encoding: str = "png"
     license: str | None = None
     keep_parts: bool = False
-    members: tuple[str, ...] = ()  # optional dense members (pipeline.dense.DENSE_MEMBERS)
+    members: tuple[str, ...] = ()  # optional dense members (store.members.DENSE_MEMBERS)
     dense_stride: int | None = None  # pixels of the dense grid (None: geometry.ray_stride)
 
 
@@ -259,8 +248,6 @@ def _splits(data: Any) -> SplitsConfig:
 
 def _members(value: Any) -> tuple[str, ...]:
     """``output.members``: a list of optional member names, or "all" (in the list or alone)."""
-    from mars_pairs.pipeline.dense import DENSE_MEMBERS
-
     items = [value] if isinstance(value, str) else value
     if not isinstance(items, list) or not all(isinstance(v, str) for v in items):
         raise ConfigError(f"output.members: expected a list of member names, got {shown(value)}")

@@ -133,7 +133,7 @@ class Section:
 
     def raster(self, key: str, base: Path) -> Path | str:
         """A raster: a local path, or an http(s) URL read window by window (``/vsicurl/``)."""
-        from mars_pairs.fetch.vsi import gdal_path, is_remote, use_remote_defaults
+        from mars_pairs.raster.vsi import gdal_path, is_remote, use_remote_defaults
 
         value = self.raw(key)
         if isinstance(value, str) and is_remote(value):

@@ -1,6 +1,6 @@
 """Moving rasters between a ground image and its orbital chip, occlusion honoured.
 
-Two pixel maps tie the views together (both built by ``mars_pairs.pipeline.dense`` and stored
+Two pixel maps tie the views together (both built by ``mars_pairs.pipeline.sample.dense`` and stored
 as members):
 
 - ``ground_px`` (S, S, 2) float32 on the chip grid: the ground-image pixel (sample, line;

@@ -25,14 +25,19 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath, PureWindowsPath
 
+import crc32c as _crc32c
 import pyarrow as pa
 import pyarrow.compute as pc
 
 from mars_pairs.errors import DatasetError
-from mars_pairs.store.shards import checksum
 
 #: a tar block: every member's data starts this many bytes after its header's start
 BLOCK = tarfile.BLOCKSIZE
+
+
+def checksum(data: bytes) -> int:
+    """CRC-32C (Castagnoli) of ``data`` as an unsigned 32-bit int (fits the int64 column)."""
+    return int(_crc32c.crc32c(data))
 
 
 def shard_path(root: Path, shard: str, member: str | None = None) -> Path:

@@ -23,10 +23,7 @@ from mars_pairs.store.columns import (
 )
 from mars_pairs.store.filter_args import geometry, integers, numbers, shapely_module, strings
 from mars_pairs.store.geoparquet import BBOX_TYPE
-from mars_pairs.store.members import DENSE_FIELDS
-
-MEMBERS = ("ground", "ortho", "dem", "viewshed", "corr", "meta")
-
+from mars_pairs.store.members import DENSE_FIELDS, MEMBERS
 
 _FIELDS: list[tuple[str, pa.DataType]] = [
     ("key", pa.string()),
@@ -80,7 +77,7 @@ for _m in MEMBERS:
         (f"{_m}_shard", pa.string()),
         (f"{_m}_offset", pa.int64()),
         (f"{_m}_size", pa.int64()),
-        (f"{_m}_crc32c", pa.int64()),  # CRC-32C of the member's bytes (store.shards.checksum)
+        (f"{_m}_crc32c", pa.int64()),  # CRC-32C of the member's bytes (store.integrity.checksum)
     ]
 
 MANIFEST_SCHEMA = pa.schema(_FIELDS)

@@ -1,18 +1,45 @@
-"""The optional dense members' fields (``output.members``), by the grid they lie on.
+"""The dataset's member vocabulary: the tar members a sample has and the fields they decode to.
 
-A field is a manifest column prefix (``<field>_shard``, ``_offset``, ``_size``, ``_crc32c``)
-and a tar member ``<key>.<field>.<ext>``; which member writes which field is the build's
-(``pipeline.dense.MEMBER_FILES``). The default members are ``store.manifest.MEMBERS``.
+A sample's default members are ``MEMBERS``. The optional dense members (``output.members``,
+written by ``pipeline.sample.dense``) are named by ``DENSE_MEMBERS``; each brings the tar
+members in ``MEMBER_FILES`` (a validity or pixel map besides the value), whose field names
+(the tar member's stem, the manifest's ``<field>_shard/_offset/_size/_crc32c`` column
+prefix) are ``DENSE_FIELDS``: on the ground image's dense grid (``DENSE_GROUND_FIELDS``) or
+on the chip grid (``DENSE_CHIP_FIELDS``).
 """
 
 from __future__ import annotations
 
-#: on the ground image's dense grid (every ``output.dense_stride``-th ground-image pixel)
+#: Every sample's members, in tar order.
+MEMBERS = ("ground", "ortho", "dem", "viewshed", "corr", "meta")
+
+#: The names ``output.members`` accepts (``all``: every one), in member order.
+DENSE_MEMBERS = (
+    "range", "depth", "hits", "ortho_view", "dem_view", "ground_on_map", "ground_px",
+)  # fmt: skip
+
+#: The tar members each written member name brings (companions: validity and pixel maps).
+MEMBER_FILES: dict[str, tuple[str, ...]] = {
+    "range": ("range.npy",),
+    "depth": ("depth.npy",),
+    "hits": ("hits.npy",),
+    "ortho_view": ("ortho_view.png", "view_valid.png"),
+    "dem_view": ("dem_view.npy", "view_valid.png"),
+    "ground_on_map": ("ground_on_map.png", "ground_on_map_cover.png"),
+    "ground_px": ("ground_px.npy",),
+}
+
+#: Every field the dense members can add, in tar order.
+DENSE_FIELDS = tuple(dict.fromkeys(f.split(".")[0] for m in DENSE_MEMBERS for f in MEMBER_FILES[m]))
+
+#: Dense fields on the ground image's dense grid (every ``output.dense_stride``-th pixel).
 DENSE_GROUND_FIELDS = ("range", "depth", "hits", "ortho_view", "view_valid", "dem_view")
 
-#: on the chip grid (they move with the chips)
+#: Dense fields on the chip grid (S x S, the chip's affine).
 DENSE_CHIP_FIELDS = ("ground_on_map", "ground_on_map_cover", "ground_px")
 
-#: every optional dense field, in tar order (a build's manifest has their columns after the
-#: default members' ones)
-DENSE_FIELDS = DENSE_GROUND_FIELDS + DENSE_CHIP_FIELDS
+
+def member_fields(members: tuple[str, ...]) -> tuple[str, ...]:
+    """The fields (manifest column prefixes) that the dense ``members`` write, in tar order."""
+    files = {f.split(".")[0] for m in members for f in MEMBER_FILES[m]}
+    return tuple(f for f in DENSE_FIELDS if f in files)

@@ -14,9 +14,8 @@ from pathlib import Path
 from types import TracebackType
 from typing import BinaryIO
 
-import crc32c as _crc32c
-
 from mars_pairs.errors import DatasetError
+from mars_pairs.store.integrity import bounds_problem, bytes_problem, checksum, shard_path
 
 
 @dataclass(frozen=True)
@@ -28,11 +27,6 @@ class MemberLocation:
     offset: int
     size: int
     crc32c: int | None = None
-
-
-def checksum(data: bytes) -> int:
-    """CRC-32C (Castagnoli) of ``data`` as an unsigned 32-bit int (fits the int64 column)."""
-    return int(_crc32c.crc32c(data))
 
 
 @contextmanager
@@ -185,8 +179,6 @@ class _ShardHandles:
         self._open.clear()
 
     def read(self, location: MemberLocation, name: str | None, verify: bool) -> bytes:
-        from mars_pairs.store.integrity import bounds_problem, bytes_problem, shard_path
-
         try:
             entry = self._open.get(location.shard)
             if entry is None:

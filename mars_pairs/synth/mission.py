@@ -36,7 +36,7 @@ from tqdm import tqdm
 from mars_pairs.geometry.frames import M2020_PLACES_CRS, MSL_PLACES_CRS, quaternion_to_matrix
 from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.geometry.places import Pose
-from mars_pairs.pds.observation import MotionCounter, Observation
+from mars_pairs.observation import MotionCounter, Observation
 from mars_pairs.synth.cameras import (
     ZOOM_STOP_WEIGHTS,
     ZOOM_STOPS_MM,

@@ -11,10 +11,10 @@ ground pixel of each strided ray, NaN for no hit); ``crs``, ``bounds``, ``transf
 plain Python values of the manifest row.
 
 Datasets built with ``output.members`` also give the dense fields (``store.members``, see
-:mod:`mars_pairs.pipeline.dense`): ``range``, ``depth`` and ``dem_view`` float32 [1, H', W'],
-``hits`` float64 [3, H', W'] (map x, y, z), ``ortho_view`` and ``view_valid`` on the ground
-image's dense grid, with ``dense_ground`` float32 [2, H', W'] (each cell's ground pixel, as
-``corr_ground``); ``ground_on_map`` [3, h, w], ``ground_on_map_cover`` and ``ground_px``
+:mod:`mars_pairs.pipeline.sample.dense`): ``range``, ``depth`` and ``dem_view`` float32
+[1, H', W'], ``hits`` float64 [3, H', W'] (map x, y, z), ``ortho_view`` and ``view_valid`` on
+the ground image's dense grid, with ``dense_ground`` float32 [2, H', W'] (each cell's ground
+pixel, as ``corr_ground``); ``ground_on_map`` [3, h, w], ``ground_on_map_cover`` and ``ground_px``
 float32 [2, h, w] (the ground pixel of each chip pixel, for the decoded ground image's size)
 on the chip grid. ``localization=True`` adds ``rover_px``, ``camera_px`` and ``heading_deg``
 from ``meta.json`` (datasets built with ``chips.offset_m`` or ``output.members``).
@@ -52,9 +52,9 @@ from mars_pairs.errors import (
 from mars_pairs.store.dataset_info import read_dataset_info
 from mars_pairs.store.filter_args import check_split_names, configured_splits, sample_index
 from mars_pairs.store.integrity import MemberSpec, check_member, repeated_keys
-from mars_pairs.store.manifest import MEMBERS, SUMMARY_COLUMNS, Manifest
+from mars_pairs.store.manifest import SUMMARY_COLUMNS, Manifest
 from mars_pairs.store.member_index import MemberIndex
-from mars_pairs.store.members import DENSE_GROUND_FIELDS
+from mars_pairs.store.members import DENSE_GROUND_FIELDS, MEMBERS
 from mars_pairs.torch.decode import (
     ALL_FIELDS,  # noqa: F401  (re-exported)
     DEFAULT_FIELDS,

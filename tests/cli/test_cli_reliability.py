@@ -19,7 +19,7 @@ import yaml
 from mission_inputs import mission_inputs
 
 from mars_pairs.cli.main import main
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
 
 

@@ -13,7 +13,7 @@ from mars_pairs.errors import PlacesError
 from mars_pairs.geometry.camera import CameraModel
 from mars_pairs.geometry.frames import M2020_PLACES_CRS, MSL_PLACES_CRS, TangentFrame, lonlat_to_map
 from mars_pairs.geometry.places import Places
-from mars_pairs.pds.observation import MotionCounter, Observation
+from mars_pairs.observation import MotionCounter, Observation
 
 HEADER = (
     "frame,site,drive,pose,landing_x,landing_y,landing_z,northing,easting,"

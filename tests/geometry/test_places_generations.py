@@ -18,8 +18,8 @@ import pytest
 from mars_pairs.errors import PlacesError
 from mars_pairs.geometry.camera import CameraModel
 from mars_pairs.geometry.places import Places
+from mars_pairs.observation import MotionCounter, Observation
 from mars_pairs.pds import read_observation
-from mars_pairs.pds.observation import MotionCounter, Observation
 
 SHARED = Path(__file__).resolve().parents[2].parent / "shared"
 QUAT = ("quat_s", "quat_v1", "quat_v2", "quat_v3")

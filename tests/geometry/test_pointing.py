@@ -23,8 +23,8 @@ import pytest
 
 from mars_pairs.geometry.attitude import image_centre_pointing_deg
 from mars_pairs.geometry.camera import CameraModel
+from mars_pairs.observation import Observation
 from mars_pairs.pds import read_observation
-from mars_pairs.pds.observation import Observation
 
 SENSOR = (1648, 1200)  # Mastcam-Z detector samples x lines
 
@@ -134,7 +134,7 @@ def test_manifest_pointing_is_the_centre_ray_and_keeps_the_labels(
 ) -> None:
     """A label whose SITE_FRAME pointing is 20 degrees off its camera: the manifest's
     azimuth is still the image centre's (the mission's truth), the label's value beside it."""
-    from mars_pairs.pipeline.build import run_build
+    from mars_pairs.pipeline.build.run import run_build
     from mars_pairs.pipeline.config import parse_config
 
     labels = tmp_path / "labels"

@@ -15,8 +15,8 @@ import pytest
 
 from mars_pairs.errors import LabelError
 from mars_pairs.geometry.camera import CameraModel
+from mars_pairs.observation import MotionCounter, Observation
 from mars_pairs.pds import read_observation, read_pds3, read_pds4, sniff_format
-from mars_pairs.pds.observation import MotionCounter, Observation
 from mars_pairs.synth.labels import write_pds3_img, write_pds3_label, write_pds4_label
 
 SAMPLES = Path(__file__).resolve().parents[2].parent / "shared" / "pds-samples"

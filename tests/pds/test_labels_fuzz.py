@@ -16,8 +16,8 @@ from hypothesis import strategies as st
 from lxml import etree
 
 from mars_pairs.errors import LabelError
+from mars_pairs.observation import Observation
 from mars_pairs.pds import read_observation, read_pds3, read_pds4
-from mars_pairs.pds.observation import Observation
 from mars_pairs.pds.xml import NS
 
 FAST = settings(

@@ -24,9 +24,9 @@ import yaml
 from pyproj import CRS
 
 from mars_pairs.cli.main import main
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
-from mars_pairs.store.manifest import MEMBERS
+from mars_pairs.store.members import MEMBERS
 from mars_pairs.synth import generate_mission
 
 

@@ -27,9 +27,9 @@ from rasterio.warp import Resampling, reproject
 from mars_pairs.geometry.frames import MSL_PLACES_CRS, quaternion_to_matrix
 from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.geometry.places import Places
+from mars_pairs.observation import MotionCounter, Observation
 from mars_pairs.pds import read_observation
-from mars_pairs.pds.observation import MotionCounter, Observation
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.synth.cameras import build_camera, centre_pointing_site, mission_cameras
 from mars_pairs.synth.labels import write_pds3_label

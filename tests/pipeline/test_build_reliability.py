@@ -19,10 +19,10 @@ from mission_inputs import mission_inputs
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError, StageError
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.build.worker import check_record
 from mars_pairs.pipeline.config import load_config
-from mars_pairs.pipeline.sample import Sample
-from mars_pairs.pipeline.worker import check_record
+from mars_pairs.pipeline.sample.build_sample import Sample
 from mars_pairs.store.manifest import FAILURE_SCHEMA, rows_to_table, write_parquet_atomic
 from mars_pairs.store.shards import ShardWriter, atomic_write_bytes
 

@@ -24,7 +24,7 @@ from mission_inputs import mission_inputs
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -16,7 +16,7 @@ from affine import Affine
 from mission_config import cheap_config
 
 from mars_pairs.errors import ConfigError, TerrainError
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import parse_config
 
 SIZE_M, SIZE_PX = 64.0, 64  # cheap_config's chips

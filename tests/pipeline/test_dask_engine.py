@@ -16,13 +16,13 @@ from mission_inputs import mission_inputs
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import WorkerStartError
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.synth import generate_mission
 
 distributed = pytest.importorskip("distributed", reason="the dask extra is not installed")
 
-from mars_pairs.pipeline.dask_engine import DaskEngine  # noqa: E402
+from mars_pairs.pipeline.build.dask_engine import DaskEngine  # noqa: E402
 
 
 @pytest.fixture(scope="module")

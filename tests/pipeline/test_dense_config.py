@@ -8,8 +8,8 @@ import pytest
 
 from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.config import parse_config
-from mars_pairs.pipeline.dense import DENSE_MEMBERS, member_fields
 from mars_pairs.store.manifest import MANIFEST_SCHEMA, manifest_schema
+from mars_pairs.store.members import DENSE_MEMBERS, member_fields
 
 
 def _doc(tmp_path: Path, **sections: dict) -> dict:

@@ -14,7 +14,7 @@ import pyarrow.parquet as pq
 import pytest
 from test_build_real_gale import GALE, _make_labels
 
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import parse_config
 
 RADIUS_M = 90.0

@@ -22,12 +22,12 @@ from mission_config import cheap_config
 from mission_inputs import mission_inputs
 
 from mars_pairs.errors import MarsPairsError
-from mars_pairs.pipeline import build
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build import run as build
+from mars_pairs.pipeline.build.engine import ChunkResult, ChunkTask, InProcess
+from mars_pairs.pipeline.build.local_pool import LocalPool
+from mars_pairs.pipeline.build.outputs import is_temporary
+from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import BuildConfig, parse_config
-from mars_pairs.pipeline.engine import ChunkResult, ChunkTask, InProcess
-from mars_pairs.pipeline.local_pool import LocalPool
-from mars_pairs.pipeline.outputs import is_temporary
 from mars_pairs.store.manifest import MANIFEST_SCHEMA
 from mars_pairs.store.shards import MemberLocation, ShardWriter, read_member
 

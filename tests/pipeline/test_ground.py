@@ -22,11 +22,11 @@ from PIL import Image
 
 from mars_pairs.errors import ImageError
 from mars_pairs.geometry.camera import CameraModel
+from mars_pairs.observation import Observation
 from mars_pairs.pds import read_observation
-from mars_pairs.pds.observation import Observation
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
-from mars_pairs.pipeline.ground import ground_image
+from mars_pairs.pipeline.sample.ground import ground_image
 from mars_pairs.synth import generate_mission
 from mars_pairs.synth.labels import write_pds3_img, write_pds3_label, write_pds4_label
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from mission_config import cheap_config
 
-from mars_pairs.pipeline.local_pool import LocalPool, worker_context
+from mars_pairs.pipeline.build.local_pool import LocalPool, worker_context
 
 
 def test_results_in_order_with_a_bounded_window(small_mission: Path, tmp_path: Path) -> None:

@@ -15,8 +15,8 @@ import pytest
 from mission_config import cheap_config
 
 from mars_pairs.errors import WorkerDiedError
-from mars_pairs.pipeline import local_pool
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build import local_pool
+from mars_pairs.pipeline.build.run import run_build
 
 
 def _digest(root: Path) -> dict[str, str]:

@@ -17,12 +17,14 @@ from mission_inputs import mission_inputs
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline import build, worker
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build import run as build
+from mars_pairs.pipeline.build import worker
+from mars_pairs.pipeline.build.engine import ChunkResult, ChunkTask, Outcome
+from mars_pairs.pipeline.build.label_list import iter_matches
+from mars_pairs.pipeline.build.outputs import fingerprint, part_paths
+from mars_pairs.pipeline.build.plan import plan_build
+from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
-from mars_pairs.pipeline.engine import ChunkResult, ChunkTask, Outcome
-from mars_pairs.pipeline.outputs import fingerprint, part_paths
-from mars_pairs.pipeline.plan import plan_build
 from mars_pairs.synth.label_tree import plan_config, write_label_tree
 
 
@@ -64,7 +66,7 @@ def test_fingerprint_is_the_one_of_the_sorted_glob_list(tmp_path: Path) -> None:
     stamp = plan_build(config).fingerprint
     assert (stamp["labels"], stamp["count"]) == (digest, 6)
     assert fingerprint(config, old) == stamp  # a list of Paths, as before, the same stamp
-    assert fingerprint(config, iter(config.inputs.iter_label_paths())) == stamp
+    assert fingerprint(config, iter(iter_matches(config.inputs.labels))) == stamp
 
 
 def test_planning_memory_is_flat_in_the_label_count(tmp_path: Path) -> None:

@@ -24,10 +24,10 @@ from mission_inputs import mission_inputs
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline import outputs
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build import outputs
+from mars_pairs.pipeline.build.outputs import part_paths
+from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import BuildConfig, load_config
-from mars_pairs.pipeline.outputs import part_paths
 
 
 def _files(root: Path) -> dict[str, str]:

@@ -14,7 +14,7 @@ from built_dataset import build_small
 
 from mars_pairs.cli.verify import verify_dataset
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline.build import run_build
+from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import parse_config
 from mars_pairs.store.manifest import MANIFEST_SCHEMA
 

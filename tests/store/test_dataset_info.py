@@ -13,12 +13,12 @@ from mars_pairs.store.dataset_info import dataset_crs, read_dataset_doc
 
 
 def test_the_document_absent_damaged_or_not_an_object(tmp_path: Path) -> None:
-    assert read_dataset_doc(tmp_path, missing_ok=True) == {}
+    assert read_dataset_doc(tmp_path) == {}
     with pytest.raises(DatasetError, match=r"dataset\.json: missing"):
-        read_dataset_doc(tmp_path)
+        dataset_crs(tmp_path)
     (tmp_path / "dataset.json").write_text("{not json")
     with pytest.raises(DatasetError, match=r"dataset\.json: unreadable"):
-        read_dataset_doc(tmp_path, missing_ok=True)
+        read_dataset_doc(tmp_path)
     assert split_warnings(tmp_path) == []  # the summary: nothing to say of a damaged file
     (tmp_path / "dataset.json").write_text("[1]")
     with pytest.raises(DatasetError, match="expected a JSON object"):

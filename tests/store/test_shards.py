@@ -7,14 +7,10 @@ from pathlib import Path
 import pytest
 
 from mars_pairs.errors import DatasetError
-from mars_pairs.store.manifest import MANIFEST_SCHEMA, MEMBERS
-from mars_pairs.store.shards import (
-    MemberLocation,
-    ShardWriter,
-    checksum,
-    read_member,
-    read_members,
-)
+from mars_pairs.store.integrity import checksum
+from mars_pairs.store.manifest import MANIFEST_SCHEMA
+from mars_pairs.store.members import MEMBERS
+from mars_pairs.store.shards import MemberLocation, ShardWriter, read_member, read_members
 
 
 def test_checksum_is_crc32c() -> None:
@@ -56,18 +52,18 @@ def test_short_reads_and_missing_shards_name_the_shard(tmp_path: Path) -> None:
 def test_read_members_opens_each_shard_once_and_names_the_member(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from mars_pairs.store import integrity
+    from mars_pairs.store import shards
 
     with ShardWriter(tmp_path, "s.tar") as shard:
         locs = shard.add("k", {"a.bin": b"aa", "b.bin": b"bbb", "c.bin": b"c"})
     resolved: list[str] = []
-    original = integrity.shard_path
+    original = shards.shard_path
 
     def counted(root: Path, shard: str, member: str | None = None) -> Path:
         resolved.append(shard)
         return original(root, shard, member)
 
-    monkeypatch.setattr(integrity, "shard_path", counted)
+    monkeypatch.setattr(shards, "shard_path", counted)
     got = read_members(tmp_path, locs, key="k", verify=True)
     assert got == {"a.bin": b"aa", "b.bin": b"bbb", "c.bin": b"c"} and resolved == ["s.tar"]
     flipped = {**locs, "b.bin": MemberLocation("s.tar", locs["b.bin"].offset, 3, 0)}

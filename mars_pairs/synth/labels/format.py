@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mars_pairs.pds.observation import Observation
+from mars_pairs.observation import Observation
 
 
 def real_text(x: float) -> str:

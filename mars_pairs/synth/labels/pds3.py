@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mars_pairs.pds.observation import Observation
+from mars_pairs.observation import Observation
 from mars_pairs.synth.labels.format import iso_time, pointer_name, real_text
 
 _SYMBOL_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]*")

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from lxml import etree
 
-from mars_pairs.pds.observation import Observation
+from mars_pairs.observation import Observation
 from mars_pairs.pds.xml import NS, q
 from mars_pairs.synth.labels.format import iso_time, pointer_name, real_text, rover_angles
 

@@ -16,6 +16,7 @@ from mars_pairs.store.members import DENSE_CHIP_FIELDS
 from mars_pairs.torch.georef import bounds_of, rotation_of
 
 CHIP_FIELDS = ("ortho", "dem", "viewshed")
+#: Optional chip-grid members (``output.members``) that move with the chips.
 _NEAREST = ("viewshed", "ground_on_map_cover", "ground_px")  # masks and pixel maps
 _NAN_FILL = ("dem", "ground_px")
 

@@ -1,16 +1,16 @@
 """The dataset build: labels -> samples -> shards + manifest, parallel, atomic and resumable.
 
-Labels are streamed in one total order (``pipeline.label_list``) and cut into chunks of
-``shard_size`` (``pipeline.plan``); chunk k becomes
+Labels are streamed in one total order (``pipeline.build.label_list``) and cut into chunks of
+``shard_size`` (``pipeline.build.plan``); chunk k becomes
 ``shards/shard-{k:06d}.tar`` plus ``parts/manifest-{k:06d}.parquet`` and
 ``parts/failures-{k:06d}.parquet``. The manifest part is renamed into place last and marks the
 chunk done, so a killed build rerun with ``resume`` redoes only unfinished chunks, and the
 output is the same whatever the worker count. A finished build writes the folder's card
-(``pipeline.finish``) and removes ``parts/`` last (``output.keep_parts`` keeps it); its stamp
+(``pipeline.build.finish``) and removes ``parts/`` last (``output.keep_parts`` keeps it); its stamp
 lives on in dataset.json, so ``--resume`` over it does nothing. The labels are never held: a
 planning pass counts them and sums their fingerprint (the stamp), the build pass streams them
 again to the engine, chunk by chunk. The engine's workers write the shards and stage the parts
-(``pipeline.engine``); the driver receives rows only, and commits the chunks in order.
+(``pipeline.build.engine``); the driver receives rows only, and commits the chunks in order.
 """
 
 from __future__ import annotations
@@ -20,15 +20,11 @@ import os
 import time
 from collections import Counter
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
-from pathlib import Path
 
 from tqdm import tqdm
 
 from mars_pairs.errors import BuildError, ConfigError, MarsPairsError
-from mars_pairs.pipeline.config import BuildConfig
-from mars_pairs.pipeline.config_section import check_regular
-from mars_pairs.pipeline.engine import (
+from mars_pairs.pipeline.build.engine import (
     ChunkResult,
     ChunkTask,
     Engine,
@@ -36,14 +32,15 @@ from mars_pairs.pipeline.engine import (
     part_tables,
     resolve_duplicates,
 )
-from mars_pairs.pipeline.finish import (
+from mars_pairs.pipeline.build.finish import (
+    BuildSummary,
     finished_summary,
     merge_parts,
     write_card,
     write_dataset_json,
 )
-from mars_pairs.pipeline.local_pool import LocalPool
-from mars_pairs.pipeline.outputs import (
+from mars_pairs.pipeline.build.local_pool import LocalPool
+from mars_pairs.pipeline.build.outputs import (
     LabelDigest,
     built_keys,
     clear_outputs,
@@ -53,44 +50,18 @@ from mars_pairs.pipeline.outputs import (
     remove_temporaries,
     stamp_path,
 )
-from mars_pairs.pipeline.plan import (
+from mars_pairs.pipeline.build.plan import (
     check_clearable,
     chunks_of,
     is_done,
     labels_of,
     plan_build,
 )
+from mars_pairs.pipeline.config import BuildConfig
+from mars_pairs.pipeline.config_section import check_regular
 from mars_pairs.store.manifest import write_parquet_atomic
 from mars_pairs.store.shards import atomic_write_bytes
 from mars_pairs.store.wids_index import write_wids_index
-
-
-@dataclass(frozen=True)
-class BuildSummary:
-    """Counts and timing of one build."""
-
-    out_dir: Path
-    samples: int
-    failures: int
-    failures_by_reason: dict[str, int]
-    chunks_built: int
-    chunks_resumed: int
-    seconds: float
-    stage_seconds: dict[str, float]  # summed over the samples built in this run
-
-    def format(self) -> str:
-        """A short human-readable summary."""
-        rate = self.samples / self.seconds if self.seconds > 0 else float("nan")
-        lines = [
-            f"dataset: {self.out_dir}",
-            f"samples: {self.samples}   failures: {self.failures}   "
-            f"time: {self.seconds:.1f} s ({rate:.1f} samples/s)",
-            f"chunks: {self.chunks_built} built, {self.chunks_resumed} resumed",
-        ]
-        lines += [
-            f"  failed at {reason}: {n}" for reason, n in sorted(self.failures_by_reason.items())
-        ]
-        return "\n".join(lines)
 
 
 def check_input_files(config: BuildConfig) -> None:
@@ -181,7 +152,7 @@ def run_build(
     """Build the dataset described by ``config`` into ``config.output.dir``.
 
     ``engine``: None for this machine's process pool of ``workers`` (this process when 1),
-    or another :class:`~mars_pairs.pipeline.engine.Engine` (``dask_engine.DaskEngine``).
+    or another :class:`~mars_pairs.pipeline.build.engine.Engine` (``dask_engine.DaskEngine``).
     """
     start = time.perf_counter()
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:

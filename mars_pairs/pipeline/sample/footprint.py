@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 import shapely
 
-from mars_pairs.pipeline.view import View
+from mars_pairs.pipeline.sample.view import View
 
 
 def row_spans(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -1,4 +1,8 @@
-"""The Observation: what one mast-camera product's label says, in typed form."""
+"""The Observation: what one mast-camera product's label says, in typed form.
+
+The contract between the label readers (``mars_pairs.pds``, which build it) and everything
+that uses a label (``geometry``, ``pipeline``): a module of its own, so neither package
+imports the other's internals (``pds`` uses ``geometry.camera``; ``geometry`` uses this)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """What a build worker process runs: its context, opened once, and one label -> one result.
 
-Shared by the local pool (``pipeline.local_pool``), the in-process build (one worker) and
+Shared by the local pool (``pipeline.build.local_pool``), the in-process build (one worker) and
 the Dask engine. A result is ("ok", Sample), ("fail", failure row) or ("start", message)
 when the process could not open its context.
 """
@@ -18,8 +18,8 @@ from mars_pairs.allocator import reuse_freed_memory
 from mars_pairs.errors import MarsPairsError, StageError
 from mars_pairs.kernels.warm import warm_kernels
 from mars_pairs.pipeline.config import BuildConfig
-from mars_pairs.pipeline.context import SampleContext
-from mars_pairs.pipeline.sample import Sample, build_sample
+from mars_pairs.pipeline.sample.build_sample import Sample, build_sample
+from mars_pairs.pipeline.sample.context import SampleContext
 from mars_pairs.store.manifest import MANIFEST_SCHEMA
 
 #: The longest sample key: ``<key>.<member>`` must fit tar's 100-byte USTAR name field.

@@ -1,6 +1,6 @@
 """Planning a build: check the inputs, list and chunk the labels, find the chunks done.
 
-The labels are streamed (``pipeline.label_list``), never held: the plan is one pass that
+The labels are streamed (``pipeline.build.label_list``), never held: the plan is one pass that
 counts them and sums their fingerprint; chunk k is labels ``[k*S, (k+1)*S)`` of that order
 (S = ``output.shard_size``), so the chunk count and sizes follow from the count, and a chunk
 is done when its manifest part exists (and the build stamp matches, for ``--resume``: the
@@ -20,8 +20,8 @@ from pathlib import Path
 from typing import Any
 
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline.config import BuildConfig, SyntheticSpec
-from mars_pairs.pipeline.outputs import (
+from mars_pairs.pipeline.build.label_list import iter_matches
+from mars_pairs.pipeline.build.outputs import (
     fingerprint,
     finished_stamp,
     foreign_file,
@@ -33,6 +33,7 @@ from mars_pairs.pipeline.outputs import (
     stamped_chunks,
     written_by,
 )
+from mars_pairs.pipeline.config import BuildConfig, SyntheticSpec
 from mars_pairs.pipeline.splitting import split_rule
 
 
@@ -40,7 +41,7 @@ def check_inputs(config: BuildConfig) -> None:
     """Check that a label matches and every input opens; ConfigError names the key."""
     import rasterio
 
-    if next(config.inputs.iter_label_paths(), None) is None:
+    if next(iter_matches(config.inputs.labels), None) is None:
         raise ConfigError(f"inputs.labels: no file matches {list(config.inputs.labels)}")
     if not config.inputs.places.is_file():
         raise ConfigError(f"inputs.places: no such file {config.inputs.places}")
@@ -83,14 +84,14 @@ def mission_pending(config: BuildConfig) -> SyntheticSpec | None:
     if spec is None:
         return None
     dem_there = not isinstance(inputs.dem, Path) or inputs.dem.exists()
-    if dem_there and inputs.places.exists() and next(inputs.iter_label_paths(), None):
+    if dem_there and inputs.places.exists() and next(iter_matches(inputs.labels), None):
         return None
     return spec
 
 
 def labels_of(config: BuildConfig, limit: int | None = None) -> Iterator[str]:
     """The build's labels in build order, streamed: the first ``limit`` (None: all)."""
-    return islice(config.inputs.iter_label_paths(), limit)
+    return islice(iter_matches(config.inputs.labels), limit)
 
 
 def chunks_of(labels: Iterable[str], size: int) -> Iterator[list[str]]:

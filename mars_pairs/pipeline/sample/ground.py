@@ -23,7 +23,7 @@ import numpy as np
 from PIL import Image, ImageFile
 
 from mars_pairs.errors import ImageError
-from mars_pairs.pds.observation import Observation
+from mars_pairs.observation import Observation
 
 #: Browse images smaller than this fraction of the label's grid are refused.
 MIN_SCALE = 1.0 / 32.0

@@ -6,24 +6,23 @@ import os
 import re
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import shapely
 
 from mars_pairs.errors import PlacesError
 from mars_pairs.geometry.attitude import image_centre_pointing_deg
 from mars_pairs.geometry.places import Pose
-from mars_pairs.pds.observation import Observation
-from mars_pairs.pipeline.context import SampleContext
-from mars_pairs.pipeline.footprint import footprint_polygon, view_statistics
+from mars_pairs.observation import Observation
+from mars_pairs.pipeline.sample.chips import ChipCoverage
+from mars_pairs.pipeline.sample.context import SampleContext
+from mars_pairs.pipeline.sample.footprint import footprint_polygon, view_statistics
+from mars_pairs.pipeline.sample.key import sample_key
+from mars_pairs.pipeline.sample.view import View
 from mars_pairs.pipeline.splitting import split_rule
-from mars_pairs.pipeline.view import View
 from mars_pairs.raster.chips import ChipGrid
 from mars_pairs.store.geoparquet import footprint_bounds
 from mars_pairs.store.splits import hilbert_index
-
-if TYPE_CHECKING:  # chips uses sample_key: imported for the annotation only
-    from mars_pairs.pipeline.chips import ChipCoverage
 
 _MAGIC = re.compile(r"[*?[]")
 
@@ -47,11 +46,6 @@ def relative_label_path(label: str | Path, patterns: Sequence[str]) -> str:
     """``label`` relative to ``labels_root(patterns)``, with ``/``: the same on every machine
     that holds the labels under one root, and no machine's absolute path in the dataset."""
     return Path(os.path.relpath(str(label), labels_root(patterns))).as_posix()
-
-
-def sample_key(obs: Observation) -> str:
-    """The WebDataset key of an observation: mission and product id, no dots."""
-    return f"{obs.mission}_{obs.product_id}".replace(".", "_").lower()
 
 
 def manifest_row(

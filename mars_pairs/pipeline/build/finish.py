@@ -14,20 +14,22 @@ import os
 import platform
 import time
 from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mars_pairs.pipeline.config import BuildConfig
-from mars_pairs.pipeline.outputs import (
+from mars_pairs.pipeline.build.outputs import (
     FINISHED_KEY,
     part_paths,
     remove_empty_parts,
     stamp_digest,
 )
-from mars_pairs.pipeline.record import labels_root
+from mars_pairs.pipeline.build.plan import BuildPlan
+from mars_pairs.pipeline.config import BuildConfig
+from mars_pairs.pipeline.sample.record import labels_root
 from mars_pairs.pipeline.splitting import splits_report
 from mars_pairs.store.card import CardFacts, dataset_card, default_license
 from mars_pairs.store.croissant import croissant_metadata, dataset_description, sha256_of
@@ -39,15 +41,39 @@ from mars_pairs.store.manifest import (
 )
 from mars_pairs.store.shards import atomic_write_bytes
 
-if TYPE_CHECKING:
-    from mars_pairs.pipeline.build import BuildSummary
-    from mars_pairs.pipeline.plan import BuildPlan
-
 #: What dataset.json says of its paths.
 PATHS_NOTE = (
     "config paths are relative to this dataset folder, as they were when it was built "
     "(inputs stay where they were; a moved folder still reads whole: it needs none of them)"
 )
+
+
+@dataclass(frozen=True)
+class BuildSummary:
+    """Counts and timing of one build."""
+
+    out_dir: Path
+    samples: int
+    failures: int
+    failures_by_reason: dict[str, int]
+    chunks_built: int
+    chunks_resumed: int
+    seconds: float
+    stage_seconds: dict[str, float]  # summed over the samples built in this run
+
+    def format(self) -> str:
+        """A short human-readable summary."""
+        rate = self.samples / self.seconds if self.seconds > 0 else float("nan")
+        lines = [
+            f"dataset: {self.out_dir}",
+            f"samples: {self.samples}   failures: {self.failures}   "
+            f"time: {self.seconds:.1f} s ({rate:.1f} samples/s)",
+            f"chunks: {self.chunks_built} built, {self.chunks_resumed} resumed",
+        ]
+        lines += [
+            f"  failed at {reason}: {n}" for reason, n in sorted(self.failures_by_reason.items())
+        ]
+        return "\n".join(lines)
 
 
 def merge_parts(config: BuildConfig, n_chunks: int) -> tuple[pa.Table, pa.Table]:
@@ -120,7 +146,7 @@ def write_dataset_json(
     import pyarrow
     import rasterio
 
-    from mars_pairs import __version__
+    from mars_pairs.version import __version__
 
     counts: dict[str, Any] = {"samples": summary.samples, "failures": summary.failures}
     if manifest.num_rows:
@@ -163,7 +189,7 @@ def write_dataset_json(
 def write_card(config: BuildConfig, manifest: pa.Table, doc: dict[str, Any]) -> None:
     """README.md (the dataset card) and croissant.json, from dataset.json's ``doc`` and the
     manifest written (``manifest.parquet`` must be in place: croissant.json holds its hash)."""
-    from mars_pairs import __version__
+    from mars_pairs.version import __version__
 
     out = config.output.dir
     synthetic = config.inputs.synthetic is not None
@@ -198,7 +224,6 @@ def write_card(config: BuildConfig, manifest: pa.Table, doc: dict[str, Any]) -> 
 def finished_summary(config: BuildConfig, plan: BuildPlan, start: float) -> BuildSummary:
     """The summary of a ``--resume`` over a finished build of the same config: nothing is
     built or written (an empty ``parts/`` left by a kill is removed)."""
-    from mars_pairs.pipeline.build import BuildSummary
 
     out = config.output.dir
     remove_empty_parts(out)

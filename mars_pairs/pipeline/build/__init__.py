@@ -1,0 +1,40 @@
+"""A dataset build: many labels -> shards, a manifest and dataset.json (``run_build``).
+
+``label_list`` streams the labels in one total order; ``plan`` checks the inputs and cuts the
+labels into chunks, finding those a killed build finished; ``engine`` is the one contract the
+engines implement (``InProcess`` here, ``local_pool.LocalPool``, ``dask_engine.DaskEngine``),
+``worker`` what a worker process runs for one chunk; ``outputs`` what the output folder
+keeps (part paths, the stamp, clearing); ``finish`` the merge into manifest.parquet and
+dataset.json; ``run`` the driver that ties them. The samples themselves are
+``pipeline.sample``'s.
+
+The public names below are resolved on first use (the Dask engine needs the ``dask`` extra).
+"""
+
+from __future__ import annotations
+
+from importlib import import_module
+from typing import Any
+
+#: public name -> the module that defines it
+_HOMES = {
+    "run_build": "run",
+    "BuildSummary": "finish",
+    "BuildPlan": "plan",
+    "plan_build": "plan",
+    "iter_matches": "label_list",
+    "Engine": "engine",
+    "ChunkTask": "engine",
+    "ChunkResult": "engine",
+    "InProcess": "engine",
+    "LocalPool": "local_pool",
+    "DaskEngine": "dask_engine",
+}
+
+__all__ = sorted(_HOMES)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(import_module(f"{__name__}.{_HOMES[name]}"), name)
