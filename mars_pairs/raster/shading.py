@@ -22,5 +22,6 @@ def lambert_shading(z: F64, res_m: float, azimuth_deg: float, elevation_deg: flo
     az, el = np.radians(azimuth_deg), np.radians(elevation_deg)
     sun = np.array([np.cos(el) * np.sin(az), np.cos(el) * np.cos(az), np.sin(el)])  # E, N, U
     norm = np.sqrt(dz_de**2 + dz_dn**2 + 1.0)
-    shade = (-dz_de * sun[0] - dz_dn * sun[1] + sun[2]) / norm
-    return np.clip(shade, 0.0, None)
+    shade: F64 = (-dz_de * sun[0] - dz_dn * sun[1] + sun[2]) / norm
+    lit: F64 = np.clip(shade, 0.0, None)
+    return lit

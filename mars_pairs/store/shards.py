@@ -182,8 +182,8 @@ class _ShardHandles:
         try:
             entry = self._open.get(location.shard)
             if entry is None:
-                fh = open(shard_path(self.root, location.shard, name), "rb")  # noqa: SIM115
-                entry = self._open[location.shard] = (fh, os.fstat(fh.fileno()).st_size)
+                opened = open(shard_path(self.root, location.shard, name), "rb")  # noqa: SIM115
+                entry = self._open[location.shard] = (opened, os.fstat(opened.fileno()).st_size)
             fh, shard_size = entry
             problem = bounds_problem(location.offset, location.size, shard_size)
             if problem is not None:  # checked before reading: a huge size allocates nothing

@@ -144,4 +144,5 @@ def hillshade(z: F64, res_m: float, sun_azimuth_deg: float, sun_elevation_deg: f
     degrees clockwise from north, elevation degrees) relative to flat ground; >= 0, flat = 1
     (:func:`mars_pairs.raster.shading.lambert_shading` over sin(elevation))."""
     shade = lambert_shading(z, res_m, sun_azimuth_deg, sun_elevation_deg)
-    return shade / np.sin(np.radians(sun_elevation_deg))
+    relative: F64 = shade / np.sin(np.radians(sun_elevation_deg))
+    return relative
