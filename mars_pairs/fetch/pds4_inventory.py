@@ -34,14 +34,7 @@ from mars_pairs.fetch.products import (
     parse_m2020_id,
     zcam_fields_of,
 )
-from mars_pairs.fetch.validate import label_fault
-
-DELIMITERS = {
-    "Comma": ",",
-    "Horizontal Tab": "\t",
-    "Semicolon": ";",
-    "Vertical Bar": "|",
-}
+from mars_pairs.fetch.validate import delimiter_of, label_fault
 
 
 def inventory_of(collection_label: Path, collection_rel: PurePosixPath) -> PurePosixPath:
@@ -58,19 +51,6 @@ def inventory_of(collection_label: Path, collection_rel: PurePosixPath) -> PureP
 def inventory_delimiter(collection_label: Path) -> str:
     """The inventory's field delimiter (``Inventory/field_delimiter``; comma by default)."""
     return delimiter_of(_parse(collection_label), collection_label)
-
-
-def delimiter_of(root: etree._Element, where: object) -> str:
-    """The field delimiter a parsed collection label gives its inventory (comma when it names
-    none); ``FetchError`` naming ``where`` for one that is not a PDS4 delimiter name."""
-    text = root.findtext(
-        "pds:File_Area_Inventory/pds:Inventory/pds:field_delimiter", namespaces={"pds": PDS4_NS}
-    )
-    if text is None:
-        return ","
-    if text.strip() not in DELIMITERS:
-        raise FetchError(where, f"Inventory/field_delimiter: unknown {text!r}")
-    return DELIMITERS[text.strip()]
 
 
 def file_version(vid: str) -> int:

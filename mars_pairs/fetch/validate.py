@@ -39,6 +39,8 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any
 
+from lxml import etree
+
 from mars_pairs.errors import ContentError, FetchError, ImageError, LabelError
 
 KINDS = (
@@ -74,6 +76,14 @@ _BY_SUFFIX = {
 PLACES_COLUMNS = ("frame", "site", "drive", "northing", "easting", "elevation")
 HTML_TYPES = ("text/html", "application/xhtml+xml")
 PDS4_NS = "http://pds.nasa.gov/pds4/pds/v1"
+
+#: PDS4 ``field_delimiter`` names (the PDS4 standard's Inventory class) -> the character.
+DELIMITERS = {
+    "Comma": ",",
+    "Horizontal Tab": "\t",
+    "Semicolon": ";",
+    "Vertical Bar": "|",
+}
 LABEL_MAX_BYTES = 16 << 20  # a text label or table description larger than this is refused
 _ODL_LINE = re.compile(rb"^\s*\^?[A-Za-z][A-Za-z0-9_:]*\s*=", re.MULTILINE)
 _END_LINE = re.compile(rb"^[ \t]*END[ \t]*\r?$", re.MULTILINE)
@@ -253,10 +263,21 @@ def _inventory(path: Path, label: Path | None, where: object) -> None:
         )
 
 
+def delimiter_of(root: etree._Element, where: object) -> str:
+    """The field delimiter a parsed collection label gives its inventory (comma when it names
+    none); ``FetchError`` naming ``where`` for one that is not a PDS4 delimiter name."""
+    text = root.findtext(
+        "pds:File_Area_Inventory/pds:Inventory/pds:field_delimiter", namespaces={"pds": PDS4_NS}
+    )
+    if text is None:
+        return ","
+    if text.strip() not in DELIMITERS:
+        raise FetchError(where, f"Inventory/field_delimiter: unknown {text!r}")
+    return DELIMITERS[text.strip()]
+
+
 def _inventory_facts(label: Path, where: object) -> tuple[str, int | None]:
     """(delimiter, records) of the collection label's ``File_Area_Inventory/Inventory``."""
-    from mars_pairs.fetch.pds4_inventory import delimiter_of
-
     about = f"{where} (its collection label {label})"
     root = _pds4_root(label, about, "collection label")
     try:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pyarrow.dataset as ds
 
-from mars_pairs.store.manifest import Manifest
+from mars_pairs.store.query import Manifest
 from mars_pairs.store.shards import MemberLocation, read_member
 
 _LOCATION = ["meta_shard", "meta_offset", "meta_size"]

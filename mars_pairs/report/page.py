@@ -24,10 +24,10 @@ import pyarrow.parquet as pq
 
 from mars_pairs.errors import DatasetError, MarsPairsError, UsageError
 from mars_pairs.report.meta import camera_centres
+from mars_pairs.store.atomic import atomic_write_bytes
 from mars_pairs.store.dataset_info import build_input, dataset_json_path, read_dataset_doc
 from mars_pairs.store.geoparquet import describe_crs
-from mars_pairs.store.manifest import Manifest
-from mars_pairs.store.shards import atomic_write_bytes
+from mars_pairs.store.query import Manifest
 from mars_pairs.viz.common import split_colours
 from mars_pairs.viz.report_figures import histograms_figure, map_figure, sample_card
 

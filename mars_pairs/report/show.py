@@ -8,8 +8,8 @@ from typing import Any
 
 from mars_pairs.errors import MarsPairsError
 from mars_pairs.report.meta import camera_centres
-from mars_pairs.store.manifest import Manifest
 from mars_pairs.store.members import DENSE_FIELDS
+from mars_pairs.store.query import Manifest
 from mars_pairs.viz.common import DPI, pyplot
 from mars_pairs.viz.sample import dense_figure, has_dense
 

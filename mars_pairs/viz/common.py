@@ -15,7 +15,7 @@ import numpy as np
 
 from mars_pairs.errors import MarsPairsError
 from mars_pairs.raster.shading import lambert_shading
-from mars_pairs.store.manifest import Manifest
+from mars_pairs.store.query import Manifest
 
 DPI = 90
 

@@ -12,7 +12,7 @@ import shapely
 from mars_pairs.errors import MarsPairsError
 from mars_pairs.store.dataset_info import build_input, read_dataset_doc
 from mars_pairs.store.geoparquet import describe_crs
-from mars_pairs.store.manifest import Manifest
+from mars_pairs.store.query import Manifest
 from mars_pairs.viz.common import (
     DPI,
     OVERVIEW_SIZE,

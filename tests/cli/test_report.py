@@ -377,7 +377,7 @@ def test_gallery_wedges_start_at_the_camera_centre(
 
     from mars_pairs.report import meta as report_meta
     from mars_pairs.report import write_report
-    from mars_pairs.store.manifest import Manifest
+    from mars_pairs.store.query import Manifest
     from mars_pairs.store.shards import MemberLocation, read_member
     from mars_pairs.viz import report_figures, sample
 

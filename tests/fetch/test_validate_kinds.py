@@ -226,7 +226,7 @@ def test_geotiff_reads_every_block(tmp_path):
 
 
 def test_an_inventory_whose_label_names_an_unknown_delimiter_is_refused(tmp_path):
-    """The check reads the delimiter as the listing does (``pds4_inventory.delimiter_of``):
+    """The check reads the delimiter as the listing does (``validate.delimiter_of``):
     a name that is not a PDS4 delimiter is refused, not read as a comma."""
     label = tmp_path / "collection.xml"
     label.write_text(
