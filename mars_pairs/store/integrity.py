@@ -35,7 +35,7 @@ from mars_pairs.errors import DatasetError
 BLOCK = tarfile.BLOCKSIZE
 
 
-def checksum(data: bytes) -> int:
+def checksum(data: bytes | bytearray | memoryview) -> int:
     """CRC-32C (Castagnoli) of ``data`` as an unsigned 32-bit int (fits the int64 column)."""
     return int(_crc32c.crc32c(data))
 
@@ -158,7 +158,7 @@ def bytes_problem(data: bytes | bytearray, size: int | None, crc32c: int | None)
     if len(data) != size:
         return f"truncated: {len(data)} of {size} bytes"
     if crc32c is not None and crc32c >= 0:
-        got = checksum(data)  # type: ignore[arg-type]  (any buffer)
+        got = checksum(data)
         if got != crc32c:
             return f"checksum mismatch (crc32c {got:#010x}, manifest {crc32c:#010x})"
     return None

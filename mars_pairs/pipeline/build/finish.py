@@ -91,7 +91,7 @@ def dataset_crs(config: BuildConfig) -> str:
     import rasterio
 
     with rasterio.open(config.inputs.dem) as src:
-        return src.crs.to_wkt()
+        return str(src.crs.to_wkt())
 
 
 def named_wkt(crs: str) -> str:

@@ -277,7 +277,8 @@ def stamp_chunks(stamp: Any) -> int | None:
     ints = all(isinstance(v, int) and not isinstance(v, bool) for v in (count, size))
     if not ints or count < 0 or size < 1:
         return None
-    return -(-count // size)
+    chunks: int = -(-count // size)
+    return chunks
 
 
 def written_by(chunks: int | None, rel: str) -> bool:
@@ -375,7 +376,7 @@ def _as_built(out: Path, rel: str) -> bool:
         except (OSError, tarfile.TarError):
             return False
     try:
-        return pq.read_schema(path).names == FAILURE_SCHEMA.names
+        return bool(pq.read_schema(path).names == FAILURE_SCHEMA.names)
     except (OSError, ValueError):
         return False
 
