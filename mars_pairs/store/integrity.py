@@ -183,7 +183,8 @@ def check_member(
     problem = location_problem(spec, shard_size)
     if problem is not None:
         return None, problem
-    offset, size = int(spec.offset), int(spec.size)  # type: ignore[arg-type]
+    assert spec.offset is not None and spec.size is not None  # location_problem checked
+    offset, size = int(spec.offset), int(spec.size)
     problem = header_problem(spec, read(offset - BLOCK, BLOCK))
     if problem is not None:
         return None, problem
