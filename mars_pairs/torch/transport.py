@@ -47,8 +47,8 @@ def stacked_base(tensors: Sequence[torch.Tensor]) -> torch.Tensor | None:
             return None
     start = first.storage_offset()
     size = (len(tensors), *first.shape)
-    # torch's stub wants a stride; omitted, set_ lays the tensor out contiguously (its doc)
-    return torch.empty(0, dtype=first.dtype).set_(storage, start, size)  # type: ignore[call-overload]
+    # torch's stub wants a stride; set_ without one lays the tensor out contiguously (its doc)
+    return torch.empty(0, dtype=first.dtype).set_(storage, start, size)  # type: ignore[call-overload]  # stride optional
 
 
 class BatchSlots:
