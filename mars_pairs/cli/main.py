@@ -123,8 +123,8 @@ def _ensure_synthetic(config: BuildConfig) -> None:
         return
     from pathlib import Path
 
-    present = Path(inputs.dem).exists() and inputs.places.exists()  # (dem: a str when remote)
-    if present and next(iter_matches(inputs.labels), None):
+    dem_there = not isinstance(inputs.dem, Path) or inputs.dem.exists()  # (a str: remote)
+    if dem_there and inputs.places.exists() and next(iter_matches(inputs.labels), None):
         return
     import subprocess
     import time
