@@ -343,20 +343,26 @@ def stamped_chunks(out: Path) -> int | None:
     return max(valid) if valid else None
 
 
+def appended_to(stamp: Any) -> int:
+    """The chunks of the finished dataset an append's stamp appends to (its first chunk: a
+    finished build vouched for them); 0 for any other stamp."""
+    append = stamp.get("append") if isinstance(stamp, dict) else None
+    first = append.get("first_chunk") if isinstance(append, dict) else None
+    return first if isinstance(first, int) and not isinstance(first, bool) else 0
+
+
 def foreign_file(out: Path) -> str | None:
     """The first entry of ``out`` (sorted, relative, with ``/``) that the build that stamped
     it did not write: a file it does not list, a shard or failure part of an unfinished
     chunk that does not read as one (``_as_built``; a finished build's chunks are all
-    finished, vouched for by its dataset.json), a symbolic link, a folder other than
+    finished, vouched for by its dataset.json, and so are those of the dataset an
+    interrupted append appends to: ``appended_to``), a symbolic link, a folder other than
     ``shards`` and ``parts``; None when a build may clear or resume the folder."""
     if not out.is_dir():
         return None
     chunks = stamped_chunks(out)
-    # a finished build's dataset.json vouches for its chunks (all of them once parts/ is gone)
-    finished = finished_stamp(out) is not None
-    vouched = (stamp_chunks(read_stamp(out / "dataset.json")) or 0) if finished else 0
-    if finished and not stamp_path(out).exists():
-        vouched = 2**62
+    finished = finished_stamp(out) is not None and not stamp_path(out).exists()
+    vouched = 2**62 if finished else appended_to(read_stamp(stamp_path(out)))
     for folder, dirs, files in os.walk(out):
         dirs.sort()
         rel_dir = os.path.relpath(folder, out).replace(os.sep, "/")
@@ -386,9 +392,9 @@ _MEMBER = re.compile(r"[^./]+\.[^/]+")  # <key>.<field> (``ShardWriter``)
 def _as_built(out: Path, rel: str, vouched: int = 0) -> bool:
     """Whether the chunk file ``rel`` reads as one a build writes, when its chunk is not
     finished (no manifest part, and not one of the first ``vouched`` chunks, which a finished
-    build's dataset.json vouches for): a shard is a tar of regular ``<key>.<field>`` members,
-    a failure part a parquet file of the failure columns. Other files: True. Reads tar
-    headers and the parquet footer only."""
+    build vouches for: the dataset an append appends to): a shard is a tar of regular
+    ``<key>.<field>`` members, a failure part a parquet file of the failure columns. Other
+    files: True. Reads tar headers and the parquet footer only."""
     m = _CHUNK_FILE.fullmatch(rel)
     if m is None or rel.startswith("parts/manifest-"):
         return True
