@@ -17,6 +17,7 @@ import pyarrow.parquet as pq
 import pytest
 import yaml
 
+from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.build.append import plan_append
 from mars_pairs.pipeline.build.run import run_build
@@ -167,7 +168,10 @@ def _expect_refusal(config: BuildConfig, match: str) -> None:
 
 
 def test_append_refuses_a_changed_config_naming_the_key(
-    releases: tuple[Path, Path, Path], small_mission: Path, tmp_path: Path
+    releases: tuple[Path, Path, Path],
+    small_mission: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
 ) -> None:
     one, two, out = releases
     labels = load_config(two).inputs.labels
@@ -201,6 +205,11 @@ def test_append_refuses_a_changed_config_naming_the_key(
     doc["inputs"]["places"] = str(places)
     two.write_text(yaml.safe_dump(doc))
     assert plan_append(load_config(two)).labels_new == 4
+    assert main(["build", "--config", str(two), "--append", "--dry-run"]) == 0
+    printed = capsys.readouterr().out
+    assert "7 labels matched, 3 already in the dataset (skipped), 4 new" in printed
+    assert "chunks: 3 kept, 4 new (chunks 3 to 6)" in printed
+    assert sorted((p, p.stat().st_mtime_ns) for p in out.rglob("*")) == before
 
 
 @pytest.mark.slow
