@@ -11,6 +11,8 @@ lives on in dataset.json, so ``--resume`` over it does nothing. The labels are n
 planning pass counts them and sums their fingerprint (the stamp), the build pass streams them
 again to the engine, chunk by chunk. The engine's workers write the shards and stage the parts
 (``pipeline.build.engine``); the driver receives rows only, and commits the chunks in order.
+``append``: the labels a finished dataset does not hold yet become chunks after its own, the
+same way, then the union is merged (``pipeline.build.append``).
 """
 
 from __future__ import annotations
