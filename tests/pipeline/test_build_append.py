@@ -19,7 +19,8 @@ import yaml
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline.build.append import plan_append
+from mars_pairs.pipeline.build.append import plan_append, snapshot_base
+from mars_pairs.pipeline.build.outputs import stamp_path
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import BuildConfig, load_config
 
@@ -210,6 +211,14 @@ def test_append_refuses_a_changed_config_naming_the_key(
     assert "7 labels matched, 3 already in the dataset (skipped), 4 new" in printed
     assert "chunks: 3 kept, 4 new (chunks 3 to 6)" in printed
     assert sorted((p, p.stat().st_mtime_ns) for p in out.rglob("*")) == before
+    # an append killed once its stamp is written: a plain --resume and an append of another
+    # release are refused, naming what to do; the append itself then finishes
+    snapshot_base(out)
+    stamp_path(out).write_text(json.dumps(plan_append(load_config(two)).fingerprint))
+    with pytest.raises(ConfigError, match="interrupted --append; rerun it with --append"):
+        _build(two, resume=True)
+    _expect_refusal(load_config(one), "an interrupted --append of another release")
+    assert _build(two, append=True).chunks_built == 4
 
 
 @pytest.mark.slow
