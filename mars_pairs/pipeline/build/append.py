@@ -71,6 +71,7 @@ from mars_pairs.pipeline.build.outputs import (
 from mars_pairs.pipeline.build.plan import check_clearable, check_inputs, is_done
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.sample.record import labels_root
+from mars_pairs.store.atomic import atomic_path
 
 #: dataset.json's list of the appends made to the dataset (``append_record``).
 APPENDS_KEY = "appends"
@@ -328,17 +329,16 @@ def plan_append(config: BuildConfig) -> AppendPlan:
 def snapshot_base(out: Path) -> None:
     """Keep the dataset's manifest.parquet, failures.parquet and dataset.json as the append's
     base (``BASE_FILES``): hard links where the file system has them (the merge replaces the
-    files, never writes into them), copies otherwise; each through a temporary name."""
+    files, never writes into them), copies otherwise; each through a temporary name
+    (``store.atomic.atomic_path``)."""
     (out / "parts").mkdir(exist_ok=True)
     for name, rel in BASE_FILES.items():
-        target = out / rel
-        tmp = target.with_name(f".{target.name}.tmp-{os.getpid()}")
-        tmp.unlink(missing_ok=True)
-        try:
-            os.link(out / name, tmp)
-        except OSError:
-            shutil.copyfile(out / name, tmp)
-        os.replace(tmp, target)
+        with atomic_path(out / rel) as tmp:
+            tmp.unlink(missing_ok=True)  # a killed append's, of a reused pid
+            try:
+                os.link(out / name, tmp)
+            except OSError:
+                shutil.copyfile(out / name, tmp)
 
 
 def new_chunks(plan: AppendPlan) -> range:
