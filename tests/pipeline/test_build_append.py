@@ -19,7 +19,7 @@ import yaml
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline.build.append import plan_append, snapshot_base
+from mars_pairs.pipeline.build.append import check_append_config, plan_append, snapshot_base
 from mars_pairs.pipeline.build.outputs import stamp_path
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import BuildConfig, load_config
@@ -198,6 +198,16 @@ def test_append_refuses_a_changed_config_naming_the_key(
     elsewhere.mkdir(parents=True)
     root = _config(tmp_path / "r.yaml", small_mission, [*labels, str(elsewhere / "*.xml")], out)
     _expect_refusal(load_config(root), r"^inputs\.labels: the labels root would move")
+    # what an append does not support (the same in the dataset and the release)
+    keep = _config(tmp_path / "k.yaml", small_mission, labels, out, output={"keep_parts": True})
+    _expect_refusal(load_config(keep), r"^output\.keep_parts: true: .*cannot --append")
+    drop = load_config(
+        _config(tmp_path / "p.yaml", small_mission, labels, out, splits={"buffer_policy": "drop"})
+    )
+    built = json.loads((out / "dataset.json").read_text())
+    built["config"]["splits"]["buffer_policy"] = "drop"
+    with pytest.raises(ConfigError, match=r"^splits\.buffer_policy: drop: .*cannot --append"):
+        check_append_config(drop, built)
     assert sorted((p, p.stat().st_mtime_ns) for p in out.rglob("*")) == before
     # a new PLACES table (the same rows here, another file) is accepted
     places = tmp_path / "places.csv"

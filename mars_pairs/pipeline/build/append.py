@@ -166,7 +166,8 @@ def check_append_config(config: BuildConfig, base: dict[str, Any]) -> None:
     """ConfigError naming the key when ``config`` may not append to the dataset whose
     dataset.json is ``base``: a config key other than ``MAY_CHANGE`` changed, the labels root
     moved, the DEM or ortho file changed (``input_files``), or the config asks for what an
-    append does not support (``splits.buffer_policy: drop``, ``output.keep_parts``)."""
+    append does not support (``splits.buffer_policy: drop``; ``output.keep_parts`` is
+    refused by ``plan_append``)."""
     out = config.output.dir
     why = f"{out}: cannot --append"
     old = base.get("config")
@@ -206,8 +207,6 @@ def check_append_config(config: BuildConfig, base: dict[str, Any]) -> None:
             f"splits.buffer_policy: drop: {why}: a dropped sample's label is in neither "
             "manifest.parquet nor failures.parquet, so an append could not tell it was seen"
         )
-    if config.output.keep_parts:
-        raise ConfigError(f"output.keep_parts: true: {why}: parts/ is an append's working state")
 
 
 def known_labels(
@@ -244,6 +243,10 @@ def plan_append(config: BuildConfig) -> AppendPlan:
     interrupted build that is not an append, or an interrupted append of another release)."""
     start = time.perf_counter()
     out = config.output.dir
+    if config.output.keep_parts:  # (its finished build's stamp is still in parts/)
+        raise ConfigError(
+            f"output.keep_parts: true: {out}: cannot --append: parts/ is an append's working state"
+        )
     check_inputs(config)
     previous = read_stamp(stamp_path(out))
     interrupted = previous is not None and isinstance(previous.get("append"), dict)
