@@ -18,6 +18,7 @@ from mars_pairs.cli.viewshed import cmd_viewshed
 from mars_pairs.errors import MarsPairsError, UsageError
 from mars_pairs.pipeline.build.label_list import iter_matches
 from mars_pairs.pipeline.config import MAX_RADIUS_M
+from mars_pairs.runtime import configure_process
 from mars_pairs.store.splits import EmptySplitWarning
 
 if TYPE_CHECKING:
@@ -432,6 +433,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``mars-pairs`` console script."""
+    configure_process()
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args))
