@@ -256,3 +256,41 @@ def test_a_killed_append_reruns_to_the_same_dataset(releases: tuple[Path, Path, 
         p for o, p in ops if o == "unlink" and p.startswith("shards/") and p < "shards/shard-000003"
     ]
     assert ops[-1] == ("rmdir", "parts")
+
+
+def _moved(config: Path, out: Path) -> Path:
+    """``config`` writing into ``out`` instead."""
+    doc = yaml.safe_load(config.read_text())
+    doc["output"]["dir"] = str(out)
+    path = config.with_name(f"{out.name}-{config.name}")
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def test_an_append_on_dask_gives_the_in_process_bytes(
+    releases: tuple[Path, Path, Path], tmp_path: Path
+) -> None:
+    """The append goes through the Engine contract: on a Dask cluster (its workers write the
+    shards) the release-1 build and the append give the in-process files byte for byte."""
+    distributed = pytest.importorskip("distributed", reason="the dask extra is not installed")
+    from mars_pairs.pipeline.build.dask_engine import DaskEngine
+
+    one, two, out = releases
+    _build(one)
+    _build(two, append=True)
+    on_dask = tmp_path / "on-dask"
+    with distributed.LocalCluster(
+        n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0",
+        host="127.0.0.1",
+    ) as cluster:  # fmt: skip
+        engine = DaskEngine(scheduler=cluster.scheduler_address, announce=False)
+        _build(_moved(one, on_dask), engine=engine)
+        _build(_moved(two, on_dask), append=True, engine=engine)
+
+    def files(root: Path) -> dict[str, bytes]:
+        names = ["manifest.parquet", "failures.parquet", *sorted(
+            p.relative_to(root).as_posix() for p in (root / "shards").iterdir()
+        )]  # fmt: skip
+        return {name: (root / name).read_bytes() for name in names}
+
+    assert files(on_dask) == files(out)
