@@ -6,15 +6,18 @@ x = c + a (u + 0.5), y = f + e (v + 0.5) in the raster's map units.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 import numpy as np
 from affine import Affine
 from numba import njit
 
+#: a raster's affine: an ``Affine`` or its coefficients (a, b, c, d, e, f[, 0, 0, 1])
+Transform = Affine | Sequence[float]
 
-def as_grid(window: Any, transform: Any = None) -> tuple[np.ndarray, Affine]:
+
+def as_grid(window: Any, transform: Transform | None = None) -> tuple[np.ndarray, Affine]:
     """(float32 C-contiguous DEM array, Affine) from a DemWindow, (array, transform) or array.
 
     ``transform`` may be a rasterio ``Affine`` or its six coefficients (a, b, c, d, e, f).

@@ -26,7 +26,7 @@ from numba import njit, prange
 from numpy.typing import ArrayLike, NDArray
 
 from mars_pairs.geometry.body import MARS_RADIUS_M
-from mars_pairs.kernels.grid import as_grid, bilinear
+from mars_pairs.kernels.grid import Transform, as_grid, bilinear
 
 _MAX_LEVEL = 9  # coarsest pyramid blocks: 512 x 512 quads
 _BASE = 2  # finest stored level (4 x 4 quads); below it rays walk the quads themselves
@@ -126,7 +126,7 @@ def _pyramid_kernel(dem: Dem, n_levels: int) -> tuple[Dem, Index, Index]:
     return data, offsets, dims
 
 
-def max_pyramid(window: Any, transform: Any = None) -> MaxPyramid:
+def max_pyramid(window: Any, transform: Transform | None = None) -> MaxPyramid:
     """Maximum mipmap of a DEM window (``DemWindow``, (array, transform) or array), to pass as
     ``cast_rays(..., pyramid=...)`` when casting several ray sets over the same window."""
     if isinstance(window, np.ndarray) and transform is None:
@@ -311,7 +311,7 @@ def cast_rays(
     max_range: float,
     observer_xy: tuple[float, float] | None = None,
     planet_radius: float = MARS_RADIUS_M,
-    transform: Any = None,
+    transform: Transform | None = None,
     pyramid: MaxPyramid | None = None,
 ) -> tuple[Vectors, Vectors]:
     """First terrain hit of each ray over a DEM window.

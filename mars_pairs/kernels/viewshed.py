@@ -43,7 +43,7 @@ from numba import njit, prange
 from numpy.typing import NDArray
 
 from mars_pairs.geometry.body import MARS_RADIUS_M
-from mars_pairs.kernels.grid import as_grid, bilinear, xy_to_uv
+from mars_pairs.kernels.grid import Transform, as_grid, bilinear, xy_to_uv
 
 # no 'nnan'/'ninf': NaN nodata and +-inf band limits must compare exactly
 _SAFE_FM = {"arcp", "contract"}
@@ -615,7 +615,7 @@ def compute_viewshed(
     el_band: Sequence[float] | None = None,
     target_height: float = 0.0,
     planet_radius: float = MARS_RADIUS_M,
-    transform: Any = None,
+    transform: Transform | None = None,
     oversample: int = 1,
 ) -> np.ndarray:
     """Visibility mask (uint8, 1 = visible) on the DEM window grid.
