@@ -14,7 +14,7 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 import pytest
 import yaml
-from mission_inputs import mission_inputs
+from support.configs import mission_inputs
 
 from mars_pairs.cli.main import build_parser, main
 from mars_pairs.errors import ArgumentError, SampleKeyError

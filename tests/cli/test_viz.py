@@ -12,9 +12,9 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import yaml
-from mission_inputs import mission_inputs
 from PIL import Image
 from pyproj import CRS
+from support.configs import mission_inputs
 
 from mars_pairs.cli.main import main
 from mars_pairs.pipeline.build.run import run_build

@@ -6,11 +6,11 @@ import hashlib
 import shutil
 from pathlib import Path
 
-import fetch_archive
 import pyarrow.parquet as pq
 import pytest
 import yaml
-from fetch_server import ArchiveServer
+from support import fetch_archive
+from support.fetch_server import ArchiveServer
 
 from mars_pairs.errors import ConfigError
 from mars_pairs.fetch.config import load_fetch_config

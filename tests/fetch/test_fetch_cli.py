@@ -10,9 +10,9 @@ import sys
 import time
 from pathlib import Path
 
-import fetch_archive
 import yaml
-from fetch_server import ArchiveServer
+from support import fetch_archive
+from support.fetch_server import ArchiveServer
 from test_fetch_archive import write_config
 
 from mars_pairs.cli.main import main

@@ -20,11 +20,11 @@ import json
 import tarfile
 from pathlib import Path
 
-import independent_truth as truth
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from PIL import Image
+from support import independent_truth as truth
 
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import parse_config

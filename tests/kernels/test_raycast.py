@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from los_reference import exact_viewshed
+from support.los_reference import exact_viewshed
 from test_viewshed import (
     X0,
     Y0,

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 from affine import Affine
-from los_reference import exact_viewshed
+from support.los_reference import exact_viewshed
 
 from mars_pairs.kernels import compute_viewshed
 from mars_pairs.raster.terrain import DemWindow

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from los_reference import exact_viewshed, iou, segment_clear
+from support.los_reference import exact_viewshed, iou, segment_clear
 from test_viewshed import centre_xy, fractal_dem, grid
 
 from mars_pairs.geometry.body import MARS_RADIUS_M

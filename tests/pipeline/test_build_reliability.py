@@ -15,7 +15,7 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 import yaml
-from mission_inputs import mission_inputs
+from support.configs import mission_inputs
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError, StageError

@@ -4,22 +4,20 @@ failure row, the rest are built."""
 
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
 import yaml
-from mission_inputs import mission_inputs
+from support.configs import mission_inputs
+from support.label_shapes import SHAPES
 
 from mars_pairs.cli.main import main
 from mars_pairs.synth import generate_mission
 
 distributed = pytest.importorskip("distributed", reason="the dask extra is not installed")
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "pds"))
-from label_shapes import SHAPES  # noqa: E402
 
 BAD_SHAPE = "10k duplicate pointers"  # pdr alone: 59 s on a thread (quadratic)
 EXTRA_BUDGET_S = 20.0  # what the bad label may add to the build of the good ones

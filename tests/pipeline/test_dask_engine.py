@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from mission_inputs import mission_inputs
+from support.configs import mission_inputs
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import WorkerStartError

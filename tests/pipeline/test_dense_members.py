@@ -11,14 +11,14 @@ import tarfile
 from pathlib import Path
 from typing import Any
 
-import independent_truth as truth
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import rasterio
 from affine import Affine
-from mission_inputs import mission_inputs
 from PIL import Image
+from support import independent_truth as truth
+from support.configs import mission_inputs
 
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import parse_config

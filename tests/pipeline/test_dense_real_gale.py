@@ -8,10 +8,10 @@ import json
 import tarfile
 from pathlib import Path
 
-import independent_truth as truth
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from support import independent_truth as truth
 from test_build_real_gale import GALE, _make_labels
 
 from mars_pairs.pipeline.build.run import run_build

@@ -18,8 +18,7 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from mission_config import cheap_config
-from mission_inputs import mission_inputs
+from support.configs import build_config, mission_inputs
 
 from mars_pairs.errors import MarsPairsError
 from mars_pairs.pipeline.build import run as build
@@ -58,7 +57,7 @@ def _leaves(value: Any, path: str = "") -> Iterator[tuple[str, Any]]:
 def test_a_pool_worker_writes_the_shard_and_sends_back_rows_only(
     small_mission: Path, tmp_path: Path
 ) -> None:
-    config = cheap_config(small_mission, tmp_path / "ds", output={"shard_size": 4})
+    config = build_config(small_mission, tmp_path / "ds", output={"shard_size": 4})
     labels = tuple(sorted(str(p) for p in (small_mission / "labels").glob("*.xml")))
     with LocalPool(config, workers=1) as pool:
         (result,) = list(pool.run(config, iter([ChunkTask(0, labels)])))
@@ -171,7 +170,7 @@ def test_a_dead_workers_temporary_shard_is_gone_when_the_build_ends(
     def leave_a_temporary(out: Path, result: ChunkResult) -> None:
         (out / "shards" / f".shard-{result.index:06d}.tar.tmp-999999").write_bytes(b"half")
 
-    config = cheap_config(small_mission, tmp_path / "ds", output={"shard_size": 2})
+    config = build_config(small_mission, tmp_path / "ds", output={"shard_size": 2})
     summary = run_build(config, engine=_Meddling(leave_a_temporary), progress=False)
     assert summary.samples == 4
     assert sorted(p.name for p in (tmp_path / "ds" / "shards").iterdir()) == [
@@ -187,7 +186,7 @@ def test_a_shard_changed_after_its_worker_wrote_it_is_not_committed(
         with open(out / result.shard, "r+b") as fh:
             fh.truncate(result.shard_bytes - 512)
 
-    config = cheap_config(small_mission, tmp_path / "ds", output={"shard_size": 2})
+    config = build_config(small_mission, tmp_path / "ds", output={"shard_size": 2})
     with pytest.raises(MarsPairsError, match=r"shard-000000\.tar: .* bytes, but its worker"):
         run_build(config, engine=_Meddling(truncate), progress=False)
     assert not (tmp_path / "ds" / "parts" / "manifest-000000.parquet").exists()

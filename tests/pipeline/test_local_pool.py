@@ -7,7 +7,7 @@ import multiprocessing as mp
 from collections.abc import Iterator
 from pathlib import Path
 
-from mission_config import cheap_config
+from support.configs import build_config
 
 from mars_pairs.pipeline.build.local_pool import LocalPool, worker_context
 
@@ -20,7 +20,7 @@ def test_results_in_order_with_a_bounded_window(small_mission: Path, tmp_path: P
             pulled.append(label := str(tmp_path / f"missing_{i:03d}.xml"))
             yield label
 
-    with LocalPool(cheap_config(small_mission, tmp_path / "ds"), workers=2, window=6) as pool:
+    with LocalPool(build_config(small_mission, tmp_path / "ds"), workers=2, window=6) as pool:
         got = []
         for status, row in pool.results(labels()):
             got.append((status, row["path"]))
@@ -47,7 +47,7 @@ def test_workers_see_the_environment_of_the_build_not_of_the_fork_server(
 ) -> None:
     """GDAL and AWS options set after a first build (a notebook) reach the next build's
     workers, though the fork server started before."""
-    config = cheap_config(small_mission, tmp_path / "ds")
+    config = build_config(small_mission, tmp_path / "ds")
     with LocalPool(config, workers=1) as pool:  # starts the server if not running
         pool._pool.submit(_environ, "MARS_PAIRS_TEST_OPTION").result()
     monkeypatch.setenv("MARS_PAIRS_TEST_OPTION", "set-later")

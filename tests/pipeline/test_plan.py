@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 import yaml
-from mission_inputs import mission_inputs
+from support.configs import mission_inputs
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError

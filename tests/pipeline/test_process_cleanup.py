@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from mission_inputs import mission_inputs
+from support.configs import mission_inputs
 
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config

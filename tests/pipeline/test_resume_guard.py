@@ -19,8 +19,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from mission_config import cheap_config
-from mission_inputs import mission_inputs
+from support.configs import build_config, mission_inputs
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
@@ -45,7 +44,7 @@ def _config(mission: Path, tmp_path: Path, out: Path) -> tuple[BuildConfig, Path
         shutil.copyfile(mission / "places" / "best_interp.csv", places)
     inputs = mission_inputs(mission, places=places)
     output = {"shard_size": 1, "keep_parts": True}  # parts are deleted to fake a kill
-    return cheap_config(mission, out, inputs=inputs, output=output), places
+    return build_config(mission, out, inputs=inputs, output=output), places
 
 
 def _killed_after(out: Path, done: int, chunks: int = 4) -> None:

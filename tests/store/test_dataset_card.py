@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
-from built_dataset import build_small
+from support.builds import build_small
 
 from mars_pairs.cli.verify import verify_dataset
 from mars_pairs.errors import ConfigError

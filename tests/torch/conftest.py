@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from mission_inputs import mission_inputs
+from support.configs import mission_inputs
 
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import parse_config

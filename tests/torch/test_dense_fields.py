@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 from affine import Affine
-from mission_inputs import mission_inputs
+from support.configs import mission_inputs
 
 from mars_pairs.errors import MarsPairsError
 from mars_pairs.pipeline.build.run import run_build

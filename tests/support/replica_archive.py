@@ -126,7 +126,7 @@ def _index_rows(label: Path, volume: str) -> dict[str, object]:
 
 
 def _msl_archive(root: Path) -> tuple[str, ...]:
-    from fetch_archive import write_pds3_index
+    from support.fetch_archive import write_pds3_index
 
     labels = sorted((SAMPLES / "msl").glob("1429*.LBL"))
     volume = "MSLMST_0014"  # the labels' RELEASE_ID

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-SAMPLES = Path(__file__).resolve().parents[1].parent / "shared" / "pds-samples"
+SAMPLES = Path(__file__).resolve().parents[2].parent / "shared" / "pds-samples"
 
 
 def sample_labels() -> list[Path]:
