@@ -13,7 +13,6 @@ from __future__ import annotations
 import io
 import json
 import math
-import tarfile
 from datetime import datetime
 from pathlib import Path
 
@@ -23,6 +22,7 @@ import rasterio
 import yaml
 from PIL import Image
 from rasterio.warp import Resampling, reproject
+from support.members import sample_members
 
 from mars_pairs.geometry.frames import MSL_PLACES_CRS, quaternion_to_matrix
 from mars_pairs.geometry.mapcam import MapCamera
@@ -128,16 +128,6 @@ def built(gale, tmp_path_factory) -> Path:
     return root / "dataset"
 
 
-def _members(dataset: Path) -> dict[str, dict[str, bytes]]:
-    out: dict[str, dict[str, bytes]] = {}
-    for shard in sorted((dataset / "shards").glob("*.tar")):
-        with tarfile.open(shard) as tar:
-            for m in tar.getmembers():
-                key, _, member = m.name.partition(".")
-                out.setdefault(key, {})[member] = tar.extractfile(m).read()  # type: ignore[union-attr]
-    return out
-
-
 class ExactLos:
     """Bilinear DEM heights and a dense line-of-sight test (map metres, eqc lat_ts=0)."""
 
@@ -238,7 +228,7 @@ def test_real_gale_build_matches_exact_line_of_sight(gale, built):
     z, tr = _dem(gale / "dem.tif")
     los = ExactLos(z, tr)
     row = _row(gale / "rover_positions.csv", SITE, DRIVE)
-    members = _members(built)
+    members = sample_members(built)
     assert len(members) == 4
     checked = 0
     for key, files in members.items():
@@ -307,7 +297,7 @@ def test_ray_hits_match_an_independent_ray_cast_on_the_sphere(gale, built):
     los = ExactLos(z, tr)
     row = _row(gale / "rover_positions.csv", SITE, DRIVE)
     compared = 0
-    for key, files in _members(built).items():
+    for key, files in sample_members(built).items():
         meta = json.loads(files["meta.json"])
         obs = read_observation(built.parent / "labels" / meta["label_path"])  # labels root
         if obs.camera.model_type != "CAHV":

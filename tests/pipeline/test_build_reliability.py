@@ -15,7 +15,8 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 import yaml
-from support.configs import mission_inputs
+from support.configs import config_file
+from support.members import tar_members
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError, StageError
@@ -33,15 +34,10 @@ def mission(small_mission: Path) -> Path:
 
 
 def write_config(path: Path, mission: Path, out: Path, labels: Path, places: Path) -> Path:
-    doc = {
-        "inputs": mission_inputs(mission, labels=labels / "*.xml", places=places),
-        "geometry": {"radius": 300, "ray_stride": 32},
-        "chips": {"size_m": 64, "size_px": 32},
-        "output": {"dir": str(out), "shard_size": 2, "keep_parts": True},  # a part is deleted
-        "splits": {"block_m": 100},
-    }
-    path.write_text(yaml.safe_dump(doc))
-    return path
+    return config_file(
+        path, mission, out, labels=labels / "*.xml", places=places, chips={"size_px": 32},
+        output={"shard_size": 2, "keep_parts": True},  # a part is deleted
+    )  # fmt: skip
 
 
 def copy_labels(mission: Path, dest: Path) -> list[Path]:
@@ -135,11 +131,7 @@ def test_a_duplicate_product_id_is_a_failure_row_naming_the_first(bad_labels_bui
     assert "already built from" in row["message"] and "ZLF_0052" in row["message"]
     keys = pq.read_table(bad_labels_build / "manifest.parquet")["key"].to_pylist()
     assert len(keys) == len(set(keys)) == 4
-    names = []
-    for shard in (bad_labels_build / "shards").glob("*.tar"):
-        with tarfile.open(shard) as tar:
-            names += tar.getnames()
-    assert len(names) == len(set(names)) == 4 * 6
+    assert len(tar_members(bad_labels_build)) == 4 * 6  # (it asserts each name once)
 
 
 def test_resume_over_bad_labels_finishes(bad_labels_build: Path) -> None:

@@ -18,8 +18,7 @@ import time
 from pathlib import Path
 
 import pytest
-import yaml
-from support.configs import build_config, mission_inputs
+from support.configs import build_config, config_file
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
@@ -30,15 +29,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def _write_config(path: Path, mission: Path, out: Path, **inputs: str) -> Path:
-    doc = {
-        "inputs": {**mission_inputs(mission), **inputs},
-        "geometry": {"radius": 300, "ray_stride": 32},
-        "chips": {"size_m": 64, "size_px": 64},
-        "output": {"dir": str(out), "shard_size": 2},
-        "splits": {"block_m": 100},
-    }
-    path.write_text(yaml.safe_dump(doc))
-    return path
+    return config_file(path, mission, out, inputs=inputs, output={"shard_size": 2})
 
 
 def _files(root: Path) -> dict[str, str]:

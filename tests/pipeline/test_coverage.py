@@ -5,7 +5,6 @@ the chip pixels with data."""
 from __future__ import annotations
 
 import math
-import tarfile
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +13,8 @@ import pytest
 import rasterio
 from affine import Affine
 from support.configs import build_config
+from support.members import manifest_rows as rows_of
+from support.members import tar_members as members_of
 
 from mars_pairs.errors import ConfigError, TerrainError
 from mars_pairs.pipeline.build.run import run_build
@@ -41,21 +42,8 @@ def south_up(src: Path, dst: Path) -> Path:
     return rewrite(src, dst, tr, lambda a: a[:, ::-1, :])
 
 
-def rows_of(out: Path) -> list[dict]:
-    return sorted(pq.read_table(out / "manifest.parquet").to_pylist(), key=lambda r: r["key"])
-
-
 def failures_of(out: Path) -> list[dict]:
     return pq.read_table(out / "failures.parquet").to_pylist()
-
-
-def members_of(out: Path) -> dict[str, bytes]:
-    found = {}
-    for shard in sorted((out / "shards").glob("*.tar")):
-        with tarfile.open(shard) as tar:
-            for info in tar.getmembers():
-                found[info.name] = tar.extractfile(info).read()  # type: ignore[union-attr]
-    return found
 
 
 @pytest.fixture(scope="module")

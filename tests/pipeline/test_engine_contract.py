@@ -18,7 +18,7 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from support.configs import build_config, mission_inputs
+from support.configs import build_config
 
 from mars_pairs.errors import MarsPairsError
 from mars_pairs.pipeline.build import run as build
@@ -26,7 +26,7 @@ from mars_pairs.pipeline.build.engine import ChunkResult, ChunkTask, InProcess
 from mars_pairs.pipeline.build.local_pool import LocalPool
 from mars_pairs.pipeline.build.outputs import is_temporary
 from mars_pairs.pipeline.build.run import run_build
-from mars_pairs.pipeline.config import BuildConfig, parse_config
+from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.store.manifest import MANIFEST_SCHEMA
 from mars_pairs.store.shards import MemberLocation, ShardWriter, read_member
 
@@ -102,14 +102,7 @@ def duplicates(small_mission: Path, tmp_path_factory: pytest.TempPathFactory) ->
 
 
 def _dup_config(small_mission: Path, labels: Path, out: Path) -> BuildConfig:
-    doc = {
-        "inputs": mission_inputs(small_mission, labels=labels / "*.xml"),
-        "geometry": {"radius": 300, "ray_stride": 32},
-        "chips": {"size_m": 64, "size_px": 64},
-        "output": {"dir": str(out), "shard_size": 2},
-        "splits": {"block_m": 100},
-    }
-    return parse_config(doc, small_mission)
+    return build_config(small_mission, out, labels=labels / "*.xml", output={"shard_size": 2})
 
 
 def test_duplicates_in_and_across_chunks_give_the_same_bytes_on_any_worker_count(

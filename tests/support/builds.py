@@ -3,11 +3,17 @@ a finished folder."""
 
 from __future__ import annotations
 
+import io
+from contextlib import redirect_stdout
 from pathlib import Path
 from typing import Any
 
+import pyarrow.parquet as pq
+import yaml
+
+from mars_pairs.cli.main import main
 from mars_pairs.pipeline.build.run import run_build
-from support.configs import build_config
+from support.configs import build_config, config_file
 
 # the small build of the store and CLI tests: 64 m chips of 32 px, 2 samples a shard
 SMALL: dict[str, dict[str, Any]] = {"chips": {"size_px": 32}, "output": {"shard_size": 2}}
@@ -33,3 +39,38 @@ def small_sections(**sections: dict[str, Any] | None) -> dict[str, Any]:
 def build_small(mission: Path, out: Path, resume: bool = False, **sections: Any) -> Path:
     """The small build (``SMALL``, updated by ``sections``) of ``mission`` into ``out``."""
     return build(mission, out, resume=resume, **small_sections(**sections))
+
+
+def cli_built_dataset(base: Path, mission: Path) -> Path:
+    """A 4-sample dataset of ``mission`` (2 stops x 2 images) built once per test run by
+    ``mars-pairs build`` (its stdout in ``../build.out``): cross-area splits holding out a
+    20 m box around the last stop (``test``), the first stop within the buffer zone, so no
+    sample is ``train``."""
+    work = base / "first-minutes"
+    root = work / "ds"
+    if (root / "dataset.json").is_file():
+        return root
+    work.mkdir(exist_ok=True)
+    truth = pq.read_table(mission / "truth.parquet").to_pylist()
+    last = max(truth, key=lambda r: r["stop"])
+    first = min(truth, key=lambda r: r["stop"])
+    x, y = last["easting"], last["northing"]
+    apart = ((x - first["easting"]) ** 2 + (y - first["northing"]) ** 2) ** 0.5
+    splits = {
+        "style": "cross-area",
+        "guard": "chip",
+        "buffer_m": max(5.0, apart),
+        "areas": {"test": [[x - 10, y - 10, x + 10, y + 10]]},
+    }
+    config = config_file(
+        work / "c.yaml", mission, root, fine=True, geometry={"radius": 400},
+        output={"shard_size": 2}, splits=None,
+    )  # fmt: skip
+    doc = yaml.safe_load(config.read_text())
+    doc["splits"] = splits
+    config.write_text(yaml.safe_dump(doc))
+    out = io.StringIO()
+    with redirect_stdout(out):
+        assert main(["build", "--config", str(config), "--quiet"]) == 0
+    (work / "build.out").write_text(out.getvalue())
+    return root

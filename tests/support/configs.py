@@ -32,11 +32,16 @@ FINE: dict[str, dict[str, Any]] = {
 }
 
 
+Labels = str | Path | list[str]
+
+
 def mission_inputs(
-    mission: Path, *, labels: str | Path | None = None, places: str | Path | None = None
-) -> dict[str, str]:
+    mission: Path, *, labels: Labels | None = None, places: str | Path | None = None
+) -> dict[str, Any]:
     """Labels, PLACES table, DEM and ortho of ``mission`` (``synth.generate_mission``'s
-    layout); ``labels`` (a glob) and ``places`` replace the mission's own."""
+    layout); ``labels`` (a glob or a list of globs) and ``places`` replace the mission's own."""
+    if isinstance(labels, list):
+        return {**mission_inputs(mission, places=places), "labels": [str(g) for g in labels]}
     return {
         "labels": str(labels if labels is not None else mission / "labels" / "*.xml"),
         "places": str(places if places is not None else mission / "places" / "best_interp.csv"),
@@ -50,7 +55,7 @@ def config_doc(
     out: Path,
     *,
     fine: bool = False,
-    labels: str | Path | None = None,
+    labels: Labels | None = None,
     places: str | Path | None = None,
     **sections: dict[str, Any] | None,
 ) -> dict[str, Any]:

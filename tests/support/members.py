@@ -31,6 +31,7 @@ def tar_members(root: Path) -> dict[str, bytes]:
             for info in tar.getmembers():
                 fh = tar.extractfile(info)
                 assert fh is not None, f"{shard}: {info.name} is not a regular file"
+                assert info.name not in found, f"{shard}: duplicate member {info.name}"
                 found[info.name] = fh.read()
     return found
 
