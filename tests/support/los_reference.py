@@ -7,11 +7,15 @@ Definition: the terrain is the bilinear surface through the cell centres, lowere
 at horizontal distance d (metres) from the observer. A cell (col, row) is visible from the eye
 (grid point (u0, v0), elevation ``eye``) when the straight segment from the eye to the cell's
 surface point (DEM value + target height, lowered by its own d^2 / (2R)) stays on or above that
-terrain everywhere along it. Along the segment the bilinear terrain is a quadratic of the
-segment parameter inside each grid quad, so the test is exact: every piece between two grid-line
-crossings is checked at its ends and at its stationary point. Quads with a nodata corner never
-block; a nodata cell is never visible. No band limits: callers mask by azimuth/elevation bands.
-Nothing here is shared with ``mars_pairs.kernels``.
+terrain everywhere along it. Quads with a nodata corner never block; a nodata cell is never
+visible. No band limits: callers mask by azimuth/elevation bands.
+
+Method (derived here, sharing no formula with ``mars_pairs.kernels``): the segment is cut at
+every grid line it crosses (all crossing parameters listed, then sorted). Inside one quad,
+terrain minus segment is a polynomial of degree <= 2 of the segment parameter (bilinear along a
+line: degree 2; curvature drop: degree 2; segment: degree 1), so it is known exactly from its
+values at the piece's two ends and middle, each computed by evaluating the quad's bilinear
+interpolant directly; the maximum of that parabola over the piece is taken in closed form.
 """
 
 from __future__ import annotations
@@ -25,28 +29,34 @@ TOL_M = 1e-6  # metres the terrain may rise above the segment (rounding at the t
 
 
 @njit(cache=True)
-def _piece_max(dem, i, j, u0, v0, du, dv, ta, tb, q2c, eye, slope):
-    """Max over t in [ta, tb] of terrain - segment height, inside the quad (col i, row j)."""
-    z00 = dem[j, i]
-    z10 = dem[j, i + 1]
-    z01 = dem[j + 1, i]
-    z11 = dem[j + 1, i + 1]
-    if not (z00 == z00 and z10 == z10 and z01 == z01 and z11 == z11):
-        return -np.inf
-    fu0 = u0 - i
-    fv0 = v0 - j
-    ca = z10 - z00
-    cb = z01 - z00
-    cc = z00 - z10 - z01 + z11
-    q2 = cc * du * dv - q2c
-    q1 = ca * du + cb * dv + cc * (fu0 * dv + fv0 * du) - slope
-    q0 = z00 + ca * fu0 + cb * fv0 + cc * fu0 * fv0 - eye
-    best = max(q0 + ta * (q1 + ta * q2), q0 + tb * (q1 + tb * q2))
-    if q2 < 0.0:
-        tv = -q1 / (2.0 * q2)
-        if ta < tv < tb:
-            best = max(best, q0 + tv * (q1 + tv * q2))
-    return best
+def _crossings(u0: float, du: float, v0: float, dv: float) -> np.ndarray:
+    """Sorted segment parameters in [0, 1]: 0, 1 and every t where u0 + t du or v0 + t dv is
+    an integer strictly between the segment's ends."""
+    ts = [0.0, 1.0]
+    for p0, dp in ((u0, du), (v0, dv)):
+        if dp == 0.0:
+            continue
+        lo, hi = min(p0, p0 + dp), max(p0, p0 + dp)
+        k = math.floor(lo) + 1.0
+        while k < hi:
+            ts.append((k - p0) / dp)
+            k += 1.0
+    return np.sort(np.array(ts))
+
+
+@njit(cache=True)
+def _interp(dem, i, j, u, v):
+    """The bilinear interpolant of quad (col i, row j) at grid point (u, v), metres."""
+    fu = u - i
+    fv = v - j
+    return (dem[j, i] * (1.0 - fu) * (1.0 - fv) + dem[j, i + 1] * fu * (1.0 - fv)
+            + dem[j + 1, i] * (1.0 - fu) * fv + dem[j + 1, i + 1] * fu * fv)  # fmt: skip
+
+
+@njit(cache=True)
+def _gap(dem, i, j, u0, v0, du, dv, t, eye, zt, drop):
+    """Terrain (quad i, j; lowered by t^2 ``drop``) minus segment height at parameter t."""
+    return _interp(dem, i, j, u0 + t * du, v0 + t * dv) - t * t * drop - (eye + t * (zt - eye))
 
 
 @njit(cache=True)
@@ -58,46 +68,39 @@ def segment_clear(dem, u0, v0, eye, col, row, a, e, th, inv2r):
         return False
     du = col - u0
     dv = row - v0
-    dc2 = (du * a) ** 2 + (dv * e) ** 2
-    zt = zc + th - dc2 * inv2r
-    slope = zt - eye  # segment height = eye + t * slope
-    q2c = dc2 * inv2r
-    # grid-line crossings, t in (0, 1), merged in order
-    tu_step = 1.0 / abs(du) if du != 0.0 else np.inf
-    tv_step = 1.0 / abs(dv) if dv != 0.0 else np.inf
-    if du > 0.0:
-        tu = (math.floor(u0) + 1.0 - u0) / du
-    elif du < 0.0:
-        tu = (math.ceil(u0) - 1.0 - u0) / du
-    else:
-        tu = np.inf
-    if dv > 0.0:
-        tv = (math.floor(v0) + 1.0 - v0) / dv
-    elif dv < 0.0:
-        tv = (math.ceil(v0) - 1.0 - v0) / dv
-    else:
-        tv = np.inf
-    ta = 0.0
-    while ta < 1.0:
-        tb = min(tu, tv, 1.0)
+    drop = ((du * a) ** 2 + (dv * e) ** 2) * inv2r  # curvature drop at the target, metres
+    zt = zc + th - drop
+    ts = _crossings(u0, du, v0, dv)
+    for k in range(ts.size - 1):
+        ta, tb = ts[k], ts[k + 1]
+        if not tb > ta:
+            continue
         tm = 0.5 * (ta + tb)
-        um = u0 + tm * du
-        vm = v0 + tm * dv
-        i = min(max(math.floor(um), 0), w - 2)
-        j = min(max(math.floor(vm), 0), h - 2)
-        inside = 0.0 <= um <= w - 1 and 0.0 <= vm <= h - 1
-        if inside and _piece_max(dem, i, j, u0, v0, du, dv, ta, tb, q2c, eye, slope) > TOL_M:
+        um, vm = u0 + tm * du, v0 + tm * dv
+        if not (0.0 <= um <= w - 1 and 0.0 <= vm <= h - 1):
+            continue  # off the DEM: nothing to block
+        i = min(math.floor(um), w - 2)
+        j = min(math.floor(vm), h - 2)
+        corners = dem[j, i] + dem[j, i + 1] + dem[j + 1, i] + dem[j + 1, i + 1]
+        if corners != corners:
+            continue  # a nodata corner: the quad never blocks
+        ga = _gap(dem, i, j, u0, v0, du, dv, ta, eye, zt, drop)
+        gm = _gap(dem, i, j, u0, v0, du, dv, tm, eye, zt, drop)
+        gb = _gap(dem, i, j, u0, v0, du, dv, tb, eye, zt, drop)
+        # the parabola through the three samples, in s = (t - tm) / ((tb - ta) / 2) in [-1, 1]:
+        # gm + c1 s + c2 s^2; an interior maximum only when it opens downwards
+        c1 = 0.5 * (gb - ga)
+        c2 = 0.5 * (ga + gb) - gm
+        best = max(ga, gb)
+        if c2 < 0.0 and abs(c1) < -2.0 * c2:
+            best = max(best, gm - c1 * c1 / (4.0 * c2))
+        if best > TOL_M:
             return False
-        if tb == tu:
-            tu += tu_step
-        if tb == tv:
-            tv += tv_step
-        ta = tb
     return True
 
 
 @njit(cache=True, parallel=True)
-def _reference(dem, u0, v0, eye, radius, a, e, th, inv2r, rows, cols):
+def _reference(dem, u0, v0, eye, a, e, th, inv2r, rows, cols):
     out = np.zeros(rows.size, dtype=np.uint8)
     for k in prange(rows.size):
         out[k] = segment_clear(dem, u0, v0, eye, cols[k], rows[k], a, e, th, inv2r)
@@ -118,18 +121,20 @@ def exact_viewshed(
     cells: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """uint8 exact visibility of every cell within ``radius`` metres (or of ``cells`` = (rows,
-    cols) only: then a 1-D array in their order). Observer at grid (u0, v0), eye in metres."""
+    cols) only: then a 1-D array in their order). Observer at grid (u0, v0), eye in metres;
+    ``planet_radius`` 0 = no curvature."""
     dem = np.ascontiguousarray(dem, dtype=np.float64)
     inv2r = 0.0 if not planet_radius else 0.5 / planet_radius
+    u0, v0 = float(u0), float(v0)
     if cells is not None:
         rows, cols = (np.ascontiguousarray(c, dtype=np.int64) for c in cells)
-        return _reference(dem, u0, v0, eye, radius, a, e, th, inv2r, rows, cols)
+        return _reference(dem, u0, v0, eye, a, e, th, inv2r, rows, cols)
     h, w = dem.shape
     rr, cc = np.mgrid[0:h, 0:w]
     d2 = ((cc - u0) * a) ** 2 + ((rr - v0) * e) ** 2
     sel = d2 <= radius * radius
     out = np.zeros((h, w), np.uint8)
-    out[sel] = _reference(dem, u0, v0, eye, radius, a, e, th, inv2r, rr[sel], cc[sel])
+    out[sel] = _reference(dem, u0, v0, eye, a, e, th, inv2r, rr[sel], cc[sel])
     return out
 
 
