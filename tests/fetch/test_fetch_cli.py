@@ -12,8 +12,8 @@ from pathlib import Path
 
 import yaml
 from support import fetch_archive
+from support.fetch_archive import write_config
 from support.fetch_server import ArchiveServer
-from test_fetch_archive import write_config
 
 from mars_pairs.cli.main import main
 from mars_pairs.fetch.config import load_fetch_config

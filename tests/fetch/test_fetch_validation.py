@@ -25,8 +25,8 @@ import pyarrow.parquet as pq
 import pytest
 from lxml import etree
 from support import fetch_archive
+from support.fetch_archive import write_config
 from support.fetch_server import ArchiveServer
-from test_fetch_archive import write_config
 
 from mars_pairs.errors import FetchError
 from mars_pairs.fetch.cache import Cache

@@ -10,8 +10,8 @@ import pyarrow.parquet as pq
 import pytest
 import yaml
 from support import fetch_archive
+from support.fetch_archive import write_config
 from support.fetch_server import ArchiveServer
-from test_fetch_archive import write_config
 
 from mars_pairs.errors import ConfigError, FetchError
 from mars_pairs.fetch.config import load_fetch_config

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from support import independent_truth as truth
 from support.members import rows_by_key, sample_members
-from test_build_real_gale import GALE, _make_labels
+from support.real_gale import GALE, make_gale_labels
 
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import parse_config
@@ -26,7 +26,7 @@ def built(tmp_path_factory: pytest.TempPathFactory) -> Path:
         pytest.skip(f"real Gale terrain not found at {GALE} (../shared beside the checkout)")
     root = tmp_path_factory.mktemp("dense-gale")
     (root / "labels").mkdir()
-    _make_labels(GALE, root / "labels")
+    make_gale_labels(GALE, root / "labels")
     doc = {
         "inputs": {"labels": "labels/*.LBL", "places": str(GALE / "rover_positions.csv"),
                    "dem": str(GALE / "dem.tif"), "ortho": str(GALE / "ortho.tif")},

@@ -51,8 +51,8 @@ from rasterio.transform import from_origin
 
 from mars_pairs.synth.ortho import make_ortho
 from mars_pairs.synth.terrain import make_dem
+from support.real_samples import SHARED
 
-SHARED = Path(__file__).resolve().parents[2].parent / "shared"
 SAMPLES = SHARED / "pds-samples"
 REAL_ARCHIVE = SHARED / "real-archive"
 REAL_GALE = SHARED / "real-gale"
