@@ -18,6 +18,7 @@ from mars_pairs.cli.viewshed import cmd_viewshed
 from mars_pairs.errors import MarsPairsError, UsageError
 from mars_pairs.pipeline.build.label_list import iter_matches
 from mars_pairs.pipeline.config import MAX_RADIUS_M
+from mars_pairs.runtime import configure_process
 from mars_pairs.store.splits import EmptySplitWarning
 
 if TYPE_CHECKING:
@@ -193,7 +194,7 @@ def _cmd_synth(args: argparse.Namespace) -> int:
 
 
 def _cmd_show(args: argparse.Namespace) -> int:
-    from mars_pairs.viz import show_sample
+    from mars_pairs.report import show_sample
 
     print(show_sample(args.dataset, args.key, args.out))
     return 0
@@ -207,7 +208,7 @@ def _cmd_overview(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from mars_pairs.viz.report import write_report
+    from mars_pairs.report import write_report
 
     print(write_report(args.dataset, args.out, samples=args.samples))
     return 0
@@ -419,6 +420,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``mars-pairs`` console script."""
+    configure_process()
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args))

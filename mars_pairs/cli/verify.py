@@ -14,30 +14,30 @@ read in file order, one open each.
 from __future__ import annotations
 
 import os
-from collections import Counter, defaultdict
+from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO
 
 from mars_pairs.errors import DatasetError
-from mars_pairs.store.dataset_info import read_dataset_info
-from mars_pairs.store.integrity import MemberSpec, check_member, shard_path
-from mars_pairs.store.manifest import Manifest
+from mars_pairs.store.dataset_info import DATASET_JSON, read_dataset_info
+from mars_pairs.store.integrity import MemberSpec, check_member, repeated_keys, shard_path
 from mars_pairs.store.members import DENSE_FIELDS, MEMBERS
+from mars_pairs.store.query import Manifest
 
 
 @dataclass(frozen=True)
 class Damage:
-    """One damaged member: its shard (relative to the dataset), member name and what is wrong.
-    For the manifest and dataset.json, ``shard`` is that file and ``member`` the key or the
-    field at fault (None: the whole file)."""
+    """One damaged file or member: ``path`` the file (a shard, the manifest, dataset.json;
+    relative to the dataset), ``member`` what in it (a shard's member name, the manifest's
+    key, dataset.json's key at fault; None: the whole file) and what is wrong."""
 
-    shard: str
+    path: str
     member: str | None
     reason: str
 
     def __str__(self) -> str:
-        where = f"{self.shard}: {self.member}" if self.member else self.shard
+        where = f"{self.path}: {self.member}" if self.member else self.path
         return f"{where}: {self.reason}"
 
 
@@ -73,13 +73,12 @@ def verify_dataset(root: str | Path) -> VerifyReport:
     location = [f"{m}_{s}" for m in members for s in ("shard", "offset", "size")]
     manifest.require(["key", "ground_member", *location])
     checksums = [f"{m}_crc32c" for m in members if f"{m}_crc32c" in names]
-    rows = manifest.to_table(columns=["key", "ground_member", *location, *checksums]).to_pylist()
+    table = manifest.to_table(columns=["key", "ground_member", *location, *checksums])
+    rows = table.to_pylist()
     damage = _dataset_json_damage(root)
-    repeated = Counter(row["key"] for row in rows)
     damage += [
         Damage("manifest.parquet", key, f"{n} rows hold this key")
-        for key, n in sorted(repeated.items(), key=lambda kv: str(kv[0]))
-        if n > 1
+        for key, n in repeated_keys(table["key"])
     ]
     by_shard: dict[str, list[MemberSpec]] = defaultdict(list)
     for row in rows:
@@ -107,7 +106,7 @@ def _dataset_json_damage(root: Path) -> list[Damage]:
     try:
         read_dataset_info(root)
     except DatasetError as exc:
-        return [Damage("dataset.json", exc.member, exc.reason)]
+        return [Damage(DATASET_JSON, exc.member, exc.reason)]
     return []
 
 

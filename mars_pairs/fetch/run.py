@@ -26,7 +26,7 @@ import pyarrow.parquet as pq
 from tqdm import tqdm
 
 from mars_pairs.errors import FetchError, MarsPairsError
-from mars_pairs.fetch.cache import Cache, archive_path, atomic_write, join_url
+from mars_pairs.fetch.cache import Cache, archive_path, join_url
 from mars_pairs.fetch.config import FetchConfig, ProductsSpec, RemoteSpec
 from mars_pairs.fetch.download import Downloader, RemoteFile
 from mars_pairs.fetch.orbital import (
@@ -37,7 +37,7 @@ from mars_pairs.fetch.orbital import (
     source_info,
     write_vrt,
 )
-from mars_pairs.fetch.pds3_index import index_files, products_from_index, read_index_table
+from mars_pairs.fetch.pds3_index import fetch_index, products_from_index
 from mars_pairs.fetch.pds4_inventory import (
     inventory_delimiter,
     inventory_of,
@@ -55,6 +55,7 @@ from mars_pairs.fetch.products import (
 )
 from mars_pairs.fetch.volumes import volumes_for_sols
 from mars_pairs.fetch.windows import WindowPlan, dem_reach_m, ortho_reach_m, plan_windows
+from mars_pairs.store.atomic import atomic_write_bytes
 
 FAILURES = "fetch_failures.parquet"
 SKIPPED = "fetch_skipped.parquet"
@@ -109,19 +110,14 @@ def list_products(spec: ProductsSpec, dl: Downloader) -> Listing:
                 raise FetchError("fetch.products.volumes", "no volumes and no sols to choose them")
             volumes = volumes_for_sols(spec.filters.sols)
         for volume in volumes:
-            lbl, tab = index_files(volume, spec.index)
-            tab_url = join_url(spec.archive, tab)
             try:  # one volume's unusable index is a failure row; the other volumes go on
-                dl.fetch(RemoteFile(lbl, join_url(spec.archive, lbl), mutable=True))
-                label_path = dl.cache.path(lbl)
-                dl.fetch(RemoteFile(tab, tab_url, mutable=True, label=label_path))
-                table = read_index_table(label_path)
+                index = fetch_index(dl, spec.archive, volume, spec.index)
             except FetchError as exc:
                 out.failures.append(Failure(volume, exc.url, "index", "FetchError", exc.reason))
                 continue
             out.extend(
-                products_from_index(table, volume, spec.archive, str(label_path), spec.mission,
-                                    index_url=tab_url)
+                products_from_index(index.table, volume, spec.archive, str(index.label),
+                                    spec.mission, index_url=index.url)
             )  # fmt: skip
         out.products, older = newest_only(out.products)
         out.skipped.extend(older)
@@ -131,16 +127,17 @@ def list_products(spec: ProductsSpec, dl: Downloader) -> Listing:
         dl.fetch(RemoteFile(coll, join_url(spec.archive, coll), mutable=True))
         coll_path = dl.cache.path(coll)
         inv = inventory_of(coll_path, coll)
+        delimiter = inventory_delimiter(coll_path)  # an unusable label: before the download
         url = join_url(spec.archive, inv)
         dl.fetch(RemoteFile(inv, url, kind="inventory", mutable=True, label=coll_path))
         out.extend(
             products_from_inventory(
                 dl.cache.path(inv),
-                inventory_delimiter(coll_path),
+                delimiter,
                 bundle,
                 spec.label_path,
                 spec.archive,
-                inventory_url=join_url(spec.archive, inv),
+                inventory_url=url,
             )
         )
     kept = []
@@ -272,7 +269,7 @@ def _write_rows(cache: Cache, name: str, rows: Sequence[object], cols: tuple[str
     sink = pa.BufferOutputStream()
     pq.write_table(table, sink)
     target = cache.path(name)
-    atomic_write(target, sink.getvalue().to_pybytes())
+    atomic_write_bytes(target, sink.getvalue().to_pybytes())
     return target
 
 

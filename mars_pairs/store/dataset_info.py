@@ -1,6 +1,11 @@
 """``dataset.json``: what a reader of a built dataset needs beyond the manifest (the ray
 stride of the correspondence grids, the CRS, the chip size). Every reader requires it: there
-is no default stride to fall back on."""
+is no default stride to fall back on.
+
+Every reader of a dataset folder's ``dataset.json`` goes through this module:
+:func:`read_dataset_info` (the torch datasets, ``verify``), :func:`read_dataset_doc` (the whole
+document: the report, the overview, the query, the summary) and :func:`dataset_crs` (the QGIS
+export)."""
 
 from __future__ import annotations
 
@@ -10,6 +15,9 @@ from pathlib import Path
 from typing import Any
 
 from mars_pairs.errors import DatasetError
+
+#: the file's name in a dataset folder
+DATASET_JSON = "dataset.json"
 
 #: where dataset.json keeps the ray stride (ground-image pixels between keypoint rays)
 RAY_STRIDE = ("config", "geometry", "ray_stride")
@@ -34,19 +42,47 @@ def _positive_int(value: Any) -> int | None:
     return value
 
 
-def read_dataset_info(root: str | Path) -> DatasetInfo:
-    """The dataset.json of the dataset folder ``root``; DatasetError naming the file (and the
-    field) when it is missing, unreadable, not a JSON object or lacks a valid ray stride."""
-    path = Path(root) / "dataset.json"
+def _load(path: Path) -> dict[str, Any]:
+    """The JSON object in ``path``; DatasetError naming it when unreadable or not an object."""
     try:
         doc = json.loads(path.read_text())
-    except FileNotFoundError:
-        reason = "missing (it holds the ray stride, CRS and chip size: rebuild or restore it)"
-        raise DatasetError(path, None, reason) from None
     except (OSError, ValueError) as exc:
         raise DatasetError(path, None, f"unreadable: {exc}") from None
     if not isinstance(doc, dict):
         raise DatasetError(path, None, f"expected a JSON object, got {type(doc).__name__}")
+    return doc
+
+
+def dataset_json_path(root: str | Path) -> Path:
+    """The dataset.json of the dataset folder ``root``."""
+    return Path(root) / DATASET_JSON
+
+
+def _load_required(root: str | Path) -> tuple[Path, dict[str, Any]]:
+    """(path, document) of the dataset.json of ``root``; DatasetError naming it when it is
+    missing, unreadable or not a JSON object."""
+    path = dataset_json_path(root)
+    if not path.exists():
+        reason = "missing (it holds the ray stride, CRS and chip size: rebuild or restore it)"
+        raise DatasetError(path, None, reason)
+    return path, _load(path)
+
+
+def dataset_crs(root: str | Path) -> str:
+    """The dataset CRS text (WKT or PROJJSON) of dataset.json's ``crs``; DatasetError naming
+    the file and the field when the file or the field is missing or damaged."""
+    path, doc = _load_required(root)
+    crs = doc.get("crs")
+    if not isinstance(crs, str) or not crs:
+        got = repr(crs) if crs is None or crs == "" else type(crs).__name__
+        raise DatasetError(path, "crs", f"expected CRS text, got {got}")
+    return crs
+
+
+def read_dataset_info(root: str | Path) -> DatasetInfo:
+    """The dataset.json of the dataset folder ``root``; DatasetError naming the file (and the
+    field) when it is missing, unreadable, not a JSON object or lacks a valid ray stride."""
+    path, doc = _load_required(root)
     value: Any = doc
     for part in RAY_STRIDE:
         value = value.get(part) if isinstance(value, dict) else None
@@ -62,3 +98,21 @@ def read_dataset_info(root: str | Path) -> DatasetInfo:
     if crs is not None and not isinstance(crs, str):
         raise DatasetError(path, "crs", f"expected a string, got {type(crs).__name__}")
     return DatasetInfo(path, crs or None, size_px, stride, doc)
+
+
+def read_dataset_doc(root: str | Path) -> dict[str, Any]:
+    """The whole dataset.json document of the dataset folder ``root``, for readers that work
+    without it (the pictures, the report): {} when the file is absent; DatasetError naming the
+    file when it is unreadable or not a JSON object."""
+    path = dataset_json_path(root)
+    return _load(path) if path.exists() else {}
+
+
+def build_input(root: str | Path, doc: dict[str, Any], name: str) -> Path | None:
+    """The path of the build's input ``name`` (``config.inputs.<name>`` of the dataset.json
+    document ``doc``, e.g. ``ortho``), relative to the dataset folder ``root`` (an absolute
+    path stays as it is); None when the document does not record it."""
+    config = doc.get("config")
+    inputs = config.get("inputs") if isinstance(config, dict) else None
+    value = inputs.get(name) if isinstance(inputs, dict) else None
+    return Path(root) / value if value else None

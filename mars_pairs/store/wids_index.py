@@ -15,7 +15,7 @@ from typing import Any
 
 import pyarrow as pa
 
-from mars_pairs.store.shards import atomic_write_bytes
+from mars_pairs.store.atomic import atomic_write_bytes
 
 WIDS_INDEX = "shardindex.json"
 

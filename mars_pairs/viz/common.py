@@ -5,14 +5,17 @@ query or ``import mars_pairs.cli`` needs no plotting stack."""
 
 from __future__ import annotations
 
+import io
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from mars_pairs.errors import MarsPairsError
-from mars_pairs.store.manifest import Manifest
+from mars_pairs.raster.shading import lambert_shading
+from mars_pairs.store.query import Manifest
 
 DPI = 90
 
@@ -38,6 +41,27 @@ def pyplot() -> Any:
     return plt
 
 
+def png_bytes(fig: Any, dpi: int = DPI) -> bytes:
+    """The figure as PNG bytes (the figure is closed)."""
+    plt = pyplot()
+    buf = io.BytesIO()
+    try:
+        fig.savefig(buf, format="png", dpi=dpi)
+    finally:
+        plt.close(fig)
+    return buf.getvalue()
+
+
+def split_colours(splits: Sequence[str]) -> dict[str, str]:
+    """A colour (#rrggbb) for every split name: ``SPLIT_COLOURS`` for the usual ones, others
+    from tab10."""
+    from matplotlib.colors import to_hex
+
+    plt = pyplot()
+    extra = iter(plt.get_cmap("tab10").colors[3:])
+    return {s: to_hex(SPLIT_COLOURS.get(s) or next(extra, "grey")) for s in sorted(set(splits))}
+
+
 def manifest_rows(root: Path) -> list[dict[str, Any]]:
     if not root.is_dir():
         raise MarsPairsError(f"{root}: no such dataset folder")
@@ -47,18 +71,16 @@ def manifest_rows(root: Path) -> list[dict[str, Any]]:
 def hillshade(
     dem: np.ndarray, res: float, azimuth: float = 315.0, altitude: float = 35.0
 ) -> np.ndarray:
-    """Hillshade in [0, 1] of an elevation grid (metres, ``res`` metres per pixel; NaN kept).
+    """Hillshade in [0, 1] of an elevation grid (metres, ``res`` metres per pixel; NaN kept):
+    :func:`~mars_pairs.raster.shading.lambert_shading`, no-data cells filled with the median
+    for the slopes of their neighbours.
 
-    ``azimuth`` is the light's direction clockwise from the grid's up (row 0) direction.
+    ``azimuth`` is the light's direction in degrees clockwise from the grid's up (row 0)
+    direction, ``altitude`` its elevation in degrees.
     """
     finite = np.isfinite(dem)
     z = np.where(finite, dem, np.nanmedian(dem) if finite.any() else 0.0)
-    gy, gx = np.gradient(z, res)  # gy: d z / d row (rows go down the grid)
-    slope = np.arctan(np.hypot(gx, gy))
-    aspect = np.arctan2(-gx, gy)  # the downhill direction, clockwise from up
-    az, alt = np.radians(azimuth), np.radians(altitude)
-    shade = np.sin(alt) * np.cos(slope) + np.cos(alt) * np.sin(slope) * np.cos(az - aspect)
-    return np.where(finite, np.clip(shade, 0, 1), np.nan)
+    return np.where(finite, lambert_shading(z, res, azimuth, altitude), np.nan)
 
 
 def nice_length(length: float) -> float:

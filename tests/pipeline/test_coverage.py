@@ -20,7 +20,7 @@ from mars_pairs.errors import ConfigError, TerrainError
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import parse_config
 
-SIZE_M, SIZE_PX = 64.0, 64  # cheap_config's chips
+SIZE_M, SIZE_PX = 64.0, 64  # the config builder's cheap chips
 
 
 def rewrite(src: Path, dst: Path, transform: Affine, change=lambda a: a) -> Path:

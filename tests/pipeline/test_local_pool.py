@@ -36,21 +36,31 @@ def test_workers_come_from_a_fork_server_where_there_is_one() -> None:
         assert ctx.get_start_method() == "spawn"
 
 
-def _environ(name: str) -> str | None:
+def _environ(*names: str) -> dict[str, str | None]:
     import os
 
-    return os.environ.get(name)
+    return {name: os.environ.get(name) for name in names}
 
 
-def test_workers_see_the_environment_of_the_build_not_of_the_fork_server(
+def test_workers_take_the_builds_settings_not_the_fork_servers_nor_the_rest(
     small_mission: Path, tmp_path: Path, monkeypatch
 ) -> None:
     """GDAL and AWS options set after a first build (a notebook) reach the next build's
-    workers, though the fork server started before."""
+    workers, though the fork server started before; other variables of the driver do not;
+    the workers run with the process defaults (OMP_WAIT_POLICY)."""
+    names = ("GDAL_HTTP_TIMEOUT", "AWS_PROFILE", "MARS_PAIRS_TEST_OPTION", "OMP_WAIT_POLICY")
     config = build_config(small_mission, tmp_path / "ds")
+    monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
     with LocalPool(config, workers=1) as pool:  # starts the server if not running
-        pool._pool.submit(_environ, "MARS_PAIRS_TEST_OPTION").result()
+        pool._pool.submit(_environ, *names).result()
+    monkeypatch.setenv("GDAL_HTTP_TIMEOUT", "17")
+    monkeypatch.setenv("AWS_PROFILE", "set-later")
     monkeypatch.setenv("MARS_PAIRS_TEST_OPTION", "set-later")
     with LocalPool(config, workers=1) as pool:
-        seen = pool._pool.submit(_environ, "MARS_PAIRS_TEST_OPTION").result()
-    assert seen == "set-later"
+        seen = pool._pool.submit(_environ, *names).result()
+    assert seen == {
+        "GDAL_HTTP_TIMEOUT": "17",
+        "AWS_PROFILE": "set-later",
+        "MARS_PAIRS_TEST_OPTION": None,
+        "OMP_WAIT_POLICY": "PASSIVE",
+    }

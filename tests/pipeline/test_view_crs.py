@@ -21,9 +21,10 @@ from support.missions import MissionCache
 from mars_pairs.errors import TerrainError
 from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.pds import read_observation
+from mars_pairs.pipeline.sample.build_sample import view_stages
 from mars_pairs.pipeline.sample.context import SampleContext
 from mars_pairs.pipeline.sample.stages import Stages
-from mars_pairs.pipeline.sample.view import View, compute_view
+from mars_pairs.pipeline.sample.view import View
 from mars_pairs.raster.terrain import Terrain
 
 SPHERE = "+R=3396190 +units=m +no_defs +type=crs"
@@ -70,7 +71,7 @@ def _views(mission: Path, dem: Path, tmp: Path) -> dict[str, View]:
             obs = read_observation(label)
             pose = ctx.places.locate(obs)
             camera = MapCamera.from_observation(obs, pose, ctx.terrain.crs)
-            views[label.name] = compute_view(obs, pose, camera, ctx, Stages())
+            views[label.name] = view_stages(pose, camera, ctx, Stages())
     finally:
         ctx.close()
     return views

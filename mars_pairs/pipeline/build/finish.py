@@ -31,15 +31,11 @@ from mars_pairs.pipeline.build.plan import BuildPlan
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.sample.record import labels_root
 from mars_pairs.pipeline.splitting import splits_report
+from mars_pairs.store.atomic import atomic_write_bytes, write_parquet_atomic
 from mars_pairs.store.card import CardFacts, dataset_card, default_license
 from mars_pairs.store.croissant import croissant_metadata, dataset_description, sha256_of
 from mars_pairs.store.geoparquet import crs_name, named_crs, table_geo_metadata
-from mars_pairs.store.manifest import (
-    FAILURE_SCHEMA,
-    MANIFEST_SCHEMA,
-    write_parquet_atomic,
-)
-from mars_pairs.store.shards import atomic_write_bytes
+from mars_pairs.store.manifest import FAILURE_SCHEMA, MANIFEST_SCHEMA
 
 #: What dataset.json says of its paths.
 PATHS_NOTE = (

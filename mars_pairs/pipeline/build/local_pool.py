@@ -4,9 +4,10 @@
   build starts, and each opens the rasters and the PLACES table while the driver lists the
   labels and clears the output.
 - Processes come from a fork server that imported the build's modules once (numba, GDAL,
-  pyarrow: ~0.7 s a process when each spawned worker imported them itself); each worker is
-  a fork of that clean server, never of the driver, whose numba OpenMP threads make forking
-  unsafe. Where there is no fork server (Windows), workers are spawned.
+  pyarrow), so a worker does not import them again; each worker is a fork of that clean
+  server, never of the driver, whose numba OpenMP threads make forking unsafe. Where there is
+  no fork server (Windows), workers are spawned. A worker takes the driver's build settings
+  and the process defaults (:mod:`mars_pairs.runtime`) before it opens its context.
 - A build hands the pool whole chunks (``run``, the ``pipeline.build.engine.Engine`` contract): a
   worker builds a chunk's samples and writes its shard itself, and returns only rows; at most
   2 chunks per worker are in flight, and results come back in chunk order. (``results``
@@ -37,6 +38,7 @@ from itertools import islice
 from multiprocessing.context import BaseContext
 from typing import Any
 
+from mars_pairs import runtime
 from mars_pairs.errors import WorkerDiedError, WorkerStartError
 from mars_pairs.pipeline.build import worker
 from mars_pairs.pipeline.build.engine import ChunkResult, ChunkTask, build_chunk
@@ -107,10 +109,14 @@ def _exit_with_driver() -> None:
     threading.Thread(target=watch, name="exit-with-driver", daemon=True).start()
 
 
-def _start_worker(config: BuildConfig, environ: dict[str, str]) -> None:
-    """A worker's initializer: watch the driver, then open the build context."""
+def _start_worker(config: BuildConfig, settings: dict[str, str]) -> None:
+    """A worker's initializer: watch the driver, take the driver's build ``settings``
+    (``runtime.build_settings``: a fork server's workers inherit the server's environment,
+    from when it started), set the process defaults, then open the build context."""
     _exit_with_driver()
-    worker.open_context(config, environ)
+    runtime.take_build_settings(settings)
+    runtime.configure_process()
+    worker.open_context(config)
 
 
 class LocalPool:
@@ -130,7 +136,7 @@ class LocalPool:
             workers,
             mp_context=ctx,
             initializer=_start_worker,
-            initargs=(config, dict(os.environ)),  # this build's environment, not the server's
+            initargs=(config, runtime.build_settings()),  # this build's, not the server's
         )
         try:
             with _sigint_deferred():  # a Ctrl-C mid-start would orphan a starting worker

@@ -10,28 +10,22 @@ output is the same whatever the worker count. A finished build writes the folder
 lives on in dataset.json, so ``--resume`` over it does nothing. The labels are never held: a
 planning pass counts them and sums their fingerprint (the stamp), the build pass streams them
 again to the engine, chunk by chunk. The engine's workers write the shards and stage the parts
-(``pipeline.build.engine``); the driver receives rows only, and commits the chunks in order.
+(``pipeline.build.engine``); the driver receives rows only, and commits the chunks in order
+(``pipeline.build.commit``).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
-import os
 import time
 from collections import Counter
-from collections.abc import Iterable, Iterator
 
 from tqdm import tqdm
 
-from mars_pairs.errors import BuildError, ConfigError, MarsPairsError
-from mars_pairs.pipeline.build.engine import (
-    ChunkResult,
-    ChunkTask,
-    Engine,
-    InProcess,
-    part_tables,
-    resolve_duplicates,
-)
+from mars_pairs.errors import ConfigError
+from mars_pairs.pipeline.build.commit import select_chunk, write_chunk
+from mars_pairs.pipeline.build.engine import ChunkTask, Engine, InProcess
 from mars_pairs.pipeline.build.finish import (
     BuildSummary,
     finished_summary,
@@ -45,7 +39,6 @@ from mars_pairs.pipeline.build.outputs import (
     built_keys,
     clear_outputs,
     dropped_count,
-    part_paths,
     remove_parts,
     remove_temporaries,
     stamp_path,
@@ -59,8 +52,7 @@ from mars_pairs.pipeline.build.plan import (
 )
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.config_section import check_regular
-from mars_pairs.store.manifest import write_parquet_atomic
-from mars_pairs.store.shards import atomic_write_bytes
+from mars_pairs.store.atomic import atomic_write_bytes
 from mars_pairs.store.wids_index import write_wids_index
 
 
@@ -72,71 +64,6 @@ def check_input_files(config: BuildConfig) -> None:
         check_regular(getattr(inputs, key), f"inputs.{key}")
     if inputs.images is not None:
         check_regular(inputs.images, "inputs.images", folder=True)
-
-
-def _in_process(config: BuildConfig, chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
-    """The results of ``chunks`` built in this process (one worker), in order."""
-    return InProcess().run(config, chunks)
-
-
-def _commit_chunk(
-    config: BuildConfig,
-    result: ChunkResult,
-    strict: bool,
-    stage_seconds: Counter[str],
-    seen: dict[str, str],
-) -> int:
-    """Commit chunk ``result.index``, whose shard its worker wrote: its failure part, then its
-    manifest part (the commit marker), renamed from where the worker staged them. A sample
-    whose key an earlier chunk built (``seen``: key -> label, updated here) becomes a
-    DuplicateKeyError failure row and leaves the shard, and the driver writes the parts
-    (``engine.resolve_duplicates``). The number of samples committed."""
-    out = config.output.dir
-    _, manifest_part, failures_part = part_paths(out, result.index)
-    if result.shard is not None:
-        size = (out / result.shard).stat().st_size
-        if size != result.shard_bytes:
-            raise MarsPairsError(
-                f"{out / result.shard}: {size} bytes, but its worker ({result.worker}) wrote "
-                f"{result.shard_bytes}; rerun the build with --resume"
-            )
-    if result.staged is None or any(o.kind != "fail" and o.key in seen for o in result.outcomes):
-        result = resolve_duplicates(out, result, seen)
-    failed = next((o.row for o in result.outcomes if o.kind in ("fail", "duplicate")), None)
-    if strict and failed is not None:
-        for rel in result.staged or ():
-            (out / rel).unlink(missing_ok=True)
-        what = ": ".join(str(failed[c]) for c in ("path", "stage", "error_type", "message"))
-        raise BuildError(what)
-    if result.staged is None:
-        failures, manifest = part_tables(config, result.outcomes)
-        write_parquet_atomic(failures, failures_part)
-        write_parquet_atomic(manifest, manifest_part)  # commit marker
-    else:
-        os.replace(out / result.staged[0], failures_part)
-        os.replace(out / result.staged[1], manifest_part)  # commit marker
-    written = 0
-    for o in result.outcomes:
-        if o.kind in ("ok", "dropped"):
-            seen[o.key] = o.label
-        if o.kind == "ok":
-            stage_seconds.update(o.seconds)
-            written += 1
-    return written
-
-
-def _chunk_results(
-    config: BuildConfig,
-    todo: Iterator[tuple[int, list[str]]],
-    pool: LocalPool | None,
-    engine: Engine | None,
-) -> Iterator[ChunkResult]:
-    """The results of the chunks ``todo`` ((k, labels), streamed), in order, from the local
-    pool, this process (pool and engine None) or ``engine``."""
-    tasks = (ChunkTask(k, tuple(labels)) for k, labels in todo)
-    if engine is not None:
-        return engine.run(config, tasks)
-    return pool.run(config, tasks) if pool is not None else _in_process(config, tasks)
 
 
 def run_build(
@@ -162,10 +89,10 @@ def run_build(
         check_clearable(config.output.dir)
     # the workers start now: their imports and raster opening overlap the planning
     pool = LocalPool(config, workers) if engine is None and workers > 1 else None
-    if pool is None:
-        return _run(config, start, resume, limit, strict, progress, engine, pool)
-    with pool:
-        return _run(config, start, resume, limit, strict, progress, engine, pool)
+    if engine is None:
+        engine = pool if pool is not None else InProcess()
+    with pool if pool is not None else contextlib.nullcontext():
+        return _run(config, start, resume, limit, strict, progress, engine)
 
 
 def _run(
@@ -175,8 +102,7 @@ def _run(
     limit: int | None,
     strict: bool,
     progress: bool,
-    engine: Engine | None,
-    pool: LocalPool | None,
+    engine: Engine,
 ) -> BuildSummary:
     """run_build's work, its arguments checked and its workers starting."""
     out = config.output.dir
@@ -194,8 +120,8 @@ def _run(
     seen = built_keys(out, (k for k in range(plan.chunks) if is_done(out, k)))
     digest = LabelDigest()  # the second pass must list what the first did
     chunks = enumerate(chunks_of(digest.tally(labels_of(config, limit)), plan.chunk_size))
-    todo = ((k, labels) for k, labels in chunks if not is_done(out, k))
-    results = _chunk_results(config, todo, pool, engine)
+    todo = (ChunkTask(k, tuple(labels)) for k, labels in chunks if not is_done(out, k))
+    results = engine.run(config, todo)
     bar = tqdm(
         total=plan.labels,
         initial=plan.labels - plan.labels_to_build,
@@ -208,7 +134,10 @@ def _run(
     try:
         for result in results:
             bar.update(len(result.outcomes))
-            _commit_chunk(config, result, strict, stage_seconds, seen)
+            selection = select_chunk(result, seen, strict)
+            write_chunk(config, result, selection)
+            seen.update(selection.built)
+            stage_seconds.update(selection.stage_seconds)
             built += 1
     finally:
         bar.close()
