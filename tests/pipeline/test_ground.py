@@ -10,7 +10,6 @@ from __future__ import annotations
 import io
 import json
 import shutil
-import tarfile
 from dataclasses import replace
 from pathlib import Path
 
@@ -19,6 +18,7 @@ import pyarrow.parquet as pq
 import pytest
 from PIL import Image
 from support.configs import config_file
+from support.members import metas as read_metas
 from support.missions import MissionCache
 
 from mars_pairs.errors import ImageError
@@ -235,12 +235,7 @@ def test_every_new_kind_builds_into_samples_with_no_failure(
     assert len(rows) == sum(len(v) for v in kinds.values())
     by_tag = {r["product_id"].rsplit("_", 1)[1] for r in rows}
     assert by_tag == {"MIPL", "ATT", "ORE3", "ORE4", "IMG4"}
-    metas = {}
-    for shard in (out / "shards").glob("*.tar"):
-        with tarfile.open(shard) as tar:
-            for info in tar.getmembers():
-                if info.name.endswith(".meta.json"):
-                    metas[info.name] = json.loads(tar.extractfile(info).read())
+    metas = read_metas(out)
     assert len(metas) == len(rows)
     types = {m["product_id"].rsplit("_", 1)[1]: m["camera_model_type"] for m in metas.values()}
     assert types["ORE3"] == types["ORE4"] == "CAHVORE"
