@@ -9,7 +9,7 @@ from pathlib import Path
 
 from support.configs import build_config
 
-from mars_pairs.pipeline.build.local_pool import LocalPool, worker_context
+from mars_pairs.pipeline.build.local_pool import LocalPool, pool_processes, worker_context
 
 
 def test_results_in_order_with_a_bounded_window(small_mission: Path, tmp_path: Path) -> None:
@@ -64,3 +64,23 @@ def test_workers_take_the_builds_settings_not_the_fork_servers_nor_the_rest(
         "MARS_PAIRS_TEST_OPTION": None,
         "OMP_WAIT_POLICY": "PASSIVE",
     }
+
+
+def test_pool_processes_are_the_pools_live_workers() -> None:
+    """The one standard-library private attribute the pool reads (``pool_processes``): a
+    started pool lists its worker processes, alive, with their pids; a Python that renames
+    or reshapes it fails here, not silently at a Ctrl-C."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(2, mp_context=mp.get_context("spawn")) as pool:
+        pids = set(pool.map(_pid, range(4)))
+        processes = pool_processes(pool)
+        assert processes, "ProcessPoolExecutor no longer keeps its processes in _processes"
+        assert {p.pid for p in processes} >= pids
+        assert all(p.is_alive() for p in processes)
+
+
+def _pid(_: int) -> int:
+    import os
+
+    return os.getpid()

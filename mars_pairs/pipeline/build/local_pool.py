@@ -36,6 +36,7 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from itertools import islice
 from multiprocessing.context import BaseContext
+from multiprocessing.process import BaseProcess
 from typing import Any
 
 from mars_pairs import runtime
@@ -203,7 +204,7 @@ class LocalPool:
         """Let the workers finish and exit; with ``abort`` (an error, Ctrl-C), drop what is
         queued and kill the workers rather than wait for the samples they are building."""
         if abort:
-            for process in list((getattr(self._pool, "_processes", None) or {}).values()):
+            for process in pool_processes(self._pool):
                 process.kill()
         self._pool.shutdown(wait=True, cancel_futures=abort)
 
@@ -212,6 +213,16 @@ class LocalPool:
 
     def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
         self.close(abort=exc_type is not None)
+
+
+def pool_processes(pool: ProcessPoolExecutor) -> list[BaseProcess]:
+    """The worker processes of ``pool``: the one private attribute of the standard library
+    this package reads (``ProcessPoolExecutor._processes``, pid -> process, CPython 3.10 to
+    3.13; 3.14 adds the public ``kill_workers``). ``tests/pipeline/test_local_pool.py``
+    fails when it changes; a pool without it gives [] (the pool then waits for its workers
+    instead of killing them)."""
+    processes = getattr(pool, "_processes", None)
+    return list(processes.values()) if isinstance(processes, dict) else []
 
 
 def _started() -> None:
