@@ -29,7 +29,7 @@ import pyarrow.parquet as pq
 import pytest
 import yaml
 from PIL import Image
-from support.configs import config_doc, mission_inputs
+from support.configs import config_file, mission_inputs
 from support.missions import MissionCache
 
 from mars_pairs.cli.main import main
@@ -53,11 +53,10 @@ def dataset(missions: MissionCache, tmp_path_factory: pytest.TempPathFactory) ->
     (labels / BROKEN[1]).write_bytes(bytes(range(256)) * 2)
     splits = {"style": "cross-area", "areas": {"test": [first_stop_box(mission, 3.0)]},
               "guard": "chip", "buffer_m": 1}  # fmt: skip
-    doc = config_doc(
-        mission, tmp / "ds", fine=True, geometry={"radius": 400},
-        chips={"size_m": 24, "size_px": 64}, output={"shard_size": 2}, splits=None,
+    config_file(
+        tmp / "c.yaml", mission, tmp / "ds", fine=True, geometry={"radius": 400},
+        chips={"size_m": 24, "size_px": 64}, output={"shard_size": 2}, whole={"splits": splits},
     )  # fmt: skip
-    (tmp / "c.yaml").write_text(yaml.safe_dump({**doc, "splits": splits}))
     summary = run_build(load_config(tmp / "c.yaml"), workers=1, progress=False)
     assert summary.samples == 4 and summary.failures == len(BROKEN)
     return tmp / "ds"

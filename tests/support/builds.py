@@ -9,7 +9,6 @@ from pathlib import Path
 from typing import Any
 
 import pyarrow.parquet as pq
-import yaml
 
 from mars_pairs.cli.main import main
 from mars_pairs.pipeline.build.run import run_build
@@ -64,11 +63,8 @@ def cli_built_dataset(base: Path, mission: Path) -> Path:
     }
     config = config_file(
         work / "c.yaml", mission, root, fine=True, geometry={"radius": 400},
-        output={"shard_size": 2}, splits=None,
+        output={"shard_size": 2}, whole={"splits": splits},
     )  # fmt: skip
-    doc = yaml.safe_load(config.read_text())
-    doc["splits"] = splits
-    config.write_text(yaml.safe_dump(doc))
     out = io.StringIO()
     with redirect_stdout(out):
         assert main(["build", "--config", str(config), "--quiet"]) == 0

@@ -6,7 +6,9 @@ keyword.
 CLI). Paths in the document are absolute (the mission's folders and ``out``).
 
 Overrides: each keyword names a section whose keys update the defaults' (``chips={"size_px":
-32}`` keeps ``size_m``); a section given as ``None`` is left out (e.g. ``splits=None``).
+32}`` keeps ``size_m``); a section given as ``None`` is left out (e.g. ``splits=None``);
+``whole={"splits": {...}}`` replaces whole default sections first (e.g. cross-area splits
+without the default ``block_m``), the keyword sections then update them.
 ``fine=True`` starts from the finer geometry (radius 600 m, every 16th ray, 128 m chips of 128
 px) instead of the cheap one (radius 300 m, every 32nd ray, 64 m chips of 64 px).
 """
@@ -32,7 +34,7 @@ FINE: dict[str, dict[str, Any]] = {
 }
 
 
-Labels = str | Path | list[str]
+Labels = str | Path | list[str] | tuple[str, ...]
 
 
 def mission_inputs(
@@ -40,7 +42,7 @@ def mission_inputs(
 ) -> dict[str, Any]:
     """Labels, PLACES table, DEM and ortho of ``mission`` (``synth.generate_mission``'s
     layout); ``labels`` (a glob or a list of globs) and ``places`` replace the mission's own."""
-    if isinstance(labels, list):
+    if isinstance(labels, list | tuple):
         return {**mission_inputs(mission, places=places), "labels": [str(g) for g in labels]}
     return {
         "labels": str(labels if labels is not None else mission / "labels" / "*.xml"),
@@ -57,6 +59,7 @@ def config_doc(
     fine: bool = False,
     labels: Labels | None = None,
     places: str | Path | None = None,
+    whole: dict[str, dict[str, Any]] | None = None,
     **sections: dict[str, Any] | None,
 ) -> dict[str, Any]:
     """The config document of a build of ``mission`` into ``out`` (see the module)."""
@@ -65,6 +68,7 @@ def config_doc(
         **{name: dict(values) for name, values in (FINE if fine else CHEAP).items()},
         "output": {"dir": str(out)},
     }
+    doc.update(whole or {})
     for name, values in sections.items():
         if values is None:
             doc.pop(name, None)
