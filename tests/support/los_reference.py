@@ -29,19 +29,29 @@ TOL_M = 1e-6  # metres the terrain may rise above the segment (rounding at the t
 
 
 @njit(cache=True)
+def _integers_between(p0: float, dp: float, out: np.ndarray, n: int) -> int:
+    """Write to ``out[n:]`` the t where p0 + t dp is an integer strictly between p0 and
+    p0 + dp; returns the new count."""
+    if dp == 0.0:
+        return n
+    lo, hi = min(p0, p0 + dp), max(p0, p0 + dp)
+    k = math.floor(lo) + 1.0
+    while k < hi:
+        out[n] = (k - p0) / dp
+        n += 1
+        k += 1.0
+    return n
+
+
+@njit(cache=True)
 def _crossings(u0: float, du: float, v0: float, dv: float) -> np.ndarray:
     """Sorted segment parameters in [0, 1]: 0, 1 and every t where u0 + t du or v0 + t dv is
     an integer strictly between the segment's ends."""
-    ts = [0.0, 1.0]
-    for p0, dp in ((u0, du), (v0, dv)):
-        if dp == 0.0:
-            continue
-        lo, hi = min(p0, p0 + dp), max(p0, p0 + dp)
-        k = math.floor(lo) + 1.0
-        while k < hi:
-            ts.append((k - p0) / dp)
-            k += 1.0
-    return np.sort(np.array(ts))
+    ts = np.empty(int(abs(du)) + int(abs(dv)) + 4)
+    ts[0], ts[1] = 0.0, 1.0
+    n = _integers_between(u0, du, ts, 2)
+    n = _integers_between(v0, dv, ts, n)
+    return np.sort(ts[:n])
 
 
 @njit(cache=True)
