@@ -69,10 +69,13 @@ def _cmd_build(args: argparse.Namespace) -> int:
     from mars_pairs.errors import BuildError
     from mars_pairs.pipeline.build.run import run_build
     from mars_pairs.pipeline.config import load_config
+    from mars_pairs.store.fs import dataset_root
 
     config = load_config(args.config)
     if args.out:
-        config = replace(config, output=replace(config.output, dir=Path(args.out).resolve()))
+        out = dataset_root(args.out)
+        out = out.resolve() if isinstance(out, Path) else out
+        config = replace(config, output=replace(config.output, dir=out))
     if args.dry_run:  # lists, chunks and checks; writes nothing (nor a synthetic mission)
         from mars_pairs.pipeline.build.plan import plan_build
 

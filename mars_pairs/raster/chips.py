@@ -28,6 +28,7 @@ from mars_pairs.errors import TerrainError
 from mars_pairs.geometry.frames import crs_string
 from mars_pairs.kernels.resample import sample_affine
 from mars_pairs.raster.grid import NorthUp
+from mars_pairs.raster.vsi import open_raster
 
 
 @dataclass(frozen=True)
@@ -151,7 +152,7 @@ class ChipReader:
     def __init__(self, path: str | Path) -> None:
         self.path = str(path)
         try:
-            self.dataset = rasterio.open(self.path)
+            self.dataset = open_raster(self.path)
         except rasterio.errors.RasterioError as exc:
             raise TerrainError(f"{self.path}: cannot open the raster: {exc}") from None
         try:

@@ -31,6 +31,7 @@ from mars_pairs.pipeline.build.plan import BuildPlan
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.sample.record import labels_root
 from mars_pairs.pipeline.splitting import splits_report
+from mars_pairs.raster.vsi import open_raster
 from mars_pairs.store.card import CardFacts, dataset_card, default_license
 from mars_pairs.store.croissant import croissant_metadata, dataset_description, sha256_of
 from mars_pairs.store.geoparquet import crs_name, named_crs, table_geo_metadata
@@ -92,9 +93,7 @@ def merge_parts(config: BuildConfig, n_chunks: int) -> tuple[pa.Table, pa.Table]
 
 
 def dataset_crs(config: BuildConfig) -> str:
-    import rasterio
-
-    with rasterio.open(config.inputs.dem) as src:
+    with open_raster(config.inputs.dem) as src:
         return src.crs.to_wkt()
 
 

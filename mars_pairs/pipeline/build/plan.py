@@ -35,6 +35,7 @@ from mars_pairs.pipeline.build.outputs import (
 )
 from mars_pairs.pipeline.config import BuildConfig, SyntheticSpec
 from mars_pairs.pipeline.splitting import split_rule
+from mars_pairs.raster.vsi import open_raster
 
 
 def check_inputs(config: BuildConfig) -> None:
@@ -48,12 +49,12 @@ def check_inputs(config: BuildConfig) -> None:
     for key in ("dem", "ortho"):
         path = getattr(config.inputs, key)
         try:
-            with rasterio.open(path) as src:
+            with open_raster(path) as src:
                 if src.crs is None:
                     raise ConfigError(f"inputs.{key}: {path} has no CRS")
         except rasterio.errors.RasterioIOError as exc:
             raise ConfigError(f"inputs.{key}: cannot open {path}: {exc}") from None
-    with rasterio.open(config.inputs.dem) as src:  # a split config error stops it here
+    with open_raster(config.inputs.dem) as src:  # a split config error stops it here
         split_rule(config, src.crs.to_wkt(), tuple(src.bounds), src.res)
 
 

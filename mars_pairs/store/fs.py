@@ -1,0 +1,231 @@
+"""Where a dataset lives: a local folder (a ``Path``) or an fsspec URL (``s3://bucket/prefix``).
+
+A dataset root is either a local ``Path`` (every local code path is the plain ``os`` one) or
+the text of an fsspec URL (``s3://bucket/prefix``, ``gs://...``, ``memory://...``: any
+protocol whose fsspec implementation is installed; ``s3fs`` for S3). :func:`dataset_root`
+makes one from what a user gives; :func:`join` names a file in it. The functions here take
+either and do the one obvious thing for each.
+
+Object storage has no rename and no partial objects: an object appears only when its upload
+completes, whole. So a file is written to object storage by writing it to a local temporary
+file (the system temporary folder, ``TMPDIR``; removed after) and uploading it in one piece
+(:func:`upload`, :func:`put_bytes`): a writer killed mid-upload leaves nothing under the
+final name. Where a local build renames a staged file into place, an object is copied on the
+server (:func:`replace`: the destination appears whole, then the source is deleted).
+
+Credentials and endpoints come from the environment as the fsspec implementation reads them
+(s3fs/botocore: ``AWS_ACCESS_KEY_ID``, ``AWS_SECRET_ACCESS_KEY``, ``AWS_ENDPOINT_URL`` or
+``AWS_ENDPOINT_URL_S3``, ``AWS_PROFILE``, ...). Listings are never cached (another process,
+a build worker, may have written since).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager, suppress
+from pathlib import Path
+from typing import Any
+
+#: A dataset root or a file in one: a local path, or the text of an fsspec URL.
+Location = Path | str
+
+_URL = re.compile(r"[A-Za-z][A-Za-z0-9+.\-]*://")
+
+
+def is_url(value: object) -> bool:
+    """Whether ``value`` is the text of a URL (``scheme://...``) other than ``file://``."""
+    return isinstance(value, str) and bool(_URL.match(value)) and not value.startswith("file://")
+
+
+def dataset_root(value: str | os.PathLike[str]) -> Location:
+    """A dataset root from what a user gives: a URL (its trailing ``/`` removed) as text,
+    ``file://PATH`` and anything else as a local ``Path``."""
+    if is_url(value):
+        return str(value).rstrip("/")
+    text = os.fspath(value)
+    if isinstance(text, str) and text.startswith("file://"):
+        text = text.removeprefix("file://")
+    return Path(text)
+
+
+def join(root: Location, rel: str) -> Location:
+    """The file ``rel`` (relative, ``/``-separated) of the dataset root ``root``."""
+    if isinstance(root, str) and is_url(root):
+        return f"{root.rstrip('/')}/{rel}"
+    return Path(root) / rel
+
+
+def relative(root: Location, path: Location) -> str:
+    """``path`` relative to the root ``root``, ``/``-separated."""
+    if isinstance(path, str) and is_url(path):
+        return path[len(str(root).rstrip("/")) + 1 :]
+    return Path(path).relative_to(root).as_posix()
+
+
+def filesystem(url: str) -> tuple[Any, str]:
+    """The fsspec file system of ``url`` (listings not cached) and the path in it.
+    ImportError naming the package to install when the protocol's is missing."""
+    import fsspec.core
+
+    try:
+        return fsspec.core.url_to_fs(url, use_listings_cache=False)
+    except ImportError as exc:
+        scheme = url.split("://", 1)[0]
+        hint = " (pip install s3fs)" if scheme in ("s3", "s3a") else ""
+        raise ImportError(
+            f"{url}: reading {scheme}:// needs its fsspec package{hint}: {exc}"
+        ) from None
+
+
+def exists(path: Location) -> bool:
+    """Whether the file ``path`` exists."""
+    if isinstance(path, Path):
+        return path.exists()
+    fs, p = filesystem(path)
+    return bool(fs.exists(p))
+
+
+def is_file(path: Location) -> bool:
+    """Whether ``path`` is a file (an object, for object storage)."""
+    if isinstance(path, Path):
+        return path.is_file()
+    fs, p = filesystem(path)
+    return bool(fs.isfile(p))
+
+
+def size(path: Location) -> int:
+    """The size of the file ``path`` in bytes (FileNotFoundError when absent)."""
+    if isinstance(path, Path):
+        return path.stat().st_size
+    fs, p = filesystem(path)
+    return int(fs.size(p))
+
+
+def read_bytes(path: Location) -> bytes:
+    """The bytes of the file ``path`` (FileNotFoundError when absent)."""
+    if isinstance(path, Path):
+        return path.read_bytes()
+    fs, p = filesystem(path)
+    return bytes(fs.cat_file(p))
+
+
+def read_range(path: Location, offset: int, length: int) -> bytes:
+    """``length`` bytes of ``path`` at ``offset`` (fewer at its end): one range request."""
+    if isinstance(path, Path):
+        with open(path, "rb") as fh:
+            fh.seek(offset)
+            return fh.read(length)
+    fs, p = filesystem(path)
+    return bytes(fs.cat_file(p, start=offset, end=offset + length))
+
+
+def open_input(path: Location) -> Any:
+    """``path`` opened for binary reading (seekable; remote reads are range requests)."""
+    if isinstance(path, Path):
+        return open(path, "rb")
+    fs, p = filesystem(path)
+    return fs.open(p, "rb", cache_type="readahead", block_size=1 << 20)
+
+
+def upload(local: Path, path: str) -> None:
+    """Upload the local file ``local`` to ``path`` whole: the object appears only when the
+    upload completes (a multipart upload is completed, or aborted, by fsspec)."""
+    fs, p = filesystem(path)
+    fs.put_file(str(local), p)
+
+
+def put_bytes(path: Location, data: bytes) -> None:
+    """Write ``data`` to ``path`` all or nothing (locally: a temporary name and a rename)."""
+    if isinstance(path, Path):
+        from mars_pairs.store.shards import atomic_write_bytes
+
+        atomic_write_bytes(path, data)
+        return
+    fs, p = filesystem(path)
+    fs.pipe_file(p, data)
+
+
+def replace(src: Location, dst: Location) -> None:
+    """Move ``src`` to ``dst``: a rename locally; on object storage a server-side copy (the
+    object ``dst`` appears whole) and then the removal of ``src``."""
+    if isinstance(src, Path):
+        os.replace(src, dst)
+        return
+    fs, s = filesystem(src)
+    _, d = filesystem(str(dst))
+    fs.copy(s, d)
+    fs.rm_file(s)
+
+
+def remove(path: Location) -> None:
+    """Remove the file ``path``, if there."""
+    if isinstance(path, Path):
+        path.unlink(missing_ok=True)
+        return
+    fs, p = filesystem(path)
+    with suppress(FileNotFoundError):
+        fs.rm_file(p)
+
+
+def list_files(root: Location) -> list[str]:
+    """Every file under ``root``, relative to it (``/``-separated), sorted; [] when absent."""
+    if isinstance(root, Path):
+        if not root.is_dir():
+            return []
+        return sorted(p.relative_to(root).as_posix() for p in root.rglob("*") if p.is_file())
+    fs, p = filesystem(root)
+    base = p.rstrip("/") + "/"
+    try:
+        found = fs.find(p)
+    except FileNotFoundError:
+        return []
+    return sorted(f[len(base) :] for f in found if f.startswith(base))
+
+
+@contextmanager
+def local_staging() -> Iterator[Path]:
+    """A fresh local folder (in the system temporary folder) for files on their way to
+    object storage; removed with its content when the block ends."""
+    with tempfile.TemporaryDirectory(prefix="mars-pairs-upload-") as tmp:
+        yield Path(tmp)
+
+
+def parquet_source(path: Location) -> tuple[Any, Any]:
+    """``(source, filesystem)`` for pyarrow's readers (``pq.read_table(source,
+    filesystem=...)``, ``pyarrow.dataset.dataset``): the path and None locally, the path in
+    the fsspec file system and that file system otherwise."""
+    if isinstance(path, Path):
+        return path, None
+    fs, p = filesystem(path)
+    return p, fs
+
+
+def read_parquet(path: Location, columns: list[str] | None = None) -> Any:
+    """The Parquet table at ``path`` (``columns`` only, when given)."""
+    import pyarrow.parquet as pq
+
+    source, fs = parquet_source(path)
+    return pq.read_table(source, columns=columns, filesystem=fs)
+
+
+def parquet_schema(path: Location) -> Any:
+    """The Arrow schema of the Parquet file at ``path`` (its footer only)."""
+    import pyarrow.parquet as pq
+
+    if isinstance(path, Path):
+        return pq.read_schema(path)
+    with open_input(path) as fh:
+        return pq.read_schema(fh)
+
+
+def parquet_metadata(path: Location) -> Any:
+    """The Parquet footer (``FileMetaData``) of the file at ``path``."""
+    import pyarrow.parquet as pq
+
+    if isinstance(path, Path):
+        return pq.read_metadata(path)
+    with open_input(path) as fh:
+        return pq.read_metadata(fh)
