@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from mars_pairs.errors import DatasetError
+from mars_pairs.store import fs
 
 #: where dataset.json keeps the ray stride (ground-image pixels between keypoint rays)
 RAY_STRIDE = ("config", "geometry", "ray_stride")
@@ -21,7 +22,7 @@ class DatasetInfo:
     ``chip_px`` (chip side in pixels; None when absent), ``ray_stride`` (ground-image pixels
     between rays, >= 1) and the whole document."""
 
-    path: Path
+    path: Path | str
     crs: str | None
     chip_px: int | None
     ray_stride: int
@@ -35,11 +36,12 @@ def _positive_int(value: Any) -> int | None:
 
 
 def read_dataset_info(root: str | Path) -> DatasetInfo:
-    """The dataset.json of the dataset folder ``root``; DatasetError naming the file (and the
-    field) when it is missing, unreadable, not a JSON object or lacks a valid ray stride."""
-    path = Path(root) / "dataset.json"
+    """The dataset.json of the dataset folder ``root`` (a local folder or an fsspec URL:
+    ``store.fs``); DatasetError naming the file (and the field) when it is missing,
+    unreadable, not a JSON object or lacks a valid ray stride."""
+    path = fs.join(fs.dataset_root(root), "dataset.json")
     try:
-        doc = json.loads(path.read_text())
+        doc = json.loads(fs.read_bytes(path))
     except FileNotFoundError:
         reason = "missing (it holds the ray stride, CRS and chip size: rebuild or restore it)"
         raise DatasetError(path, None, reason) from None

@@ -185,6 +185,17 @@ def list_files(root: Location) -> list[str]:
     return sorted(f[len(base) :] for f in found if f.startswith(base))
 
 
+def total_size(root: Location) -> int:
+    """The bytes of every file under ``root`` (one listing on object storage)."""
+    if isinstance(root, Path):
+        return sum(p.stat().st_size for p in root.rglob("*") if p.is_file())
+    fs, p = filesystem(root)
+    try:
+        return int(fs.du(p, total=True))
+    except FileNotFoundError:
+        return 0
+
+
 @contextmanager
 def local_staging() -> Iterator[Path]:
     """A fresh local folder (in the system temporary folder) for files on their way to

@@ -52,6 +52,7 @@ from mars_pairs.errors import (
 )
 from mars_pairs.store.dataset_info import read_dataset_info
 from mars_pairs.store.filter_args import check_split_names, configured_splits, sample_index
+from mars_pairs.store.fs import Location, dataset_root, join
 from mars_pairs.store.integrity import MemberSpec, check_member
 from mars_pairs.store.manifest import SUMMARY_COLUMNS, Manifest
 from mars_pairs.store.member_index import MemberIndex
@@ -119,14 +120,14 @@ def _check_fields(fields: Sequence[str]) -> tuple[str, ...]:
     return tuple(fields)
 
 
-def _refuse_duplicate_keys(root: Path, table: pa.Table) -> None:
+def _refuse_duplicate_keys(root: Location, table: pa.Table) -> None:
     """DatasetError naming the manifest and the first key that more than one row holds."""
     counts = pc.value_counts(table["key"])
     repeated = pc.filter(counts, pc.greater(counts.field("counts"), 1))
     if len(repeated):
         first = repeated[0].as_py()
         raise DatasetError(
-            root / "manifest.parquet",
+            join(root, "manifest.parquet"),
             first["values"],
             f"{first['counts']} rows hold this key ({len(repeated)} keys repeated)",
         )
@@ -143,7 +144,8 @@ class MarsPairsDataset(Dataset):
     (tar header, size, CRC-32C; see the module docstring): one extra 512-byte read per member.
     A ``split`` the dataset does not know (dataset.json's split config and counts) is an
     ArgumentError listing the known ones; a known split without samples gives 0 rows.
-    Use as a context manager, or call :meth:`close`.
+    Use as a context manager, or call :meth:`close`. ``root`` is a local folder or an fsspec
+    URL (``s3://bucket/prefix``: ``store.fs``; each member one range request).
     """
 
     def __init__(
@@ -164,7 +166,7 @@ class MarsPairsDataset(Dataset):
             raise ArgumentError(f"unknown filter argument(s) {sorted(unknown)}")
         if transform is not None and not callable(transform):
             raise ArgumentError(f"transform: expected a callable, got {transform!r}")
-        self.root = Path(root)
+        self.root = dataset_root(root)
         self.fields = _check_fields(fields)
         self.transform = transform
         self.ground_size = _ground_size(ground_size)
@@ -271,7 +273,7 @@ class MarsPairsDataset(Dataset):
             raise DatasetError(exc.shard, self.member_name(index, field), exc.reason) from None
         except OSError as exc:
             name = self.member_name(index, field)
-            raise DatasetError(self.root / shard, name, f"cannot read: {exc}") from None
+            raise DatasetError(join(self.root, shard), name, f"cannot read: {exc}") from None
 
     def _verified(self, index: int) -> dict[str, bytes | bytearray]:
         """Every member of sample ``index`` checked as ``mars-pairs verify`` does
@@ -300,9 +302,9 @@ class MarsPairsDataset(Dataset):
             except DatasetError as exc:
                 raise DatasetError(exc.shard, name, exc.reason) from None
             except OSError as exc:
-                raise DatasetError(self.root / shard, name, f"cannot read: {exc}") from None
+                raise DatasetError(join(self.root, shard), name, f"cannot read: {exc}") from None
             if problem is not None:
-                raise DatasetError(self.root / shard, name, problem)
+                raise DatasetError(join(self.root, shard), name, problem)
             if field in self.fields:
                 out[field] = data
         return out
@@ -317,7 +319,7 @@ class MarsPairsDataset(Dataset):
             except (OSError, ValueError, SyntaxError, EOFError) as exc:  # PIL, numpy headers
                 shard = self._index.location(index, name)[0]
                 raise DatasetError(
-                    self.root / shard,
+                    join(self.root, shard),
                     self.member_name(index, name),
                     f"cannot decode: {type(exc).__name__}: {exc}",
                 ) from None
@@ -381,7 +383,7 @@ class MarsPairsDataset(Dataset):
             values = {k: meta[k] for k in ("rover_px", "camera_px", "heading_deg")}
         except (ValueError, KeyError) as exc:
             raise DatasetError(
-                self.root / self._index.location(index, "meta")[0],
+                join(self.root, self._index.location(index, "meta")[0]),
                 self.member_name(index, "meta"),
                 f"no localization targets ({exc}): build with chips.offset_m or output.members",
             ) from None
