@@ -204,6 +204,21 @@ def local_staging() -> Iterator[Path]:
         yield Path(tmp)
 
 
+def write_parquet(table: Any, path: Location, row_group_size: int = 4096) -> None:
+    """Write ``table`` as the Parquet file ``path`` all or nothing (the bytes of
+    ``store.manifest.write_parquet_atomic``; on object storage written locally, then
+    uploaded whole)."""
+    from mars_pairs.store.manifest import write_parquet_atomic
+
+    if isinstance(path, Path):
+        write_parquet_atomic(table, path, row_group_size)
+        return
+    with local_staging() as tmp:
+        local = tmp / path.rsplit("/", 1)[-1]
+        write_parquet_atomic(table, local, row_group_size)
+        upload(local, path)
+
+
 def parquet_source(path: Location) -> tuple[Any, Any]:
     """``(source, filesystem)`` for pyarrow's readers (``pq.read_table(source,
     filesystem=...)``, ``pyarrow.dataset.dataset``): the path and None locally, the path in

@@ -4,6 +4,7 @@ moto or s3fs is not installed (``pip install -e '.[dev]'`` installs them)."""
 
 from __future__ import annotations
 
+import logging
 import uuid
 from collections.abc import Iterator
 
@@ -21,6 +22,7 @@ def s3_server() -> Iterator[str]:
     )
     import boto3
 
+    logging.getLogger("werkzeug").setLevel(logging.WARNING)  # a line per request otherwise
     server = server_mod.ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
     server.start()
     try:

@@ -27,7 +27,12 @@ any engine and worker count. Samples in the split buffer are dropped by the work
 config says so (``splits.buffer_policy: drop``) and reported as ``dropped`` outcomes.
 
 The workers need write access to the output folder, at the same path as the driver (a
-shared file system for a cluster).
+shared file system for a cluster), or to the same object storage (``output.dir`` an fsspec
+URL: ``store.fs``). On object storage a worker writes the chunk's shard and parts into a
+local temporary folder exactly as above, then uploads the shard under its final name and
+the parts under their temporary names, each object whole (it appears only when its upload
+completes: a worker killed mid-upload leaves nothing under the name); the driver's commit
+copies the parts to their final names on the server, the manifest part last.
 """
 
 from __future__ import annotations
@@ -47,6 +52,7 @@ from mars_pairs.pipeline.build import worker
 from mars_pairs.pipeline.build.outputs import DROPPED_KEY, part_paths
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.sample.context import SampleContext
+from mars_pairs.store import fs
 from mars_pairs.store.manifest import (
     FAILURE_SCHEMA,
     manifest_schema,
@@ -164,9 +170,25 @@ def part_tables(config: BuildConfig, outcomes: Iterable[Outcome]) -> tuple[pa.Ta
 def build_chunk(config: BuildConfig, task: ChunkTask) -> ChunkResult:
     """Build chunk ``task`` in this process (its context open: ``worker.open_context``) and
     write its shard into ``config.output.dir``; WorkerStartError when the context could not
-    be opened. A sample is written as soon as it is built (one sample in memory)."""
+    be opened. A sample is written as soon as it is built (one sample in memory). On object
+    storage the chunk is written to a local temporary folder, then uploaded (``_upload``)."""
+    if not isinstance(config.output.dir, Path):
+        with fs.local_staging() as staging:
+            return _upload(config.output.dir, staging, _build_chunk(config, task, staging))
+    return _build_chunk(config, task, config.output.dir)
+
+
+def _upload(out: str, staging: Path, result: ChunkResult) -> ChunkResult:
+    """Upload the files of ``result``, written under ``staging``, to the same names under the
+    URL ``out``, each whole: the shard, then the staged failure part and manifest part."""
+    for rel in (*((result.shard,) if result.shard is not None else ()), *(result.staged or ())):
+        fs.upload(staging / rel, fs.join(out, rel))
+    return result
+
+
+def _build_chunk(config: BuildConfig, task: ChunkTask, out: Path) -> ChunkResult:
+    """``build_chunk`` with the chunk's files written into the local folder ``out``."""
     start = time.perf_counter()
-    out = config.output.dir
     shard_rel = part_paths(out, task.index)[0]
     drop = config.splits.buffer_policy == "drop"
     outcomes: list[Outcome] = []
@@ -218,12 +240,15 @@ def build_chunk(config: BuildConfig, task: ChunkTask) -> ChunkResult:
     )
 
 
-def resolve_duplicates(out: Path, result: ChunkResult, seen: dict[str, str]) -> ChunkResult:
+def resolve_duplicates(out: Path | str, result: ChunkResult, seen: dict[str, str]) -> ChunkResult:
     """``result`` with every sample whose key an earlier chunk built (``seen``: key -> the
     label it was built from) turned into a ``duplicate`` outcome; when one was written, the
     shard is written again without it (atomically, over the worker's; removed when no
     sample is left) and the other samples' locations and rows follow. The staged parts are
-    removed (``staged`` None: the driver writes the parts)."""
+    removed (``staged`` None: the driver writes the parts). On object storage (``out`` a
+    URL) the shard is downloaded, rewritten locally and uploaded whole."""
+    if not isinstance(out, Path):
+        return _resolve_remote(out, result, seen)
     final = [
         Outcome("duplicate", o.label, o.key, duplicate_row(o.label, o.key, seen[o.key]))
         if o.kind != "fail" and o.key in seen
@@ -261,6 +286,24 @@ def resolve_duplicates(out: Path, result: ChunkResult, seen: dict[str, str]) -> 
         return replace(result, outcomes=tuple(kept), shard=None, shard_bytes=0)
     shard.close()
     return replace(result, outcomes=tuple(kept), shard_bytes=path.stat().st_size)
+
+
+def _resolve_remote(out: str, result: ChunkResult, seen: dict[str, str]) -> ChunkResult:
+    """``resolve_duplicates`` of a chunk whose files are under the URL ``out``."""
+    for rel in result.staged or ():
+        fs.remove(fs.join(out, rel))
+    result = replace(result, staged=None)
+    with fs.local_staging() as staging:
+        if result.shard is not None:
+            local = staging / result.shard
+            local.parent.mkdir(parents=True, exist_ok=True)
+            local.write_bytes(fs.read_bytes(fs.join(out, result.shard)))
+        resolved = resolve_duplicates(staging, result, seen)
+        if result.shard is not None and resolved.shard is None:
+            fs.remove(fs.join(out, result.shard))
+        elif resolved.shard is not None and resolved.shard_bytes != result.shard_bytes:
+            fs.upload(staging / resolved.shard, fs.join(out, resolved.shard))
+    return resolved
 
 
 class InProcess:

@@ -13,10 +13,15 @@ that a kill at any point resumes.
 A finished build removes ``parts/`` (``remove_parts``, unless ``output.keep_parts``): its stamp
 lives on as ``build_stamp`` in dataset.json (``finished_stamp``: the label count, shard size and
 the SHA-256 of the fingerprint, no paths), written before the parts go.
+
+The output folder may be object storage (an fsspec URL: ``store.fs``): the same files under
+the same names, listed with one listing; a rename there is a server-side copy and a delete
+(``fs.replace``), and there are no folders (nor links) to find.
 """
 
 from __future__ import annotations
 
+import fnmatch
 import hashlib
 import json
 import os
@@ -27,9 +32,8 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
-import pyarrow.parquet as pq
-
 from mars_pairs.pipeline.config import BuildConfig
+from mars_pairs.store import fs
 from mars_pairs.store.manifest import FAILURE_SCHEMA
 from mars_pairs.store.wids_index import WIDS_INDEX
 
@@ -55,24 +59,26 @@ _CHUNK_FILE = re.compile(
 _TEMPORARY = re.compile(r"((?:shards/|parts/)?)\.([^/]+)\.tmp-[0-9]+")  # store's atomic writes
 
 
-def part_paths(out: Path, k: int) -> tuple[str, Path, Path]:
+def part_paths(out: fs.Location, k: int) -> tuple[str, Any, Any]:
+    """Chunk k's shard (relative to ``out``), manifest part and failure part (in ``out``: a
+    Path for a local folder, a URL for object storage)."""
     return (
         f"shards/shard-{k:06d}.tar",
-        out / "parts" / f"manifest-{k:06d}.parquet",
-        out / "parts" / f"failures-{k:06d}.parquet",
+        fs.join(out, f"parts/manifest-{k:06d}.parquet"),
+        fs.join(out, f"parts/failures-{k:06d}.parquet"),
     )
 
 
-def stamp_path(out: Path) -> Path:
+def stamp_path(out: fs.Location) -> Any:
     """The build stamp: the fingerprint of the build that wrote the parts."""
-    return out / "parts" / "build.json"
+    return fs.join(out, "parts/build.json")
 
 
-def dropped_count(out: Path, n_chunks: int) -> int:
+def dropped_count(out: fs.Location, n_chunks: int) -> int:
     """Samples dropped in the split buffer, summed over the chunk parts."""
     total = 0
     for k in range(n_chunks):
-        meta = pq.read_schema(part_paths(out, k)[1]).metadata or {}
+        meta = fs.parquet_schema(part_paths(out, k)[1]).metadata or {}
         total += int(meta.get(DROPPED_KEY, b"0"))
     return total
 
@@ -235,10 +241,10 @@ def stamp_of(config: BuildConfig, digest: LabelDigest) -> dict[str, Any]:
     }
 
 
-def read_stamp(stamp: Path) -> dict[str, Any] | None:
+def read_stamp(stamp: fs.Location) -> dict[str, Any] | None:
     """The fingerprint of the build that wrote the parts; None when absent or damaged."""
     try:
-        doc = json.loads(stamp.read_bytes())
+        doc = json.loads(fs.read_bytes(stamp))
     except (OSError, ValueError):
         return None
     return doc if isinstance(doc, dict) else None
@@ -255,10 +261,10 @@ def stamp_digest(stamp: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def finished_stamp(out: Path) -> dict[str, Any] | None:
+def finished_stamp(out: fs.Location) -> dict[str, Any] | None:
     """The ``stamp_digest`` of the finished build in ``out`` (dataset.json's ``build_stamp``);
     None when there is none."""
-    doc = read_stamp(out / "dataset.json")
+    doc = read_stamp(fs.join(out, "dataset.json"))
     digest = doc.get(FINISHED_KEY) if doc is not None else None
     return digest if isinstance(digest, dict) else None
 
@@ -301,21 +307,24 @@ def is_temporary(rel: str) -> bool:
     return m is not None and written_by(2**62, m[1] + m[2])
 
 
-def stamped_chunks(out: Path) -> int | None:
+def stamped_chunks(out: fs.Location) -> int | None:
     """The chunks of the build(s) whose stamp the folder holds (the build's, and a clearing's
     left by a killed clearing); None when it holds no valid stamp."""
     stamps = ("parts/build.json", CLEARING, "dataset.json")
-    counts = [stamp_chunks(read_stamp(out / rel)) for rel in stamps]
+    counts = [stamp_chunks(read_stamp(fs.join(out, rel))) for rel in stamps]
     valid = [n for n in counts if n is not None]
     return max(valid) if valid else None
 
 
-def foreign_file(out: Path) -> str | None:
+def foreign_file(out: fs.Location) -> str | None:
     """The first entry of ``out`` (sorted, relative, with ``/``) that the build that stamped
     it did not write: a file it does not list, a shard or failure part of an unfinished
     chunk that does not read as one (``_as_built``; a finished build's chunks are all
     finished, vouched for by its dataset.json), a symbolic link, a folder other than
-    ``shards`` and ``parts``; None when a build may clear or resume the folder."""
+    ``shards`` and ``parts``; None when a build may clear or resume the folder. On object
+    storage, every object under the prefix (one listing)."""
+    if not isinstance(out, Path):
+        return _foreign_object(out)
     if not out.is_dir():
         return None
     chunks = stamped_chunks(out)
@@ -343,10 +352,25 @@ def foreign_file(out: Path) -> str | None:
     return None
 
 
+def _foreign_object(out: str) -> str | None:
+    """``foreign_file`` of the object storage prefix ``out``."""
+    files = fs.list_files(out)
+    if not files:
+        return None
+    chunks = stamped_chunks(out)
+    finished = finished_stamp(out) is not None and "parts/build.json" not in files
+    for rel in files:
+        if not (written_by(chunks, rel) or is_temporary(rel)):
+            return rel
+        if not (finished or _as_built(out, rel)):
+            return rel
+    return None
+
+
 _MEMBER = re.compile(r"[^./]+\.[^/]+")  # <key>.<field> (``ShardWriter``)
 
 
-def _as_built(out: Path, rel: str) -> bool:
+def _as_built(out: fs.Location, rel: str) -> bool:
     """Whether the chunk file ``rel`` reads as one a build writes, when its chunk is not
     finished (no manifest part: no build vouches for it): a shard is a tar of regular
     ``<key>.<field>`` members, a failure part a parquet file of the failure columns. Other
@@ -354,24 +378,29 @@ def _as_built(out: Path, rel: str) -> bool:
     m = _CHUNK_FILE.fullmatch(rel)
     if m is None or rel.startswith("parts/manifest-"):
         return True
-    if part_paths(out, int(m[2] or m[3]))[1].exists():
+    if fs.exists(part_paths(out, int(m[2] or m[3]))[1]):
         return True
-    path = out / rel
+    path = fs.join(out, rel)
     if m[2] is not None:
         try:
-            with tarfile.open(path, mode="r:") as tar:
+            with fs.open_input(path) as fh, tarfile.open(fileobj=fh, mode="r:") as tar:
                 return all(t.isreg() and _MEMBER.fullmatch(t.name) for t in tar)
         except (OSError, tarfile.TarError):
             return False
     try:
-        return pq.read_schema(path).names == FAILURE_SCHEMA.names
+        return fs.parquet_schema(path).names == FAILURE_SCHEMA.names
     except (OSError, ValueError):
         return False
 
 
-def remove_temporaries(out: Path) -> None:
+def remove_temporaries(out: fs.Location) -> None:
     """Remove the temporary files a killed build left (``is_temporary`` names only, in the
     output folder, ``shards/`` and ``parts/``)."""
+    if not isinstance(out, Path):
+        for rel in fs.list_files(out):
+            if is_temporary(rel):
+                fs.remove(fs.join(out, rel))
+        return
     for sub in ("", "shards/", "parts/"):
         folder = out / sub
         if not folder.is_dir():
@@ -382,35 +411,37 @@ def remove_temporaries(out: Path) -> None:
                 path.unlink()
 
 
-def remove_parts(out: Path, chunks: int) -> None:
+def remove_parts(out: fs.Location, chunks: int) -> None:
     """Remove ``parts/`` of a finished build (its dataset.json holds the stamp): the chunk
     commit markers first, then the failure parts, the stamp, the folder. A kill at any point
     resumes: a chunk without its manifest part is rebuilt, byte for byte."""
     for k in range(chunks):
-        part_paths(out, k)[1].unlink(missing_ok=True)
+        fs.remove(part_paths(out, k)[1])
     for k in range(chunks):
-        part_paths(out, k)[2].unlink(missing_ok=True)
-    stamp_path(out).unlink(missing_ok=True)
+        fs.remove(part_paths(out, k)[2])
+    fs.remove(stamp_path(out))
     remove_empty_parts(out)
 
 
-def remove_empty_parts(out: Path) -> None:
-    """Remove ``parts/`` when it is an empty folder."""
+def remove_empty_parts(out: fs.Location) -> None:
+    """Remove ``parts/`` when it is an empty folder (object storage has no folders)."""
+    if not isinstance(out, Path):
+        return
     parts = out / "parts"
     if parts.is_dir() and not parts.is_symlink() and not any(parts.iterdir()):
         parts.rmdir()
 
 
-def built_keys(out: Path, done: Iterable[int]) -> dict[str, str]:
+def built_keys(out: fs.Location, done: Iterable[int]) -> dict[str, str]:
     """Sample key -> label path of the chunks a resumed build keeps (for duplicate ids)."""
     seen: dict[str, str] = {}
     for k in done:
-        part = pq.read_table(part_paths(out, k)[1], columns=["key", "label_path"])
+        part = fs.read_parquet(part_paths(out, k)[1], columns=["key", "label_path"])
         seen.update(zip(part["key"].to_pylist(), part["label_path"].to_pylist(), strict=True))
     return seen
 
 
-def clear_outputs(out: Path) -> None:
+def clear_outputs(out: fs.Location) -> None:
     """Remove what the earlier build(s) stamped in ``out`` wrote (``written_by``; the caller
     has checked that the folder holds nothing else: ``foreign_file``), crash-safely. The
     stamp is renamed first (``parts/clearing.json``): a build killed at any point of the
@@ -418,7 +449,11 @@ def clear_outputs(out: Path) -> None:
     renamed stamp still lists what is left (a finished build's stamp is its dataset.json,
     renamed the same way). Then the dataset's own commit marker (manifest.parquet) goes, so
     no reader sees a manifest whose shards are going; then the chunk commit markers (manifest
-    parts) before the failure parts and shards they vouch for; the renamed stamp goes last."""
+    parts) before the failure parts and shards they vouch for; the renamed stamp goes last.
+    On object storage the same, in the same order (a rename is a copy and a delete)."""
+    if not isinstance(out, Path):
+        _clear_objects(out)
+        return
     chunks = stamped_chunks(out)
     stamp = stamp_path(out)
     finished = out / "dataset.json"
@@ -445,3 +480,37 @@ def clear_outputs(out: Path) -> None:
     clearing = out / CLEARING
     if clearing.is_file():
         clearing.unlink()
+
+
+#: What ``clear_outputs`` removes, in order (patterns relative to the output folder).
+_CLEARED = (
+    "manifest.parquet",
+    "dataset.json",
+    "README.md",
+    "croissant.json",
+    WIDS_INDEX,
+    "failures.parquet",
+    "parts/manifest-*.parquet",
+    "parts/*.parquet",
+    "shards/*.tar",
+)
+
+
+def _clear_objects(out: str) -> None:
+    """``clear_outputs`` of the object storage prefix ``out``."""
+    chunks = stamped_chunks(out)
+    stamp, clearing = stamp_path(out), fs.join(out, CLEARING)
+    if fs.is_file(stamp):
+        fs.replace(stamp, clearing)
+    elif finished_stamp(out) is not None and not fs.is_file(clearing):
+        fs.replace(fs.join(out, "dataset.json"), clearing)
+    files = fs.list_files(out)
+    done: set[str] = set()
+    for pattern in _CLEARED:
+        for rel in files:
+            if rel not in done and fnmatch.fnmatchcase(rel, pattern) and written_by(chunks, rel):
+                if "/" in pattern and rel.count("/") != pattern.count("/"):
+                    continue
+                fs.remove(fs.join(out, rel))
+                done.add(rel)
+    fs.remove(clearing)

@@ -36,6 +36,7 @@ from mars_pairs.pipeline.build.outputs import (
 from mars_pairs.pipeline.config import BuildConfig, SyntheticSpec
 from mars_pairs.pipeline.splitting import split_rule
 from mars_pairs.raster.vsi import open_raster
+from mars_pairs.store import fs
 
 
 def check_inputs(config: BuildConfig) -> None:
@@ -58,7 +59,7 @@ def check_inputs(config: BuildConfig) -> None:
         split_rule(config, src.crs.to_wkt(), tuple(src.bounds), src.res)
 
 
-def check_clearable(out: Path, *, resume: bool = False) -> None:
+def check_clearable(out: fs.Location, *, resume: bool = False) -> None:
     """ConfigError unless a build may clear (``resume``: resume in) ``out``: absent, empty, or
     holding only what an earlier mars-pairs build wrote there, as its stamp lists
     (``outputs.foreign_file``). A folder holding anything else is refused whole: nothing in
@@ -112,7 +113,7 @@ def check_limit(limit: int | None) -> None:
 class BuildPlan:
     """What a build of a config would do: counts of labels and chunks, and what is done."""
 
-    out_dir: Path
+    out_dir: Path | str  # a local folder or an fsspec URL (store.fs)
     labels: int  # after --limit
     chunk_size: int  # labels per chunk (output.shard_size); the last chunk may hold fewer
     chunks: int
@@ -211,7 +212,7 @@ def plan_build(
                 f"{out}: cannot resume: the config, the label list or an input file changed "
                 "since the finished build; rerun without --resume"
             )
-    is_finished = resume and finished is not None and (out / "manifest.parquet").is_file()
+    is_finished = resume and finished is not None and fs.is_file(fs.join(out, "manifest.parquet"))
     clears = not resume or (previous is None and not is_finished)  # no stamp: no part trusted
     check_clearable(out, resume=not clears)  # a stranger's file is never touched
     size = config.output.shard_size
@@ -239,6 +240,6 @@ def plan_build(
     )
 
 
-def is_done(out: Path, k: int) -> bool:
+def is_done(out: fs.Location, k: int) -> bool:
     """Whether chunk k is finished: its manifest part (the chunk's commit marker) exists."""
-    return part_paths(out, k)[1].exists()
+    return fs.exists(part_paths(out, k)[1])

@@ -16,10 +16,10 @@ again to the engine, chunk by chunk. The engine's workers write the shards and s
 from __future__ import annotations
 
 import json
-import os
 import time
 from collections import Counter
 from collections.abc import Iterable, Iterator
+from pathlib import Path
 
 from tqdm import tqdm
 
@@ -59,8 +59,7 @@ from mars_pairs.pipeline.build.plan import (
 )
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.config_section import check_regular
-from mars_pairs.store.manifest import write_parquet_atomic
-from mars_pairs.store.shards import atomic_write_bytes
+from mars_pairs.store import fs
 from mars_pairs.store.wids_index import write_wids_index
 
 
@@ -94,27 +93,27 @@ def _commit_chunk(
     out = config.output.dir
     _, manifest_part, failures_part = part_paths(out, result.index)
     if result.shard is not None:
-        size = (out / result.shard).stat().st_size
+        size = fs.size(fs.join(out, result.shard))
         if size != result.shard_bytes:
             raise MarsPairsError(
-                f"{out / result.shard}: {size} bytes, but its worker ({result.worker}) wrote "
-                f"{result.shard_bytes}; rerun the build with --resume"
+                f"{fs.join(out, result.shard)}: {size} bytes, but its worker "
+                f"({result.worker}) wrote {result.shard_bytes}; rerun the build with --resume"
             )
     if result.staged is None or any(o.kind != "fail" and o.key in seen for o in result.outcomes):
         result = resolve_duplicates(out, result, seen)
     failed = next((o.row for o in result.outcomes if o.kind in ("fail", "duplicate")), None)
     if strict and failed is not None:
         for rel in result.staged or ():
-            (out / rel).unlink(missing_ok=True)
+            fs.remove(fs.join(out, rel))
         what = ": ".join(str(failed[c]) for c in ("path", "stage", "error_type", "message"))
         raise BuildError(what)
     if result.staged is None:
         failures, manifest = part_tables(config, result.outcomes)
-        write_parquet_atomic(failures, failures_part)
-        write_parquet_atomic(manifest, manifest_part)  # commit marker
-    else:
-        os.replace(out / result.staged[0], failures_part)
-        os.replace(out / result.staged[1], manifest_part)  # commit marker
+        fs.write_parquet(failures, failures_part)
+        fs.write_parquet(manifest, manifest_part)  # commit marker
+    else:  # on object storage: copied on the server, the manifest part appears last
+        fs.replace(fs.join(out, result.staged[0]), failures_part)
+        fs.replace(fs.join(out, result.staged[1]), manifest_part)  # commit marker
     written = 0
     for o in result.outcomes:
         if o.kind in ("ok", "dropped"):
@@ -184,13 +183,15 @@ def _run(
     plan = plan_build(config, resume=resume, limit=limit)
     if plan.finished:
         return finished_summary(config, plan, start)
-    out.mkdir(parents=True, exist_ok=True)
+    if isinstance(out, Path):
+        out.mkdir(parents=True, exist_ok=True)
     remove_temporaries(out)  # of a killed build
     if plan.clears:
         clear_outputs(out)
     stamp = stamp_path(out)
-    stamp.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(stamp, json.dumps(plan.fingerprint).encode())
+    if isinstance(stamp, Path):
+        stamp.parent.mkdir(parents=True, exist_ok=True)
+    fs.put_bytes(stamp, json.dumps(plan.fingerprint).encode())
     seen = built_keys(out, (k for k in range(plan.chunks) if is_done(out, k)))
     digest = LabelDigest()  # the second pass must list what the first did
     chunks = enumerate(chunks_of(digest.tally(labels_of(config, limit)), plan.chunk_size))
