@@ -8,15 +8,22 @@ import os
 import signal
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
+import torch
 from built_dataset import build_config
 
+from mars_pairs.cli.summary import inspect_dataset
+from mars_pairs.cli.verify import verify_dataset
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import BuildConfig, parse_config
 from mars_pairs.store import fs
+from mars_pairs.store.manifest import Manifest
+from mars_pairs.torch.datasets import MarsPairsDataset
+from mars_pairs.torch.streaming import MarsPairsIterableDataset
 
 #: The files whose bytes a build makes the same wherever it writes them (besides the shards;
 #: shardindex.json names the folder).
@@ -48,22 +55,84 @@ def local_build(small_mission: Path, tmp_path_factory: pytest.TempPathFactory) -
     return out
 
 
-def test_a_build_to_s3_equals_the_local_build(
-    small_mission: Path, local_build: Path, s3_prefix: str
-) -> None:
-    """Two workers upload their shards; the manifest, failures, shards and shard index on
-    the server have the bytes of the local build; parts/ is gone; every dataset file is
-    there."""
-    summary = run_build(config_for(small_mission, s3_prefix), workers=2, progress=False)
+@pytest.fixture(scope="module")
+def s3_build(small_mission: Path, s3_prefix_factory: Callable[[], str]) -> str:
+    """The cheap build of the small mission into a fresh S3 prefix, by 2 pool workers."""
+    url = s3_prefix_factory()
+    summary = run_build(config_for(small_mission, url), workers=2, progress=False)
     assert (summary.samples, summary.chunks_built) == (4, 2)
-    assert digests(s3_prefix) == digests(local_build)
-    files = fs.list_files(s3_prefix)
+    return url
+
+
+def test_a_build_to_s3_equals_the_local_build(
+    small_mission: Path, local_build: Path, s3_build: str
+) -> None:
+    """Two workers upload their shards; the manifest, failures and shards on the server have
+    the bytes of the local build; parts/ is gone; every dataset file is there; a resume
+    over the finished build does nothing."""
+    assert digests(s3_build) == digests(local_build)
+    files = fs.list_files(s3_build)
     assert not [f for f in files if f.startswith("parts/")]
     for name in ("dataset.json", "README.md", "croissant.json", "shardindex.json"):
         assert name in files
-    # a resume over the finished build does nothing
-    again = run_build(config_for(small_mission, s3_prefix), resume=True, progress=False)
+    again = run_build(config_for(small_mission, s3_build), resume=True, progress=False)
     assert (again.chunks_built, again.samples) == (0, 4)
+
+
+def test_the_readers_read_a_dataset_on_s3(local_build: Path, s3_build: str) -> None:
+    """MarsPairsDataset (verify=True), the streaming dataset, Manifest, verify and inspect
+    read the dataset on the server as the local one."""
+    fields = ("ground", "ortho", "dem", "viewshed", "corr")
+    with (
+        MarsPairsDataset(s3_build, fields=fields, verify=True) as remote,
+        MarsPairsDataset(local_build, fields=fields) as local,
+    ):
+        assert len(remote) == len(local) == 4
+        for i in range(len(local)):
+            a, b = remote[i], local[i]
+            assert a["meta"] == b["meta"]
+            for name in fields:
+                torch.testing.assert_close(a[name], b[name], rtol=0, atol=0, equal_nan=True)
+    with MarsPairsIterableDataset(s3_build, fields=("ortho",), shuffle_buffer=1) as stream:
+        assert sorted(s["meta"]["key"] for s in stream) == sorted(local_build_keys(local_build))
+    assert len(Manifest.open(s3_build).filter(split="train")) == len(
+        Manifest.open(local_build).filter(split="train")
+    )
+    report = verify_dataset(s3_build)
+    assert not report.damage and report.shards == 2 and report.members > 0
+    text = inspect_dataset(s3_build)
+    assert "samples: 4" in text and f"dataset: {s3_build}" in text
+
+
+def local_build_keys(root: Path) -> list[str]:
+    return Manifest.open(root).to_table(columns=["key"])["key"].to_pylist()
+
+
+def test_verify_names_a_damaged_member_on_s3(local_build: Path, s3_prefix: str) -> None:
+    """A dataset uploaded with one shard byte flipped: verify names that shard's member."""
+    for rel in fs.list_files(local_build):
+        data = (local_build / rel).read_bytes()
+        if rel == "shards/shard-000001.tar":
+            data = data[:1000] + bytes([data[1000] ^ 0xFF]) + data[1001:]
+        fs.put_bytes(fs.join(s3_prefix, rel), data)
+    report = verify_dataset(s3_prefix)
+    assert [d.shard for d in report.damage] == ["shards/shard-000001.tar"]
+
+
+def test_rasters_on_s3_build_as_local(
+    small_mission: Path, local_build: Path, s3_prefix: str, tmp_path: Path
+) -> None:
+    """inputs.dem and inputs.ortho given as s3:// URLs (read through GDAL's /vsis3/) build
+    the local build's manifest and shards."""
+    for name in ("dem.tif", "ortho.tif"):
+        fs.upload(small_mission / "orbital" / name, fs.join(s3_prefix, name))
+    doc = build_config(small_mission, tmp_path / "ds")
+    doc["inputs"] |= {"dem": f"{s3_prefix}/dem.tif", "ortho": f"{s3_prefix}/ortho.tif"}
+    config = parse_config(doc, base=small_mission)
+    assert str(config.inputs.dem).startswith("/vsis3/")
+    summary = run_build(config, progress=False)
+    assert summary.samples == 4
+    assert digests(tmp_path / "ds") == digests(local_build)
 
 
 @pytest.mark.parametrize(
