@@ -246,7 +246,7 @@ def _cmd_query(args: argparse.Namespace) -> int:
 
 def _add_build_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", required=True, help="build configuration (YAML)")
-    p.add_argument("--out", help="dataset folder (overrides output.dir)")
+    p.add_argument("--out", help="dataset folder or URL (s3://bucket/prefix; overrides output.dir)")
     p.add_argument("--workers", type=count(1), default=1, help="worker processes (default 1)")
     p.add_argument("--resume", action="store_true", help="keep finished shards of a killed build")
     p.add_argument("--limit", type=count(1), help="build at most N observations")
@@ -326,11 +326,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_build)
 
     p = sub.add_parser("inspect", help="counts, failures and size of a built dataset")
-    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("dataset", help="dataset folder, or its URL (s3://bucket/prefix)")
     p.set_defaults(func=_cmd_inspect)
 
     p = sub.add_parser("verify", help="check every member's tar header, size and checksum")
-    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("dataset", help="dataset folder, or its URL (s3://bucket/prefix)")
     p.set_defaults(func=_cmd_verify)
 
     p = sub.add_parser(

@@ -16,6 +16,7 @@ import pytest
 import torch
 from built_dataset import build_config
 
+from mars_pairs.cli.main import main
 from mars_pairs.cli.summary import inspect_dataset
 from mars_pairs.cli.verify import verify_dataset
 from mars_pairs.pipeline.build.run import run_build
@@ -79,9 +80,11 @@ def test_a_build_to_s3_equals_the_local_build(
     assert (again.chunks_built, again.samples) == (0, 4)
 
 
-def test_the_readers_read_a_dataset_on_s3(local_build: Path, s3_build: str) -> None:
+def test_the_readers_read_a_dataset_on_s3(
+    local_build: Path, s3_build: str, capsys: pytest.CaptureFixture[str]
+) -> None:
     """MarsPairsDataset (verify=True), the streaming dataset, Manifest, verify and inspect
-    read the dataset on the server as the local one."""
+    (and ``mars-pairs verify URL``) read the dataset on the server as the local one."""
     fields = ("ground", "ortho", "dem", "viewshed", "corr")
     with (
         MarsPairsDataset(s3_build, fields=fields, verify=True) as remote,
@@ -102,6 +105,8 @@ def test_the_readers_read_a_dataset_on_s3(local_build: Path, s3_build: str) -> N
     assert not report.damage and report.shards == 2 and report.members > 0
     text = inspect_dataset(s3_build)
     assert "samples: 4" in text and f"dataset: {s3_build}" in text
+    assert main(["verify", s3_build]) == 0
+    assert "all intact" in capsys.readouterr().out
 
 
 def local_build_keys(root: Path) -> list[str]:
