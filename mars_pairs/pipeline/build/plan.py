@@ -220,10 +220,9 @@ def plan_build(
     done = labels_done = 0
     if is_finished:
         done, labels_done = chunks, n
-    for k in range(0 if clears or is_finished else chunks):
-        if is_done(out, k):
-            done += 1
-            labels_done += min(size, n - k * size)
+    for k in sorted(done_chunks(out, 0 if clears or is_finished else chunks)):
+        done += 1
+        labels_done += min(size, n - k * size)
     return BuildPlan(
         out_dir=out,
         labels=n,
@@ -243,3 +242,12 @@ def plan_build(
 def is_done(out: fs.Location, k: int) -> bool:
     """Whether chunk k is finished: its manifest part (the chunk's commit marker) exists."""
     return fs.exists(part_paths(out, k)[1])
+
+
+def done_chunks(out: fs.Location, chunks: int) -> set[int]:
+    """The finished chunks among the first ``chunks`` (``is_done``); on object storage from
+    one listing of ``parts/``, not a request a chunk."""
+    if isinstance(out, Path) or chunks == 0:
+        return {k for k in range(chunks) if is_done(out, k)}
+    listed = set(fs.list_files(fs.join(out, "parts")))
+    return {k for k in range(chunks) if f"manifest-{k:06d}.parquet" in listed}

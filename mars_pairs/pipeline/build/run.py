@@ -53,7 +53,7 @@ from mars_pairs.pipeline.build.outputs import (
 from mars_pairs.pipeline.build.plan import (
     check_clearable,
     chunks_of,
-    is_done,
+    done_chunks,
     labels_of,
     plan_build,
 )
@@ -192,10 +192,11 @@ def _run(
     if isinstance(stamp, Path):
         stamp.parent.mkdir(parents=True, exist_ok=True)
     fs.put_bytes(stamp, json.dumps(plan.fingerprint).encode())
-    seen = built_keys(out, (k for k in range(plan.chunks) if is_done(out, k)))
+    done = done_chunks(out, plan.chunks)
+    seen = built_keys(out, sorted(done))
     digest = LabelDigest()  # the second pass must list what the first did
     chunks = enumerate(chunks_of(digest.tally(labels_of(config, limit)), plan.chunk_size))
-    todo = ((k, labels) for k, labels in chunks if not is_done(out, k))
+    todo = ((k, labels) for k, labels in chunks if k not in done)
     results = _chunk_results(config, todo, pool, engine)
     bar = tqdm(
         total=plan.labels,
