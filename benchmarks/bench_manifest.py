@@ -5,7 +5,7 @@
 
 Writes a synthetic manifest (every ``MANIFEST_SCHEMA`` column; seeded random rover positions
 over Jezero crater, sorted by ``mars_pairs.store.splits.hilbert_index``) with
-``mars_pairs.store.manifest.write_parquet_atomic`` to a temp dir, then prints a markdown table of
+``mars_pairs.store.atomic.write_parquet_atomic`` to a temp dir, then prints a markdown table of
 median wall times (ms; warm-up first) for one small box (--box-deg on a side):
 
 - ``Manifest.open(dir).filter(bbox_lonlat=...)``: ``len()``, ``to_table(columns=[key,
@@ -35,13 +35,11 @@ import pyarrow.parquet as pq
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mars_pairs.store.manifest import (  # noqa: E402
-    MANIFEST_SCHEMA,
-    MARS_RADIUS_M,
-    MEMBERS,
-    Manifest,
-    write_parquet_atomic,
-)
+from mars_pairs.geometry.body import MARS_RADIUS_M  # noqa: E402
+from mars_pairs.store.atomic import write_parquet_atomic  # noqa: E402
+from mars_pairs.store.manifest import MANIFEST_SCHEMA  # noqa: E402
+from mars_pairs.store.members import MEMBERS  # noqa: E402
+from mars_pairs.store.query import Manifest  # noqa: E402
 from mars_pairs.store.splits import hilbert_index  # noqa: E402
 
 # Jezero crater (planetocentric degrees): (west, south, east, north)

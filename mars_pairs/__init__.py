@@ -3,7 +3,7 @@
 from mars_pairs.errors import ConfigError, LabelError, MarsPairsError, PlacesError, TerrainError
 from mars_pairs.geometry.camera import CameraModel
 from mars_pairs.observation import MotionCounter, Observation
-from mars_pairs.store.manifest import Manifest
+from mars_pairs.store.query import Manifest
 from mars_pairs.version import __version__
 
 __all__ = [

@@ -44,27 +44,31 @@ class ConfigError(MarsPairsError):
 
 
 class DatasetError(MarsPairsError):
-    """A built dataset is damaged: the message names the shard file and the member key.
+    """A built dataset is damaged: the message names the file at fault and what in it.
+
+    ``path``: the file (a shard, manifest.parquet, dataset.json, ...); ``member``: what in it
+    is at fault: a shard's member (``<key>.<field>``), a manifest column or key, a
+    dataset.json key (None: the whole file); ``reason``: what is wrong.
 
     ``DatasetError(message)`` (one argument: how a DataLoader re-raises a worker's exception,
-    the worker's traceback as the message) keeps the type; its ``shard`` is then "" and its
+    the worker's traceback as the message) keeps the type; its ``path`` is then "" and its
     ``reason`` the message.
     """
 
-    def __init__(self, shard: object, member: str | None = None, reason: str | None = None) -> None:
+    def __init__(self, path: object, member: str | None = None, reason: str | None = None) -> None:
         if reason is None and member is None:  # one message (a DataLoader's re-raise)
-            self.shard, self.member, self.reason = "", None, str(shard)
+            self.path, self.member, self.reason = "", None, str(path)
             super().__init__(self.reason)
             return
-        self.shard = str(shard)
+        self.path = str(path)
         self.member = member
         self.reason = reason or ""
-        where = f"{self.shard}: {member}" if member else self.shard
+        where = f"{self.path}: {member}" if member else self.path
         super().__init__(f"{where}: {self.reason}")
 
     def __reduce__(self) -> tuple[type, tuple[object, ...]]:  # pickles with its fields
-        if self.shard or self.member is not None:
-            return type(self), (self.shard, self.member, self.reason)
+        if self.path or self.member is not None:
+            return type(self), (self.path, self.member, self.reason)
         return type(self), (self.reason,)
 
 

@@ -196,7 +196,7 @@ def _cmd_synth(args: argparse.Namespace) -> int:
 
 
 def _cmd_show(args: argparse.Namespace) -> int:
-    from mars_pairs.viz import show_sample
+    from mars_pairs.report import show_sample
 
     print(show_sample(args.dataset, args.key, args.out))
     return 0
@@ -210,7 +210,7 @@ def _cmd_overview(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from mars_pairs.viz.report import write_report
+    from mars_pairs.report import write_report
 
     print(write_report(args.dataset, args.out, samples=args.samples))
     return 0

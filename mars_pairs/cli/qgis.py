@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import io
 import json
-import os
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +14,9 @@ import shapely
 from PIL import Image
 
 from mars_pairs.errors import DatasetError, MarsPairsError
-from mars_pairs.store.manifest import SUMMARY_COLUMNS, Manifest
+from mars_pairs.store.atomic import atomic_path
+from mars_pairs.store.manifest import SUMMARY_COLUMNS
+from mars_pairs.store.query import Manifest
 from mars_pairs.store.shards import MemberLocation, read_member
 
 ATTRIBUTES = SUMMARY_COLUMNS
@@ -65,8 +66,6 @@ def export_geopackage(
         raise MarsPairsError(f"{root}: the dataset has no samples")
     crs = _dataset_crs(root)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}.gpkg")
-    tmp.unlink(missing_ok=True)
     with_foot = [r for r in rows if r["footprint"] is not None]
     layers = [
         (
@@ -78,18 +77,19 @@ def export_geopackage(
         ("footprints", with_foot, [shapely.from_wkb(r["footprint"]) for r in with_foot], "Polygon"),
         ("camera_wedges", rows, [camera_wedge(r) for r in rows], "Polygon"),
     ]
-    for i, (name, layer_rows, geoms, kind) in enumerate(layers):
-        write_arrow(
-            _layer(layer_rows, list(geoms)),
-            tmp,
-            layer=name,
-            driver="GPKG",
-            geometry_name="geometry",
-            geometry_type=kind,
-            crs=crs,
-            append=i > 0,
-        )
-    os.replace(tmp, out)
+    with atomic_path(out, suffix=".gpkg") as tmp:  # the GPKG driver goes by the extension
+        tmp.unlink(missing_ok=True)
+        for i, (name, layer_rows, geoms, kind) in enumerate(layers):
+            write_arrow(
+                _layer(layer_rows, list(geoms)),
+                tmp,
+                layer=name,
+                driver="GPKG",
+                geometry_name="geometry",
+                geometry_type=kind,
+                crs=crs,
+                append=i > 0,
+            )
     if with_viewsheds:
         _write_viewsheds(root, rows, viewsheds_folder(out), crs)
     if with_chips:
@@ -179,7 +179,6 @@ def _write_geotiff(
     """One band GeoTIFF of ``array`` on ``transform`` in ``crs``, written atomically."""
     import rasterio
 
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     profile = {
         "driver": "GTiff",
         "width": array.shape[1],
@@ -192,14 +191,9 @@ def _write_geotiff(
     }
     if nodata is not None:
         profile["nodata"] = nodata
-    try:
-        with rasterio.open(tmp, "w", **profile) as dst:
-            dst.write(array, 1)
-            dst.set_band_description(1, what)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp, rasterio.open(tmp, "w", **profile) as dst:
+        dst.write(array, 1)
+        dst.set_band_description(1, what)
 
 
 def _write_viewsheds(root: Path, rows: list[dict[str, Any]], folder: Path, crs: str) -> None:

@@ -16,8 +16,9 @@ import shapely
 from mars_pairs.errors import MarsPairsError
 from mars_pairs.geometry.body import MARS_LONLAT_AUTHORITY
 from mars_pairs.geometry.frames import map_to_lonlat
+from mars_pairs.store.atomic import write_parquet_atomic
 from mars_pairs.store.geoparquet import GEOMETRY_COLUMNS, table_geo_metadata
-from mars_pairs.store.manifest import Manifest, write_parquet_atomic
+from mars_pairs.store.query import Manifest
 
 #: Columns of WKB or struct values, left out of CSV and GeoJSON properties.
 NOT_PLAIN = (*GEOMETRY_COLUMNS, "bbox")

@@ -10,7 +10,7 @@ import pyarrow as pa
 
 from mars_pairs.errors import DatasetError
 from mars_pairs.store import fs
-from mars_pairs.store.manifest import Manifest
+from mars_pairs.store.query import Manifest
 
 
 def _counts(title: str, values: list[object]) -> list[str]:

@@ -24,22 +24,22 @@ from mars_pairs.errors import DatasetError
 from mars_pairs.store import fs
 from mars_pairs.store.dataset_info import read_dataset_info
 from mars_pairs.store.integrity import MemberSpec, check_member, shard_location
-from mars_pairs.store.manifest import Manifest
 from mars_pairs.store.members import DENSE_FIELDS, MEMBERS
+from mars_pairs.store.query import Manifest
 
 
 @dataclass(frozen=True)
 class Damage:
-    """One damaged member: its shard (relative to the dataset), member name and what is wrong.
-    For the manifest and dataset.json, ``shard`` is that file and ``member`` the key or the
-    field at fault (None: the whole file)."""
+    """One damaged file or member: ``path`` the file (a shard, the manifest, dataset.json;
+    relative to the dataset), ``member`` what in it (a shard's member name, the manifest's
+    key, dataset.json's key at fault; None: the whole file) and what is wrong."""
 
-    shard: str
+    path: str
     member: str | None
     reason: str
 
     def __str__(self) -> str:
-        where = f"{self.shard}: {self.member}" if self.member else self.shard
+        where = f"{self.path}: {self.member}" if self.member else self.path
         return f"{where}: {self.reason}"
 
 

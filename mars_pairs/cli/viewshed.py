@@ -4,14 +4,18 @@ viewshed, as a QGIS-ready GeoTIFF."""
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from mars_pairs.cli.arguments import band
 from mars_pairs.errors import UsageError
 
+if TYPE_CHECKING:
+    from mars_pairs.raster.terrain import Terrain
 
-def label_viewshed(args: argparse.Namespace, terrain: object) -> int:
+
+def label_viewshed(args: argparse.Namespace, terrain: Terrain) -> int:
     """``viewshed --label``: the image's view (frustum or the study's band) as a GeoTIFF."""
 
     from mars_pairs.geometry.places import Places
@@ -21,7 +25,7 @@ def label_viewshed(args: argparse.Namespace, terrain: object) -> int:
 
     obs = read_observation(args.label)
     pose = Places.from_csv(args.places).locate(obs)
-    view = label_view(obs, pose, terrain, args.radius, args.height, args.mask)  # type: ignore[arg-type]
+    view = label_view(obs, pose, terrain, args.radius, args.height, args.mask)
     rows, cols = np.indices(view.mask.shape)
     x, y = view.window.colrow_to_xy(cols, rows)
     points = np.stack([x, y, view.window.data.astype(np.float64)], axis=-1).reshape(-1, 3)

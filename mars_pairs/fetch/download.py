@@ -11,7 +11,9 @@ Validators (ETag, Last-Modified) are kept beside the files as ``<name>.meta.json
 - resume: the answer that starts a ``.part`` leaves its validator in ``<name>.part.meta.json``;
   an interrupted download (a retry or a rerun) asks for the rest with ``Range: bytes=N-`` and
   ``If-Range: <that validator>``, so a remote file replaced meanwhile comes whole (200), never
-  stitched; a part without a validator is restarted from zero.
+  stitched; a part without a validator is restarted from zero. A part that is already whole
+  (the server answers 416 with the file's size, ``Content-Range: bytes */N``, or a HEAD with
+  the part's validator gives that size) is checked and renamed into place, not fetched again.
 - revalidation: a ``mutable`` file (archive tables: indexes, inventories, collection labels,
   PLACES) is asked for on every fetch with ``If-None-Match`` / ``If-Modified-Since`` from its
   ``<name>.meta.json``; 304 keeps the cached file, 200 replaces it (checked, atomically).
@@ -45,6 +47,7 @@ from mars_pairs.errors import ContentError, FetchError
 from mars_pairs.fetch.cache import Cache, atomic_write
 from mars_pairs.fetch.validate import (
     KINDS,
+    Extent,
     check_content_type,
     check_file,
     kind_of,
@@ -52,6 +55,7 @@ from mars_pairs.fetch.validate import (
 )
 
 _CONTENT_RANGE = re.compile(r"bytes (\d+)-(\d+)/(\d+|\*)")
+_UNSATISFIED_RANGE = re.compile(r"bytes \*/(\d+)")
 USER_AGENT = "mars-pairs-fetch/0.1"
 
 
@@ -70,6 +74,10 @@ class RemoteFile:
     #: the local label describing this file (a PDS3 index label for its table, a product
     #: label for its image, the collection label for its inventory), for the content check
     label: Path | None = None
+    #: for an ``.IMG``, the size its label gives it, read with the label's other facts
+    #: (``products.with_label_facts``) so that the checks do not parse the label again;
+    #: None: read from ``label`` when checked
+    extent: Extent | None = None
 
     def __post_init__(self) -> None:
         if self.kind is not None and self.kind not in KINDS:
@@ -213,6 +221,10 @@ class Downloader:
 
     def head_size(self, url: str) -> int | None:
         """The Content-Length a HEAD request gives (None when the server does not say)."""
+        return _length(self._head(url).headers)
+
+    def _head(self, url: str) -> requests.Response:
+        """A 200 answer to a HEAD request; FetchError naming ``url`` otherwise."""
         timeout = (self.policy.connect_timeout_s, self.policy.read_timeout_s)
         try:
             r = self.session().head(url, timeout=timeout, allow_redirects=True)
@@ -220,8 +232,21 @@ class Downloader:
             raise FetchError(url, f"HEAD failed: {type(exc).__name__}: {_short(exc)}") from None
         if r.status_code != 200:
             raise FetchError(url, f"HTTP {r.status_code} {r.reason} (HEAD)")
-        length = r.headers.get("Content-Length")
-        return int(length) if length is not None and length.isdigit() else None
+        return r
+
+    def _whole_size(self, url: str, answer: requests.Response, started: Validator) -> int | None:
+        """Bytes of the remote file a 416 answer to a resume says it has (``Content-Range:
+        bytes */N``), else a HEAD's Content-Length if its validator is the part's; or None."""
+        m = _UNSATISFIED_RANGE.fullmatch(answer.headers.get("Content-Range", "").strip())
+        if m:
+            return int(m[1])
+        try:
+            head = self._head(url)
+        except FetchError:
+            return None
+        if Validator.of(url, head.headers).if_range != started.if_range:
+            return None  # another version of the file than the one the part began
+        return _length(head.headers)
 
     # -- one file --------------------------------------------------------------------------
     def fetch(
@@ -239,7 +264,13 @@ class Downloader:
         if target.is_file() and (remote.size is None or target.stat().st_size == remote.size):
             if not remote.mutable:
                 try:
-                    quick_check(target, remote.file_kind, label=remote.label, where=remote.url)
+                    quick_check(
+                        target,
+                        remote.file_kind,
+                        label=remote.label,
+                        where=remote.url,
+                        extent=remote.extent,
+                    )
                     return FetchResult(remote, target, "cached", 0)
                 except ContentError:
                     target.unlink()  # damaged in the cache (e.g. kept by an older release)
@@ -262,7 +293,7 @@ class Downloader:
             try:
                 got, appended = self._attempt(remote, part, on_bytes, known)
                 received += got
-                resumed = resumed or appended
+                resumed = appended  # the last attempt kept an earlier one's bytes
                 self._verify_md5(remote, part)
                 self._verify_kind(remote, part)
             except _NotModified:
@@ -293,6 +324,7 @@ class Downloader:
 
         A ``part`` is resumed with ``Range: bytes=N-`` and ``If-Range`` set to the validator
         of the answer that started it (``<part>.meta.json``); without one it is restarted.
+        A part already whole (a 416 answer, ``_whole_size``) is kept as it is: (0, True).
         ``known``: the cached file's validator, sent as If-None-Match / If-Modified-Since when
         nothing is resumed (a 304 raises ``_NotModified``).
         """
@@ -324,6 +356,11 @@ class Downloader:
             if r.status_code == 304 and known is not None and not offset:
                 raise _NotModified()
             if r.status_code == 416 and offset:
+                # If-Range matched (else the answer is the whole file), so the part is of the
+                # current version; when it is already whole it is checked, then promoted
+                whole = self._whole_size(remote.url, r, started)  # type: ignore[arg-type]
+                if whole == offset and remote.size in (None, offset):
+                    return 0, True
                 _discard(part)
                 raise _Retryable(f"HTTP 416 for a resume at byte {offset}; restarting")
             if r.status_code == 404 or r.status_code == 410:
@@ -380,7 +417,9 @@ class Downloader:
     def _verify_kind(self, remote: RemoteFile, part: Path) -> None:
         """Check the part is a file of its kind; a failure discards the part."""
         try:
-            check_file(part, remote.file_kind, label=remote.label, where=remote.url)
+            check_file(
+                part, remote.file_kind, label=remote.label, where=remote.url, extent=remote.extent
+            )
         except ContentError as exc:
             _discard(part)
             raise _Retryable(exc.reason) from None
@@ -396,6 +435,12 @@ class Downloader:
         if digest.hexdigest() != remote.md5.lower():
             _discard(part)
             raise _Retryable(f"MD5 {digest.hexdigest()} differs from the archive's {remote.md5}")
+
+
+def _length(headers: requests.structures.CaseInsensitiveDict) -> int | None:
+    """The Content-Length of an answer's headers (None when absent or not a number)."""
+    length = headers.get("Content-Length")
+    return int(length) if length is not None and length.isdigit() else None
 
 
 def _content_range(header: str) -> tuple[int | None, int | None]:

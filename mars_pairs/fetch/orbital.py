@@ -37,15 +37,14 @@ import pyarrow.csv as pacsv
 import rasterio
 import rasterio.shutil
 from affine import Affine
-from rasterio.warp import transform_bounds
-from rasterio.windows import Window, from_bounds
+from rasterio.windows import Window
 
 from mars_pairs.errors import FetchError
+from mars_pairs.fetch.cache import atomic_write
 from mars_pairs.fetch.windows import PlannedWindow, RasterGrid
 from mars_pairs.raster.vsi import gdal_path, remote_env
 
 Bounds = tuple[float, float, float, float]
-SCALE_PAD = 1.1  # ground metres -> map units, generous for eqc at |lat| < 25 deg
 LABEL_SUFFIXES = (".xml", ".lbl", ".LBL", ".XML")  # detached labels tried before a .img itself
 ROWS_PER_READ = 1024  # rows per block read of a window (bounds memory: width x 1024 cells)
 
@@ -133,12 +132,6 @@ def rover_positions(
     xs = np.asarray([r[1] for r in rows])
     ys = np.asarray([r[2] for r in rows])
     return Positions(xs, ys, crs, tuple(r[3] for r in rows))
-
-
-def window_bounds(pos: Positions, margin_m: float) -> Bounds:
-    """(left, bottom, right, top) of the positions grown by ``margin_m``, in ``pos.crs``."""
-    pad = margin_m * SCALE_PAD
-    return (pos.x.min() - pad, pos.y.min() - pad, pos.x.max() + pad, pos.y.max() + pad)
 
 
 # -- sources ---------------------------------------------------------------------------------
@@ -242,7 +235,7 @@ def source_info(source: str, sidecar: Path | None = None, *, write: bool = True)
             colorinterp=tuple(c.name for c in ds.colorinterp),
         )
     if sidecar is not None and write:
-        _atomic_text(sidecar, info.to_json())
+        atomic_write(sidecar, info.to_json().encode())
     return info
 
 
@@ -261,33 +254,6 @@ def cut_planned(win: PlannedWindow, info: SourceInfo, out: Path) -> WindowResult
         return WindowResult(
             info.source, out, tuple(done.bounds), (done.height, done.width), False, win.kind
         )
-
-
-def cut_window(source: str, bounds: Bounds, bounds_crs: str, out: Path) -> WindowResult:
-    """Read ``bounds`` (in ``bounds_crs``) of a raster (local, URL or /vsicurl/) into a COG."""
-    request = {"source": source, "bounds": [round(b, 6) for b in bounds], "crs": bounds_crs}
-    cached = _cached(out, request)
-    if cached is not None:
-        return cached
-    with open_source(source) as (_, src):
-        native = transform_bounds(bounds_crs, src.crs, *bounds, densify_pts=21)
-        win = _snap(from_bounds(*native, transform=src.transform), src.width, src.height)
-        if win is None:
-            raise FetchError(source, f"the rover positions ({bounds_crs}) are off the raster")
-        _write_window(src, win, out, request)
-    with rasterio.open(out) as done:
-        return WindowResult(source, out, tuple(done.bounds), (done.height, done.width), False)
-
-
-def _snap(win: Window, width: int, height: int) -> Window | None:
-    """The window grown outward to whole pixels and clipped to the raster, or None if off it."""
-    c0 = max(0, math.floor(win.col_off))
-    r0 = max(0, math.floor(win.row_off))
-    c1 = min(width, math.ceil(win.col_off + win.width))
-    r1 = min(height, math.ceil(win.row_off + win.height))
-    if c1 <= c0 or r1 <= r0:
-        return None
-    return Window(c0, r0, c1 - c0, r1 - r0)
 
 
 def _write_window(src, win: Window, out: Path, request: dict) -> None:  # type: ignore[no-untyped-def]
@@ -349,13 +315,6 @@ def _cached(out: Path, request: dict) -> WindowResult | None:
     return None
 
 
-def _atomic_text(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 # -- mosaic ----------------------------------------------------------------------------------
 _VRT_TYPES = {
     "uint8": "Byte", "int8": "Int8", "uint16": "UInt16", "int16": "Int16", "uint32": "UInt32",
@@ -411,5 +370,5 @@ def write_vrt(
             ET.SubElement(src, "DstRect", xOff=str(w.col_off - c0), yOff=str(w.row_off - r0),
                           xSize=str(w.width), ySize=str(w.height))  # fmt: skip
     ET.indent(root)
-    _atomic_text(path, ET.tostring(root, encoding="unicode") + "\n")
+    atomic_write(path, (ET.tostring(root, encoding="unicode") + "\n").encode())
     return path

@@ -9,13 +9,15 @@ from each product's label).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-from mars_pairs.errors import FetchError
+from mars_pairs.errors import FetchError, LabelError
 from mars_pairs.fetch.cache import archive_path, join_url
-from mars_pairs.fetch.download import RemoteFile
+from mars_pairs.fetch.download import Downloader, RemoteFile
 from mars_pairs.fetch.products import Failure, Listing, Product, mmm_version
+from mars_pairs.fetch.validate import label_fault, read_pds3_label
 
 # field -> index column names that carry it, in order of preference
 COLUMNS: dict[str, tuple[str, ...]] = {
@@ -37,10 +39,42 @@ def index_files(volume: str, index: str = "RDRINDEX") -> tuple[PurePosixPath, Pu
     return vol / "INDEX" / f"{index}.LBL", vol / "INDEX" / f"{index}.TAB"
 
 
+@dataclass(frozen=True)
+class VolumeIndex:
+    """A volume's index as fetched: the table, its label in the cache and the table's URL."""
+
+    table: Any  # a pandas DataFrame
+    label: Path
+    url: str
+
+
+def fetch_index(dl: Downloader, archive: str, volume: str, index: str = "RDRINDEX") -> VolumeIndex:
+    """Fetch a volume's index label and table into ``dl``'s cache and read the table.
+
+    Both are mutable archive tables (revalidated on every fetch: a re-released index replaces
+    the cached one); the table is checked against its label (``validate``: exactly offset +
+    ROWS x ROW_BYTES bytes) before it is kept. ``archive``: the root URL of the volumes.
+    Raises ``FetchError`` naming the file."""
+    lbl, tab = index_files(volume, index)
+    url = join_url(archive, tab)
+    dl.fetch(RemoteFile(lbl, join_url(archive, lbl), mutable=True))
+    label = dl.cache.path(lbl)
+    dl.fetch(RemoteFile(tab, url, mutable=True, label=label))
+    return VolumeIndex(read_index_table(label), label, url)
+
+
 def read_index_table(label_path: Path) -> Any:
-    """The index table (a pandas DataFrame) that ``label_path`` describes, read by pdr."""
+    """The index table (a pandas DataFrame) that ``label_path`` describes, read by pdr.
+
+    The label passes the bounded label loader (``validate.read_pds3_label``) before pdr is
+    given it, so an oversized or pathological label is a ``FetchError`` naming it, not a hang.
+    """
     import pdr
 
+    try:
+        read_pds3_label(label_path)
+    except LabelError as exc:
+        raise FetchError(label_path, f"unreadable index label: {label_fault(exc)}") from None
     try:
         data = pdr.read(str(label_path))
         keys = list(data.keys())

@@ -15,30 +15,26 @@ from __future__ import annotations
 
 import csv
 import re
+from dataclasses import replace
 from pathlib import Path, PurePosixPath
 
 from lxml import etree
 
-from mars_pairs.errors import FetchError
+from mars_pairs.errors import FetchError, LabelError
 from mars_pairs.fetch.cache import archive_path, join_url
 from mars_pairs.fetch.download import RemoteFile
 from mars_pairs.fetch.products import (
     PDS4_NS,
     Failure,
     Listing,
+    M2020Id,
     Product,
     Skipped,
     newest_only,
     parse_m2020_id,
-    zcam_fields,
+    zcam_fields_of,
 )
-
-DELIMITERS = {
-    "Comma": ",",
-    "Horizontal Tab": "\t",
-    "Semicolon": ";",
-    "Vertical Bar": "|",
-}
+from mars_pairs.fetch.validate import delimiter_of, label_fault
 
 
 def inventory_of(collection_label: Path, collection_rel: PurePosixPath) -> PurePosixPath:
@@ -54,15 +50,7 @@ def inventory_of(collection_label: Path, collection_rel: PurePosixPath) -> PureP
 
 def inventory_delimiter(collection_label: Path) -> str:
     """The inventory's field delimiter (``Inventory/field_delimiter``; comma by default)."""
-    root = _parse(collection_label)
-    text = root.findtext(
-        "pds:File_Area_Inventory/pds:Inventory/pds:field_delimiter", namespaces={"pds": PDS4_NS}
-    )
-    if text is None:
-        return ","
-    if text.strip() not in DELIMITERS:
-        raise FetchError(collection_label, f"Inventory/field_delimiter: unknown {text!r}")
-    return DELIMITERS[text.strip()]
+    return delimiter_of(_parse(collection_label), collection_label)
 
 
 def file_version(vid: str) -> int:
@@ -84,18 +72,33 @@ def file_id_of_lidvid(lidvid: str) -> str:
     ``...:zlf_0052_..._110085j::1.0`` -> ``ZLF_0052_..._110085J01``. Raises ``FetchError``
     (the LIDVID, the reason) when the VID is missing or names no file, or the id does not
     follow the camera SIS grammar."""
-    lid, sep, vid = lidvid.strip().partition("::")
+    version = _vid_version(lidvid)
+    return _at_version(parse_m2020_id(_lid_id(lidvid)), version, lidvid).text
+
+
+def _lid_id(lidvid: str) -> str:
+    """The product id a LIDVID's LID ends with (as written: lower case, no version)."""
+    return lidvid.strip().partition("::")[0].rsplit(":", 1)[-1]
+
+
+def _vid_version(lidvid: str) -> int:
+    """The file version a LIDVID's VID gives; ``FetchError`` naming the LIDVID otherwise."""
+    _, sep, vid = lidvid.strip().partition("::")
     if not sep:
         raise FetchError(lidvid, "no '::<VID>' after the LID")
     try:
-        version = file_version(vid)
+        return file_version(vid)
     except ValueError as exc:
         raise FetchError(lidvid, str(exc)) from None
-    pid = parse_m2020_id(lid.rsplit(":", 1)[-1])
+
+
+def _at_version(pid: M2020Id, version: int, lidvid: str) -> M2020Id:
+    """The id of a LID (parsed, without version) at a file ``version``: what parsing the file
+    id would give; ``FetchError`` naming the LIDVID when the LID's id carries a version."""
     if pid.version is not None:
         raise FetchError(lidvid, "the LID's product id carries a version (54 characters)")
     try:
-        return pid.file_id(version)
+        return replace(pid, text=pid.file_id(version), version=version)
     except ValueError as exc:
         raise FetchError(lidvid, str(exc)) from None
 
@@ -135,9 +138,8 @@ def products_from_inventory(
         if status == "S":
             out.skipped.append(Skipped(lidvid, url, "index", "secondary member", f"row {number}"))
             continue
-        lid_id = lidvid.partition("::")[0].rsplit(":", 1)[-1]
         try:
-            pid = parse_m2020_id(lid_id)
+            pid = parse_m2020_id(_lid_id(lidvid))  # once per row: carried from here on
         except FetchError as exc:
             out.skipped.append(
                 Skipped(lidvid, url, "index", "not an M2020 camera product id", exc.reason)
@@ -149,8 +151,8 @@ def products_from_inventory(
             )
             continue
         try:
-            product_id = file_id_of_lidvid(lidvid)
-            fields = zcam_fields(product_id)
+            pid = _at_version(pid, _vid_version(lidvid), lidvid)
+            product_id, fields = pid.text, zcam_fields_of(pid)
             inside = label_template.format(product_id=product_id, lid=lidvid.partition("::")[0],
                                            **fields)  # fmt: skip
             rel = bundle / archive_path(inside, where=f"{url}: row {number}")
@@ -173,7 +175,14 @@ def products_from_inventory(
 
 
 def _parse(path: Path) -> etree._Element:
+    """The collection label at ``path``, read by the bounded XML loader (``pds.xml``)."""
+    from mars_pairs.pds.common import read_bytes
+    from mars_pairs.pds.xml import load_xml
+
     try:
-        return etree.parse(str(path)).getroot()
-    except (OSError, etree.XMLSyntaxError) as exc:
-        raise FetchError(path, f"unreadable collection label: {exc}") from None
+        data, longer = read_bytes(path)
+        if longer:
+            raise LabelError(path, None, f"larger than {len(data)} bytes: not a label")
+        return load_xml(data, path)
+    except LabelError as exc:
+        raise FetchError(path, f"unreadable collection label: {label_fault(exc)}") from None

@@ -44,9 +44,10 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path, PurePosixPath
 
-from mars_pairs.errors import FetchError
+from mars_pairs.errors import FetchError, LabelError
 from mars_pairs.fetch.cache import archive_path, join_url
 from mars_pairs.fetch.download import RemoteFile
+from mars_pairs.fetch.validate import label_fault, pds3_extent, pds4_extent, read_pds3_label
 
 PDS4_NS = "http://pds.nasa.gov/pds4/pds/v1"
 _DIGITS = "0123456789"
@@ -246,6 +247,11 @@ def zcam_fields(product_id: str) -> dict[str, object]:
         pid = parse_m2020_id(product_id)
     except FetchError:
         return {}
+    return zcam_fields_of(pid)
+
+
+def zcam_fields_of(pid: M2020Id) -> dict[str, object]:
+    """``zcam_fields`` of an id already parsed ({} when it is not a Mastcam-Z id)."""
     if not pid.is_mastcamz:
         return {}
     return {
@@ -439,19 +445,21 @@ def _sibling(label: RemoteFile, name: str, where: str) -> PurePosixPath:
 
 
 def pds3_label_facts(path: Path) -> dict[str, object]:
-    """Image file name (``^IMAGE``), site and drive of a downloaded PDS3 label, via pdr."""
-    import pdr
-
+    """Image file name (``^IMAGE``), its ``Extent``, site and drive of a downloaded PDS3
+    label, read by the bounded label loader (``validate.read_pds3_label``); ``FetchError``
+    naming ``path``."""
     try:
-        meta = pdr.read(str(path)).metadata
-        pointer = meta.get("^IMAGE")
-        names = meta.get("ROVER_MOTION_COUNTER_NAME")
-        values = meta.get("ROVER_MOTION_COUNTER")
-    except Exception as exc:  # pdr raises many types on damaged labels
-        raise FetchError(path, f"unreadable PDS3 label: {type(exc).__name__}: {exc}") from None
+        meta = read_pds3_label(path)
+    except LabelError as exc:
+        raise FetchError(path, f"unreadable PDS3 label: {label_fault(exc)}") from None
+    pointer = meta.get("^IMAGE")
+    names = meta.get("ROVER_MOTION_COUNTER_NAME")
+    values = meta.get("ROVER_MOTION_COUNTER")
     if isinstance(pointer, (list, tuple)):
         pointer = pointer[0]
     facts: dict[str, object] = {"image": str(pointer) if pointer else None}
+    if pointer:
+        facts["extent"] = pds3_extent(meta, str(pointer))
     if names and values and len(names) == len(values):
         counter = dict(zip((str(n).upper() for n in names), values, strict=True))
         facts["site"], facts["drive"] = counter.get("SITE"), counter.get("DRIVE")
@@ -459,13 +467,19 @@ def pds3_label_facts(path: Path) -> dict[str, object]:
 
 
 def pds4_label_facts(path: Path) -> dict[str, object]:
-    """Image file name, size (bytes) and MD5 from a PDS4 label's File_Area_Observational."""
-    from lxml import etree
+    """Image file name, size (bytes), MD5 and ``Extent`` from a PDS4 label's
+    File_Area_Observational, read by the bounded XML loader (``pds.xml.load_xml``);
+    ``FetchError`` naming ``path``."""
+    from mars_pairs.pds.common import read_bytes
+    from mars_pairs.pds.xml import load_xml
 
     try:
-        root = etree.parse(str(path)).getroot()
-    except (OSError, etree.XMLSyntaxError) as exc:
-        raise FetchError(path, f"unreadable PDS4 label: {exc}") from None
+        data, longer = read_bytes(path)
+        if longer:
+            raise LabelError(path, None, f"larger than {len(data)} bytes: not a label")
+        root = load_xml(data, path)
+    except LabelError as exc:
+        raise FetchError(path, f"unreadable PDS4 label: {label_fault(exc)}") from None
     ns = {"pds": PDS4_NS}
     file_el = root.find("pds:File_Area_Observational/pds:File", ns)
     if file_el is None:
@@ -477,11 +491,20 @@ def pds4_label_facts(path: Path) -> dict[str, object]:
         size_bytes = int(size) if size else None
     except ValueError:
         raise FetchError(path, f"File/file_size: not an integer: {size!r}") from None
-    return {"image": name, "size": size_bytes, "md5": md5.strip().lower() if md5 else None}
+    return {
+        "image": name,
+        "size": size_bytes,
+        "md5": md5.strip().lower() if md5 else None,
+        "extent": pds4_extent(root, name.strip()) if name else None,
+    }
 
 
 def with_label_facts(p: Product, label_path: Path, archive_root: str) -> Product:
-    """The product with its image file (and site/drive from a PDS3 label when missing)."""
+    """The product with its image file (and site/drive from a PDS3 label when missing).
+
+    The image's ``RemoteFile`` carries what the label says of its size (``extent``), so the
+    content checks of the image (a download, or the cached file on a rerun) do not parse the
+    label a second time."""
     where = p.label.url
     read = pds4_label_facts if p.mission == "m2020" else pds3_label_facts
     facts = read(label_path)
@@ -489,7 +512,13 @@ def with_label_facts(p: Product, label_path: Path, archive_root: str) -> Product
     if not name:
         raise FetchError(where, "the label names no image file")
     rel = _sibling(p.label, str(name), where)
-    image = RemoteFile(rel, join_url(archive_root, rel), facts.get("size"), facts.get("md5"))  # type: ignore[arg-type]
+    image = RemoteFile(
+        rel,
+        join_url(archive_root, rel),
+        facts.get("size"),  # type: ignore[arg-type]
+        facts.get("md5"),  # type: ignore[arg-type]
+        extent=facts.get("extent"),  # type: ignore[arg-type]
+    )
     site = p.site if p.site is not None else _int_or_none(facts.get("site"))
     drive = p.drive if p.drive is not None else _int_or_none(facts.get("drive"))
     return replace(p, image=image, site=site, drive=drive)

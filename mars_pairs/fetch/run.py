@@ -37,7 +37,7 @@ from mars_pairs.fetch.orbital import (
     source_info,
     write_vrt,
 )
-from mars_pairs.fetch.pds3_index import index_files, products_from_index, read_index_table
+from mars_pairs.fetch.pds3_index import fetch_index, products_from_index
 from mars_pairs.fetch.pds4_inventory import (
     inventory_delimiter,
     inventory_of,
@@ -109,19 +109,14 @@ def list_products(spec: ProductsSpec, dl: Downloader) -> Listing:
                 raise FetchError("fetch.products.volumes", "no volumes and no sols to choose them")
             volumes = volumes_for_sols(spec.filters.sols)
         for volume in volumes:
-            lbl, tab = index_files(volume, spec.index)
-            tab_url = join_url(spec.archive, tab)
             try:  # one volume's unusable index is a failure row; the other volumes go on
-                dl.fetch(RemoteFile(lbl, join_url(spec.archive, lbl), mutable=True))
-                label_path = dl.cache.path(lbl)
-                dl.fetch(RemoteFile(tab, tab_url, mutable=True, label=label_path))
-                table = read_index_table(label_path)
+                index = fetch_index(dl, spec.archive, volume, spec.index)
             except FetchError as exc:
                 out.failures.append(Failure(volume, exc.url, "index", "FetchError", exc.reason))
                 continue
             out.extend(
-                products_from_index(table, volume, spec.archive, str(label_path), spec.mission,
-                                    index_url=tab_url)
+                products_from_index(index.table, volume, spec.archive, str(index.label),
+                                    spec.mission, index_url=index.url)
             )  # fmt: skip
         out.products, older = newest_only(out.products)
         out.skipped.extend(older)
@@ -131,16 +126,17 @@ def list_products(spec: ProductsSpec, dl: Downloader) -> Listing:
         dl.fetch(RemoteFile(coll, join_url(spec.archive, coll), mutable=True))
         coll_path = dl.cache.path(coll)
         inv = inventory_of(coll_path, coll)
+        delimiter = inventory_delimiter(coll_path)  # an unusable label: before the download
         url = join_url(spec.archive, inv)
         dl.fetch(RemoteFile(inv, url, kind="inventory", mutable=True, label=coll_path))
         out.extend(
             products_from_inventory(
                 dl.cache.path(inv),
-                inventory_delimiter(coll_path),
+                delimiter,
                 bundle,
                 spec.label_path,
                 spec.archive,
-                inventory_url=join_url(spec.archive, inv),
+                inventory_url=url,
             )
         )
     kept = []

@@ -34,10 +34,14 @@ import csv
 import io
 import math
 import re
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-from mars_pairs.errors import ContentError, ImageError, LabelError
+from lxml import etree
+
+from mars_pairs.errors import ContentError, FetchError, ImageError, LabelError
 
 KINDS = (
     "pds3_label",
@@ -72,6 +76,14 @@ _BY_SUFFIX = {
 PLACES_COLUMNS = ("frame", "site", "drive", "northing", "easting", "elevation")
 HTML_TYPES = ("text/html", "application/xhtml+xml")
 PDS4_NS = "http://pds.nasa.gov/pds4/pds/v1"
+
+#: PDS4 ``field_delimiter`` names (the PDS4 standard's Inventory class) -> the character.
+DELIMITERS = {
+    "Comma": ",",
+    "Horizontal Tab": "\t",
+    "Semicolon": ";",
+    "Vertical Bar": "|",
+}
 LABEL_MAX_BYTES = 16 << 20  # a text label or table description larger than this is refused
 _ODL_LINE = re.compile(rb"^\s*\^?[A-Za-z][A-Za-z0-9_:]*\s*=", re.MULTILINE)
 _END_LINE = re.compile(rb"^[ \t]*END[ \t]*\r?$", re.MULTILINE)
@@ -93,11 +105,20 @@ def check_content_type(kind: str, content_type: str | None, where: object) -> No
         raise ContentError(where, f"the server answered with an HTML page ({media}), not {kind}")
 
 
-def check_file(path: Path, kind: str, *, label: Path | None = None, where: object = None) -> None:
+def check_file(
+    path: Path,
+    kind: str,
+    *,
+    label: Path | None = None,
+    where: object = None,
+    extent: Extent | None = None,
+) -> None:
     """Raise ``ContentError`` naming ``where`` (default: ``path``) unless ``path`` is a ``kind``.
 
     ``label``: the local label that describes the file (a PDS3 index label for its table, a
     product label for its ``.IMG``, the collection label for its inventory), or None.
+    ``extent``: for an ``img``, what its label says of its size, read with the label's other
+    facts (``pds3_extent``, ``pds4_extent``); None: read from ``label`` here.
     """
     where = path if where is None else where
     if kind not in KINDS:
@@ -106,22 +127,33 @@ def check_file(path: Path, kind: str, *, label: Path | None = None, where: objec
         head = fh.read(1024)
     if kind != "html" and _HTML_HEAD.match(head):
         raise ContentError(where, f"an HTML page, not {kind} (starts {_show(head)})")
-    _CHECKS[kind](path, label, where)
+    if kind == "img":
+        _img(path, label, where, extent)
+    else:
+        _CHECKS[kind](path, label, where)
 
 
-def quick_check(path: Path, kind: str, *, label: Path | None = None, where: object = None) -> None:
+def quick_check(
+    path: Path,
+    kind: str,
+    *,
+    label: Path | None = None,
+    where: object = None,
+    extent: Extent | None = None,
+) -> None:
     """The cheap part of ``check_file``, for a file already in the cache (run on every fetch).
 
     Reads at most the first and last KiB, except labels (checked whole: they are small): an
     HTML page, a JPEG without its end marker, a PNG without its IEND chunk, or an ``.IMG``
-    shorter than its label's arrays (``label``: the local label that describes it) is refused.
+    shorter than its label's arrays (``extent``, else read from ``label``: the local label
+    that describes it) is refused.
     """
     where = path if where is None else where
     if kind in ("pds3_label", "pds4_label"):
         check_file(path, kind, where=where)
         return
-    if kind == "img" and label is not None:
-        _img(path, label, where)  # a stat and the label: no image bytes read
+    if kind == "img":
+        _img(path, label, where, extent)  # a stat (and the label): no image bytes read
     with open(path, "rb") as fh:
         head = fh.read(1024)
         fh.seek(max(0, path.stat().st_size - 1024))
@@ -231,29 +263,58 @@ def _inventory(path: Path, label: Path | None, where: object) -> None:
         )
 
 
+def delimiter_of(root: etree._Element, where: object) -> str:
+    """The field delimiter a parsed collection label gives its inventory (comma when it names
+    none); ``FetchError`` naming ``where`` for one that is not a PDS4 delimiter name."""
+    text = root.findtext(
+        "pds:File_Area_Inventory/pds:Inventory/pds:field_delimiter", namespaces={"pds": PDS4_NS}
+    )
+    if text is None:
+        return ","
+    if text.strip() not in DELIMITERS:
+        raise FetchError(where, f"Inventory/field_delimiter: unknown {text!r}")
+    return DELIMITERS[text.strip()]
+
+
 def _inventory_facts(label: Path, where: object) -> tuple[str, int | None]:
     """(delimiter, records) of the collection label's ``File_Area_Inventory/Inventory``."""
-    from mars_pairs.fetch.pds4_inventory import DELIMITERS
-
-    root = _pds4_root(label, f"{where} (its collection label {label})", "collection label")
+    about = f"{where} (its collection label {label})"
+    root = _pds4_root(label, about, "collection label")
+    try:
+        delimiter = delimiter_of(root, label)
+    except FetchError as exc:
+        raise ContentError(about, exc.reason) from None
     inv = root.find(f"{{{PDS4_NS}}}File_Area_Inventory/{{{PDS4_NS}}}Inventory")
-    if inv is None:
-        return ",", None
-    text = (inv.findtext(f"{{{PDS4_NS}}}field_delimiter") or "Comma").strip()
-    records = (inv.findtext(f"{{{PDS4_NS}}}records") or "").strip()
-    return DELIMITERS.get(text, ","), int(records) if records.isdigit() else None
+    records = "" if inv is None else (inv.findtext(f"{{{PDS4_NS}}}records") or "").strip()
+    return delimiter, int(records) if records.isdigit() else None
 
 
 # -- tables and arrays described by a label ------------------------------------------------
-def _pds3_meta(label: Path, where: object) -> Any:
-    import pdr
+def read_pds3_label(path: Path) -> Mapping[str, Any]:
+    """The PDS3 label in the file at ``path``, parsed by the bounded loader of the label
+    readers (``pds.pds3.load_label``: at most ``pds.common.MAX_LABEL_BYTES`` read, then a
+    structural pre-scan that refuses an oversized or pathological label before pdr parses it),
+    so that parsing is bounded in time and memory on a fetch worker thread too.
 
+    Raises ``LabelError`` naming ``path`` (and the keyword at fault, if any).
+    """
+    from mars_pairs.pds.common import read_bytes
+    from mars_pairs.pds.pds3 import load_label
+
+    data, longer = read_bytes(path)
+    return load_label(data, path, longer)
+
+
+def label_fault(exc: LabelError) -> str:
+    """What a ``LabelError`` says is wrong, without its path: ``[FIELD: ]reason``."""
+    return f"{exc.field}: {exc.reason}" if exc.field else exc.reason
+
+
+def _pds3_meta(label: Path, where: object) -> Mapping[str, Any]:
     try:
-        return pdr.read(str(label)).metadata
-    except Exception as exc:  # pdr raises many types on damaged labels
-        raise ContentError(
-            where, f"its label {label} is unreadable: {type(exc).__name__}"
-        ) from None
+        return read_pds3_label(label)
+    except LabelError as exc:
+        raise ContentError(where, f"its label {label} is unreadable: {label_fault(exc)}") from None
 
 
 def _pointer_target(meta: Any, name: str) -> tuple[str, Any] | None:
@@ -300,22 +361,44 @@ def _pds3_table(path: Path, label: Path | None, where: object) -> None:
         )
 
 
-def _img(path: Path, label: Path | None, where: object) -> None:
-    if label is None:
+@dataclass(frozen=True)
+class Extent:
+    """What a label says of the size of its data file: ``size`` bytes (None: it does not say),
+    exactly (``exact``: PDS3 FIXED_LENGTH records) or at least (the end of its last data
+    object); ``what`` says where the number comes from."""
+
+    size: int | None
+    what: str = ""
+    exact: bool = False
+
+
+def label_extent(label: Path, name: str, where: object) -> Extent:
+    """The ``Extent`` the local label file ``label`` gives its data file ``name`` (parses it;
+    ``ContentError`` naming ``where`` when the label is unreadable)."""
+    if label.suffix.lower() == ".xml":
+        return pds4_extent(_pds4_root(label, f"{where} (its label {label})"), name)
+    return pds3_extent(_pds3_meta(label, where), name)
+
+
+def _img(path: Path, label: Path | None, where: object, extent: Extent | None = None) -> None:
+    if extent is None:
+        if label is None:
+            return
+        extent = label_extent(label, path_name(path), where)
+    if extent.size is None:
         return
     size = path.stat().st_size
-    if label.suffix.lower() == ".xml":
-        need, what = _pds4_extent(label, path_name(path), where)
-    else:
-        need, what = _pds3_extent(label, path_name(path), where)
-        if what.startswith("exactly") and size != need:
-            raise ContentError(where, f"{size} bytes, its label {label} says {what}")
-    if need is not None and size < need:
-        raise ContentError(where, f"{size} bytes, its label {label} needs {what} (cut short?)")
+    said = "its label" if label is None else f"its label {label}"
+    if extent.exact and size != extent.size:
+        raise ContentError(where, f"{size} bytes, {said} says {extent.what}")
+    if size < extent.size:
+        raise ContentError(where, f"{size} bytes, {said} needs {extent.what} (cut short?)")
 
 
-def _pds3_extent(label: Path, name: str, where: object) -> tuple[int | None, str]:
-    meta = _pds3_meta(label, where)
+def pds3_extent(meta: Mapping[str, Any], name: str) -> Extent:
+    """The ``Extent`` a parsed PDS3 label (``read_pds3_label``) gives its data file ``name``:
+    exactly FILE_RECORDS x RECORD_BYTES for FIXED_LENGTH records, else at least the end of the
+    object whose pointer names the file."""
     records, record_bytes = meta.get("FILE_RECORDS"), meta.get("RECORD_BYTES")
     if (
         meta.get("RECORD_TYPE") == "FIXED_LENGTH"
@@ -323,26 +406,27 @@ def _pds3_extent(label: Path, name: str, where: object) -> tuple[int | None, str
         and isinstance(record_bytes, int)
     ):
         total = records * record_bytes
-        return total, f"exactly {total} (FILE_RECORDS {records} x RECORD_BYTES {record_bytes})"
+        what = f"exactly {total} (FILE_RECORDS {records} x RECORD_BYTES {record_bytes})"
+        return Extent(total, what, exact=True)
     found = _pointer_target(meta, name)
     if found is None:
-        return None, ""
+        return Extent(None)
     obj, pointer = found
     image, offset = meta.get(obj), _pds3_offset(pointer, meta)
     if not hasattr(image, "get") or offset is None:
-        return None, ""
+        return Extent(None)
     dims = [image.get(k, 1) for k in ("LINES", "LINE_SAMPLES", "BANDS", "SAMPLE_BITS")]
     if not all(isinstance(d, int) for d in dims):
-        return None, ""
+        return Extent(None)
     lines, samples, bands, bits = dims
     prefix = image.get("LINE_PREFIX_BYTES", 0) + image.get("LINE_SUFFIX_BYTES", 0)
     total = offset + lines * bands * (samples * bits // 8 + prefix)
-    return total, f"{total} ({obj} at byte {offset})"
+    return Extent(total, f"{total} ({obj} at byte {offset})")
 
 
-def _pds4_extent(label: Path, name: str, where: object) -> tuple[int | None, str]:
-    """Bytes of ``name`` the PDS4 label's data objects (arrays, headers, tables) reach."""
-    root = _pds4_root(label, f"{where} (its label {label})")
+def pds4_extent(root: Any, name: str) -> Extent:
+    """The ``Extent`` a parsed PDS4 label gives its data file ``name``: at least the end of the
+    furthest data object (arrays, headers, tables) of its ``File_Area_Observational``."""
     ns = f"{{{PDS4_NS}}}"
     best, what = None, ""
     for area in root.iter(f"{ns}File_Area_Observational"):
@@ -358,7 +442,7 @@ def _pds4_extent(label: Path, name: str, where: object) -> tuple[int | None, str
             length = _pds4_object_bytes(obj, local, ns)
             if length is not None and (best is None or offset + length > best):
                 best, what = offset + length, f"{offset + length} ({local} at byte {offset})"
-    return best, what
+    return Extent(best, what)
 
 
 def _pds4_object_bytes(obj: Any, local: str, ns: str) -> int | None:

@@ -105,21 +105,14 @@ def sol_range_of_index(table: Any, volume: str) -> VolumeRange:
 def ranges_from_archive(
     archive: str, volumes: Iterable[str], dl: Any, index: str = "RDRINDEX"
 ) -> list[VolumeRange]:
-    """Each volume's sol range read from its own index (fetched into ``dl``'s cache).
+    """Each volume's sol range read from its own index, fetched into ``dl``'s cache as a
+    product listing fetches it (``pds3_index.fetch_index``: revalidated, checked).
 
     ``archive`` is the root URL of the volumes (e.g. ``.../img/data/msl``), ``dl`` a
     ``download.Downloader``; each index is ~75 MB for the real volumes."""
-    from mars_pairs.fetch.cache import join_url
-    from mars_pairs.fetch.download import RemoteFile
-    from mars_pairs.fetch.pds3_index import index_files, read_index_table
+    from mars_pairs.fetch.pds3_index import fetch_index
 
-    out = []
-    for volume in volumes:
-        lbl, tab = index_files(volume, index)
-        for rel in (lbl, tab):
-            dl.fetch(RemoteFile(rel, join_url(archive, rel)))
-        out.append(sol_range_of_index(read_index_table(dl.cache.path(lbl)), volume))
-    return out
+    return [sol_range_of_index(fetch_index(dl, archive, v, index).table, v) for v in volumes]
 
 
 def write_volume_ranges(rows: list[VolumeRange], path: str | Path, comment: str = "") -> None:

@@ -40,14 +40,6 @@ def rpy_to_quaternion(roll_deg: ArrayLike, pitch_deg: ArrayLike, yaw_deg: ArrayL
     return np.where(q[..., :1] < 0, -q, q)
 
 
-def quaternion_angle_deg(q1: ArrayLike, q2: ArrayLike) -> float:
-    """The rotation angle (degrees) between two attitudes given as quaternions (s, v1, v2, v3)."""
-    a = np.asarray(q1, dtype=np.float64)
-    b = np.asarray(q2, dtype=np.float64)
-    cos = abs(float(a @ b)) / (float(np.linalg.norm(a)) * float(np.linalg.norm(b)))
-    return float(np.degrees(2.0 * np.arccos(min(1.0, cos))))
-
-
 def image_centre_pixel(width: int, height: int) -> FloatArray:
     """The centre of a width x height image as (sample, line), pixel centres at integers
     (the first pixel's centre at (0, 0), the JPL camera-model convention)."""

@@ -21,6 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 from rasterio.crs import CRS
 from rasterio.enums import Resampling
 from rasterio.warp import reproject, transform_bounds
+from rasterio.warp import transform as warp_points
 from rasterio.windows import Window, from_bounds
 from rasterio.windows import transform as window_transform
 
@@ -28,7 +29,11 @@ from mars_pairs.errors import TerrainError
 from mars_pairs.geometry.frames import crs_string
 from mars_pairs.kernels.resample import sample_affine
 from mars_pairs.raster.grid import NorthUp
+from mars_pairs.raster.transfer import sample_at
 from mars_pairs.raster.vsi import open_raster
+
+#: Most pixels ``ChipReader.read_points`` holds at once (a strip of its window).
+POINT_STRIP_PIXELS = 1 << 22
 
 
 @dataclass(frozen=True)
@@ -253,6 +258,53 @@ class ChipReader:
         if same:
             return _sample_grid(values, src_transform, grid, nearest)
         return _reproject(values, grid, nearest, src_transform=src_transform, src_crs=self.crs_wkt)
+
+    def read_points(
+        self, x: ArrayLike, y: ArrayLike, crs: object, *, band: int = 1
+    ) -> NDArray[np.float32]:
+        """The band's physical values (bilinear between pixel centres, as ``read``) at map
+        points (x, y) in ``crs`` (any shape; reprojected when it is not the raster's); NaN
+        for a NaN point, one off the raster or next to a pixel without data. One windowed
+        read of the points' bounding box, in strips of at most ``POINT_STRIP_PIXELS`` (the
+        memory held stays bounded however far apart the points lie)."""
+        if not 1 <= band <= self.dataset.count:
+            raise TerrainError(f"{self.path}: band {band}: the raster has {self.dataset.count}")
+        xs = np.asarray(x, dtype=np.float64)
+        ys = np.asarray(y, dtype=np.float64)
+        out = np.full(xs.shape, np.nan, dtype=np.float32)
+        ok = np.isfinite(xs) & np.isfinite(ys)
+        if not ok.any():
+            return out
+        px, py = xs[ok], ys[ok]
+        if not _same_crs(self.crs_wkt, crs):
+            px, py = (np.asarray(v) for v in warp_points(crs_string(crs), self.crs_wkt, px, py))
+        win = self._window((px.min(), py.min(), px.max(), py.max()))
+        if win is None:
+            return out
+        inv = ~window_transform(win, self.grid.transform)
+        u = inv.a * px + inv.b * py + inv.c - 0.5  # window pixel centres at integers
+        v = inv.d * px + inv.e * py + inv.f - 0.5
+        values = np.full(px.shape, np.nan, dtype=np.float32)
+        rows = int(win.height)
+        step = max(1, POINT_STRIP_PIXELS // max(int(win.width), 1))
+        first = np.clip(np.floor(v), 0, rows - 1)  # the upper row of each point's 2 x 2
+        try:
+            for r0 in range(0, rows, step):
+                r1 = min(r0 + step + 1, rows)  # one row more: the lower rows of the 2 x 2
+                sel = np.nonzero((first >= r0) & (first < r0 + step))[0]
+                if not len(sel):
+                    continue
+                strip = Window(win.col_off, win.row_off + r0, win.width, r1 - r0)
+                data = self.grid.read(self.dataset, band, strip, masked=True)
+                data = data.astype(np.float32).filled(np.nan)
+                values[sel] = sample_at(data, u[sel], v[sel] - r0, nearest=False)[0]
+        except rasterio.errors.RasterioError as exc:
+            raise TerrainError(f"{self.path}: band {band}: cannot read points: {exc}") from None
+        scale, offset = self.scale_offset(band)
+        if (scale, offset) != (1.0, 0.0):
+            values = values * np.float32(scale) + np.float32(offset)
+        out[ok] = values
+        return out
 
     def _window(self, box: tuple[float, float, float, float]) -> Window | None:
         """The north-up pixel window covering map ``box`` (raster CRS) and two pixels more,

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -13,6 +12,7 @@ import rasterio
 from mars_pairs.geometry.frames import MARS_RADIUS_M
 from mars_pairs.kernels.viewshed import compute_viewshed
 from mars_pairs.raster.terrain import DemWindow, Terrain
+from mars_pairs.store.atomic import atomic_path
 
 NODATA = 255
 COLOURS = {0: (60, 60, 60, 90), 1: (40, 220, 90, 255), NODATA: (0, 0, 0, 0)}
@@ -65,7 +65,6 @@ def write_viewshed_geotiff(path: str | Path, codes: np.ndarray, transform: Any, 
     table; written atomically."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     profile = {
         "driver": "GTiff",
         "width": codes.shape[1],
@@ -81,9 +80,8 @@ def write_viewshed_geotiff(path: str | Path, codes: np.ndarray, transform: Any, 
         "blockysize": 256,
         "photometric": "palette",
     }
-    with rasterio.open(tmp, "w", **profile) as dst:
+    with atomic_path(path) as tmp, rasterio.open(tmp, "w", **profile) as dst:
         dst.write(codes, 1)
         dst.write_colormap(1, COLOURS)
         dst.update_tags(1, visible="1", not_visible="0", nodata=str(NODATA))
         dst.set_band_description(1, "viewshed (1 visible, 0 hidden)")
-    os.replace(tmp, path)

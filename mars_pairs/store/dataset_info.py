@@ -35,20 +35,26 @@ def _positive_int(value: Any) -> int | None:
     return value
 
 
+def _load(path: fs.Location) -> dict[str, Any]:
+    """The JSON object in ``path``; DatasetError naming it when unreadable or not an object."""
+    try:
+        doc = json.loads(fs.read_bytes(path))
+    except (OSError, ValueError) as exc:
+        raise DatasetError(path, None, f"unreadable: {exc}") from None
+    if not isinstance(doc, dict):
+        raise DatasetError(path, None, f"expected a JSON object, got {type(doc).__name__}")
+    return doc
+
+
 def read_dataset_info(root: str | Path) -> DatasetInfo:
     """The dataset.json of the dataset folder ``root`` (a local folder or an fsspec URL:
     ``store.fs``); DatasetError naming the file (and the field) when it is missing,
     unreadable, not a JSON object or lacks a valid ray stride."""
     path = fs.join(fs.dataset_root(root), "dataset.json")
-    try:
-        doc = json.loads(fs.read_bytes(path))
-    except FileNotFoundError:
+    if not fs.exists(path):
         reason = "missing (it holds the ray stride, CRS and chip size: rebuild or restore it)"
-        raise DatasetError(path, None, reason) from None
-    except (OSError, ValueError) as exc:
-        raise DatasetError(path, None, f"unreadable: {exc}") from None
-    if not isinstance(doc, dict):
-        raise DatasetError(path, None, f"expected a JSON object, got {type(doc).__name__}")
+        raise DatasetError(path, None, reason)
+    doc = _load(path)
     value: Any = doc
     for part in RAY_STRIDE:
         value = value.get(part) if isinstance(value, dict) else None
@@ -64,3 +70,21 @@ def read_dataset_info(root: str | Path) -> DatasetInfo:
     if crs is not None and not isinstance(crs, str):
         raise DatasetError(path, "crs", f"expected a string, got {type(crs).__name__}")
     return DatasetInfo(path, crs or None, size_px, stride, doc)
+
+
+def read_dataset_doc(root: str | Path) -> dict[str, Any]:
+    """The whole dataset.json document of the dataset folder ``root``, for readers that work
+    without it (the pictures, the report): {} when the file is absent; DatasetError naming the
+    file when it is unreadable or not a JSON object."""
+    path = Path(root) / "dataset.json"
+    return _load(path) if path.exists() else {}
+
+
+def build_input(root: str | Path, doc: dict[str, Any], name: str) -> Path | None:
+    """The path of the build's input ``name`` (``config.inputs.<name>`` of the dataset.json
+    document ``doc``, e.g. ``ortho``), relative to the dataset folder ``root`` (an absolute
+    path stays as it is); None when the document does not record it."""
+    config = doc.get("config")
+    inputs = config.get("inputs") if isinstance(config, dict) else None
+    value = inputs.get(name) if isinstance(inputs, dict) else None
+    return Path(root) / value if value else None

@@ -140,7 +140,7 @@ def upload(local: Path, path: str) -> None:
 def put_bytes(path: Location, data: bytes) -> None:
     """Write ``data`` to ``path`` all or nothing (locally: a temporary name and a rename)."""
     if isinstance(path, Path):
-        from mars_pairs.store.shards import atomic_write_bytes
+        from mars_pairs.store.atomic import atomic_write_bytes
 
         atomic_write_bytes(path, data)
         return
@@ -206,9 +206,9 @@ def local_staging() -> Iterator[Path]:
 
 def write_parquet(table: Any, path: Location, row_group_size: int = 4096) -> None:
     """Write ``table`` as the Parquet file ``path`` all or nothing (the bytes of
-    ``store.manifest.write_parquet_atomic``; on object storage written locally, then
+    ``store.atomic.write_parquet_atomic``; on object storage written locally, then
     uploaded whole)."""
-    from mars_pairs.store.manifest import write_parquet_atomic
+    from mars_pairs.store.atomic import write_parquet_atomic
 
     if isinstance(path, Path):
         write_parquet_atomic(table, path, row_group_size)

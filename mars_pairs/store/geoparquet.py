@@ -171,3 +171,41 @@ def footprints_bbox(table: pa.Table) -> list[float] | None:
         pc.max(box(col, "xmax")).as_py(),
         pc.max(box(col, "ymax")).as_py(),
     ]
+
+
+def describe_crs(text: str | None) -> tuple[str, str]:
+    """The dataset CRS (``text``: WKT, PROJJSON or PROJ text, as dataset.json or the
+    manifest's GeoParquet metadata hold it) in words (:func:`crs_description`) and its first
+    axis unit ("m" for metres); ("unknown CRS", "map units") without a text and ("unreadable
+    CRS", "map units") when pyproj cannot read it."""
+    from pyproj.exceptions import CRSError
+
+    if not text:
+        return "unknown CRS", "map units"
+    try:
+        crs = CRS.from_user_input(text)
+    except CRSError:
+        return "unreadable CRS", "map units"
+    unit = crs.axis_info[0].unit_name if crs.axis_info else "map units"
+    return crs_description(crs), "m" if unit in ("metre", "meter") else unit
+
+
+def crs_description(crs: CRS) -> str:
+    """A pyproj CRS in words: its name, or (for an unnamed one, as GDAL writes many Mars
+    CRSs) its projection method, body and non-zero parameters."""
+    if crs.name and crs.name.lower() != "unknown":
+        return str(crs.name)
+    op = crs.coordinate_operation
+    words = [op.method_name if op is not None else "unnamed CRS"]
+    ellipsoid = crs.ellipsoid
+    if ellipsoid is not None:
+        if ellipsoid.name and ellipsoid.name.lower() != "unknown":
+            words.append(f"on {ellipsoid.name}")
+        elif ellipsoid.inverse_flattening == 0:
+            words.append(f"on a sphere of radius {ellipsoid.semi_major_metre:.0f} m")
+        else:
+            words.append(f"on an ellipsoid of semi-major axis {ellipsoid.semi_major_metre:.0f} m")
+    params = [p for p in (op.params if op is not None else []) if p.value]
+    if params:
+        words.append("(" + ", ".join(f"{p.name.lower()} {p.value:g}" for p in params) + ")")
+    return " ".join(words)

@@ -7,13 +7,12 @@ import contextlib
 import io
 import os
 import tarfile
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 
 from mars_pairs.errors import DatasetError
+from mars_pairs.store.atomic import naming, rename_into_place, temporary_path
 from mars_pairs.store.integrity import bounds_problem, checksum, shard_path
 
 
@@ -26,30 +25,6 @@ class MemberLocation:
     offset: int
     size: int
     crc32c: int | None = None
-
-
-@contextmanager
-def naming(path: Path) -> Iterator[None]:
-    """Re-raise an OSError that names no file (a full disk: ``[Errno 28] No space left on
-    device``) as one naming ``path``."""
-    try:
-        yield
-    except OSError as exc:
-        if exc.filename is not None:
-            raise
-        if exc.errno is None:
-            raise OSError(f"{path}: {exc}") from exc
-        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary name and a rename (all or nothing)."""
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    with naming(path), open(tmp, "wb") as fh:
-        fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
 
 
 _COPY_BUFFER = 64 << 20
@@ -69,7 +44,7 @@ class ShardWriter:
         self.root, self.relpath = Path(root), relpath
         self.path = self.root / relpath
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
+        self._tmp = temporary_path(self.path)
         self._fh = open(self._tmp, "wb")  # noqa: SIM115 - closed in close()
         self._tar = tarfile.open(  # noqa: SIM115 - closed in close()
             fileobj=self._fh,
@@ -116,7 +91,7 @@ class ShardWriter:
                 self._tmp.unlink(missing_ok=True)
         if commit:
             self._fh.close()
-            os.replace(self._tmp, self.path)
+            rename_into_place(self._tmp, self.path)
 
     def __enter__(self) -> ShardWriter:
         return self

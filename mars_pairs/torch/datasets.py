@@ -54,9 +54,10 @@ from mars_pairs.store.dataset_info import read_dataset_info
 from mars_pairs.store.filter_args import check_split_names, configured_splits, sample_index
 from mars_pairs.store.fs import Location, dataset_root, join
 from mars_pairs.store.integrity import MemberSpec, check_member
-from mars_pairs.store.manifest import SUMMARY_COLUMNS, Manifest
+from mars_pairs.store.manifest import SUMMARY_COLUMNS
 from mars_pairs.store.member_index import MemberIndex
 from mars_pairs.store.members import DENSE_GROUND_FIELDS, MEMBERS
+from mars_pairs.store.query import Manifest
 from mars_pairs.torch.decode import (
     ALL_FIELDS,  # noqa: F401  (re-exported)
     DEFAULT_FIELDS,
@@ -270,7 +271,7 @@ class MarsPairsDataset(Dataset):
         try:
             return self._files.read(shard, offset, size)
         except DatasetError as exc:  # a shard path outside the dataset, a read past its end
-            raise DatasetError(exc.shard, self.member_name(index, field), exc.reason) from None
+            raise DatasetError(exc.path, self.member_name(index, field), exc.reason) from None
         except OSError as exc:
             name = self.member_name(index, field)
             raise DatasetError(join(self.root, shard), name, f"cannot read: {exc}") from None
@@ -300,7 +301,7 @@ class MarsPairsDataset(Dataset):
                     self._files.size(shard),
                 )
             except DatasetError as exc:
-                raise DatasetError(exc.shard, name, exc.reason) from None
+                raise DatasetError(exc.path, name, exc.reason) from None
             except OSError as exc:
                 raise DatasetError(join(self.root, shard), name, f"cannot read: {exc}") from None
             if problem is not None:

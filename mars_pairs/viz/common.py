@@ -5,14 +5,16 @@ query or ``import mars_pairs.cli`` needs no plotting stack."""
 
 from __future__ import annotations
 
+import io
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from mars_pairs.errors import MarsPairsError
-from mars_pairs.store.manifest import Manifest
+from mars_pairs.store.query import Manifest
 
 DPI = 90
 
@@ -36,6 +38,27 @@ def pyplot() -> Any:
     except ImportError as exc:  # pragma: no cover - depends on the install
         raise MarsPairsError("pictures need matplotlib: pip install 'mars-pairs[viz]'") from exc
     return plt
+
+
+def png_bytes(fig: Any, dpi: int = DPI) -> bytes:
+    """The figure as PNG bytes (the figure is closed)."""
+    plt = pyplot()
+    buf = io.BytesIO()
+    try:
+        fig.savefig(buf, format="png", dpi=dpi)
+    finally:
+        plt.close(fig)
+    return buf.getvalue()
+
+
+def split_colours(splits: Sequence[str]) -> dict[str, str]:
+    """A colour (#rrggbb) for every split name: ``SPLIT_COLOURS`` for the usual ones, others
+    from tab10."""
+    from matplotlib.colors import to_hex
+
+    plt = pyplot()
+    extra = iter(plt.get_cmap("tab10").colors[3:])
+    return {s: to_hex(SPLIT_COLOURS.get(s) or next(extra, "grey")) for s in sorted(set(splits))}
 
 
 def manifest_rows(root: Path) -> list[dict[str, Any]]:

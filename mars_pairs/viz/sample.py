@@ -5,13 +5,11 @@ from __future__ import annotations
 import colorsys
 import math
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from mars_pairs.errors import MarsPairsError
-from mars_pairs.viz.common import DPI, SHOW_SIZE, hillshade, pyplot, scale_bar
+from mars_pairs.viz.common import SHOW_SIZE, hillshade, pyplot, scale_bar
 
 
 @dataclass(frozen=True)
@@ -68,13 +66,18 @@ def _colour_wheel(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.array(rgb, dtype=np.float64).reshape(-1, 3)
 
 
-def _inverse(t: list[float]) -> tuple[float, ...]:
+def invert_affine(t: list[float]) -> tuple[float, ...]:
+    """The inverse of the affine ``t`` (a, b, c, d, e, f as GDAL's x = a col + b row + c,
+    y = d col + e row + f): the map (x, y, map units) -> chip pixel (column, row) affine of a
+    chip ``transform``."""
     a, b, c, d, e, f = t
     det = a * e - b * d
     return (e / det, -b / det, (b * f - c * e) / det, -d / det, a / det, (c * d - a * f) / det)
 
 
-def _apply(t: tuple[float, ...], x: Any, y: Any) -> tuple[Any, Any]:
+def apply_affine(t: tuple[float, ...], x: Any, y: Any) -> tuple[Any, Any]:
+    """The affine ``t`` (a, b, c, d, e, f) applied to ``x``, ``y`` (scalars or arrays, the
+    frame ``t`` maps from): (a x + b y + c, d x + e y + f)."""
     a, b, c, d, e, f = t
     return a * np.asarray(x) + b * np.asarray(y) + c, d * np.asarray(x) + e * np.asarray(y) + f
 
@@ -103,7 +106,7 @@ def wedge_ring(
     return x, y
 
 
-def _wedge_pixels(row: dict[str, Any], inv: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+def wedge_pixels(row: dict[str, Any], inv: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
     """The camera's wedge (``wedge_ring`` from ``wedge_apex``) to the farthest visible range,
     as a closed ring of chip pixel coordinates (``inv``: map -> chip pixel affine)."""
     x0, y0, _ = wedge_apex(row)
@@ -111,7 +114,7 @@ def _wedge_pixels(row: dict[str, Any], inv: tuple[float, ...]) -> tuple[np.ndarr
     ring = wedge_ring(
         (x0, y0), float(row.get("azimuth_deg") or 0.0), float(row.get("hfov_deg") or 0.0), rng
     )
-    return _apply(inv, *ring)
+    return apply_affine(inv, *ring)
 
 
 def _limits(ax: Any, box: tuple[float, float, float, float]) -> None:
@@ -119,7 +122,7 @@ def _limits(ax: Any, box: tuple[float, float, float, float]) -> None:
     ax.set_ylim(box[3], box[1])
 
 
-def _ortho_panel(
+def draw_ortho_panel(
     ax: Any,
     ortho: np.ndarray,
     vis: np.ndarray,
@@ -251,7 +254,7 @@ def _info_panel(
     )
 
 
-def _numpy_parts(sample: dict[str, Any]) -> dict[str, Any]:
+def display_arrays(sample: dict[str, Any]) -> dict[str, Any]:
     """The sample's images as display arrays: ground [H, W, 3] uint8, ortho [h, w] uint8,
     viewshed bool, dem float (metres); absent fields are None."""
 
@@ -290,7 +293,7 @@ def sample_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
     """
     plt = pyplot()
     row = dict(sample.get("meta") or {})
-    parts = _numpy_parts(sample)
+    parts = display_arrays(sample)
     ground, ortho, vis, dem = parts["ground"], parts["ortho"], parts["viewshed"], parts["dem"]
     chip = next((a for a in (ortho, dem, vis) if a is not None), None)
     chip_shape = chip.shape if chip is not None else (1, 1)
@@ -300,9 +303,9 @@ def sample_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
     transform = [float(v) for v in np.asarray(sample["transform"])[:6]]
     res = float(np.hypot(transform[0], transform[3]))  # map units per chip pixel
     rotation = float(sample.get("rotation", 0.0))
-    inv = _inverse(transform)
-    rover = _apply(inv, row.get("easting", np.nan), row.get("northing", np.nan))
-    wedge = _wedge_pixels(row, inv)
+    inv = invert_affine(transform)
+    rover = apply_affine(inv, row.get("easting", np.nan), row.get("northing", np.nan))
+    wedge = wedge_pixels(row, inv)
     links = None
     if parts["corr"] is not None and parts["corr_ground"] is not None:
         ground_shape = ground.shape if ground is not None else (1, 1)
@@ -324,7 +327,7 @@ def sample_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
     )
     ax = axes[0, 1]
     if ortho is not None:
-        _ortho_panel(ax, ortho, vis, rover, wedge)
+        draw_ortho_panel(ax, ortho, vis, rover, wedge)
         if zoom is not None:
             x0, y0, x1, y1 = zoom
             ax.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], color="cyan", lw=1, ls="--")
@@ -372,7 +375,7 @@ def sample_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
     axes[1, 0].set_title("ground pixels (keypoints, sampled) ...", fontsize=9)
     ax = axes[1, 1]
     if ortho is not None:
-        _ortho_panel(ax, ortho, vis, rover, wedge, alpha=0.3)
+        draw_ortho_panel(ax, ortho, vis, rover, wedge, alpha=0.3)
     _draw_links(axes[1, 0], ax, links)
     if zoom is not None:
         _limits(ax, zoom)
@@ -391,56 +394,6 @@ def sample_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
         a.set_yticks([])
     fig.tight_layout()
     return fig
-
-
-def show_sample(root: str | Path, key: str, out: str | Path | None = None, dpi: int = DPI) -> Path:
-    """The figure of the sample named ``key`` (its key or product id, any case) drawn by
-    :meth:`MarsPairsDataset.plot` and written to ``out`` (PNG of ``SHOW_SIZE`` inches at
-    ``dpi``; default ``<key>.png`` in the current directory, the sample's own key)."""
-    from mars_pairs.store.manifest import Manifest
-    from mars_pairs.torch import ALL_FIELDS, MarsPairsDataset
-
-    root = Path(root)
-    if not root.is_dir():
-        raise MarsPairsError(f"{root}: no such dataset folder")
-    Manifest.open(root).require()  # a damaged or column-less manifest: one error naming it
-    plt = pyplot()
-    with MarsPairsDataset(root, fields=ALL_FIELDS + _dense_fields_of(root)) as ds:
-        sample = ds[ds.index_of(key)]
-        out = Path(out) if out is not None else Path(f"{sample['meta']['key']}.png")
-        centre = _camera_centre(root, sample["meta"]["key"])
-        if centre is not None:
-            sample["meta"] = {**sample["meta"], "camera_center_map": centre}
-        fig = ds.plot(sample)
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(out, dpi=dpi)
-    finally:
-        plt.close(fig)
-    if has_dense(sample):
-        _save_dense(sample, out, dpi)
-    return out
-
-
-def _dense_fields_of(root: Path) -> tuple[str, ...]:
-    """The optional dense fields whose members the dataset's manifest locates."""
-    from mars_pairs.store.manifest import Manifest
-    from mars_pairs.store.members import DENSE_FIELDS
-
-    names = set(Manifest.open(root).column_names)
-    return tuple(f for f in DENSE_FIELDS if f"{f}_offset" in names)
-
-
-def _save_dense(sample: dict[str, Any], out: Path, dpi: int) -> Path:
-    """The dense members' figure beside ``out``: ``<stem>_dense<suffix>``."""
-    plt = pyplot()
-    path = out.with_name(f"{out.stem}_dense{out.suffix}")
-    fig = dense_figure(sample)
-    try:
-        fig.savefig(path, dpi=dpi)
-    finally:
-        plt.close(fig)
-    return path
 
 
 # -- dense members (output.members) ---------------------------------------------------------------
@@ -500,27 +453,3 @@ def dense_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
         fig.suptitle(title)
     fig.tight_layout()
     return fig
-
-
-def _camera_centre(root: Path, key: str) -> list[float] | None:
-    """``camera_center_map`` (map x, y, z of the dataset CRS) from sample ``key``'s meta.json
-    member; None when the manifest has no meta.json location or the member lacks it."""
-    import json
-
-    import pyarrow.dataset as ds
-
-    from mars_pairs.store.manifest import Manifest
-    from mars_pairs.store.shards import MemberLocation, read_member
-
-    columns = ["meta_shard", "meta_offset", "meta_size"]
-    manifest = Manifest.open(root)
-    if not set(columns) <= set(manifest.column_names):
-        return None
-    rows = manifest.to_table(columns=["key", *columns]).filter(ds.field("key") == key)
-    if rows.num_rows != 1 or rows["meta_shard"][0].as_py() is None:
-        return None
-    row = rows.to_pylist()[0]
-    location = MemberLocation(row["meta_shard"], int(row["meta_offset"]), int(row["meta_size"]))
-    meta = json.loads(read_member(root, location, name=f"{key}.meta.json"))
-    centre = meta.get("camera_center_map") if isinstance(meta, dict) else None
-    return [float(v) for v in centre] if isinstance(centre, list) and len(centre) >= 2 else None

@@ -33,7 +33,7 @@ def meta_json(root: Path, key: str) -> dict:
 
 
 def test_the_wedge_starts_at_the_camera_centre() -> None:
-    from mars_pairs.viz.sample import _inverse, _wedge_pixels, wedge_apex, wedge_ring
+    from mars_pairs.viz.sample import invert_affine, wedge_apex, wedge_pixels, wedge_ring
 
     row = {"easting": 1000.0, "northing": 2000.0, "camera_center_map": [1000.6, 2000.7, -5.0]}
     assert wedge_apex(row) == (1000.6, 2000.7, True)
@@ -49,16 +49,19 @@ def test_the_wedge_starts_at_the_camera_centre() -> None:
     # in chip pixels (a north-up chip of 0.5 m pixels): the ring's first point is the centre
     transform = [0.5, 0.0, 990.0, 0.0, -0.5, 2010.0]
     row |= {"azimuth_deg": 90.0, "hfov_deg": 20.0, "max_visible_range_m": 3.0}
-    col, line = _wedge_pixels(row, _inverse(transform))
+    col, line = wedge_pixels(row, invert_affine(transform))
     assert (col[0], line[0]) == pytest.approx(((1000.6 - 990.0) / 0.5, (2010.0 - 2000.7) / 0.5))
 
 
 def test_show_reads_the_camera_centre_from_meta_json(dataset: Path) -> None:
-    from mars_pairs.viz.sample import _camera_centre
+    from mars_pairs.report.meta import camera_centres
 
-    for row in pq.read_table(dataset / "manifest.parquet").to_pylist():
+    rows = pq.read_table(dataset / "manifest.parquet").to_pylist()
+    centres = camera_centres(dataset, [r["key"] for r in rows] + ["no_such_key"])
+    assert centres["no_such_key"] is None
+    for row in rows:
         want = meta_json(dataset, row["key"])["camera_center_map"]
-        got = _camera_centre(dataset, row["key"])
+        got = centres[row["key"]]
         assert got == want
         # the camera centre is where the wedge starts, not the rover origin (~1 m away)
         off = np.hypot(got[0] - row["easting"], got[1] - row["northing"])
@@ -66,14 +69,15 @@ def test_show_reads_the_camera_centre_from_meta_json(dataset: Path) -> None:
 
 
 def test_the_sample_figure_has_scale_bars_and_names_the_wedge_apex(dataset: Path) -> None:
+    from mars_pairs.report.meta import camera_centres
     from mars_pairs.torch import ALL_FIELDS, MarsPairsDataset
     from mars_pairs.viz.common import pyplot
-    from mars_pairs.viz.sample import _camera_centre, _inverse, _wedge_pixels
+    from mars_pairs.viz.sample import invert_affine, wedge_pixels
 
     with MarsPairsDataset(dataset, fields=ALL_FIELDS) as ds:
         sample = ds[0]
         key = sample["meta"]["key"]
-        sample["meta"]["camera_center_map"] = _camera_centre(dataset, key)
+        sample["meta"]["camera_center_map"] = camera_centres(dataset, [key])[key]
         fig = ds.plot(sample)
     try:
         ortho_ax = fig.axes[1]
@@ -82,7 +86,7 @@ def test_the_sample_figure_has_scale_bars_and_names_the_wedge_apex(dataset: Path
         assert len(bars) >= 2, bars  # the ortho and DEM panels (and the zoom when drawn)
         # the wedge line of the ortho panel starts at the camera centre, in chip pixels
         transform = [float(v) for v in np.asarray(sample["transform"])[:6]]
-        apex = _wedge_pixels(sample["meta"], _inverse(transform))
+        apex = wedge_pixels(sample["meta"], invert_affine(transform))
         orange = [
             ln for ln in ortho_ax.lines if ln.get_color() == "orange" and len(ln.get_xdata()) > 3
         ]

@@ -371,25 +371,37 @@ def test_report_rejects_a_negative_sample_count(dataset: Path) -> None:
 def test_gallery_wedges_start_at_the_camera_centre(
     dataset: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Each gallery card's wedge apex is the sample's camera centre (meta.json), not the rover."""
+    """Each gallery card's wedge apex is the sample's camera centre (meta.json), not the rover;
+    the centres of all cards come from one read of the manifest."""
     import json
 
-    from mars_pairs.store.manifest import Manifest
+    from mars_pairs.report import meta as report_meta
+    from mars_pairs.report import write_report
+    from mars_pairs.store.query import Manifest
     from mars_pairs.store.shards import MemberLocation, read_member
-    from mars_pairs.viz import sample as viz_sample
-    from mars_pairs.viz.report import write_report
+    from mars_pairs.viz import report_figures, sample
 
     apexes: list[tuple[float, float]] = []
-    original = viz_sample._wedge_pixels
+    original = sample.wedge_pixels
 
     def spy(row, inv):  # type: ignore[no-untyped-def]
-        x0, y0, known = viz_sample.wedge_apex(row)
+        x0, y0, known = sample.wedge_apex(row)
         assert known, "no camera centre reached the card"
         apexes.append((x0, y0))
         return original(row, inv)
 
-    monkeypatch.setattr(viz_sample, "_wedge_pixels", spy)
+    opened: list[Path] = []
+
+    class CountingManifest:
+        @staticmethod
+        def open(root: Path) -> Manifest:
+            opened.append(root)
+            return Manifest.open(root)
+
+    monkeypatch.setattr(report_figures, "wedge_pixels", spy)  # the card's own reference
+    monkeypatch.setattr(report_meta, "Manifest", CountingManifest)
     write_report(dataset, out=dataset.parent / "gallery-check.html", samples=2)
+    assert len(apexes) == 2 and len(opened) == 1, (apexes, opened)
     rows = Manifest.open(dataset).to_table(
         columns=["key", "meta_shard", "meta_offset", "meta_size"]
     )

@@ -199,3 +199,32 @@ def test_matplotlib_is_imported_only_by_the_picture_commands() -> None:
         [sys.executable, "-c", code], capture_output=True, text=True, check=False, timeout=120
     )
     assert done.returncode == 0, done.stderr
+
+
+def test_viz_imports_no_torch_and_no_private_name_of_another_module() -> None:
+    """The layers go one way (report -> torch -> viz): no viz module imports torch or report,
+    and no viz or report module imports another module's private (``_``) name."""
+    import ast
+
+    package = Path(__file__).resolve().parents[2] / "mars_pairs"
+    above = ("mars_pairs.torch", "mars_pairs.report")
+    upward, private = [], []
+    for layer in ("viz", "report"):
+        for path in sorted((package / layer).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.Import):
+                    modules, names = [a.name for a in node.names], []
+                elif isinstance(node, ast.ImportFrom) and node.module:
+                    modules, names = [node.module], [a.name for a in node.names]
+                else:
+                    continue
+                if layer == "viz":
+                    upward += [(path.name, m) for m in modules if m.startswith(above)]
+                if modules[0].startswith("mars_pairs"):
+                    private += [
+                        (path.name, f"{modules[0]}.{n}")
+                        for n in names
+                        if n.startswith("_") and not n.startswith("__")
+                    ]
+    assert upward == [], upward
+    assert private == [], private

@@ -14,6 +14,7 @@ Content-Range, 416). Faults are queued per path and used one per request:
     "short"          200 with the first half of the file and a Content-Length matching that
                      half (a cut body that looks complete); ignores Range and validators;
                      "short:N" sends the first N bytes instead
+    "416-bare"       416 without a Content-Range header (the size left unsaid)
 
 ``replace(rel, data)`` puts new content at a path between requests, moving its modification
 time on (so its ETag and Last-Modified change, as an archive's re-release would).
@@ -33,7 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from werkzeug.exceptions import NotFound
+from werkzeug.exceptions import NotFound, RequestedRangeNotSatisfiable
 from werkzeug.security import safe_join
 from werkzeug.serving import WSGIRequestHandler, make_server
 from werkzeug.utils import send_file
@@ -132,8 +133,9 @@ class ArchiveServer:
         limit = None
         if fault == "slow":
             time.sleep(self.slow_s)
-        if fault in ("404", "500"):
-            resp: Response = NotFound() if fault == "404" else Response("injected", status=500)
+        if fault in ("404", "500", "416-bare"):
+            status = {"404": 404, "500": 500, "416-bare": 416}[fault]
+            resp: Response = NotFound() if fault == "404" else Response("injected", status=status)
         else:
             path = safe_join(str(self.root), req.path.lstrip("/"))
             if path is None or not Path(path).is_file():
@@ -144,7 +146,10 @@ class ArchiveServer:
                 served = (
                     self._variant(Path(path), fault) if fault in ("corrupt", "longer") else path
                 )
-                resp = send_file(served, environ, conditional=True, etag=True, max_age=None)
+                try:
+                    resp = send_file(served, environ, conditional=True, etag=True, max_age=None)
+                except RequestedRangeNotSatisfiable as exc:  # with Content-Range: bytes */N
+                    resp = exc.get_response(environ)
                 if fault in ("truncate", "stall"):
                     limit = max(1, (resp.content_length or 2) // 2)
 

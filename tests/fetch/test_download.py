@@ -189,3 +189,51 @@ def test_symlinks_inside_the_cache_are_refused(tmp_path):
     with pytest.raises(FetchError, match="symlink"):
         cache.path("DATA/x.LBL")
     assert cache.path("./INDEX/RDRINDEX.LBL") == (tmp_path / "c" / "INDEX" / "RDRINDEX.LBL")
+
+
+def _whole_part(cache: Cache, url: str, data: bytes) -> Path:
+    """A ``.part`` holding the whole file, with the validator of the answer that began it."""
+    part = cache.path(REL).with_name("PRODUCT.IMG.part")
+    part.parent.mkdir(parents=True, exist_ok=True)
+    part.write_bytes(data)
+    sidecar(part).write_bytes(
+        Validator(url, requests.head(url, timeout=5).headers["ETag"]).dump(None)
+    )
+    return part
+
+
+@pytest.mark.parametrize("known_size", [True, False])
+def test_a_whole_part_is_checked_and_kept_not_fetched_again(served, tmp_path, known_size):
+    """The resume of a whole part is answered 416 with ``Content-Range: bytes */N``."""
+    srv, root = served
+    data = _publish(root)
+    cache = Cache(tmp_path / "c")
+    part = _whole_part(cache, f"{srv.url}/{REL}", data)
+    res = Downloader(cache, FAST).fetch(_remote(srv, data, md5=known_size, size=known_size))
+    assert res.status == "resumed" and res.bytes_received == 0 and res.path.read_bytes() == data
+    (req,) = srv.requests_for(REL)
+    assert (req.range, req.status) == (f"bytes={len(data)}-", 416)
+    assert not part.exists() and not sidecar(part).exists()
+
+
+def test_a_416_without_the_size_asks_a_head(served, tmp_path):
+    srv, root = served
+    data = _publish(root)
+    cache = Cache(tmp_path / "c")
+    _whole_part(cache, f"{srv.url}/{REL}", data)
+    srv.reset_log()
+    srv.fault(REL, "416-bare")
+    res = Downloader(cache, FAST).fetch(_remote(srv, data, md5=False, size=False))
+    assert res.status == "resumed" and res.path.read_bytes() == data
+    assert [e.status for e in srv.requests_for(REL)] == [416]
+    assert [e.status for e in srv.requests_for(REL, "HEAD")] == [200]
+
+
+def test_a_whole_part_that_fails_its_check_is_fetched_again(served, tmp_path):
+    srv, root = served
+    data = _publish(root)
+    cache = Cache(tmp_path / "c")
+    _whole_part(cache, f"{srv.url}/{REL}", data[:-1] + bytes([data[-1] ^ 0xFF]))
+    res = Downloader(cache, FAST).fetch(_remote(srv, data))  # its MD5 differs
+    assert res.status == "downloaded" and res.path.read_bytes() == data
+    assert [e.status for e in srv.requests_for(REL)] == [416, 200]

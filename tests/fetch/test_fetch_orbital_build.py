@@ -12,8 +12,9 @@ from rasterio.windows import from_bounds
 from test_fetch_archive import write_config
 
 from mars_pairs.fetch.config import load_fetch_config
-from mars_pairs.fetch.orbital import cut_window
+from mars_pairs.fetch.orbital import cut_planned, rover_positions, source_info
 from mars_pairs.fetch.run import fetch_orbital, fetch_places, fetch_products
+from mars_pairs.fetch.windows import plan_windows
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.torch import MarsPairsDataset
@@ -61,20 +62,22 @@ def test_windows_move_a_fraction_of_the_file_and_equal_the_local_read(
 def test_the_window_is_cut_in_the_raster_crs_not_the_places_crs(archive, server, tmp_path):
     """PLACES (eqc lat_ts=18.4663) positions inside a DEM in eqc lat_ts=0 (the USGS CRS)."""
     cfg = load_fetch_config(write_config(tmp_path, server.url, "m2020"))
-    places = fetch_places(cfg)
-    from mars_pairs.fetch.orbital import rover_positions, window_bounds
-
-    pos = rover_positions(places)
+    pos = rover_positions(fetch_places(cfg))
     assert "+lat_ts=18.4663" in pos.crs
-    src = f"{server.url}/orbital/m2020/dem_eqc0_cog.tif"
-    res = cut_window(src, window_bounds(pos, 50.0), pos.crs, cfg.cache / "orbital" / "eqc0.tif")
-    with rasterio.open(res.path) as ds:
-        to_raster = Transformer.from_crs(pos.crs, ds.crs, always_xy=True)
-        x, y = to_raster.transform(pos.x, pos.y)
-        left, bottom, right, top = ds.bounds
-        assert np.all((x > left + 40) & (x < right - 40) & (y > bottom + 40) & (y < top - 40))
-        # the trap: the same numbers read as lat_ts=0 eastings fall ~5 % (200 km) to the west
-        assert np.all(pos.x < left - 100_000)
+    info = source_info(f"{server.url}/orbital/m2020/dem_eqc0_cog.tif")
+    plan = plan_windows(pos.x, pos.y, pos.crs, info.grid, 50.0, kind="dem", source=info.source)
+    assert plan.windows and not plan.off_raster
+    inside = np.zeros(len(pos.x), bool)
+    for i, win in enumerate(plan.windows):
+        res = cut_planned(win, info, cfg.cache / "orbital" / f"eqc0-{i}.tif")
+        with rasterio.open(res.path) as ds:
+            to_raster = Transformer.from_crs(pos.crs, ds.crs, always_xy=True)
+            x, y = to_raster.transform(pos.x, pos.y)
+            left, bottom, right, top = ds.bounds
+            inside |= (x > left + 40) & (x < right - 40) & (y > bottom + 40) & (y < top - 40)
+            # the trap: the same numbers read as lat_ts=0 eastings fall ~5 % (200 km) west
+            assert np.all(pos.x < left - 100_000)
+    assert inside.all()
 
 
 def test_fetch_then_build_then_dataset_and_remote_rasters_give_the_same_chips(

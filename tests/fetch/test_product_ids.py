@@ -120,6 +120,24 @@ def _inventory(tmp_path: Path, text: str):
     return products_from_inventory(path, ",", BUNDLE, TEMPLATE, ROOT, inventory_url="inv.csv")
 
 
+def test_each_inventory_row_id_is_parsed_once(tmp_path, monkeypatch):
+    """The LID's id is parsed once per row; its versioned id and fields come from that."""
+    from mars_pairs.fetch import pds4_inventory, products
+
+    parsed: list[str] = []
+    real = products.parse_m2020_id
+
+    def counting(text: str):  # type: ignore[no-untyped-def]
+        parsed.append(text)
+        return real(text)
+
+    monkeypatch.setattr(products, "parse_m2020_id", counting)
+    monkeypatch.setattr(pds4_inventory, "parse_m2020_id", counting)
+    listing = _inventory(tmp_path, "".join(_row(i) for i in PARSED))
+    assert len(listing.products) == len(PARSED) and not listing.failures
+    assert len(parsed) == len(PARSED)
+
+
 def test_counters_and_versions_follow_the_sis_tables_both_ways():
     assert [encode_site(n) for n in (0, 999, 1000, 3599, 3600, 10359, 10360, 27935, 27936)] == [
         "000", "999", "A00", "Z99", "AA0", "ZZ9", "AAA", "ZZZ", "0AA"]  # fmt: skip

@@ -223,3 +223,21 @@ def test_geotiff_reads_every_block(tmp_path):
     check_file(path, "geotiff")
     with pytest.raises(ContentError, match="not a readable GeoTIFF"):
         check_file(_cut(path, tmp_path / "cut.tif"), "geotiff")
+
+
+def test_an_inventory_whose_label_names_an_unknown_delimiter_is_refused(tmp_path):
+    """The check reads the delimiter as the listing does (``validate.delimiter_of``):
+    a name that is not a PDS4 delimiter is refused, not read as a comma."""
+    label = tmp_path / "collection.xml"
+    label.write_text(
+        '<?xml version="1.0"?>\n<Product_Collection xmlns="http://pds.nasa.gov/pds4/pds/v1">'
+        "<File_Area_Inventory><File><file_name>inv.csv</file_name></File><Inventory>"
+        "<records>1</records><field_delimiter>Colon</field_delimiter></Inventory>"
+        "</File_Area_Inventory></Product_Collection>\n"
+    )
+    inv = tmp_path / "inv.csv"
+    inv.write_bytes(b"P,urn:nasa:pds:a:b:c::1.0\r\n")
+    with pytest.raises(
+        ContentError, match=r"collection\.xml\): .*field_delimiter: unknown 'Colon'"
+    ):
+        check_file(inv, "inventory", label=label)

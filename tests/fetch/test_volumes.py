@@ -202,3 +202,38 @@ def test_a_volume_whose_index_fails_is_a_failure_row_and_the_others_go_on(volume
     assert sorted((p.product_id, p.volume) for p in report.products) == sorted(
         (i, "MSLMST_0014") for i in ids
     )
+
+
+def _index_of_sols(folder: Path, sols: range) -> None:
+    """``folder/INDEX/RDRINDEX.LBL`` + ``.TAB`` listing one product per sol."""
+    rows = [{"VOLUME_ID": "MSLMST_0016", "PATH_NAME": f"DATA/RDR/SURFACE/{sol:04d}/",
+             "FILE_NAME": f"{sol:04d}MR0070670010702567E01_DRCL.LBL",
+             "PRODUCT_ID": f"{sol:04d}MR0070670010702567E01_DRCL", "INSTRUMENT_ID": "MAST_RIGHT",
+             "PLANET_DAY_NUMBER": sol, "IMAGE_ID": str(sol)} for sol in sols]  # fmt: skip
+    fetch_archive.write_pds3_index(folder, rows)
+
+
+def test_the_refresh_fetches_indexes_as_the_listing_does(tmp_path):
+    """Revalidated (a re-released index replaces the cached one) and checked against its
+    label (a cut table is refused, naming it)."""
+    from mars_pairs.fetch.cache import Cache
+    from mars_pairs.fetch.download import Downloader, FetchPolicy
+
+    root, fresh = tmp_path / "archive", tmp_path / "re-release"
+    _index_of_sols(root / "msl" / "MSLMST_0016", range(1649, 1652))
+    _index_of_sols(fresh, range(1649, 1700))
+    policy = FetchPolicy(retries=1, backoff_s=0.01, read_timeout_s=2.0)
+    dl = Downloader(Cache(tmp_path / "cache"), policy)
+    with ArchiveServer(root) as srv:
+        url = f"{srv.url}/msl"
+        assert ranges_from_archive(url, ["MSLMST_0016"], dl) == [
+            VolumeRange("MSLMST_0016", 1649, 1651)]  # fmt: skip
+        for name in ("RDRINDEX.LBL", "RDRINDEX.TAB"):
+            srv.replace(f"msl/MSLMST_0016/INDEX/{name}", (fresh / "INDEX" / name).read_bytes())
+        assert ranges_from_archive(url, ["MSLMST_0016"], dl) == [
+            VolumeRange("MSLMST_0016", 1649, 1699)]  # fmt: skip
+        tab = "msl/MSLMST_0016/INDEX/RDRINDEX.TAB"
+        srv.fault(tab, *["short"] * (policy.retries + 1))
+        other = Downloader(Cache(tmp_path / "other"), policy)
+        with pytest.raises(FetchError, match=r"RDRINDEX\.TAB: failed .* its label .* says"):
+            ranges_from_archive(url, ["MSLMST_0016"], other)

@@ -23,8 +23,9 @@ from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.build.worker import check_record
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.pipeline.sample.build_sample import Sample
-from mars_pairs.store.manifest import FAILURE_SCHEMA, rows_to_table, write_parquet_atomic
-from mars_pairs.store.shards import ShardWriter, atomic_write_bytes
+from mars_pairs.store.atomic import atomic_write_bytes, write_parquet_atomic
+from mars_pairs.store.manifest import FAILURE_SCHEMA, rows_to_table
+from mars_pairs.store.shards import ShardWriter
 
 
 @pytest.fixture(scope="module")

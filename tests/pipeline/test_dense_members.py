@@ -117,8 +117,10 @@ def test_default_build_is_unchanged_and_members_leave_the_rest_alone(
 
 def test_closure_ground_on_map_and_map_from_rover(dense: Path) -> None:
     """The ground image laid on the map reproduces the ortho; the map seen from the rover
-    reproduces the ground image (the images are rendered from that ortho)."""
+    reproduces the ground image (the images are rendered from that ortho) over every valid
+    pixel, and is valid wherever a ray hits the map within the radius, off the chip too."""
     checked_map = checked_view = 0
+    beyond_chip = 0
     for key, m in _samples(dense).items():
         ortho = _img(m["ortho.png"]).astype(np.float64)
         cover = _img(m["ground_on_map_cover.png"]) > 0
@@ -130,30 +132,25 @@ def test_closure_ground_on_map_and_map_from_rover(dense: Path) -> None:
         ground = _grey(_img(m["ground.jpg"]))[::STRIDE, ::STRIDE]
         valid = _img(m["view_valid.png"]) > 0
         seen = _img(m["ortho_view.png"]).astype(np.float64)
-        # where one image pixel spans at most one ortho pixel on the ground: the renderer
-        # splats terrain samples up to half a pixel from the pixel centre, so at grazing
-        # views its colour is not the ortho at the centre ray's hit
-        fine = valid & (_ground_per_pixel(_npy(m["hits.npy"])) <= ORTHO_RES_M)
-        if fine.sum() >= 500:
-            r = np.corrcoef(seen[fine], ground[fine])[0, 1]
-            assert r >= 0.95, (key, r, fine.sum())
+        dem_view = _npy(m["dem_view.npy"])
+        hits = _npy(m["hits.npy"])
+        hit = np.isfinite(_npy(m["range.npy"]))
+        # every hit within the radius is on the (gap-free) map: all valid, and only they
+        assert np.array_equal(valid, hit), (key, valid.sum(), hit.sum())
+        assert np.array_equal(np.isfinite(dem_view), valid)
+        # the DEM seen from the rover is the terrain the ray met (z of the hit, less the
+        # curvature drop: millimetres at this range)
+        assert np.nanmax(np.abs(dem_view[valid] - hits[valid][:, 2])) < 0.05
+        meta = json.loads(m["meta.json"])
+        col_row = ~Affine(*meta["chip_transform"]) * (hits[..., 0], hits[..., 1])
+        on_chip = np.all([(v >= 0) & (v <= CHIP["size_px"]) for v in col_row], axis=0)
+        beyond_chip += int((valid & ~on_chip).sum())
+        if valid.sum() >= 500:  # every valid pixel, grazing and far ones too
+            r = np.corrcoef(seen[valid], ground[valid])[0, 1]
+            assert r >= 0.95, (key, r, valid.sum())
             checked_view += 1
-        if valid.sum() >= 500:  # all valid pixels, grazing ones too
-            assert np.corrcoef(seen[valid], ground[valid])[0, 1] >= 0.9
-    assert checked_map >= 2 and checked_view >= 2
-
-
-ORTHO_RES_M = 0.25  # the small mission's ortho
-
-
-def _ground_per_pixel(hits: np.ndarray) -> np.ndarray:
-    """Ground distance (map units) spanned by one image pixel at each dense cell: the larger
-    of the spacings to the next cell down and right, over the stride (inf at the edges)."""
-    out = np.full(hits.shape[:2], np.inf)
-    down = np.hypot(*(hits[1:, :-1, :2] - hits[:-1, :-1, :2]).transpose(2, 0, 1))
-    right = np.hypot(*(hits[:-1, 1:, :2] - hits[:-1, :-1, :2]).transpose(2, 0, 1))
-    out[:-1, :-1] = np.fmax(down, right) / STRIDE
-    return np.where(np.isfinite(out), out, np.inf)
+    assert checked_map >= 2 and checked_view >= 4
+    assert beyond_chip >= 500  # the radius (300 m) reaches past the 128 m chips
 
 
 def _truth_range_depth(label: Path, mission: Path, pixels: np.ndarray) -> tuple[Any, Any]:
@@ -321,15 +318,51 @@ def test_verify_checks_the_dense_members(dense: Path, tmp_path: Path) -> None:
     assert len(damage) == 1 and "depth" in str(damage[0]), damage
 
 
-def test_heading_up_chips_have_heading_zero(small_mission: Path, tmp_path: Path) -> None:
+def _chip_bearing_of_axis(label: Path, mission: Path, chip_transform: list[float]) -> float:
+    """The camera axis's bearing on the chip (degrees clockwise from the chip's up, row 0),
+    derived independently of the package: the label's A placed by ``independent_truth``
+    (numpy + pyproj), a point 10 m ahead along its horizontal part taken to the map and
+    through the chip's affine."""
+    lab = truth.read_label_fields(label)
+    places = next((mission / "places").glob("*.csv"))
+    cam = truth.place_camera(lab, places, mission / "orbital" / "dem.tif")
+    axis = cam.rot @ (lab.a / np.linalg.norm(lab.a))  # ENU
+    ahead = cam.centre_enu + 10.0 * np.array([axis[0], axis[1], 0.0]) / np.hypot(*axis[:2])
+    (x0, y0, _), (x1, y1, _) = cam.enu.to_map(np.stack([cam.centre_enu, ahead]))
+    inv = ~Affine(*chip_transform)
+    (c0, r0), (c1, r1) = inv * (x0, y0), inv * (x1, y1)
+    return float(np.degrees(np.arctan2(c1 - c0, -(r1 - r0))) % 360.0)
+
+
+def _angle(a: float, b: float) -> float:
+    """|a - b| in degrees, across 360."""
+    return abs((a - b + 180.0) % 360.0 - 180.0)
+
+
+def test_heading_up_chips_point_the_camera_up(small_mission: Path, tmp_path: Path) -> None:
+    """Heading-up chips turn the camera's axis to the chip's up (heading 0), checked against
+    the axis derived from the label without the package; north-up chips keep it at its
+    map bearing (heading_deg, the same derivation)."""
     out = _build(
         small_mission, tmp_path / "h", chips={"offset_m": 10.0, "orientation": "heading-up"}
     )
-    for m in _samples(out).values():
+    north = _build(small_mission, tmp_path / "n", chips={"offset_m": 10.0})
+    rows = {r["key"]: r for r in pq.read_table(out / "manifest.parquet").to_pylist()}
+    north_meta = {k: json.loads(m["meta.json"]) for k, m in _samples(north).items()}
+    bearings = []
+    for key, m in _samples(out).items():
         meta = json.loads(m["meta.json"])
-        heading = (meta["heading_deg"] + 180.0) % 360.0 - 180.0
-        assert abs(heading) < 1e-6, meta["heading_deg"]
+        label = _label(out, rows[key])
+        bearing = _chip_bearing_of_axis(label, small_mission, meta["chip_transform"])
+        assert _angle(bearing, 0.0) < 0.01, (key, bearing)
+        assert _angle(meta["heading_deg"], bearing) < 0.01, (key, meta["heading_deg"], bearing)
         tr = Affine(*meta["chip_transform"])
         assert np.allclose(meta["rover_px"], ~tr * (meta["easting"], meta["northing"]))
         shift = np.subtract(meta["rover_px"], CHIP["size_px"] / 2)
         assert np.all(np.abs(shift) * CHIP["size_m"] / CHIP["size_px"] <= 10.0 + 1e-6)
+        up = north_meta[key]
+        north_bearing = _chip_bearing_of_axis(label, small_mission, up["chip_transform"])
+        assert _angle(up["heading_deg"], north_bearing) < 0.01, (key, up["heading_deg"])
+        bearings.append(north_bearing)
+    # the cameras look different ways: a heading-up chip really turned
+    assert max(_angle(b, 0.0) for b in bearings) > 30.0

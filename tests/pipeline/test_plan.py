@@ -153,12 +153,13 @@ def test_engines_get_the_chunks_lazily(tmp_path: Path, monkeypatch: pytest.Monke
 
     seen: list[type] = []
 
-    def local(config: Any, chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
-        seen.append(type(chunks))
-        assert not isinstance(chunks, (list, tuple))
-        return _failing(chunks)
+    class Local:  # the one-worker build's engine
+        def run(self, config: Any, chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
+            seen.append(type(chunks))
+            assert not isinstance(chunks, (list, tuple))
+            return _failing(chunks)
 
-    monkeypatch.setattr(build, "_in_process", local)
+    monkeypatch.setattr(build, "InProcess", Local)
     part_paths(tmp_path / "ds", 2)[1].unlink()
     again = run_build(config, resume=True, progress=False)
     assert (again.chunks_built, again.chunks_resumed, again.failures) == (1, 3, 10)

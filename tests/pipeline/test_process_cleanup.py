@@ -29,6 +29,10 @@ from mars_pairs.pipeline.config import load_config
 
 ROOT = Path(__file__).resolve().parents[2]
 MARK = "MARS_PAIRS_TEST_BUILD"
+#: How long the processes of a killed build may take to end (seconds): a worker inside a long
+#: call that holds the GIL (loading compiled kernels on a loaded machine) ends when it returns;
+#: a process that outlives its build never ends, so a generous grace tests the same property.
+GRACE_S = 20.0
 
 pytestmark = pytest.mark.skipif(
     not sys.platform.startswith("linux"), reason="scans /proc for the build's processes"
@@ -111,12 +115,12 @@ def test_a_build_killed_at_random_moments_leaves_no_process_and_resumes(
             time.sleep(moment)
             build.kill()
             build.wait(timeout=30)
-            assert _left_after(tag, 2.0) == [], f"processes left after a kill at {moment:.2f} s"
+            assert _left_after(tag, GRACE_S) == [], f"processes left after a kill at {moment:.2f} s"
             build.stderr.close()
         build = _start(config, tag, "--resume")
         _, err = build.communicate(timeout=300)
         assert build.returncode == 0, err.decode()[-2000:]
-        assert _left_after(tag, 2.0) == []
+        assert _left_after(tag, GRACE_S) == []
     finally:
         _reap(tag)
     assert _digest(out) == _digest(reference)
@@ -156,7 +160,7 @@ def test_ctrl_c_while_the_fork_server_starts_is_quiet_and_leaves_no_process(
         time.sleep(0.2)  # the driver is past the server's start; the server still imports
         os.killpg(build.pid, signal.SIGINT)  # what a terminal's Ctrl-C sends
         _, err = build.communicate(timeout=60)
-        assert _left_after(tag, 2.0) == []
+        assert _left_after(tag, GRACE_S) == []
     finally:
         _reap(tag)
     text = err.decode()

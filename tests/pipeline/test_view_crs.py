@@ -20,9 +20,10 @@ from mars_pairs.errors import TerrainError
 from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.pds import read_observation
 from mars_pairs.pipeline.config import parse_config
+from mars_pairs.pipeline.sample.build_sample import view_stages
 from mars_pairs.pipeline.sample.context import SampleContext
 from mars_pairs.pipeline.sample.stages import Stages
-from mars_pairs.pipeline.sample.view import View, compute_view
+from mars_pairs.pipeline.sample.view import View
 from mars_pairs.raster.terrain import Terrain
 from mars_pairs.synth import generate_mission
 
@@ -78,7 +79,7 @@ def _views(mission: Path, dem: Path, tmp: Path) -> dict[str, View]:
             obs = read_observation(label)
             pose = ctx.places.locate(obs)
             camera = MapCamera.from_observation(obs, pose, ctx.terrain.crs)
-            views[label.name] = compute_view(obs, pose, camera, ctx, Stages())
+            views[label.name] = view_stages(pose, camera, ctx, Stages())
     finally:
         ctx.close()
     return views

@@ -22,7 +22,7 @@ from mars_pairs.cli.verify import verify_dataset
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import BuildConfig, parse_config
 from mars_pairs.store import fs
-from mars_pairs.store.manifest import Manifest
+from mars_pairs.store.query import Manifest
 from mars_pairs.torch.datasets import MarsPairsDataset
 from mars_pairs.torch.streaming import MarsPairsIterableDataset
 
@@ -121,7 +121,7 @@ def test_verify_names_a_damaged_member_on_s3(local_build: Path, s3_prefix: str) 
             data = data[:1000] + bytes([data[1000] ^ 0xFF]) + data[1001:]
         fs.put_bytes(fs.join(s3_prefix, rel), data)
     report = verify_dataset(s3_prefix)
-    assert [d.shard for d in report.damage] == ["shards/shard-000001.tar"]
+    assert [d.path for d in report.damage] == ["shards/shard-000001.tar"]
 
 
 def test_rasters_on_s3_build_as_local(

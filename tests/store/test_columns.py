@@ -9,14 +9,10 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 
+from mars_pairs.store.atomic import write_parquet_atomic
 from mars_pairs.store.columns import SampleMeta
-from mars_pairs.store.manifest import (
-    MANIFEST_SCHEMA,
-    SUMMARY_COLUMNS,
-    Manifest,
-    rows_to_table,
-    write_parquet_atomic,
-)
+from mars_pairs.store.manifest import MANIFEST_SCHEMA, SUMMARY_COLUMNS, rows_to_table
+from mars_pairs.store.query import Manifest
 
 
 def _rows() -> list[dict]:

@@ -14,12 +14,9 @@ import shapely
 from pyproj import CRS
 
 from mars_pairs.geometry.frames import MSL_PLACES_CRS
+from mars_pairs.store.atomic import write_parquet_atomic
 from mars_pairs.store.geoparquet import footprint_bounds, footprints_bbox, geo_metadata
-from mars_pairs.store.manifest import (
-    MANIFEST_SCHEMA,
-    rows_to_table,
-    write_parquet_atomic,
-)
+from mars_pairs.store.manifest import MANIFEST_SCHEMA, rows_to_table
 
 
 @pytest.fixture()

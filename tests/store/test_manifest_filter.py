@@ -11,15 +11,12 @@ import shapely
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from mars_pairs.geometry.body import great_circle_m
 from mars_pairs.geometry.frames import M2020_PLACES_CRS, lonlat_to_map
+from mars_pairs.store.atomic import write_parquet_atomic
 from mars_pairs.store.geoparquet import geo_metadata
-from mars_pairs.store.manifest import (
-    MANIFEST_SCHEMA,
-    Manifest,
-    great_circle_m,
-    rows_to_table,
-    write_parquet_atomic,
-)
+from mars_pairs.store.manifest import MANIFEST_SCHEMA, rows_to_table
+from mars_pairs.store.query import Manifest
 from mars_pairs.store.splits import hilbert_index
 
 N = 3000

@@ -108,7 +108,7 @@ def test_shard_paths_stay_inside_the_dataset(
     root, _ = shard
     with pytest.raises(DatasetError, match=reason) as err:
         shard_path(root, path, "a.ortho.png")
-    assert err.value.member == "a.ortho.png" and path in err.value.shard
+    assert err.value.member == "a.ortho.png" and path in err.value.path
 
 
 def test_symlinks_and_fifos(
@@ -172,4 +172,4 @@ def test_read_member_stays_inside_the_dataset_and_the_shard(shard: tuple[Path, d
     for path, (size, reason) in cases.items():
         with pytest.raises(DatasetError, match=reason) as err:
             read_member(root, MemberLocation(path, meta.offset, size), name="a.meta.json")
-        assert err.value.shard == path and err.value.member == "a.meta.json"
+        assert err.value.path == path and err.value.member == "a.meta.json"

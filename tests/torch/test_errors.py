@@ -67,7 +67,7 @@ def test_a_damaged_member_names_the_shard_and_the_member(
             ds.__getitems__([0, i])
     message = str(err.value)
     assert shard in message and f"{key}.{suffix}" in message and "cannot decode" in message
-    assert err.value.shard.endswith(shard) and err.value.member.startswith(f"{key}.{suffix}")
+    assert err.value.path.endswith(shard) and err.value.member.startswith(f"{key}.{suffix}")
 
 
 def test_a_truncated_or_missing_shard_names_it(copy: Path) -> None:

@@ -271,8 +271,8 @@ def test_dataset_error_survives_reconstruction_from_its_message() -> None:
     for original in (err, again, MissingMemberError("manifest.parquet", "k.corr", "no such")):
         copied = pickle.loads(pickle.dumps(original))  # as a process pool sends it
         assert type(copied) is type(original) and str(copied) == str(original)
-        assert (copied.shard, copied.member, copied.reason) == (
-            original.shard,
+        assert (copied.path, copied.member, copied.reason) == (
+            original.path,
             original.member,
             original.reason,
         )

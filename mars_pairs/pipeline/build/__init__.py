@@ -4,7 +4,8 @@
 labels into chunks, finding those a killed build finished; ``engine`` is the one contract the
 engines implement (``InProcess`` here, ``local_pool.LocalPool``, ``dask_engine.DaskEngine``),
 ``worker`` what a worker process runs for one chunk; ``outputs`` what the output folder
-keeps (part paths, the stamp, clearing); ``finish`` the merge into manifest.parquet and
+keeps (part paths, the stamp, clearing); ``commit`` what a built chunk commits (a pure
+selection, then the writes); ``finish`` the merge into manifest.parquet and
 dataset.json; ``run`` the driver that ties them. The samples themselves are
 ``pipeline.sample``'s.
 

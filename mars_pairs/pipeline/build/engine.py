@@ -10,7 +10,7 @@ failure part and manifest part under their temporary names (``.NAME.tmp-<pid>``,
 renamed). What travels back to the driver is a :class:`ChunkResult`: one :class:`Outcome`
 per label (its manifest row with the member locations, or its failure row; a few KB a
 sample at most), the shard's name and size, the staged parts' names, and timings. The driver
-commits the chunks in order (``pipeline.build.run``): it renames the failure part, then the
+commits the chunks in order (``pipeline.build.commit``): it renames the failure part, then the
 manifest part (the chunk's commit marker) into place. A killed build leaves temporary names
 and shards of uncommitted chunks, which the next build removes or writes again.
 
@@ -18,9 +18,9 @@ Duplicate sample keys (two labels with one product id): the first label in label
 keeps the key, every later one becomes a ``record`` failure row (DuplicateKeyError naming
 the first). A worker resolves the duplicates inside its chunk: it writes the first and
 reports the later ones as ``duplicate`` outcomes. Duplicates of an earlier chunk's key are
-resolved by the driver at commit, which knows every earlier key: it turns them into failure
-rows, writes the chunk's parts itself, and, when such a sample was written into the shard,
-rewrites the shard without it (``resolve_duplicates``: a rare path, the only one where sample
+resolved by the driver at commit, which knows every earlier key (``pipeline.build.commit``):
+it turns them into failure rows, writes the chunk's parts itself, and, when such a sample was
+written into the shard, rewrites the shard without it (a rare path, the only one where sample
 bytes pass through the driver).
 The output is therefore byte-identical to a build that wrote every chunk in the driver, for
 any engine and worker count. Samples in the split buffer are dropped by the worker when the
@@ -41,7 +41,7 @@ import os
 import socket
 import time
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Protocol
 
@@ -53,14 +53,15 @@ from mars_pairs.pipeline.build.outputs import DROPPED_KEY, part_paths
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.sample.context import SampleContext
 from mars_pairs.store import fs
+from mars_pairs.store.atomic import write_parquet_staged
 from mars_pairs.store.manifest import (
     FAILURE_SCHEMA,
     manifest_schema,
     rows_to_table,
-    write_parquet_staged,
+    with_locations,
 )
 from mars_pairs.store.members import member_fields
-from mars_pairs.store.shards import MemberLocation, ShardWriter, read_member
+from mars_pairs.store.shards import MemberLocation, ShardWriter
 from mars_pairs.store.splits import BUFFER
 
 
@@ -132,22 +133,6 @@ class Engine(Protocol):
         ...
 
 
-def _located(row: dict[str, Any], locs: dict[str, MemberLocation]) -> dict[str, Any]:
-    """``row`` with the ``<field>_shard/_offset/_size/_crc32c`` columns of ``locs``."""
-    row = dict(row)
-    for name, loc in locs.items():
-        fld = name.split(".")[0]
-        row.update(
-            {
-                f"{fld}_shard": loc.shard,
-                f"{fld}_offset": loc.offset,
-                f"{fld}_size": loc.size,
-                f"{fld}_crc32c": loc.crc32c,
-            }
-        )
-    return row
-
-
 def duplicate_row(label: str, key: str, first: str) -> dict[str, Any]:
     """The failure row of ``label``, whose sample key ``key`` was built from ``first``."""
     error = DuplicateKeyError(f"{label}: key {key}: already built from {first}")
@@ -214,7 +199,9 @@ def _build_chunk(config: BuildConfig, task: ChunkTask, out: Path) -> ChunkResult
             if shard is None:
                 shard = ShardWriter(out, shard_rel)
             locs = shard.add(r.key, r.members)
-            outcomes.append(Outcome("ok", name, r.key, _located(r.row, locs), locs, r.seconds))
+            outcomes.append(
+                Outcome("ok", name, r.key, with_locations(r.row, locs), locs, r.seconds)
+            )
     except BaseException:
         if shard is not None:
             shard.close(commit=False)
@@ -238,72 +225,6 @@ def _build_chunk(config: BuildConfig, task: ChunkTask, out: Path) -> ChunkResult
         f"{socket.gethostname()}:{os.getpid()}",
         staged,
     )
-
-
-def resolve_duplicates(out: Path | str, result: ChunkResult, seen: dict[str, str]) -> ChunkResult:
-    """``result`` with every sample whose key an earlier chunk built (``seen``: key -> the
-    label it was built from) turned into a ``duplicate`` outcome; when one was written, the
-    shard is written again without it (atomically, over the worker's; removed when no
-    sample is left) and the other samples' locations and rows follow. The staged parts are
-    removed (``staged`` None: the driver writes the parts). On object storage (``out`` a
-    URL) the shard is downloaded, rewritten locally and uploaded whole."""
-    if not isinstance(out, Path):
-        return _resolve_remote(out, result, seen)
-    final = [
-        Outcome("duplicate", o.label, o.key, duplicate_row(o.label, o.key, seen[o.key]))
-        if o.kind != "fail" and o.key in seen
-        else o
-        for o in result.outcomes
-    ]
-    for rel in result.staged or ():
-        (out / rel).unlink(missing_ok=True)
-    result = replace(result, staged=None)
-    written = [o.kind == "ok" for o in result.outcomes]
-    if result.shard is None or sum(o.kind == "ok" for o in final) == sum(written):
-        return replace(result, outcomes=tuple(final))
-    path = out / result.shard
-    kept: list[Outcome] = []
-    shard: ShardWriter | None = None
-    try:
-        for o in final:
-            if o.kind != "ok":
-                kept.append(o)
-                continue
-            members = {
-                name: read_member(out, loc, name=f"{o.key}.{name}", verify=True)
-                for name, loc in o.members.items()
-            }
-            if shard is None:
-                shard = ShardWriter(out, result.shard)
-            locs = shard.add(o.key, members)
-            kept.append(replace(o, row=_located(o.row, locs), members=locs))
-    except BaseException:
-        if shard is not None:
-            shard.close(commit=False)
-        raise
-    if shard is None:
-        path.unlink()
-        return replace(result, outcomes=tuple(kept), shard=None, shard_bytes=0)
-    shard.close()
-    return replace(result, outcomes=tuple(kept), shard_bytes=path.stat().st_size)
-
-
-def _resolve_remote(out: str, result: ChunkResult, seen: dict[str, str]) -> ChunkResult:
-    """``resolve_duplicates`` of a chunk whose files are under the URL ``out``."""
-    for rel in result.staged or ():
-        fs.remove(fs.join(out, rel))
-    result = replace(result, staged=None)
-    with fs.local_staging() as staging:
-        if result.shard is not None:
-            local = staging / result.shard
-            local.parent.mkdir(parents=True, exist_ok=True)
-            local.write_bytes(fs.read_bytes(fs.join(out, result.shard)))
-        resolved = resolve_duplicates(staging, result, seen)
-        if result.shard is not None and resolved.shard is None:
-            fs.remove(fs.join(out, result.shard))
-        elif resolved.shard is not None and resolved.shard_bytes != result.shard_bytes:
-            fs.upload(staging / resolved.shard, fs.join(out, resolved.shard))
-    return resolved
 
 
 class InProcess:

@@ -34,6 +34,7 @@ from typing import Any
 
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.store import fs
+from mars_pairs.store.atomic import temporary_target
 from mars_pairs.store.manifest import FAILURE_SCHEMA
 from mars_pairs.store.wids_index import WIDS_INDEX
 
@@ -56,7 +57,6 @@ FINISHED_KEY = "build_stamp"
 _CHUNK_FILE = re.compile(
     r"(shards/shard-([0-9]{6,})\.tar|parts/(?:manifest|failures)-([0-9]{6,})\.parquet)"
 )
-_TEMPORARY = re.compile(r"((?:shards/|parts/)?)\.([^/]+)\.tmp-[0-9]+")  # store's atomic writes
 
 
 def part_paths(out: fs.Location, k: int) -> tuple[str, Any, Any]:
@@ -293,18 +293,29 @@ def written_by(chunks: int | None, rel: str) -> bool:
         return False
     if rel in BUILD_FILES:
         return True
+    k = _chunk_of(rel)
+    return k is not None and k < chunks
+
+
+def _chunk_of(rel: str) -> int | None:
+    """The chunk whose file ``rel`` is (a shard or a part, its number written as a build
+    writes it: six digits or more, no extra leading zero), else None."""
     m = _CHUNK_FILE.fullmatch(rel)
     if m is None:
-        return False
+        return None
     digits = m[2] or m[3]
-    return int(digits) < chunks and f"{int(digits):06d}" == digits
+    return int(digits) if f"{int(digits):06d}" == digits else None
 
 
 def is_temporary(rel: str) -> bool:
-    """Whether ``rel`` is the temporary name of a file a build writes (``.NAME.tmp-PID``
-    beside NAME, left by a killed build), whatever the build."""
-    m = _TEMPORARY.fullmatch(rel)
-    return m is not None and written_by(2**62, m[1] + m[2])
+    """Whether ``rel`` is the temporary name (``store.atomic``: ``.NAME.tmp-PID`` beside NAME,
+    left by a killed build) of a file some build writes, whatever its chunk count."""
+    folder, _, name = rel.rpartition("/")
+    target = temporary_target(name)
+    if target is None:
+        return False
+    rel = f"{folder}/{target}" if folder else target
+    return rel in BUILD_FILES or _chunk_of(rel) is not None
 
 
 def stamped_chunks(out: fs.Location) -> int | None:

@@ -10,28 +10,23 @@ output is the same whatever the worker count. A finished build writes the folder
 lives on in dataset.json, so ``--resume`` over it does nothing. The labels are never held: a
 planning pass counts them and sums their fingerprint (the stamp), the build pass streams them
 again to the engine, chunk by chunk. The engine's workers write the shards and stage the parts
-(``pipeline.build.engine``); the driver receives rows only, and commits the chunks in order.
+(``pipeline.build.engine``); the driver receives rows only, and commits the chunks in order
+(``pipeline.build.commit``).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from collections import Counter
-from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 from tqdm import tqdm
 
-from mars_pairs.errors import BuildError, ConfigError, MarsPairsError
-from mars_pairs.pipeline.build.engine import (
-    ChunkResult,
-    ChunkTask,
-    Engine,
-    InProcess,
-    part_tables,
-    resolve_duplicates,
-)
+from mars_pairs.errors import ConfigError
+from mars_pairs.pipeline.build.commit import select_chunk, write_chunk
+from mars_pairs.pipeline.build.engine import ChunkTask, Engine, InProcess
 from mars_pairs.pipeline.build.finish import (
     BuildSummary,
     finished_summary,
@@ -45,7 +40,6 @@ from mars_pairs.pipeline.build.outputs import (
     built_keys,
     clear_outputs,
     dropped_count,
-    part_paths,
     remove_parts,
     remove_temporaries,
     stamp_path,
@@ -73,71 +67,6 @@ def check_input_files(config: BuildConfig) -> None:
         check_regular(inputs.images, "inputs.images", folder=True)
 
 
-def _in_process(config: BuildConfig, chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
-    """The results of ``chunks`` built in this process (one worker), in order."""
-    return InProcess().run(config, chunks)
-
-
-def _commit_chunk(
-    config: BuildConfig,
-    result: ChunkResult,
-    strict: bool,
-    stage_seconds: Counter[str],
-    seen: dict[str, str],
-) -> int:
-    """Commit chunk ``result.index``, whose shard its worker wrote: its failure part, then its
-    manifest part (the commit marker), renamed from where the worker staged them. A sample
-    whose key an earlier chunk built (``seen``: key -> label, updated here) becomes a
-    DuplicateKeyError failure row and leaves the shard, and the driver writes the parts
-    (``engine.resolve_duplicates``). The number of samples committed."""
-    out = config.output.dir
-    _, manifest_part, failures_part = part_paths(out, result.index)
-    if result.shard is not None:
-        size = fs.size(fs.join(out, result.shard))
-        if size != result.shard_bytes:
-            raise MarsPairsError(
-                f"{fs.join(out, result.shard)}: {size} bytes, but its worker "
-                f"({result.worker}) wrote {result.shard_bytes}; rerun the build with --resume"
-            )
-    if result.staged is None or any(o.kind != "fail" and o.key in seen for o in result.outcomes):
-        result = resolve_duplicates(out, result, seen)
-    failed = next((o.row for o in result.outcomes if o.kind in ("fail", "duplicate")), None)
-    if strict and failed is not None:
-        for rel in result.staged or ():
-            fs.remove(fs.join(out, rel))
-        what = ": ".join(str(failed[c]) for c in ("path", "stage", "error_type", "message"))
-        raise BuildError(what)
-    if result.staged is None:
-        failures, manifest = part_tables(config, result.outcomes)
-        fs.write_parquet(failures, failures_part)
-        fs.write_parquet(manifest, manifest_part)  # commit marker
-    else:  # on object storage: copied on the server, the manifest part appears last
-        fs.replace(fs.join(out, result.staged[0]), failures_part)
-        fs.replace(fs.join(out, result.staged[1]), manifest_part)  # commit marker
-    written = 0
-    for o in result.outcomes:
-        if o.kind in ("ok", "dropped"):
-            seen[o.key] = o.label
-        if o.kind == "ok":
-            stage_seconds.update(o.seconds)
-            written += 1
-    return written
-
-
-def _chunk_results(
-    config: BuildConfig,
-    todo: Iterator[tuple[int, list[str]]],
-    pool: LocalPool | None,
-    engine: Engine | None,
-) -> Iterator[ChunkResult]:
-    """The results of the chunks ``todo`` ((k, labels), streamed), in order, from the local
-    pool, this process (pool and engine None) or ``engine``."""
-    tasks = (ChunkTask(k, tuple(labels)) for k, labels in todo)
-    if engine is not None:
-        return engine.run(config, tasks)
-    return pool.run(config, tasks) if pool is not None else _in_process(config, tasks)
-
-
 def run_build(
     config: BuildConfig,
     *,
@@ -161,10 +90,10 @@ def run_build(
         check_clearable(config.output.dir)
     # the workers start now: their imports and raster opening overlap the planning
     pool = LocalPool(config, workers) if engine is None and workers > 1 else None
-    if pool is None:
-        return _run(config, start, resume, limit, strict, progress, engine, pool)
-    with pool:
-        return _run(config, start, resume, limit, strict, progress, engine, pool)
+    if engine is None:
+        engine = pool if pool is not None else InProcess()
+    with pool if pool is not None else contextlib.nullcontext():
+        return _run(config, start, resume, limit, strict, progress, engine)
 
 
 def _run(
@@ -174,8 +103,7 @@ def _run(
     limit: int | None,
     strict: bool,
     progress: bool,
-    engine: Engine | None,
-    pool: LocalPool | None,
+    engine: Engine,
 ) -> BuildSummary:
     """run_build's work, its arguments checked and its workers starting."""
     out = config.output.dir
@@ -196,8 +124,8 @@ def _run(
     seen = built_keys(out, sorted(done))
     digest = LabelDigest()  # the second pass must list what the first did
     chunks = enumerate(chunks_of(digest.tally(labels_of(config, limit)), plan.chunk_size))
-    todo = ((k, labels) for k, labels in chunks if k not in done)
-    results = _chunk_results(config, todo, pool, engine)
+    todo = (ChunkTask(k, tuple(labels)) for k, labels in chunks if k not in done)
+    results = engine.run(config, todo)
     bar = tqdm(
         total=plan.labels,
         initial=plan.labels - plan.labels_to_build,
@@ -210,7 +138,10 @@ def _run(
     try:
         for result in results:
             bar.update(len(result.outcomes))
-            _commit_chunk(config, result, strict, stage_seconds, seen)
+            selection = select_chunk(result, seen, strict)
+            write_chunk(config, result, selection)
+            seen.update(selection.built)
+            stage_seconds.update(selection.stage_seconds)
             built += 1
     finally:
         bar.close()

@@ -13,15 +13,13 @@ import re
 from pathlib import Path
 from typing import Any
 
-import pyarrow as pa
-
 from mars_pairs.allocator import reuse_freed_memory
 from mars_pairs.errors import MarsPairsError, StageError
 from mars_pairs.kernels.warm import warm_kernels
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.sample.build_sample import Sample, build_sample
 from mars_pairs.pipeline.sample.context import SampleContext
-from mars_pairs.store.manifest import MANIFEST_SCHEMA
+from mars_pairs.store.manifest import check_row
 
 #: The longest sample key: ``<key>.<member>`` must fit tar's 100-byte USTAR name field.
 MAX_KEY_LENGTH = 80
@@ -94,7 +92,8 @@ def work(label: str) -> tuple[str, Any]:
 
 def check_record(sample: Sample) -> None:
     """StageError("record") unless the sample's key makes valid tar member names and its row
-    fits the manifest schema (a sol too large for int32, a key with '/', a 300-char id)."""
+    fits the manifest schema (``store.manifest.check_row``: a sol too large for int32; a key
+    with '/', a 300-char id)."""
     key = sample.key
     try:
         if not _KEY.fullmatch(key) or len(key) > MAX_KEY_LENGTH:
@@ -102,16 +101,7 @@ def check_record(sample: Sample) -> None:
                 f"sample key {key[:100]!r} (from the product id) must be 1 to {MAX_KEY_LENGTH} "
                 "characters of a-z, 0-9, '_' and '-'"
             )
-        try:  # the whole row at once (0.3 ms; column by column takes 3 ms)
-            pa.RecordBatch.from_pylist([sample.row], schema=MANIFEST_SCHEMA)
-        except (ValueError, TypeError, OverflowError, pa.ArrowException) as whole:
-            for f in MANIFEST_SCHEMA:  # column by column, to name the one at fault
-                try:
-                    pa.array([sample.row.get(f.name)], type=f.type)
-                except (ValueError, TypeError, OverflowError, pa.ArrowException) as exc:
-                    value = repr(sample.row.get(f.name))[:60]
-                    raise ValueError(f"{f.name}: {value} does not fit {f.type}: {exc}") from None
-            raise ValueError(f"the manifest row does not fit its schema: {whole}") from None
+        check_row(sample.row)
     except ValueError as exc:
         raise StageError("record", exc) from None
 

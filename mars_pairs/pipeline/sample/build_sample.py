@@ -10,8 +10,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mars_pairs.errors import MarsPairsError, StageError
+from mars_pairs.errors import ConfigError, MarsPairsError, StageError
 from mars_pairs.geometry.mapcam import MapCamera
+from mars_pairs.geometry.places import Pose
 from mars_pairs.pds import read_observation
 from mars_pairs.pipeline.sample.chips import correspondence, cut_chips, localization_fields
 from mars_pairs.pipeline.sample.context import SampleContext
@@ -20,7 +21,14 @@ from mars_pairs.pipeline.sample.encode import encode_members
 from mars_pairs.pipeline.sample.ground import ground_image
 from mars_pairs.pipeline.sample.record import manifest_row, sample_meta
 from mars_pairs.pipeline.sample.stages import Stages
-from mars_pairs.pipeline.sample.view import compute_view
+from mars_pairs.pipeline.sample.view import (
+    View,
+    anchor_view,
+    line_of_sight,
+    ray_grid_shape,
+    ray_hits,
+    sight_of_hits,
+)
 
 
 @dataclass
@@ -46,7 +54,7 @@ def build_sample(label: Path, ctx: SampleContext) -> Sample:
         with stage("locate"):
             pose = ctx.places.locate(obs)
             camera = MapCamera.from_observation(obs, pose, ctx.crs_wkt)
-        view = compute_view(obs, pose, camera, ctx, stage)
+        view = view_stages(pose, camera, ctx, stage)
         with stage("chips"):
             grid, chips, cover = cut_chips(view, ctx, obs)
         out = ctx.config.output
@@ -57,7 +65,7 @@ def build_sample(label: Path, ctx: SampleContext) -> Sample:
                 stride = out.dense_stride or ctx.config.geometry.ray_stride
                 radius = ctx.config.geometry.radius
                 dense, dense_meta = dense_members(
-                    view, grid, chips, ground, out.members, stride, radius
+                    view, grid, chips, ground, out.members, stride, radius, (ctx.ortho, ctx.dem)
                 )
         with stage("encode"):
             row = manifest_row(obs, pose, view, grid, ctx, cover)
@@ -70,3 +78,28 @@ def build_sample(label: Path, ctx: SampleContext) -> Sample:
         raise StageError(stage.name, exc) from exc
     row["ground_member"] = ground.name
     return Sample(row["key"], row, {ground.name: ground.data, **members}, stage.seconds)
+
+
+def view_stages(pose: Pose, camera: MapCamera, ctx: SampleContext, stage: Stages) -> View:
+    """The view's stages in order, each timed by ``stage``: terrain (``camera``, in the DEM's
+    CRS, anchored on the DEM and the DEM window read), viewshed (line of sight, for
+    ``geometry.viewshed`` wedge or both) and raycast (the strided pixels' ray hits, for raycast
+    or both; with raycast alone the cells the hits land in are the sight)."""
+    geo = ctx.config.geometry
+    with stage("terrain"):
+        anchored = anchor_view(
+            camera, pose, ctx.terrain, ctx.dem_window, geo.radius, geo.observer_height,
+            geo.view_mask,
+        )  # fmt: skip
+    sight, hits = None, None
+    if geo.viewshed in ("wedge", "both"):
+        with stage("viewshed"):
+            sight = line_of_sight(anchored, max(ctx.terrain.res))
+    if geo.viewshed in ("raycast", "both"):
+        with stage("raycast"):
+            hits = ray_hits(anchored, geo.ray_stride)
+            if sight is None:
+                sight = sight_of_hits(hits, anchored.window)
+    if sight is None:
+        raise ConfigError(f"geometry.viewshed: unknown method {geo.viewshed!r}")
+    return View.seeing(anchored, sight, hits, ray_grid_shape(anchored.camera, geo.ray_stride))

@@ -77,8 +77,7 @@ def cut_chips(
     check_coverage(cover.dem, spec.min_coverage, "DEM", ctx.dem, grid)
     # scaled by the ortho's declared or measured range
     ortho = ctx.ortho.value_range().to_uint8(ortho_values)
-    los = view.mask if view.los is None else view.los
-    vis = resample_array(los, view.window.transform, ctx.crs_wkt, grid, nearest=True)
+    vis = resample_array(view.los, view.window.transform, ctx.crs_wkt, grid, nearest=True)
     visible = chip_view(np.nan_to_num(vis) > 0.5, dem, grid, view)
     return (
         grid,

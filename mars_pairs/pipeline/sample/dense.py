@@ -11,8 +11,10 @@ stride; pixel (i, j) is image line i * stride, sample j * stride):
 - ``hits`` (H', W', 3) float64: the hit's map x, y (dataset CRS, map units) and elevation z
   (metres above the areoid).
 - ``ortho_view`` (uint8) and ``dem_view`` (float32 metres, NaN invalid): the ortho and DEM
-  chips sampled (bilinear) at each hit: the map seen from the rover; ``view_valid`` (uint8
-  0/255): a hit that lies on the chip with DEM data there.
+  rasters themselves (their own grids, not the chips: no second resampling, and hits off the
+  chip count) sampled bilinearly at each hit: the map seen from the rover, wherever a ray
+  meets the map within ``geometry.radius``; the ortho scaled to uint8 as its chip is;
+  ``view_valid`` (uint8 0/255): a hit with ortho and DEM data around it.
 
 On the chip grid (S x S, the chip's affine):
 
@@ -38,7 +40,7 @@ from mars_pairs.kernels.raycast import cast_rays
 from mars_pairs.pipeline.sample.encode import npy_bytes, png_bytes
 from mars_pairs.pipeline.sample.ground import GroundImage
 from mars_pairs.pipeline.sample.view import View
-from mars_pairs.raster.chips import ChipGrid
+from mars_pairs.raster.chips import ChipGrid, ChipReader
 from mars_pairs.raster.transfer import sample_at
 from mars_pairs.store.members import DENSE_MEMBERS, MEMBER_FILES
 
@@ -93,17 +95,19 @@ def _times_transposed(rows: np.ndarray, matrix: np.ndarray) -> np.ndarray:
 
 
 def map_from_rover(
-    rays: DenseRays, grid: ChipGrid, ortho: np.ndarray, dem: np.ndarray
+    rays: DenseRays, crs: str, ortho: ChipReader, dem: ChipReader
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(ortho_view uint8, dem_view float32 metres, valid bool) on the dense grid: the ortho
-    (uint8 chip) and DEM (float32 chip, NaN nodata) sampled bilinearly at each ray's hit;
-    valid where the hit lies on the chip and the DEM chip has data around it."""
-    px = grid.to_pixel(rays.hits[..., 0], rays.hits[..., 1])
-    u, v = px[..., 0] - 0.5, px[..., 1] - 0.5
-    dem_view, valid = sample_at(dem, u, v, nearest=False)
-    ortho_view, _ = sample_at(ortho, u, v, nearest=False, fill=0.0)
-    ortho_u8 = np.where(valid[..., None] if ortho_view.ndim == 3 else valid, ortho_view, 0.0)
-    return np.rint(ortho_u8).clip(0, 255).astype(np.uint8), dem_view, valid
+    and DEM rasters sampled bilinearly on their own grids at each ray's hit (map x, y in
+    ``crs``, the dataset's; one windowed read each, ``ChipReader.read_points``); the ortho
+    scaled to 0..255 by its ``value_range`` (as its chip); valid where both have data
+    around the hit, else 0 and NaN."""
+    x, y = rays.hits[..., 0], rays.hits[..., 1]
+    ortho_values = ortho.read_points(x, y, crs)
+    dem_view = dem.read_points(x, y, crs)
+    valid = np.isfinite(ortho_values) & np.isfinite(dem_view)
+    ortho_view = ortho.value_range().to_uint8(np.where(valid, ortho_values, np.nan))
+    return ortho_view, np.where(valid, dem_view, np.nan).astype(np.float32), valid
 
 
 def chip_points(grid: ChipGrid, dem: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
@@ -160,9 +164,11 @@ def dense_members(
     members: tuple[str, ...],
     stride: int,
     max_range_m: float,
+    readers: tuple[ChipReader, ChipReader],
 ) -> tuple[dict[str, bytes], dict[str, Any]]:
     """The member bytes of ``members`` (see the module docstring) and their meta entries;
-    ``ground``: the ground member (its decoded pixels when kept, else its bytes decoded)."""
+    ``ground``: the ground member (its decoded pixels when kept, else its bytes decoded);
+    ``readers``: the ortho and DEM rasters (the map seen from the rover samples them)."""
     out: dict[str, bytes] = {}
     meta: dict[str, Any] = {"dense_members": list(members)}
     wanted = set(members)
@@ -177,7 +183,7 @@ def dense_members(
         if "hits" in wanted:
             out["hits.npy"] = npy_bytes(rays.hits)
         if wanted & {"ortho_view", "dem_view"}:
-            ortho_view, dem_view, valid = map_from_rover(rays, grid, chips["ortho"], chips["dem"])
+            ortho_view, dem_view, valid = map_from_rover(rays, grid.crs, *readers)
             if "ortho_view" in wanted:
                 out["ortho_view.png"] = png_bytes(ortho_view)
             out["view_valid.png"] = png_bytes(valid.astype(np.uint8) * 255)

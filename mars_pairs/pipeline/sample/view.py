@@ -1,13 +1,15 @@
-"""Stage view: the camera anchored on the DEM, its viewshed and its per-pixel ray hits."""
+"""The view of one observation, in pure steps: the camera anchored on the DEM (one function for
+the build and ``viewshed --label``), its line of sight and its per-pixel ray hits; the build
+runs and times them as stages (``build_sample.view_stages``)."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from collections.abc import Callable
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from mars_pairs.errors import MarsPairsError
 from mars_pairs.geometry.body import MARS_RADIUS_M
 from mars_pairs.geometry.frames import azimuth_elevation_deg
 from mars_pairs.geometry.mapcam import MapCamera
@@ -15,37 +17,76 @@ from mars_pairs.geometry.places import Pose
 from mars_pairs.kernels.raycast import cast_rays
 from mars_pairs.kernels.viewshed import compute_viewshed
 from mars_pairs.observation import Observation
-from mars_pairs.pipeline.sample.context import SampleContext
-from mars_pairs.pipeline.sample.stages import Stages
 from mars_pairs.raster.terrain import DemWindow, Terrain
 
 _AZ_MARGIN_DEG = 2.0  # the kernel's wedge is a prefilter: the exact test follows
 _EL_MARGIN_DEG = 1.0
 
 
-@dataclass
-class View:
-    """An observation's view over the terrain, in the DEM's CRS.
+@dataclass(frozen=True)
+class AnchoredView:
+    """The camera anchored on the DEM, the DEM window around it and the view's exact test; all
+    in the DEM's CRS (map x, y in map units, z in metres).
 
-    ``camera`` is anchored at the rover origin: the whole rover is shifted by
-    ``dem_offset_m`` = DEM(rover origin) - PLACES elevation (metres), so its origin stands on
-    the DEM; ``height`` is the camera centre's height above the DEM at the rover origin (m).
-    ``mask`` (uint8 on ``window``'s grid) marks the cells in view (see ``VIEW_MASKS``);
-    ``hits`` (N, 3) are the ray/terrain intersections of the strided pixels (map x, y, z; NaN
-    for no hit), ``grid_shape`` their (rows, cols) in the image.
+    ``camera`` stands at the rover origin: the whole rover is shifted by ``dem_offset_m`` =
+    DEM(rover origin) - PLACES elevation (metres), so its origin stands on the DEM (or, with an
+    observer height, its centre that many metres above it); ``height`` is the camera centre's
+    height above the DEM at the rover origin (m). ``window`` holds the DEM within
+    ``radius_m`` (true metres) of the camera centre plus two cells. ``mode`` ("frustum" or
+    "band") and ``bands`` (true-north azimuth and elevation bands of the image, degrees) are
+    the view test of ``in_view``.
     """
 
     camera: MapCamera
     height: float
+    dem_offset_m: float
     window: DemWindow
+    radius_m: float
+    mode: str
+    bands: tuple[tuple[float, float], tuple[float, float]]
+
+
+@dataclass(frozen=True)
+class Sight:
+    """What the camera sees on ``AnchoredView.window``'s grid (uint8, 1 = yes): ``los`` the line
+    of sight alone, ``mask`` the cells that also pass the exact view test (see ``VIEW_MASKS``).
+    """
+
+    los: np.ndarray
+    mask: np.ndarray
+
+
+@dataclass(frozen=True)
+class View(AnchoredView):
+    """An observation's view over the terrain: the anchored view (frames and units as in
+    ``AnchoredView``) with what it sees.
+
+    ``los`` (uint8 on ``window``'s grid) the line of sight alone, before the view test;
+    ``mask`` (uint8, same grid) the cells in view (see ``VIEW_MASKS``); ``hits`` (N, 3) the
+    ray/terrain intersections of the strided pixels (map x, y in map units, z in metres; NaN
+    for no hit), None when no rays were cast; ``grid_shape`` their (rows, cols) in the image.
+    """
+
+    los: np.ndarray
     mask: np.ndarray
     hits: np.ndarray | None
     grid_shape: tuple[int, int]
-    dem_offset_m: float = 0.0
-    radius_m: float = math.inf
-    mode: str = "frustum"
-    bands: tuple[tuple[float, float], tuple[float, float]] = ((0.0, 360.0), (-90.0, 90.0))
-    los: np.ndarray | None = None  # line of sight alone (uint8, window grid), before the view test
+
+    @classmethod
+    def seeing(
+        cls,
+        anchored: AnchoredView,
+        sight: Sight,
+        hits: np.ndarray | None = None,
+        grid_shape: tuple[int, int] = (0, 0),
+    ) -> View:
+        """The view of ``anchored`` with its ``sight`` and ray ``hits`` (``grid_shape``)."""
+        parts = {f.name: getattr(anchored, f.name) for f in fields(AnchoredView)}
+        return cls(**parts, los=sight.los, mask=sight.mask, hits=hits, grid_shape=grid_shape)
+
+
+#: reads the DEM window holding everything within a reach (map units) of map point (x, y)
+WindowReader = Callable[[float, float, float], DemWindow]
 
 
 def anchor_camera(
@@ -63,6 +104,34 @@ def anchor_camera(
         lift = ground_at_origin + observer_height - float(camera.center_map[2])
     moved = replace(camera, origin_map=camera.origin_map + np.array([0.0, 0.0, lift]))
     return moved, float(offset), float(moved.center_map[2] - ground_at_origin)
+
+
+def anchor_view(
+    camera: MapCamera,
+    pose: Pose,
+    terrain: Terrain,
+    read_window: WindowReader,
+    radius_m: float,
+    observer_height: float | None,
+    mode: str,
+) -> AnchoredView:
+    """``camera`` (map CRS of ``terrain``) anchored on the DEM at its rover origin, and the DEM
+    window its view needs, read by ``read_window`` (x, y, reach in map units).
+
+    The reach is ``radius_m`` (true metres) at the largest map scale around the camera, plus
+    two DEM cells. ``observer_height``: the camera centre's height above the DEM at the rover
+    origin (m); None: the label's, the rover standing on the DEM. TerrainError when the rover
+    origin is off the DEM or over nodata (``Terrain.elevation_at``).
+    """
+    ox, oy = (float(v) for v in camera.origin_map[:2])
+    ground = terrain.elevation_at(ox, oy)
+    camera, offset, height = anchor_camera(camera, pose, ground, observer_height)
+    cx, cy = (float(v) for v in camera.center_map[:2])
+    reach = radius_m * camera.map_scale_range()[1] + 2.0 * max(terrain.res)
+    window = read_window(cx, cy, reach)
+    # the exact band the image covers, from its border rays (true north)
+    bands = camera.view_band_deg()
+    return AnchoredView(camera, height, offset, window, radius_m, mode, bands)
 
 
 def kernel_bands(
@@ -87,7 +156,7 @@ def kernel_bands(
     return ((float(g_start) - _AZ_MARGIN_DEG) % 360.0, (float(g_end) + _AZ_MARGIN_DEG) % 360.0), el
 
 
-def in_view(points_map: np.ndarray, view: View) -> np.ndarray:
+def in_view(points_map: np.ndarray, view: AnchoredView) -> np.ndarray:
     """Which map points (N, 3: x, y map units, z metres) the view keeps, tested exactly.
 
     In true metres in the rover's local frame: horizontal range from the camera centre at most
@@ -120,7 +189,7 @@ def _nonzero_in_bbox(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return rows + r0, cols + c0
 
 
-def exact_mask(los: np.ndarray, view: View) -> np.ndarray:
+def exact_mask(los: np.ndarray, view: AnchoredView) -> np.ndarray:
     """The cells of ``los`` (line-of-sight visible, uint8 on the window grid) in the view."""
     mask = np.zeros_like(los, dtype=np.uint8)
     rows, cols = _nonzero_in_bbox(los)
@@ -132,14 +201,14 @@ def exact_mask(los: np.ndarray, view: View) -> np.ndarray:
     return mask
 
 
-def apply_line_of_sight(view: View, cell: float) -> None:
-    """Fill ``view.los`` (the kernel's line of sight from the camera centre, in a conservative
-    grid wedge) and ``view.mask`` (those cells that pass the exact view test). ``cell``: the
-    DEM's largest pixel size, map units."""
+def line_of_sight(view: AnchoredView, cell: float) -> Sight:
+    """The kernel's line of sight from the camera centre over ``view.window`` (in a
+    conservative grid wedge around the image's bands) and those cells that pass the exact view
+    test. ``cell``: the DEM's largest pixel size, map units."""
     camera = view.camera
     cx, cy, cz = (float(v) for v in camera.center_map)
     grid_az, grid_el = kernel_bands(camera, *view.bands)
-    view.los = compute_viewshed(
+    los = compute_viewshed(
         view.window,
         cx,
         cy,
@@ -150,7 +219,28 @@ def apply_line_of_sight(view: View, cell: float) -> None:
         el_band=grid_el,
         planet_radius=MARS_RADIUS_M,
     )
-    view.mask = exact_mask(view.los, view)
+    return Sight(los, exact_mask(los, view))
+
+
+def ray_grid_shape(camera: MapCamera, stride: int) -> tuple[int, int]:
+    """(rows, cols) of the image pixels taken every ``stride`` pixels (``pixel_grid``)."""
+    return len(range(0, camera.height, stride)), len(range(0, camera.width, stride))
+
+
+def ray_hits(view: AnchoredView, stride: int) -> np.ndarray:
+    """The terrain hits (N, 3: map x, y in map units, z in metres; NaN for no hit) of every
+    ``stride``-th pixel's ray, within ``view.radius_m`` (true metres) of the camera centre."""
+    camera = view.camera
+    cx, cy = (float(v) for v in camera.center_map[:2])
+    origins, dirs = camera.pixel_rays(camera.pixel_grid(stride))
+    hits, _ = cast_rays(origins, dirs, view.window, max_range=view.radius_m, observer_xy=(cx, cy))
+    return hits
+
+
+def sight_of_hits(hits: np.ndarray, window: DemWindow) -> Sight:
+    """The sight of rays alone: the cells their hits land in are both line of sight and view."""
+    mask = mask_from_hits(hits, window)
+    return Sight(mask, mask)
 
 
 def label_view(
@@ -161,69 +251,17 @@ def label_view(
     observer_height: float | None = None,
     mode: str = "frustum",
 ) -> View:
-    """One image's view mask over ``terrain`` (the ``mars-pairs viewshed --label`` job): the
-    camera anchored at the rover origin, line of sight and the exact ``mode`` test."""
+    """One image's view over ``terrain`` (the ``mars-pairs viewshed --label`` job): the camera
+    anchored as the build anchors it (``anchor_view``), on a DEM window centred on the camera
+    centre (``Terrain.read_dem_window``: TerrainError when the centre is off the DEM or over
+    nodata), line of sight and the exact ``mode`` test; no rays cast. ``radius_m``: true
+    metres; ``observer_height``: metres above the DEM at the rover origin, None: the label's.
+    """
     camera = MapCamera.from_observation(obs, pose, terrain.crs)
-    ox, oy = (float(v) for v in camera.origin_map[:2])
-    camera, offset, height = anchor_camera(
-        camera, pose, terrain.elevation_at(ox, oy), observer_height
+    anchored = anchor_view(
+        camera, pose, terrain, terrain.read_dem_window, radius_m, observer_height, mode
     )
-    cx, cy = (float(v) for v in camera.center_map[:2])
-    cell = max(terrain.res)
-    window = terrain.read_dem_window(cx, cy, radius_m * camera.map_scale_range()[1] + 2 * cell)
-    empty = np.zeros(window.data.shape, dtype=np.uint8)
-    view = View(
-        camera, height, window, empty, None, (0, 0), offset, radius_m, mode,
-        camera.view_band_deg(),
-    )  # fmt: skip
-    apply_line_of_sight(view, cell)
-    return view
-
-
-def compute_view(
-    obs: Observation, pose: Pose, camera: MapCamera, ctx: SampleContext, stage: Stages
-) -> View:
-    """Terrain window, the camera anchored at the rover origin, its view mask and ray hits."""
-    geo = ctx.config.geometry
-    with stage("terrain"):
-        ox, oy = (float(v) for v in camera.origin_map[:2])
-        ground = ctx.terrain.elevation_at(ox, oy)  # TerrainError off the DEM
-        if not math.isfinite(ground):
-            raise MarsPairsError(f"{ctx.config.inputs.dem}: no DEM data under the rover")
-        camera, offset, height = anchor_camera(camera, pose, ground, geo.observer_height)
-        cx, cy = (float(v) for v in camera.center_map[:2])
-        k_max = camera.map_scale_range()[1]
-        radius_map = geo.radius * k_max  # the window and kernel work in map units
-        window = ctx.dem_window(cx, cy, radius_map + 2.0 * max(ctx.terrain.res))
-        # the exact band the image covers, from its border rays (true north)
-        az_band, el_band = camera.view_band_deg()
-    stride = geo.ray_stride
-    grid_shape = (len(range(0, camera.height, stride)), len(range(0, camera.width, stride)))
-    empty = np.zeros(window.data.shape, dtype=np.uint8)
-    view = View(
-        camera,
-        height,
-        window,
-        empty,
-        None,
-        grid_shape,
-        offset,
-        geo.radius,
-        geo.view_mask,
-        (az_band, el_band),
-    )
-    if geo.viewshed in ("wedge", "both"):
-        with stage("viewshed"):
-            apply_line_of_sight(view, max(ctx.terrain.res))
-    if geo.viewshed in ("raycast", "both"):
-        with stage("raycast"):
-            origins, dirs = camera.pixel_rays(camera.pixel_grid(stride))
-            view.hits, _ = cast_rays(
-                origins, dirs, window, max_range=geo.radius, observer_xy=(cx, cy)
-            )
-            if geo.viewshed == "raycast":
-                view.mask = view.los = mask_from_hits(view.hits, window)
-    return view
+    return View.seeing(anchored, line_of_sight(anchored, max(terrain.res)))
 
 
 def mask_from_hits(hits: np.ndarray, window: DemWindow) -> np.ndarray:

@@ -23,8 +23,13 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mars_pairs.errors import DatasetError, MarsPairsError, UsageError
-from mars_pairs.store.manifest import Manifest
-from mars_pairs.store.shards import atomic_write_bytes
+from mars_pairs.report.meta import camera_centres
+from mars_pairs.store.atomic import atomic_write_bytes
+from mars_pairs.store.dataset_info import build_input, read_dataset_doc
+from mars_pairs.store.geoparquet import describe_crs
+from mars_pairs.store.query import Manifest
+from mars_pairs.viz.common import split_colours
+from mars_pairs.viz.report_figures import histograms_figure, map_figure, sample_card
 
 COLUMNS = (
     "key", "mission", "instrument", "product_id", "sol", "site", "drive", "split", "easting",
@@ -105,19 +110,6 @@ def _span(values: list[int]) -> str:
 # -- reading ------------------------------------------------------------------------------------
 
 
-def _dataset_json(root: Path) -> dict[str, Any]:
-    path = root / "dataset.json"
-    if not path.is_file():
-        return {}
-    try:
-        doc = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise DatasetError(path, None, f"unreadable JSON: {exc}") from None
-    if not isinstance(doc, dict):
-        raise DatasetError(path, None, "expected a JSON object")
-    return doc
-
-
 def _failures(root: Path) -> pa.Table | None:
     path = root / "failures.parquet"
     if not path.is_file():
@@ -128,49 +120,10 @@ def _failures(root: Path) -> pa.Table | None:
         raise DatasetError(path, None, f"unreadable Parquet: {exc}") from None
 
 
-def _crs(info: dict[str, Any], manifest: Manifest) -> tuple[str, str]:
-    """The dataset CRS described in words and its axis unit ('m' for metres)."""
-    from pyproj import CRS
-    from pyproj.exceptions import CRSError
-
-    text = info.get("crs") or manifest.crs
-    if not text:
-        return "unknown CRS", "map units"
-    try:
-        crs = CRS.from_user_input(text)
-    except CRSError:
-        return "unreadable CRS", "map units"
-    unit = crs.axis_info[0].unit_name if crs.axis_info else "map units"
-    return crs_description(crs), "m" if unit in ("metre", "meter") else unit
-
-
-def crs_description(crs: Any) -> str:
-    """A pyproj CRS in words: its name, or (for an unnamed one, as GDAL writes many Mars
-    CRSs) its projection method, body and non-zero parameters."""
-    if crs.name and crs.name.lower() != "unknown":
-        return str(crs.name)
-    op = crs.coordinate_operation
-    words = [op.method_name if op is not None else "unnamed CRS"]
-    ellipsoid = crs.ellipsoid
-    if ellipsoid is not None:
-        if ellipsoid.name and ellipsoid.name.lower() != "unknown":
-            words.append(f"on {ellipsoid.name}")
-        elif ellipsoid.inverse_flattening == 0:
-            words.append(f"on a sphere of radius {ellipsoid.semi_major_metre:.0f} m")
-        else:
-            words.append(f"on an ellipsoid of semi-major axis {ellipsoid.semi_major_metre:.0f} m")
-    params = [p for p in (op.params if op is not None else []) if p.value]
-    if params:
-        words.append("(" + ", ".join(f"{p.name.lower()} {p.value:g}" for p in params) + ")")
-    return " ".join(words)
-
-
 # -- sections -----------------------------------------------------------------------------------
 
 
 def _split_section(rows: list[dict[str, Any]], info: dict[str, Any], n_failed: int) -> str:
-    from mars_pairs.viz.report_figures import split_colours
-
     splits = [str(r["split"]) for r in rows]
     colours = split_colours(splits)
     counts = Counter(splits)
@@ -252,7 +205,6 @@ def _failures_section(failures: pa.Table | None) -> str:
 
 def _gallery_section(root: Path, rows: list[dict[str, Any]], n: int) -> str:
     from mars_pairs.torch import MarsPairsDataset
-    from mars_pairs.viz.report_figures import sample_card
 
     head = '<section id="gallery"><h2>Samples</h2>'
     if not rows or n == 0:
@@ -260,13 +212,13 @@ def _gallery_section(root: Path, rows: list[dict[str, Any]], n: int) -> str:
     order = sorted(range(len(rows)), key=lambda i: (rows[i]["sol"] or 0, str(rows[i]["key"])))
     spread = np.linspace(0, len(rows) - 1, min(n, len(rows)))
     picks = sorted({order[round(float(k))] for k in spread})
-    from mars_pairs.viz.sample import _camera_centre
+    centres = camera_centres(root, [str(rows[i]["key"]) for i in picks])  # the wedges' apexes
 
     cards = []
     with MarsPairsDataset(root, fields=("ground", "ortho", "viewshed")) as ds:
         for i in sorted(picks, key=lambda i: order.index(i)):
             r = rows[i]
-            centre = _camera_centre(root, str(r["key"]))  # the wedge's apex (meta.json)
+            centre = centres[str(r["key"])]
             png = sample_card(ds[ds.index_of(str(r["key"]))], camera_center_map=centre)
             caption = (
                 f"<b>{_esc(r['key'])}</b><br>{_esc(r['instrument'])}, sol {_esc(r['sol'])}, "
@@ -323,8 +275,6 @@ def _provenance_section(root: Path, info: dict[str, Any], crs_name: str) -> str:
 
 def report_html(root: str | Path, samples: int = DEFAULT_SAMPLES) -> str:
     """The report page of the dataset folder ``root`` with ``samples`` gallery samples."""
-    from mars_pairs.viz.report_figures import histograms_figure, map_figure
-
     if isinstance(samples, bool) or not isinstance(samples, int) or samples < 0:
         raise UsageError(f"samples: expected a whole number >= 0, got {samples!r}")
     root = Path(root)
@@ -332,12 +282,11 @@ def report_html(root: str | Path, samples: int = DEFAULT_SAMPLES) -> str:
         raise MarsPairsError(f"{root}: no such dataset folder")
     manifest = Manifest.open(root).require(COLUMNS)
     rows = manifest.to_table(columns=list(COLUMNS)).to_pylist()
-    info = _dataset_json(root)
+    info = read_dataset_doc(root)
     failures = _failures(root)
     n_failed = failures.num_rows if failures is not None else 0
-    crs_name, unit = _crs(info, manifest)
-    ortho = (info.get("config") or {}).get("inputs", {}).get("ortho")
-    ortho_path = root / ortho if ortho else None  # relative to the dataset folder (or absolute)
+    crs_name, unit = describe_crs(info.get("crs") or manifest.crs)
+    ortho_path = build_input(root, info, "ortho")
 
     title = f"mars-pairs dataset {root}"
     missions = ", ".join(sorted({str(r["mission"]) for r in rows}))
