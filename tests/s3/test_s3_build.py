@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -138,6 +139,36 @@ def test_rasters_on_s3_build_as_local(
     summary = run_build(config, progress=False)
     assert summary.samples == 4
     assert digests(tmp_path / "ds") == digests(local_build)
+
+
+def test_duplicates_across_chunks_on_s3_give_the_local_bytes(
+    small_mission: Path, s3_prefix: str, tmp_path: Path
+) -> None:
+    """Labels repeating product ids of earlier chunks: the driver rewrites a shard on the
+    server without its duplicate (downloaded, rewritten, uploaded) or removes it, as it does
+    on disk: the same bytes. Chunks of 2: [L0, L1], [copy of L0, L2], [L3, zz copy of L2],
+    [zzz copy of L3]."""
+    labels = tmp_path / "labels"
+    labels.mkdir()
+    for f in (small_mission / "labels").iterdir():
+        shutil.copy(f, labels / f.name)
+    first = sorted(labels.glob("*.xml"))
+    shutil.copy(first[0], labels / f"{first[1].stem}_copy.xml")  # sorts right after L1
+    shutil.copy(first[2], labels / "zz_copy.xml")
+    shutil.copy(first[3], labels / "zzz_copy.xml")
+
+    def build(out: str | Path) -> None:
+        doc = build_config(small_mission, Path("/unused"))
+        doc["inputs"]["labels"] = str(labels / "*.xml")
+        doc["output"]["dir"] = str(out)
+        summary = run_build(parse_config(doc, base=small_mission), progress=False)
+        assert (summary.samples, summary.failures) == (4, 3)
+
+    build(tmp_path / "local")
+    build(s3_prefix)
+    assert digests(s3_prefix) == digests(tmp_path / "local")
+    shards = [f for f in fs.list_files(s3_prefix) if f.startswith("shards/")]
+    assert shards == [f"shards/shard-00000{k}.tar" for k in range(3)]
 
 
 @pytest.mark.parametrize(
