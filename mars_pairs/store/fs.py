@@ -67,17 +67,17 @@ def relative(root: Location, path: Location) -> str:
 
 def filesystem(url: str) -> tuple[Any, str]:
     """The fsspec file system of ``url`` (listings not cached) and the path in it.
-    ImportError naming the package to install when the protocol's is missing."""
+    ConfigError naming the URL when the protocol is unknown or its package is missing."""
     import fsspec.core
+
+    from mars_pairs.errors import ConfigError
 
     try:
         return fsspec.core.url_to_fs(url, use_listings_cache=False)
-    except ImportError as exc:
+    except (ImportError, ValueError) as exc:
         scheme = url.split("://", 1)[0]
-        hint = " (pip install s3fs)" if scheme in ("s3", "s3a") else ""
-        raise ImportError(
-            f"{url}: reading {scheme}:// needs its fsspec package{hint}: {exc}"
-        ) from None
+        hint = " (pip install 'mars-pairs[s3]')" if scheme in ("s3", "s3a") else ""
+        raise ConfigError(f"{url}: no file system for {scheme}://{hint}: {exc}") from None
 
 
 def exists(path: Location) -> bool:

@@ -20,6 +20,7 @@ from built_dataset import build_config
 from mars_pairs.cli.main import main
 from mars_pairs.cli.summary import inspect_dataset
 from mars_pairs.cli.verify import verify_dataset
+from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import BuildConfig, parse_config
 from mars_pairs.store import fs
@@ -81,6 +82,20 @@ def test_a_build_to_s3_equals_the_local_build(
     assert (again.chunks_built, again.samples) == (0, 4)
 
 
+def test_a_dask_build_to_s3_equals_the_local_build(
+    small_mission: Path, local_build: Path, s3_prefix: str
+) -> None:
+    """Dask workers (a LocalCluster of 2 processes, the environment's credentials inherited)
+    upload the shards: the local build's bytes."""
+    pytest.importorskip("distributed", reason="the dask extra is not installed")
+    from mars_pairs.pipeline.build.dask_engine import DaskEngine
+
+    engine = DaskEngine(workers=2, announce=False)
+    summary = run_build(config_for(small_mission, s3_prefix), engine=engine, progress=False)
+    assert summary.samples == 4
+    assert digests(s3_prefix) == digests(local_build)
+
+
 def test_the_readers_read_a_dataset_on_s3(
     local_build: Path, s3_build: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -129,16 +144,20 @@ def test_rasters_on_s3_build_as_local(
     small_mission: Path, local_build: Path, s3_prefix: str, tmp_path: Path
 ) -> None:
     """inputs.dem and inputs.ortho given as s3:// URLs (read through GDAL's /vsis3/) build
-    the local build's manifest and shards."""
+    the local build's manifest and shards; an object replaced since (its ETag) refuses a
+    resume, naming the input."""
     for name in ("dem.tif", "ortho.tif"):
         fs.upload(small_mission / "orbital" / name, fs.join(s3_prefix, name))
-    doc = build_config(small_mission, tmp_path / "ds")
+    doc = build_config(small_mission, tmp_path / "ds", output={"keep_parts": True})
     doc["inputs"] |= {"dem": f"{s3_prefix}/dem.tif", "ortho": f"{s3_prefix}/ortho.tif"}
     config = parse_config(doc, base=small_mission)
     assert str(config.inputs.dem).startswith("/vsis3/")
     summary = run_build(config, progress=False)
     assert summary.samples == 4
     assert digests(tmp_path / "ds") == digests(local_build)
+    fs.upload(small_mission / "orbital" / "dem.tif", fs.join(s3_prefix, "ortho.tif"))
+    with pytest.raises(ConfigError, match=r"inputs\.ortho changed .*ETag"):
+        run_build(config, resume=True, progress=False)
 
 
 def test_duplicates_across_chunks_on_s3_give_the_local_bytes(

@@ -10,6 +10,7 @@ import pytest
 import rasterio
 from rasterio.transform import from_origin
 
+from mars_pairs.errors import ConfigError
 from mars_pairs.raster import vsi
 from mars_pairs.store import fs
 
@@ -20,6 +21,11 @@ def test_dataset_root_keeps_urls_and_makes_paths() -> None:
     assert fs.dataset_root("file:///tmp/x") == Path("/tmp/x")
     assert fs.join("s3://b/p", "shards/a.tar") == "s3://b/p/shards/a.tar"
     assert fs.join(Path("/d"), "parts/x") == Path("/d/parts/x")
+
+
+def test_an_unknown_protocol_is_a_config_error_naming_the_url() -> None:
+    with pytest.raises(ConfigError, match=r"nosuch://bucket/x: no file system for nosuch://"):
+        fs.exists("nosuch://bucket/x")
 
 
 def test_s3_options_from_the_endpoint_variable() -> None:

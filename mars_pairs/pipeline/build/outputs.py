@@ -32,6 +32,7 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
+from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.store import fs
 from mars_pairs.store.atomic import temporary_target
@@ -121,9 +122,12 @@ def file_fingerprint(path: Path | str, *, depth: int = 0) -> dict[str, Any]:
     """What identifies the input file ``path``: its path, and its size and sha256 (a file
     of up to ``HASHED_BYTES``) or its size and ``st_mtime_ns`` (a larger one); a VRT also
     lists its source files' (``SourceFilename``, relative to the VRT when it says so; a VRT
-    of VRTs to 4 levels). A URL or GDAL ``/vsi`` path: the string only; an absent or
-    unreadable file: ``missing`` (the error's words)."""
+    of VRTs to 4 levels). An object on S3 (``/vsis3/``): its path, size and ETag. Another URL
+    or GDAL ``/vsi`` path: the string only; an absent or unreadable file: ``missing`` (the
+    error's words)."""
     text = str(path)
+    if text.startswith("/vsis3/"):
+        return _object_fingerprint(text)
     if text.startswith("/vsi") or "://" in text:
         return {"path": text}
     is_vrt = text.lower().endswith(".vrt")
@@ -144,6 +148,18 @@ def file_fingerprint(path: Path | str, *, depth: int = 0) -> dict[str, Any]:
         sources = vrt_sources(Path(text), data)
         doc["sources"] = [file_fingerprint(src, depth=depth + 1) for src in sources]
     return doc
+
+
+def _object_fingerprint(text: str) -> dict[str, Any]:
+    """``file_fingerprint`` of the S3 object behind the GDAL path ``/vsis3/BUCKET/KEY``: its
+    size and ETag (one HEAD request, with the environment's credentials: ``store.fs``)."""
+    url = "s3://" + text.removeprefix("/vsis3/")
+    try:
+        filesystem, key = fs.filesystem(url)
+        info = filesystem.info(key)
+    except (OSError, ConfigError) as exc:
+        return {"path": text, "missing": str(exc) or type(exc).__name__}
+    return {"path": text, "size": info.get("size"), "etag": info.get("ETag")}
 
 
 def vrt_sources(vrt: Path, data: bytes) -> list[str]:
@@ -187,6 +203,8 @@ def _change(before: Any, after: Any) -> str:
     if before.get("sha256") != after.get("sha256"):
         old, new = (str(d.get("sha256", "none"))[:12] for d in (before, after))
         parts.append(f"content (sha256 {old}... -> {new}...)")
+    if before.get("etag") != after.get("etag"):
+        parts.append(f"ETag {before.get('etag')} -> {after.get('etag')}")
     if before.get("mtime_ns") != after.get("mtime_ns"):
         parts.append(f"mtime_ns {before.get('mtime_ns')} -> {after.get('mtime_ns')}")
     old_src, new_src = before.get("sources", []), after.get("sources", [])
