@@ -160,6 +160,23 @@ def test_rasters_on_s3_build_as_local(
         run_build(config, resume=True, progress=False)
 
 
+def test_a_rebuild_on_s3_clears_the_old_build_and_refuses_a_strangers_file(
+    small_mission: Path, local_build: Path, s3_prefix: str
+) -> None:
+    """A prefix holding an object no build stamp lists is refused untouched; a rebuild over
+    a finished build (another label count) clears it and gives the local build's bytes."""
+    config = config_for(small_mission, s3_prefix)
+    assert run_build(config, limit=2, progress=False).samples == 2
+    fs.put_bytes(fs.join(s3_prefix, "notes.txt"), b"mine")
+    with pytest.raises(ConfigError, match=r"holds notes\.txt"):
+        run_build(config, progress=False)
+    assert fs.read_bytes(fs.join(s3_prefix, "notes.txt")) == b"mine"
+    fs.remove(fs.join(s3_prefix, "notes.txt"))
+    assert run_build(config, progress=False).samples == 4
+    assert digests(s3_prefix) == digests(local_build)
+    assert not [f for f in fs.list_files(s3_prefix) if f.startswith("parts/") or ".tmp-" in f]
+
+
 def test_duplicates_across_chunks_on_s3_give_the_local_bytes(
     small_mission: Path, s3_prefix: str, tmp_path: Path
 ) -> None:
