@@ -23,11 +23,12 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard, overload
 
 #: A dataset root or a file in one: a local path, or the text of an fsspec URL.
 Location = Path | str
@@ -35,7 +36,7 @@ Location = Path | str
 _URL = re.compile(r"[A-Za-z][A-Za-z0-9+.\-]*://")
 
 
-def is_url(value: object) -> bool:
+def is_url(value: object) -> TypeGuard[str]:
     """Whether ``value`` is the text of a URL (``scheme://...``) other than ``file://``."""
     return isinstance(value, str) and bool(_URL.match(value)) and not value.startswith("file://")
 
@@ -51,21 +52,18 @@ def dataset_root(value: str | os.PathLike[str]) -> Location:
     return Path(text)
 
 
+@overload
+def join(root: Path, rel: str) -> Path: ...
+@overload
+def join(root: str, rel: str) -> Location: ...
 def join(root: Location, rel: str) -> Location:
     """The file ``rel`` (relative, ``/``-separated) of the dataset root ``root``."""
-    if isinstance(root, str) and is_url(root):
+    if is_url(root):
         return f"{root.rstrip('/')}/{rel}"
     return Path(root) / rel
 
 
-def relative(root: Location, path: Location) -> str:
-    """``path`` relative to the root ``root``, ``/``-separated."""
-    if isinstance(path, str) and is_url(path):
-        return path[len(str(root).rstrip("/")) + 1 :]
-    return Path(path).relative_to(root).as_posix()
-
-
-def filesystem(url: str) -> tuple[Any, str]:
+def filesystem(url: str) -> tuple[Any, Any]:
     """The fsspec file system of ``url`` (listings not cached) and the path in it.
     ConfigError naming the URL when the protocol is unknown or its package is missing."""
     import fsspec.core
@@ -73,127 +71,136 @@ def filesystem(url: str) -> tuple[Any, str]:
     from mars_pairs.errors import ConfigError
 
     try:
-        return fsspec.core.url_to_fs(url, use_listings_cache=False)
+        found: tuple[Any, Any] = fsspec.core.url_to_fs(url, use_listings_cache=False)
     except (ImportError, ValueError) as exc:
         scheme = url.split("://", 1)[0]
         hint = " (pip install 'mars-pairs[s3]')" if scheme in ("s3", "s3a") else ""
         raise ConfigError(f"{url}: no file system for {scheme}://{hint}: {exc}") from None
+    return found
 
 
 def exists(path: Location) -> bool:
     """Whether the file ``path`` exists."""
-    if isinstance(path, Path):
-        return path.exists()
-    fs, p = filesystem(path)
-    return bool(fs.exists(p))
+    if is_url(path):
+        fs, p = filesystem(path)
+        return bool(fs.exists(p))
+    return Path(path).exists()
 
 
 def is_file(path: Location) -> bool:
     """Whether ``path`` is a file (an object, for object storage)."""
-    if isinstance(path, Path):
-        return path.is_file()
-    fs, p = filesystem(path)
-    return bool(fs.isfile(p))
+    if is_url(path):
+        fs, p = filesystem(path)
+        return bool(fs.isfile(p))
+    return Path(path).is_file()
 
 
 def size(path: Location) -> int:
     """The size of the file ``path`` in bytes (FileNotFoundError when absent)."""
-    if isinstance(path, Path):
-        return path.stat().st_size
-    fs, p = filesystem(path)
-    return int(fs.size(p))
+    if is_url(path):
+        fs, p = filesystem(path)
+        return int(fs.size(p))
+    return Path(path).stat().st_size
 
 
 def read_bytes(path: Location) -> bytes:
     """The bytes of the file ``path`` (FileNotFoundError when absent)."""
-    if isinstance(path, Path):
-        return path.read_bytes()
-    fs, p = filesystem(path)
-    return bytes(fs.cat_file(p))
+    if is_url(path):
+        fs, p = filesystem(path)
+        return bytes(fs.cat_file(p))
+    return Path(path).read_bytes()
 
 
 def read_range(path: Location, offset: int, length: int) -> bytes:
     """``length`` bytes of ``path`` at ``offset`` (fewer at its end): one range request."""
-    if isinstance(path, Path):
-        with open(path, "rb") as fh:
-            fh.seek(offset)
-            return fh.read(length)
-    fs, p = filesystem(path)
-    return bytes(fs.cat_file(p, start=offset, end=offset + length))
+    if is_url(path):
+        fs, p = filesystem(path)
+        return bytes(fs.cat_file(p, start=offset, end=offset + length))
+    with open(Path(path), "rb") as fh:
+        fh.seek(offset)
+        return fh.read(length)
 
 
 def open_input(path: Location) -> Any:
     """``path`` opened for binary reading (seekable; remote reads are range requests)."""
-    if isinstance(path, Path):
-        return open(path, "rb")
-    fs, p = filesystem(path)
-    return fs.open(p, "rb", cache_type="readahead", block_size=1 << 20)
+    if is_url(path):
+        fs, p = filesystem(path)
+        return fs.open(p, "rb", cache_type="readahead", block_size=1 << 20)
+    return open(Path(path), "rb")
 
 
-def upload(local: Path, path: str) -> None:
+def upload(local: Path, path: Location) -> None:
     """Upload the local file ``local`` to ``path`` whole: the object appears only when the
-    upload completes (a multipart upload is completed, or aborted, by fsspec)."""
-    fs, p = filesystem(path)
-    fs.put_file(str(local), p)
+    upload completes (a multipart upload is completed, or aborted, by fsspec); a local
+    ``path`` is a copy through a temporary name and a rename."""
+    if is_url(path):
+        fs, p = filesystem(path)
+        fs.put_file(str(local), p)
+        return
+    from mars_pairs.store.atomic import atomic_path
+
+    with atomic_path(Path(path)) as tmp:
+        shutil.copyfile(local, tmp)
 
 
 def put_bytes(path: Location, data: bytes) -> None:
     """Write ``data`` to ``path`` all or nothing (locally: a temporary name and a rename)."""
-    if isinstance(path, Path):
-        from mars_pairs.store.atomic import atomic_write_bytes
+    from mars_pairs.store.atomic import atomic_write_bytes
 
-        atomic_write_bytes(path, data)
+    if is_url(path):
+        fs, p = filesystem(path)
+        fs.pipe_file(p, data)
         return
-    fs, p = filesystem(path)
-    fs.pipe_file(p, data)
+    atomic_write_bytes(Path(path), data)
 
 
 def replace(src: Location, dst: Location) -> None:
     """Move ``src`` to ``dst``: a rename locally; on object storage a server-side copy (the
     object ``dst`` appears whole) and then the removal of ``src``."""
-    if isinstance(src, Path):
-        os.replace(src, dst)
+    if is_url(src):
+        fs, s = filesystem(src)
+        _, d = filesystem(str(dst))
+        fs.copy(s, d)
+        fs.rm_file(s)
         return
-    fs, s = filesystem(src)
-    _, d = filesystem(str(dst))
-    fs.copy(s, d)
-    fs.rm_file(s)
+    os.replace(src, dst)
 
 
 def remove(path: Location) -> None:
     """Remove the file ``path``, if there."""
-    if isinstance(path, Path):
-        path.unlink(missing_ok=True)
+    if is_url(path):
+        fs, p = filesystem(path)
+        with suppress(FileNotFoundError):
+            fs.rm_file(p)
         return
-    fs, p = filesystem(path)
-    with suppress(FileNotFoundError):
-        fs.rm_file(p)
+    Path(path).unlink(missing_ok=True)
 
 
 def list_files(root: Location) -> list[str]:
     """Every file under ``root``, relative to it (``/``-separated), sorted; [] when absent."""
-    if isinstance(root, Path):
-        if not root.is_dir():
+    if is_url(root):
+        fs, p = filesystem(root)
+        base = p.rstrip("/") + "/"
+        try:
+            found = fs.find(p)
+        except FileNotFoundError:
             return []
-        return sorted(p.relative_to(root).as_posix() for p in root.rglob("*") if p.is_file())
-    fs, p = filesystem(root)
-    base = p.rstrip("/") + "/"
-    try:
-        found = fs.find(p)
-    except FileNotFoundError:
+        return sorted(f[len(base) :] for f in found if f.startswith(base))
+    folder = Path(root)
+    if not folder.is_dir():
         return []
-    return sorted(f[len(base) :] for f in found if f.startswith(base))
+    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.is_file())
 
 
 def total_size(root: Location) -> int:
     """The bytes of every file under ``root`` (one listing on object storage)."""
-    if isinstance(root, Path):
-        return sum(p.stat().st_size for p in root.rglob("*") if p.is_file())
-    fs, p = filesystem(root)
-    try:
-        return int(fs.du(p, total=True))
-    except FileNotFoundError:
-        return 0
+    if is_url(root):
+        fs, p = filesystem(root)
+        try:
+            return int(fs.du(p, total=True))
+        except FileNotFoundError:
+            return 0
+    return sum(p.stat().st_size for p in Path(root).rglob("*") if p.is_file())
 
 
 @contextmanager
@@ -210,23 +217,23 @@ def write_parquet(table: Any, path: Location, row_group_size: int = 4096) -> Non
     uploaded whole)."""
     from mars_pairs.store.atomic import write_parquet_atomic
 
-    if isinstance(path, Path):
-        write_parquet_atomic(table, path, row_group_size)
+    if is_url(path):
+        with local_staging() as tmp:
+            local = tmp / path.rsplit("/", 1)[-1]
+            write_parquet_atomic(table, local, row_group_size)
+            upload(local, path)
         return
-    with local_staging() as tmp:
-        local = tmp / path.rsplit("/", 1)[-1]
-        write_parquet_atomic(table, local, row_group_size)
-        upload(local, path)
+    write_parquet_atomic(table, Path(path), row_group_size)
 
 
 def parquet_source(path: Location) -> tuple[Any, Any]:
     """``(source, filesystem)`` for pyarrow's readers (``pq.read_table(source,
     filesystem=...)``, ``pyarrow.dataset.dataset``): the path and None locally, the path in
     the fsspec file system and that file system otherwise."""
-    if isinstance(path, Path):
-        return path, None
-    fs, p = filesystem(path)
-    return p, fs
+    if is_url(path):
+        fs, p = filesystem(path)
+        return p, fs
+    return Path(path), None
 
 
 def read_parquet(path: Location, columns: list[str] | None = None) -> Any:
@@ -241,17 +248,17 @@ def parquet_schema(path: Location) -> Any:
     """The Arrow schema of the Parquet file at ``path`` (its footer only)."""
     import pyarrow.parquet as pq
 
-    if isinstance(path, Path):
-        return pq.read_schema(path)
-    with open_input(path) as fh:
-        return pq.read_schema(fh)
+    if is_url(path):
+        with open_input(path) as fh:
+            return pq.read_schema(fh)
+    return pq.read_schema(Path(path))
 
 
 def parquet_metadata(path: Location) -> Any:
     """The Parquet footer (``FileMetaData``) of the file at ``path``."""
     import pyarrow.parquet as pq
 
-    if isinstance(path, Path):
-        return pq.read_metadata(path)
-    with open_input(path) as fh:
-        return pq.read_metadata(fh)
+    if is_url(path):
+        with open_input(path) as fh:
+            return pq.read_metadata(fh)
+    return pq.read_metadata(Path(path))

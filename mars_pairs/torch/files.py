@@ -44,7 +44,7 @@ class ShardFiles:
         elif entry is None:
             while len(self._files) >= self.max_open:
                 os.close(self._files.popitem(last=False)[1][0])
-            fd = os.open(shard_path(self.root, shard), os.O_RDONLY)
+            fd = os.open(shard_path(Path(self.root), shard), os.O_RDONLY)
             entry = self._files[shard] = (fd, os.fstat(fd).st_size)
         else:
             self._files.move_to_end(shard)

@@ -122,10 +122,11 @@ def write_chunk(config: BuildConfig, result: ChunkResult, selection: ChunkSelect
     if selection.stop is not None:
         raise BuildError(selection.stop)
     outcomes = selection.outcomes
-    if selection.rewrite_shard and isinstance(out, Path):
-        outcomes = _rewrite_shard(out, result, outcomes)
-    elif selection.rewrite_shard:
-        outcomes = _rewrite_remote_shard(out, result, outcomes)
+    if selection.rewrite_shard:
+        if isinstance(out, Path):
+            outcomes = _rewrite_shard(out, result, outcomes)
+        else:
+            outcomes = _rewrite_remote_shard(out, result, outcomes)
     failures, manifest = part_tables(config, outcomes)
     fs.write_parquet(failures, failures_part)
     fs.write_parquet(manifest, manifest_part)  # commit marker
