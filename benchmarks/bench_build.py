@@ -35,6 +35,7 @@ from pathlib import Path
 
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import parse_config
+from mars_pairs.runtime import configure_process
 from mars_pairs.synth import generate_mission
 
 STUDY_SECONDS_PER_IMAGE = 20.0  # "tens of seconds per image" (Sheppard and Skinner)
@@ -158,6 +159,7 @@ class _ExternalCluster:
 
 
 def main() -> None:
+    configure_process()
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--stops", type=int, default=64)
     parser.add_argument("--images-per-stop", type=int, default=8)

@@ -42,6 +42,7 @@ from los_reference import exact_viewshed  # noqa: E402
 from mars_pairs.kernels import cast_rays, compute_viewshed  # noqa: E402
 from mars_pairs.kernels.raycast import max_pyramid  # noqa: E402
 from mars_pairs.raster.terrain import Terrain  # noqa: E402
+from mars_pairs.runtime import configure_process  # noqa: E402
 from mars_pairs.synth.terrain import spectral_noise  # noqa: E402
 
 EQC = "+proj=eqc +lat_ts=0 +lon_0=0 +R=3396190 +units=m +no_defs"
@@ -144,6 +145,7 @@ def run_gdal(dem_path: Path, out: Path, x: float, y: float, radius: float) -> li
 
 
 def main(argv: list[str] | None = None) -> None:
+    configure_process()
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=4096, help="DEM size in cells (square)")
     ap.add_argument("--cell", type=float, default=1.0, help="cell size in metres")

@@ -1,17 +1,15 @@
 """Worker processes keep their freed memory for the next sample or batch (glibc).
 
-Page faults are expensive on the virtual machines these jobs run on: touching fresh memory
-cost ~1 ms per MB here, refilling memory the process already had ~0.05 ms per MB. glibc
-hands large freed blocks back to the OS: anything over its mmap threshold (128 KiB at
-start, sliding up to the largest block freed) and the top of the heap beyond twice that.
-A worker that allocates and frees tens of MB per sample or batch thus faults them in again
-every time:
+Touching fresh memory (a page fault per page) costs far more than refilling memory the
+process already has, most of all on virtual machines (figures in the README's benchmarks,
+"Dataset build" and "Loader"). glibc hands large freed blocks back to the OS: anything over
+its mmap threshold (128 KiB at start, sliding up to the largest block freed) and the top of
+the heap beyond twice that. A worker that allocates and frees tens of MB per sample or batch
+thus faults them in again every time:
 
-- a build sample allocates DEM windows, masks and chips; on a Dask worker (Dask sets
-  ``MALLOC_TRIM_THRESHOLD_``, which also stops the sliding threshold) a chunk of 16 samples
-  took 0.64 s against 0.31 s with this setting (load 1);
-- a DataLoader worker decodes a batch of 8 demo-sized samples into ~28 MB of buffers:
-  8.8 against 6.1-6.7 CPU ms per sample (512-sample dataset, load 1.4-2.3).
+- a build sample allocates DEM windows, masks and chips; on a Dask worker, Dask sets
+  ``MALLOC_TRIM_THRESHOLD_``, which also stops the sliding threshold;
+- a DataLoader worker decodes a batch of 8 demo-sized samples into tens of MB of buffers.
 
 :func:`reuse_freed_memory` raises the mmap threshold to glibc's maximum (32 MiB) and the
 trim threshold to 256 MiB. It is called in worker processes only (build pool, Dask

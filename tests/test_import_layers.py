@@ -133,3 +133,27 @@ def test_sample_never_imports_build() -> None:
 @pytest.mark.parametrize("cycle", [["mars_pairs.a", "mars_pairs.b"]])
 def test_the_checker_sees_a_cycle(cycle: list[str]) -> None:
     assert _cycles({"mars_pairs.a": {"mars_pairs.b"}, "mars_pairs.b": {"mars_pairs.a"}}) == [cycle]
+
+
+def _private_imports(source: str) -> list[str]:
+    """``module.name`` of every ``_``-prefixed name ``source`` imports from mars_pairs."""
+    return [
+        f"{node.module}.{a.name}"
+        for node in ast.walk(ast.parse(source))
+        if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("mars_pairs")
+        for a in node.names
+        if a.name.startswith("_") and not a.name.startswith("__")
+    ]
+
+
+def test_no_module_imports_another_modules_private_name() -> None:
+    found = {
+        name: str(path.relative_to(ROOT.parent))
+        for path in ROOT.rglob("*.py")
+        for name in _private_imports(path.read_text())
+    }
+    assert found == {}
+
+
+def test_the_private_name_check_sees_one() -> None:
+    assert _private_imports("from mars_pairs.x import a, _b\n") == ["mars_pairs.x._b"]

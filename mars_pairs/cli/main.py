@@ -18,6 +18,7 @@ from mars_pairs.cli.viewshed import cmd_viewshed
 from mars_pairs.errors import MarsPairsError, UsageError
 from mars_pairs.pipeline.build.label_list import iter_matches
 from mars_pairs.pipeline.config import MAX_RADIUS_M
+from mars_pairs.runtime import configure_process
 from mars_pairs.store.splits import EmptySplitWarning
 
 if TYPE_CHECKING:
@@ -76,6 +77,11 @@ def _cmd_build(args: argparse.Namespace) -> int:
         out = dataset_root(args.out)
         out = out.resolve() if isinstance(out, Path) else out
         config = replace(config, output=replace(config.output, dir=out))
+    if args.dry_run and args.append:  # the new labels and chunks; writes nothing
+        from mars_pairs.pipeline.build.append import plan_append
+
+        print(plan_append(config).format())
+        return 0
     if args.dry_run:  # lists, chunks and checks; writes nothing (nor a synthetic mission)
         from mars_pairs.pipeline.build.plan import plan_build
 
@@ -95,6 +101,7 @@ def _cmd_build(args: argparse.Namespace) -> int:
                 limit=args.limit,
                 strict=args.strict,
                 progress=not args.quiet,
+                append=args.append,
             )
     except BuildError as exc:
         print(f"mars-pairs build: --strict: {exc}", file=sys.stderr)
@@ -249,6 +256,13 @@ def _add_build_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", help="dataset folder or URL (s3://bucket/prefix; overrides output.dir)")
     p.add_argument("--workers", type=count(1), default=1, help="worker processes (default 1)")
     p.add_argument("--resume", action="store_true", help="keep finished shards of a killed build")
+    p.add_argument(
+        "--append",
+        action="store_true",
+        help="add the labels the finished dataset in the folder does not hold yet (a new "
+        "release) as new shards; existing shards are kept; a killed append reruns with "
+        "--append",
+    )
     p.add_argument("--limit", type=count(1), help="build at most N observations")
     p.add_argument("--strict", action="store_true", help="stop at the first failure")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -422,6 +436,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``mars-pairs`` console script."""
+    configure_process()
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args))

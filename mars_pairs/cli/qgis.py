@@ -13,11 +13,12 @@ import pyarrow as pa
 import shapely
 from PIL import Image
 
-from mars_pairs.errors import DatasetError, MarsPairsError
+from mars_pairs.errors import MarsPairsError
 from mars_pairs.store.atomic import atomic_path
+from mars_pairs.store.dataset_info import dataset_crs
 from mars_pairs.store.manifest import SUMMARY_COLUMNS
 from mars_pairs.store.query import Manifest
-from mars_pairs.store.shards import MemberLocation, read_member
+from mars_pairs.store.shards import MemberLocation, read_members
 
 ATTRIBUTES = SUMMARY_COLUMNS
 
@@ -64,7 +65,7 @@ def export_geopackage(
     rows = Manifest.open(root).require().to_table().to_pylist()
     if not rows:
         raise MarsPairsError(f"{root}: the dataset has no samples")
-    crs = _dataset_crs(root)
+    crs = dataset_crs(root)
     out.parent.mkdir(parents=True, exist_ok=True)
     with_foot = [r for r in rows if r["footprint"] is not None]
     layers = [
@@ -97,20 +98,6 @@ def export_geopackage(
     return out
 
 
-def _dataset_crs(root: Path) -> str:
-    """The dataset CRS from dataset.json; DatasetError when it is missing or damaged."""
-    path = root / "dataset.json"
-    try:
-        crs = json.loads(path.read_bytes())["crs"]
-    except FileNotFoundError:
-        raise DatasetError(path, None, "no such file") from None
-    except (ValueError, KeyError, TypeError) as exc:
-        raise DatasetError(path, "crs", f"unreadable: {exc!r}") from None
-    if not isinstance(crs, str):
-        raise DatasetError(path, "crs", f"expected CRS text, got {type(crs).__name__}")
-    return crs
-
-
 def viewsheds_folder(out: str | Path) -> Path:
     """The folder of the viewshed GeoTIFFs written beside ``out`` (``NAME_viewsheds``)."""
     out = Path(out)
@@ -123,9 +110,12 @@ def chips_folder(out: str | Path) -> Path:
     return out.with_name(f"{out.stem}_chips")
 
 
-def _member(root: Path, row: dict[str, Any], name: str) -> bytes:
-    loc = MemberLocation(row[f"{name}_shard"], row[f"{name}_offset"], row[f"{name}_size"])
-    return read_member(root, loc)
+def _members(root: Path, row: dict[str, Any], names: tuple[str, ...]) -> dict[str, bytes]:
+    """The bytes of the manifest row's members ``names`` (errors name ``<key>.<name>``)."""
+    locations = {
+        n: MemberLocation(row[f"{n}_shard"], row[f"{n}_offset"], row[f"{n}_size"]) for n in names
+    }
+    return read_members(root, locations, key=row["key"])
 
 
 def export_chips(
@@ -148,17 +138,18 @@ def export_chips(
     if rows is None:
         rows = Manifest.open(root).require().to_table().to_pylist()
     if crs is None:
-        crs = _dataset_crs(root)
+        crs = dataset_crs(root)
     folder.mkdir(parents=True, exist_ok=True)
     written = []
     for row in rows:
-        meta = json.loads(_member(root, row, "meta"))
+        data = _members(root, row, ("meta", "ortho", "dem", "viewshed"))
+        meta = json.loads(data["meta"])
         transform = Affine(*meta["chip_transform"])
-        ortho = np.asarray(Image.open(io.BytesIO(_member(root, row, "ortho"))))
+        ortho = np.asarray(Image.open(io.BytesIO(data["ortho"])))
         if ortho.ndim == 3:
             ortho = ortho[..., 0]
-        dem = np.load(io.BytesIO(_member(root, row, "dem")), allow_pickle=False)
-        view = np.asarray(Image.open(io.BytesIO(_member(root, row, "viewshed"))))
+        dem = np.load(io.BytesIO(data["dem"]), allow_pickle=False)
+        view = np.asarray(Image.open(io.BytesIO(data["viewshed"])))
         key = row["key"]
         for name, array, nodata in (
             ("ortho", ortho.astype(np.uint8), None),
@@ -203,15 +194,9 @@ def _write_viewsheds(root: Path, rows: list[dict[str, Any]], folder: Path, crs: 
 
     folder.mkdir(parents=True, exist_ok=True)
     for row in rows:
-        meta = json.loads(
-            read_member(
-                root, MemberLocation(row["meta_shard"], row["meta_offset"], row["meta_size"])
-            )
-        )
-        png = read_member(
-            root,
-            MemberLocation(row["viewshed_shard"], row["viewshed_offset"], row["viewshed_size"]),
-        )
+        data = _members(root, row, ("meta", "viewshed"))
+        meta = json.loads(data["meta"])
+        png = data["viewshed"]
         visible = (np.asarray(Image.open(io.BytesIO(png))) > 0).astype(np.uint8)
         path = folder / f"{row['key']}_viewshed.tif"
         write_viewshed_geotiff(path, visible, Affine(*meta["chip_transform"]), crs)

@@ -13,7 +13,7 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import shapely
 
-from mars_pairs.errors import MarsPairsError
+from mars_pairs.errors import DatasetError, MarsPairsError
 from mars_pairs.geometry.body import MARS_LONLAT_AUTHORITY
 from mars_pairs.geometry.frames import map_to_lonlat
 from mars_pairs.store.atomic import write_parquet_atomic
@@ -98,15 +98,16 @@ def check_query_splits(dataset: str | Path, split: Any) -> None:
         return
     import pyarrow.compute as pc
 
+    from mars_pairs.store.dataset_info import read_dataset_doc
     from mars_pairs.store.filter_args import check_split_names, configured_splits
 
     root = Path(dataset)
     rows = Manifest.open(root).require(["split"]).to_table(["split"])["split"]
     known = {str(v) for v in pc.unique(rows).to_pylist() if v is not None}
     try:
-        doc = json.loads((root / "dataset.json").read_text())
-    except (OSError, ValueError):
-        doc = {}  # an old or damaged dataset.json: the names on the rows
+        doc = read_dataset_doc(root)
+    except DatasetError:
+        doc = {}  # a damaged dataset.json: the names on the rows
     check_split_names(split, known | (configured_splits(doc) or set()), str(root))
 
 

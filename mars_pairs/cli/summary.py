@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from collections import Counter
 from pathlib import Path
 
@@ -10,6 +9,7 @@ import pyarrow as pa
 
 from mars_pairs.errors import DatasetError
 from mars_pairs.store import fs
+from mars_pairs.store.dataset_info import read_dataset_doc
 from mars_pairs.store.query import Manifest
 
 
@@ -24,10 +24,10 @@ def split_warnings(dataset: str | Path) -> list[str]:
     configured split left empty); none for a dataset built before they were recorded or
     without a readable dataset.json."""
     try:
-        doc = json.loads(fs.read_bytes(fs.join(fs.dataset_root(dataset), "dataset.json")))
-    except (OSError, ValueError):
+        doc = read_dataset_doc(dataset)
+    except DatasetError:
         return []
-    splits = doc.get("splits") if isinstance(doc, dict) else None
+    splits = doc.get("splits")
     found = splits.get("warnings") if isinstance(splits, dict) else None
     return [str(w) for w in found] if isinstance(found, list) else []
 

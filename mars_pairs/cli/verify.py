@@ -15,15 +15,15 @@ read in file order, one open each. ``DIR`` may be an fsspec URL (``s3://bucket/p
 from __future__ import annotations
 
 import os
-from collections import Counter, defaultdict
+from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO
 
 from mars_pairs.errors import DatasetError
 from mars_pairs.store import fs
-from mars_pairs.store.dataset_info import read_dataset_info
-from mars_pairs.store.integrity import MemberSpec, check_member, shard_location
+from mars_pairs.store.dataset_info import DATASET_JSON, read_dataset_info
+from mars_pairs.store.integrity import MemberSpec, check_member, repeated_keys, shard_location
 from mars_pairs.store.members import DENSE_FIELDS, MEMBERS
 from mars_pairs.store.query import Manifest
 
@@ -75,13 +75,12 @@ def verify_dataset(root: str | Path) -> VerifyReport:
     location = [f"{m}_{s}" for m in members for s in ("shard", "offset", "size")]
     manifest.require(["key", "ground_member", *location])
     checksums = [f"{m}_crc32c" for m in members if f"{m}_crc32c" in names]
-    rows = manifest.to_table(columns=["key", "ground_member", *location, *checksums]).to_pylist()
+    table = manifest.to_table(columns=["key", "ground_member", *location, *checksums])
+    rows = table.to_pylist()
     damage = _dataset_json_damage(root)
-    repeated = Counter(row["key"] for row in rows)
     damage += [
         Damage("manifest.parquet", key, f"{n} rows hold this key")
-        for key, n in sorted(repeated.items(), key=lambda kv: str(kv[0]))
-        if n > 1
+        for key, n in repeated_keys(table["key"])
     ]
     by_shard: dict[str, list[MemberSpec]] = defaultdict(list)
     for row in rows:
@@ -109,7 +108,7 @@ def _dataset_json_damage(root: fs.Location) -> list[Damage]:
     try:
         read_dataset_info(root)
     except DatasetError as exc:
-        return [Damage("dataset.json", exc.member, exc.reason)]
+        return [Damage(DATASET_JSON, exc.member, exc.reason)]
     return []
 
 

@@ -13,6 +13,7 @@ import re
 from pathlib import Path, PurePosixPath
 
 from mars_pairs.errors import FetchError
+from mars_pairs.store.atomic import atomic_write_bytes
 
 _DRIVE = re.compile(r"^[A-Za-z]:")
 
@@ -60,20 +61,5 @@ class Cache:
     def write_bytes(self, rel: PurePosixPath | str, data: bytes) -> Path:
         """Write ``data`` at ``rel`` atomically (temporary name, then rename)."""
         target = self.path(rel)
-        atomic_write(target, data)
+        atomic_write_bytes(target, data)
         return target
-
-
-def atomic_write(target: Path, data: bytes) -> None:
-    """Write ``data`` to ``target`` through a temporary file in the same folder and a rename."""
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, target)
-    finally:
-        if tmp.exists():
-            tmp.unlink()

@@ -44,7 +44,7 @@ from requests.adapters import HTTPAdapter
 from urllib3.util.retry import Retry
 
 from mars_pairs.errors import ContentError, FetchError
-from mars_pairs.fetch.cache import Cache, atomic_write
+from mars_pairs.fetch.cache import Cache
 from mars_pairs.fetch.validate import (
     KINDS,
     Extent,
@@ -53,6 +53,7 @@ from mars_pairs.fetch.validate import (
     kind_of,
     quick_check,
 )
+from mars_pairs.store.atomic import atomic_write_bytes
 
 _CONTENT_RANGE = re.compile(r"bytes (\d+)-(\d+)/(\d+|\*)")
 _UNSATISFIED_RANGE = re.compile(r"bytes \*/(\d+)")
@@ -308,7 +309,7 @@ class Downloader:
             meta.unlink(missing_ok=True)  # never a validator beside a file it does not describe
             os.replace(part, target)
             if remote.mutable and fresh is not None and fresh.known:
-                atomic_write(meta, fresh.dump(target.stat().st_size))
+                atomic_write_bytes(meta, fresh.dump(target.stat().st_size))
             sidecar(part).unlink(missing_ok=True)
             return FetchResult(remote, target, "resumed" if resumed else "downloaded", received)
         raise FetchError(remote.url, f"failed after {self.policy.retries + 1} attempts: {last}")
@@ -380,7 +381,7 @@ class Downloader:
                 offset, mode = 0, "wb"  # the server sent the whole file
                 answer = Validator.of(remote.url, r.headers)
                 if answer.known:
-                    atomic_write(sidecar(part), answer.dump(None))
+                    atomic_write_bytes(sidecar(part), answer.dump(None))
                 else:
                     sidecar(part).unlink(missing_ok=True)
             else:

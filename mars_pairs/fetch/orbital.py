@@ -40,9 +40,9 @@ from affine import Affine
 from rasterio.windows import Window
 
 from mars_pairs.errors import FetchError
-from mars_pairs.fetch.cache import atomic_write
 from mars_pairs.fetch.windows import PlannedWindow, RasterGrid
 from mars_pairs.raster.vsi import gdal_path, remote_env
+from mars_pairs.store.atomic import atomic_path, atomic_write_bytes, temporary_path
 
 Bounds = tuple[float, float, float, float]
 LABEL_SUFFIXES = (".xml", ".lbl", ".LBL", ".XML")  # detached labels tried before a .img itself
@@ -235,7 +235,7 @@ def source_info(source: str, sidecar: Path | None = None, *, write: bool = True)
             colorinterp=tuple(c.name for c in ds.colorinterp),
         )
     if sidecar is not None and write:
-        atomic_write(sidecar, info.to_json().encode())
+        atomic_write_bytes(sidecar, info.to_json().encode())
     return info
 
 
@@ -259,8 +259,7 @@ def cut_planned(win: PlannedWindow, info: SourceInfo, out: Path) -> WindowResult
 def _write_window(src, win: Window, out: Path, request: dict) -> None:  # type: ignore[no-untyped-def]
     """Copy ``win`` of ``src`` to a deflate COG at ``out`` (row blocks; temporary names)."""
     out.parent.mkdir(parents=True, exist_ok=True)
-    stage = out.with_name(f".{out.name}.{os.getpid()}.stage.tif")
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    stage = temporary_path(out, ".stage.tif")
     profile = {
         "driver": "GTiff",
         "width": int(win.width),
@@ -287,16 +286,13 @@ def _write_window(src, win: Window, out: Path, request: dict) -> None:  # type: 
                 dst.write(data, window=Window(0, r, win.width, n))
             dst.colorinterp = src.colorinterp
             dst.update_tags(MARS_PAIRS_WINDOW=json.dumps(request, sort_keys=True))
-        with rasterio.Env(GDAL_PAM_ENABLED="NO"):
+        with rasterio.Env(GDAL_PAM_ENABLED="NO"), atomic_path(out) as tmp:
             rasterio.shutil.copy(
                 stage, tmp, driver="COG", COMPRESS="DEFLATE", BLOCKSIZE=256,
                 OVERVIEWS="NONE", NUM_THREADS=1,
             )  # fmt: skip
-        os.replace(tmp, out)
     finally:
-        for path in (stage, tmp):
-            if path.exists():
-                path.unlink()
+        stage.unlink(missing_ok=True)
 
 
 def _cached(out: Path, request: dict) -> WindowResult | None:
@@ -370,5 +366,5 @@ def write_vrt(
             ET.SubElement(src, "DstRect", xOff=str(w.col_off - c0), yOff=str(w.row_off - r0),
                           xSize=str(w.width), ySize=str(w.height))  # fmt: skip
     ET.indent(root)
-    atomic_write(path, (ET.tostring(root, encoding="unicode") + "\n").encode())
+    atomic_write_bytes(path, (ET.tostring(root, encoding="unicode") + "\n").encode())
     return path

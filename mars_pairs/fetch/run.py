@@ -26,7 +26,7 @@ import pyarrow.parquet as pq
 from tqdm import tqdm
 
 from mars_pairs.errors import FetchError, MarsPairsError
-from mars_pairs.fetch.cache import Cache, archive_path, atomic_write, join_url
+from mars_pairs.fetch.cache import Cache, archive_path, join_url
 from mars_pairs.fetch.config import FetchConfig, ProductsSpec, RemoteSpec
 from mars_pairs.fetch.download import Downloader, RemoteFile
 from mars_pairs.fetch.orbital import (
@@ -55,6 +55,7 @@ from mars_pairs.fetch.products import (
 )
 from mars_pairs.fetch.volumes import volumes_for_sols
 from mars_pairs.fetch.windows import WindowPlan, dem_reach_m, ortho_reach_m, plan_windows
+from mars_pairs.store.atomic import atomic_write_bytes
 
 FAILURES = "fetch_failures.parquet"
 SKIPPED = "fetch_skipped.parquet"
@@ -268,7 +269,7 @@ def _write_rows(cache: Cache, name: str, rows: Sequence[object], cols: tuple[str
     sink = pa.BufferOutputStream()
     pq.write_table(table, sink)
     target = cache.path(name)
-    atomic_write(target, sink.getvalue().to_pybytes())
+    atomic_write_bytes(target, sink.getvalue().to_pybytes())
     return target
 
 

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from mars_pairs.errors import FetchError
-from mars_pairs.fetch.cache import atomic_write
+from mars_pairs.store.atomic import atomic_write_bytes
 
 TABLE = "mslmst_volume_sol_ranges.csv"
 HEADER = ("volume_id", "first_sol", "last_sol")
@@ -123,4 +123,4 @@ def write_volume_ranges(rows: list[VolumeRange], path: str | Path, comment: str 
     buf.write(",".join(HEADER) + "\n")
     for r in sorted(rows, key=lambda r: r.volume):
         buf.write(f"{r.volume},{r.first_sol},{r.last_sol}\n")
-    atomic_write(Path(path), buf.getvalue().encode())
+    atomic_write_bytes(Path(path), buf.getvalue().encode())

@@ -34,7 +34,6 @@ by every ray.
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Sequence
 from typing import Any
 
@@ -44,12 +43,6 @@ from numba import njit, prange
 
 from mars_pairs.geometry.body import MARS_RADIUS_M
 from mars_pairs.kernels.grid import as_grid, bilinear, xy_to_uv
-
-# numba's OpenMP threading layer busy-waits at the end of every parallel loop; on a shared
-# machine (builds run next to other CPU-bound jobs) the spinning thread takes the core the
-# straggling one needs, which made 2-thread kernels ~3x slower than 1 thread (passive: same as
-# 1 thread when busy, ~2x faster when idle). Must be set before OpenMP loads; user value wins.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 # no 'nnan'/'ninf': NaN nodata and +-inf band limits must compare exactly
 _SAFE_FM = {"arcp", "contract"}

@@ -25,7 +25,7 @@ import pyarrow.parquet as pq
 from mars_pairs.errors import DatasetError, MarsPairsError, UsageError
 from mars_pairs.report.meta import camera_centres
 from mars_pairs.store.atomic import atomic_write_bytes
-from mars_pairs.store.dataset_info import build_input, read_dataset_doc
+from mars_pairs.store.dataset_info import build_input, dataset_json_path, read_dataset_doc
 from mars_pairs.store.geoparquet import describe_crs
 from mars_pairs.store.query import Manifest
 from mars_pairs.viz.common import split_colours
@@ -244,7 +244,7 @@ def _provenance_section(root: Path, info: dict[str, Any], crs_name: str) -> str:
     head = '<section id="provenance"><h2>Provenance</h2>'
     if not info:
         return head + '<p class="sub">no dataset.json in the dataset folder</p></section>'
-    written = datetime.fromtimestamp((root / "dataset.json").stat().st_mtime, tz=timezone.utc)
+    written = datetime.fromtimestamp(dataset_json_path(root).stat().st_mtime, tz=timezone.utc)
     seconds = info.get("build_seconds")
     facts = [
         ["dataset", _esc(root.resolve())],

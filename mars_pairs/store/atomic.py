@@ -84,7 +84,9 @@ def atomic_path(path: Path, suffix: str = "") -> Iterator[Path]:
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary name and a rename (all or nothing)."""
+    """Write ``data`` to ``path`` through a temporary name and a rename (all or nothing); the
+    folder is created when missing."""
+    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = temporary_path(path)
     try:
         with naming(path), open(tmp, "wb") as fh:

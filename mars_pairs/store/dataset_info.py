@@ -1,6 +1,11 @@
 """``dataset.json``: what a reader of a built dataset needs beyond the manifest (the ray
 stride of the correspondence grids, the CRS, the chip size). Every reader requires it: there
-is no default stride to fall back on."""
+is no default stride to fall back on.
+
+Every reader of a dataset folder's ``dataset.json`` goes through this module:
+:func:`read_dataset_info` (the torch datasets, ``verify``), :func:`read_dataset_doc` (the whole
+document: the report, the overview, the query, the summary) and :func:`dataset_crs` (the QGIS
+export). A dataset root may be a local folder or an fsspec URL (``store.fs``)."""
 
 from __future__ import annotations
 
@@ -11,6 +16,9 @@ from typing import Any
 
 from mars_pairs.errors import DatasetError
 from mars_pairs.store import fs
+
+#: the file's name in a dataset folder
+DATASET_JSON = "dataset.json"
 
 #: where dataset.json keeps the ray stride (ground-image pixels between keypoint rays)
 RAY_STRIDE = ("config", "geometry", "ray_stride")
@@ -46,15 +54,36 @@ def _load(path: fs.Location) -> dict[str, Any]:
     return doc
 
 
-def read_dataset_info(root: str | Path) -> DatasetInfo:
-    """The dataset.json of the dataset folder ``root`` (a local folder or an fsspec URL:
-    ``store.fs``); DatasetError naming the file (and the field) when it is missing,
-    unreadable, not a JSON object or lacks a valid ray stride."""
-    path = fs.join(fs.dataset_root(root), "dataset.json")
+def dataset_json_path(root: str | Path) -> fs.Location:
+    """The dataset.json of the dataset folder ``root`` (a local folder or a URL)."""
+    return fs.join(fs.dataset_root(root), DATASET_JSON)
+
+
+def _load_required(root: str | Path) -> tuple[fs.Location, dict[str, Any]]:
+    """(path, document) of the dataset.json of ``root``; DatasetError naming it when it is
+    missing, unreadable or not a JSON object."""
+    path = dataset_json_path(root)
     if not fs.exists(path):
         reason = "missing (it holds the ray stride, CRS and chip size: rebuild or restore it)"
         raise DatasetError(path, None, reason)
-    doc = _load(path)
+    return path, _load(path)
+
+
+def dataset_crs(root: str | Path) -> str:
+    """The dataset CRS text (WKT or PROJJSON) of dataset.json's ``crs``; DatasetError naming
+    the file and the field when the file or the field is missing or damaged."""
+    path, doc = _load_required(root)
+    crs = doc.get("crs")
+    if not isinstance(crs, str) or not crs:
+        got = repr(crs) if crs is None or crs == "" else type(crs).__name__
+        raise DatasetError(path, "crs", f"expected CRS text, got {got}")
+    return crs
+
+
+def read_dataset_info(root: str | Path) -> DatasetInfo:
+    """The dataset.json of the dataset folder ``root``; DatasetError naming the file (and the
+    field) when it is missing, unreadable, not a JSON object or lacks a valid ray stride."""
+    path, doc = _load_required(root)
     value: Any = doc
     for part in RAY_STRIDE:
         value = value.get(part) if isinstance(value, dict) else None
@@ -76,8 +105,8 @@ def read_dataset_doc(root: str | Path) -> dict[str, Any]:
     """The whole dataset.json document of the dataset folder ``root``, for readers that work
     without it (the pictures, the report): {} when the file is absent; DatasetError naming the
     file when it is unreadable or not a JSON object."""
-    path = Path(root) / "dataset.json"
-    return _load(path) if path.exists() else {}
+    path = dataset_json_path(root)
+    return _load(path) if fs.exists(path) else {}
 
 
 def build_input(root: str | Path, doc: dict[str, Any], name: str) -> Path | None:

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath, PureWindowsPath
 
 import crc32c as _crc32c
+import pyarrow as pa
+import pyarrow.compute as pc
 
 from mars_pairs.errors import DatasetError
 from mars_pairs.store.fs import Location, is_url, join
@@ -161,14 +163,27 @@ def header_problem(spec: MemberSpec, header: bytes | bytearray) -> str | None:
 
 def data_problem(spec: MemberSpec, data: bytes | bytearray) -> str | None:
     """What is wrong with the member's bytes (length, CRC-32C), or None."""
-    if len(data) != spec.size:
-        return f"truncated: {len(data)} of {spec.size} bytes"
-    crc = spec.crc32c
-    if crc is not None and crc >= 0:
+    return bytes_problem(data, spec.size, spec.crc32c)
+
+
+def bytes_problem(data: bytes | bytearray, size: int | None, crc32c: int | None) -> str | None:
+    """What is wrong with a member's bytes read: not ``size`` bytes long, or not of CRC-32C
+    ``crc32c`` (None or negative: not checked); None when intact."""
+    if len(data) != size:
+        return f"truncated: {len(data)} of {size} bytes"
+    if crc32c is not None and crc32c >= 0:
         got = checksum(data)  # type: ignore[arg-type]  (any buffer)
-        if got != crc:
-            return f"checksum mismatch (crc32c {got:#010x}, manifest {crc:#010x})"
+        if got != crc32c:
+            return f"checksum mismatch (crc32c {got:#010x}, manifest {crc32c:#010x})"
     return None
+
+
+def repeated_keys(keys: pa.Array | pa.ChunkedArray) -> list[tuple[str | None, int]]:
+    """Every sample key that more than one manifest row holds (``keys``: the manifest's key
+    column), with its row count, sorted by key (a manifest names each sample once)."""
+    counts = pc.value_counts(keys)
+    repeated = pc.filter(counts, pc.greater(counts.field("counts"), 1)).to_pylist()
+    return sorted(((r["values"], r["counts"]) for r in repeated), key=lambda kn: str(kn[0]))
 
 
 def check_member(

@@ -1,5 +1,5 @@
 """WebDataset-style tar shards, written atomically, with each member's byte offset, size and
-CRC-32C checksum (the ``crc32c`` package: hardware CRC, ~10 GB/s)."""
+CRC-32C checksum (the ``crc32c`` package: hardware CRC where the CPU has it)."""
 
 from __future__ import annotations
 
@@ -7,13 +7,15 @@ import contextlib
 import io
 import os
 import tarfile
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
+from typing import BinaryIO
 
 from mars_pairs.errors import DatasetError
 from mars_pairs.store.atomic import naming, rename_into_place, temporary_path
-from mars_pairs.store.integrity import bounds_problem, checksum, shard_path
+from mars_pairs.store.integrity import bounds_problem, bytes_problem, checksum, shard_path
 
 
 @dataclass(frozen=True)
@@ -115,28 +117,60 @@ def read_member(
     shard_path`), a location past the shard's end, a short read, a missing shard or a
     checksum mismatch raise DatasetError naming the shard and the member.
     """
+    with _ShardHandles(Path(root)) as shards:
+        return shards.read(location, name, verify)
 
-    try:
-        with open(shard_path(Path(root), location.shard, name), "rb") as fh:
-            problem = bounds_problem(location.offset, location.size, os.fstat(fh.fileno()).st_size)
+
+def read_members(
+    root: Path,
+    locations: Mapping[str, MemberLocation],
+    *,
+    key: str | None = None,
+    verify: bool = False,
+) -> dict[str, bytes]:
+    """The bytes of several members (``locations``: member suffix -> location, e.g. a
+    sample's), each shard confined, opened and sized once. Errors as :func:`read_member`'s,
+    naming ``<key>.<suffix>`` when ``key`` is given."""
+    with _ShardHandles(Path(root)) as shards:
+        return {
+            member: shards.read(loc, None if key is None else f"{key}.{member}", verify)
+            for member, loc in locations.items()
+        }
+
+
+class _ShardHandles:
+    """Shard files of the dataset folder ``root``, each confined and opened on first use,
+    closed together."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+        self._open: dict[str, tuple[BinaryIO, int]] = {}
+
+    def __enter__(self) -> _ShardHandles:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for fh, _ in self._open.values():
+            fh.close()
+        self._open.clear()
+
+    def read(self, location: MemberLocation, name: str | None, verify: bool) -> bytes:
+        try:
+            entry = self._open.get(location.shard)
+            if entry is None:
+                opened = open(shard_path(self.root, location.shard, name), "rb")  # noqa: SIM115
+                entry = self._open[location.shard] = (opened, os.fstat(opened.fileno()).st_size)
+            fh, shard_size = entry
+            problem = bounds_problem(location.offset, location.size, shard_size)
             if problem is not None:  # checked before reading: a huge size allocates nothing
                 raise DatasetError(location.shard, name, f"short read: {problem}")
             fh.seek(location.offset)
             data = fh.read(location.size)
-    except DatasetError as exc:
-        raise DatasetError(location.shard, name, exc.reason) from None
-    except OSError as exc:
-        raise DatasetError(location.shard, name, f"cannot read: {exc}") from None
-    if len(data) != location.size:
-        raise DatasetError(
-            location.shard,
-            name,
-            f"short read: {len(data)} of {location.size} bytes at offset {location.offset}",
-        )
-    if verify and location.crc32c is not None and checksum(data) != location.crc32c:
-        raise DatasetError(
-            location.shard,
-            name,
-            f"checksum mismatch (crc32c {checksum(data):#010x}, manifest {location.crc32c:#010x})",
-        )
-    return data
+        except DatasetError as exc:
+            raise DatasetError(location.shard, name, exc.reason) from None
+        except OSError as exc:
+            raise DatasetError(location.shard, name, f"cannot read: {exc}") from None
+        problem = bytes_problem(data, location.size, location.crc32c if verify else None)
+        if problem is not None:
+            raise DatasetError(location.shard, name, problem)
+        return data

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from mars_pairs.raster.shading import lambert_shading
+
 F64 = NDArray[np.float64]
 
 
@@ -138,11 +140,9 @@ def make_dem(
 
 
 def hillshade(z: F64, res_m: float, sun_azimuth_deg: float, sun_elevation_deg: float) -> F64:
-    """Lambertian shading of a DEM (row 0 north) relative to flat ground; >= 0, flat = 1."""
-    gy, gx = np.gradient(z, res_m)  # gy: d/d(row) = -d/d(north)
-    dz_de, dz_dn = gx, -gy
-    az, el = np.radians(sun_azimuth_deg), np.radians(sun_elevation_deg)
-    sun = np.array([np.cos(el) * np.sin(az), np.cos(el) * np.cos(az), np.sin(el)])  # E, N, U
-    norm = np.sqrt(dz_de**2 + dz_dn**2 + 1.0)
-    shade = (-dz_de * sun[0] - dz_dn * sun[1] + sun[2]) / norm
-    return np.clip(shade, 0.0, None) / sun[2]
+    """Lambertian shading of a DEM (row 0 north, metres, ``res_m`` metres a cell; sun azimuth
+    degrees clockwise from north, elevation degrees) relative to flat ground; >= 0, flat = 1
+    (:func:`mars_pairs.raster.shading.lambert_shading` over sin(elevation))."""
+    shade = lambert_shading(z, res_m, sun_azimuth_deg, sun_elevation_deg)
+    relative: F64 = shade / np.sin(np.radians(sun_elevation_deg))
+    return relative

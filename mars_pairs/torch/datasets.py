@@ -10,11 +10,11 @@ ground pixel of each strided ray, NaN for no hit); ``crs``, ``bounds``, ``transf
 ``rotation`` place the chips on the map (:mod:`mars_pairs.torch.georef`); ``meta`` holds
 plain Python values of the manifest row.
 
-Datasets built with ``output.members`` also give the dense fields (``DENSE_FIELDS``, see
-:mod:`mars_pairs.pipeline.sample.dense`): ``range``, ``depth`` and ``dem_view`` float32 [1, H', W'],
-``hits`` float64 [3, H', W'] (map x, y, z), ``ortho_view`` and ``view_valid`` on the ground
-image's dense grid, with ``dense_ground`` float32 [2, H', W'] (each cell's ground pixel, as
-``corr_ground``); ``ground_on_map`` [3, h, w], ``ground_on_map_cover`` and ``ground_px``
+Datasets built with ``output.members`` also give the dense fields (``store.members``, see
+:mod:`mars_pairs.pipeline.sample.dense`): ``range``, ``depth`` and ``dem_view`` float32
+[1, H', W'], ``hits`` float64 [3, H', W'] (map x, y, z), ``ortho_view`` and ``view_valid`` on
+the ground image's dense grid, with ``dense_ground`` float32 [2, H', W'] (each cell's ground
+pixel, as ``corr_ground``); ``ground_on_map`` [3, h, w], ``ground_on_map_cover`` and ``ground_px``
 float32 [2, h, w] (the ground pixel of each chip pixel, for the decoded ground image's size)
 on the chip grid. ``localization=True`` adds ``rover_px``, ``camera_px`` and ``heading_deg``
 from ``meta.json`` (datasets built with ``chips.offset_m`` or ``output.members``).
@@ -40,7 +40,6 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 import torch
 from torch.utils.data import Dataset
 
@@ -53,7 +52,7 @@ from mars_pairs.errors import (
 from mars_pairs.store.dataset_info import read_dataset_info
 from mars_pairs.store.filter_args import check_split_names, configured_splits, sample_index
 from mars_pairs.store.fs import Location, dataset_root, join
-from mars_pairs.store.integrity import MemberSpec, check_member
+from mars_pairs.store.integrity import MemberSpec, check_member, repeated_keys
 from mars_pairs.store.manifest import SUMMARY_COLUMNS
 from mars_pairs.store.member_index import MemberIndex
 from mars_pairs.store.members import DENSE_GROUND_FIELDS, MEMBERS
@@ -122,15 +121,15 @@ def _check_fields(fields: Sequence[str]) -> tuple[str, ...]:
 
 
 def _refuse_duplicate_keys(root: Location, table: pa.Table) -> None:
-    """DatasetError naming the manifest and the first key that more than one row holds."""
-    counts = pc.value_counts(table["key"])
-    repeated = pc.filter(counts, pc.greater(counts.field("counts"), 1))
-    if len(repeated):
-        first = repeated[0].as_py()
+    """DatasetError naming the manifest and the first key (in key order) that more than one
+    row holds."""
+    repeated = repeated_keys(table["key"])
+    if repeated:
+        key, count = repeated[0]
         raise DatasetError(
             join(root, "manifest.parquet"),
-            first["values"],
-            f"{first['counts']} rows hold this key ({len(repeated)} keys repeated)",
+            key,
+            f"{count} rows hold this key ({len(repeated)} keys repeated)",
         )
 
 
@@ -234,6 +233,15 @@ class MarsPairsDataset(Dataset):
     def __len__(self) -> int:
         return len(self._index)
 
+    def shard_order(self, field: str | None = None) -> dict[str, np.ndarray]:
+        """Each shard's sample indices (int64, into this dataset) in the order ``field``'s
+        members (default the first of ``fields``) lie in the shard file; shards as the
+        manifest names them (relative to ``root``). ``field``: one this dataset reads."""
+        field = self.fields[0] if field is None else field
+        if field not in self._located:
+            raise ArgumentError(f"shard_order: {field!r} is not read; one of {self._located}")
+        return self._index.shard_order(field)
+
     def index_of(self, key: str) -> int:
         """The index of the sample named by ``key``: its key or its product id, in any case
         (SampleKeyError, a KeyError too, if absent; see ``filter_args.sample_index``)."""
@@ -278,15 +286,17 @@ class MarsPairsDataset(Dataset):
 
     def _verified(self, index: int) -> dict[str, bytes | bytearray]:
         """Every member of sample ``index`` checked as ``mars-pairs verify`` does
-        (:func:`~mars_pairs.store.integrity.check_member`); the bytes of ``self.fields``."""
+        (:func:`~mars_pairs.store.integrity.check_member`); the bytes of ``self.fields``
+        (and of ``meta`` with ``localization``)."""
         key = self._index.meta_value(index, "key")
         ground = self._ground_member[index].as_py() if self._ground_member is not None else None
+        wanted = (*self.fields, "meta") if self.localization else self.fields
         out = {}
         for field in self._located:
             try:
                 shard, offset, size = self._index.location(index, field)
             except MissingMemberError:
-                if field in self.fields:
+                if field in wanted:
                     raise
                 continue  # a sample without this member: nothing to check
             name = self.member_name(index, field)
@@ -306,11 +316,13 @@ class MarsPairsDataset(Dataset):
                 raise DatasetError(join(self.root, shard), name, f"cannot read: {exc}") from None
             if problem is not None:
                 raise DatasetError(join(self.root, shard), name, problem)
-            if field in self.fields:
+            if field in wanted:
                 out[field] = data
         return out
 
-    def _raw(self, index: int) -> dict[str, np.ndarray]:
+    def _raw(self, index: int) -> tuple[dict[str, np.ndarray], dict[str, torch.Tensor]]:
+        """Sample ``index``'s fields decoded (stage 1) and its localization targets (none
+        without ``localization``); every member read once."""
         raw = {}
         verified = self._verified(index) if self.verify else {}
         for name in self.fields:
@@ -324,7 +336,10 @@ class MarsPairsDataset(Dataset):
                     self.member_name(index, name),
                     f"cannot decode: {type(exc).__name__}: {exc}",
                 ) from None
-        return raw
+        if not self.localization:
+            return raw, {}
+        meta = verified["meta"] if self.verify else self._bytes(index, "meta")
+        return raw, self._localization(index, meta)
 
     def _georef(self, index: int, raw: dict[str, np.ndarray]) -> dict[str, Any]:
         """crs, bounds, transform, rotation (and corr_ground with corr) of sample ``index``."""
@@ -359,8 +374,6 @@ class MarsPairsDataset(Dataset):
                 raw[dense].shape[:2], self.dense_stride, (width, height), ground_hw
             )
             out["dense_ground"] = torch.from_numpy(grid)
-        if self.localization:
-            out.update(self._localization(index))
         return out
 
     def _scaled_ground_px(
@@ -375,10 +388,9 @@ class MarsPairsDataset(Dataset):
         scale = torch.tensor([w / width, h / height], dtype=ground_px.dtype)[:, None, None]
         return (ground_px + 0.5) * scale - 0.5
 
-    def _localization(self, index: int) -> dict[str, torch.Tensor]:
+    def _localization(self, index: int, data: bytes | bytearray) -> dict[str, torch.Tensor]:
         """rover_px, camera_px ([2] chip column, row, pixel-edge) and heading_deg (clockwise
-        from the chip's up) of sample ``index``, from its meta.json."""
-        data = self._bytes(index, "meta")
+        from the chip's up) of sample ``index``, from its meta.json's bytes ``data``."""
         try:
             meta = json.loads(bytes(data))
             values = {k: meta[k] for k in ("rover_px", "camera_px", "heading_deg")}
@@ -391,12 +403,17 @@ class MarsPairsDataset(Dataset):
         return {k: torch.tensor(v, dtype=torch.float64) for k, v in values.items()}
 
     def _finish_sample(
-        self, tensors: dict[str, torch.Tensor], index: int, raw: dict[str, np.ndarray]
+        self,
+        tensors: dict[str, torch.Tensor],
+        index: int,
+        raw: dict[str, np.ndarray],
+        targets: dict[str, torch.Tensor],
     ) -> dict[str, Any]:
         sample: dict[str, Any] = dict(tensors)
         if "ground_px" in sample and "ground" in raw:
             sample["ground_px"] = self._scaled_ground_px(index, sample["ground_px"], raw)
         sample.update(self._georef(index, raw))
+        sample.update(targets)
         sample["meta"] = self._index.meta(index)
         return self.transform(sample) if self.transform is not None else sample
 
@@ -409,9 +426,9 @@ class MarsPairsDataset(Dataset):
     def __getitem__(self, index: int) -> dict[str, Any]:
         """Sample ``index`` (negative indices count from the end)."""
         i = self._checked(index)
-        raw = self._raw(i)
+        raw, targets = self._raw(i)
         tensors = {name: self._tensor(name, r) for name, r in raw.items()}
-        return self._finish_sample(tensors, i, raw)
+        return self._finish_sample(tensors, i, raw, targets)
 
     def __getitems__(self, indices: Sequence[int]) -> list[dict[str, Any]]:
         """A batch of samples (the DataLoader's batched fetch).
@@ -419,20 +436,22 @@ class MarsPairsDataset(Dataset):
         Members are decoded to compact arrays first; each field whose shapes agree across the
         batch is then converted into one [B, C, H, W] buffer whose rows are the samples'
         tensors, so ``collate_samples`` hands it on without another copy. The buffers are in
-        this process's memory, also in a DataLoader worker (numpy reuses freed pages; fresh
-        shared memory costs ~1 ms/MB): the worker's collate stage moves the batch to shared
-        memory, into a recycled slot under :class:`~mars_pairs.torch.loader.MarsPairsLoader`.
+        this process's memory, also in a DataLoader worker (numpy reuses freed pages, where
+        fresh shared memory is the costly part of transport): the worker's collate stage moves
+        the batch to shared memory, into a recycled slot under
+        :class:`~mars_pairs.torch.loader.MarsPairsLoader`.
         """
         checked = [self._checked(i) for i in indices]
-        raws = [self._raw(i) for i in checked]
+        read = [self._raw(i) for i in checked]
+        raws = [r for r, _ in read]
         tensors: list[dict[str, torch.Tensor]] = [{} for _ in raws]
         for name in self.fields:
             shapes = {chw_shape(r[name]) for r in raws}
             dtype = self._dtypes[name]
             if len(shapes) == 1:
                 shape = (len(raws), *shapes.pop())
-                # private memory, also in a worker: numpy reuses freed pages (fresh shared
-                # memory costs ~1 ms/MB); the collate stage writes the batch into shared memory
+                # private memory, also in a worker (see the docstring); the collate stage
+                # writes the batch into shared memory
                 batch = torch.from_numpy(np.empty(shape, dtype=dtype))
                 for j, r in enumerate(raws):
                     finish_chw(name, r[name], batch[j].numpy())
@@ -441,7 +460,8 @@ class MarsPairsDataset(Dataset):
                 for j, r in enumerate(raws):
                     tensors[j][name] = self._tensor(name, r[name])
         return [
-            self._finish_sample(t, i, r) for t, i, r in zip(tensors, checked, raws, strict=True)
+            self._finish_sample(t, i, r, targets)
+            for t, i, (r, targets) in zip(tensors, checked, read, strict=True)
         ]
 
     def plot(self, sample: dict[str, Any], *, title: str | None = None, dense: bool = False) -> Any:

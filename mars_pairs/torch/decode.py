@@ -21,7 +21,7 @@ from mars_pairs.store.members import DENSE_FIELDS
 DEFAULT_FIELDS = ("ground", "ortho", "dem", "viewshed")
 
 
-#: Every default member's field (the optional dense ones are in ``DENSE_FIELDS``).
+#: Every default member's field (the optional dense ones: ``store.members.DENSE_FIELDS``).
 ALL_FIELDS = ("ground", "ortho", "dem", "viewshed", "corr")
 KNOWN_FIELDS = ALL_FIELDS + DENSE_FIELDS
 
@@ -71,7 +71,7 @@ def _pil_array(im: Image.Image) -> np.ndarray:
     """An "L" or "RGB" image's pixels as numpy, zero-copy through Pillow's Arrow export.
 
     (``np.asarray(im)`` copies the pixels through ``tobytes``; asking PIL for float32 is
-    ~10x slower still.) Falls back to ``np.asarray`` on Pillow without Arrow support.
+    slower still.) Falls back to ``np.asarray`` on Pillow without Arrow support.
     """
     if im.mode in ("L", "RGB") and hasattr(im, "__arrow_c_array__"):
         try:
@@ -105,7 +105,8 @@ def _decode_npy(data: bytes | bytearray) -> np.ndarray:
 @lru_cache(maxsize=256)
 def _npy_header(header: bytes) -> tuple[tuple[int, ...], bool, np.dtype]:
     """(shape, fortran order, dtype) of a .npy header, parsed by numpy once per distinct
-    header (numpy evaluates the header's dict literal: 0.7 ms, a DEM chip's whole read)."""
+    header (numpy evaluates the header's dict literal, which costs about as much as reading
+    the DEM chip it describes)."""
     buf = io.BytesIO(header)
     version = np.lib.format.read_magic(buf)
     if version == (1, 0):
@@ -183,7 +184,7 @@ def finish_chw(field: str, raw: np.ndarray, out: np.ndarray) -> None:
     """
     chw = raw[None] if raw.ndim == 2 else raw.transpose(2, 0, 1)
     if field in ("ground", "ortho", "ortho_view", "ground_on_map") and out.dtype != np.uint8:
-        # transposing uint8 then dividing contiguously beats one strided divide (~1.4x)
+        # transposing uint8 then dividing contiguously beats one strided divide
         np.divide(np.ascontiguousarray(chw), np.float32(255.0), out=out)
     elif field in MASK_FIELDS:
         np.greater(chw, 127, out=out, casting="unsafe")

@@ -1,8 +1,8 @@
 """MarsPairsLoader: a torch DataLoader whose workers refill the same shared-memory batches.
 
-A plain DataLoader worker puts every batch into new shared memory; creating and filling it
-cost as much as decoding the batch here (see :mod:`mars_pairs.torch.transport`). With
-``MarsPairsLoader`` each worker keeps a few batch slots in shared memory and refills them;
+A plain DataLoader worker puts every batch into new shared memory, which costs about as much
+as decoding the batch (figures in the README's loader benchmark). With ``MarsPairsLoader``
+each worker keeps a few batch slots in shared memory and refills them;
 the loader copies every batch it receives into its own process's memory (one memcpy, into
 pages it reuses once the caller drops a batch) and hands the slot back. The batches it
 yields are ordinary tensors that the caller owns: they may be kept, modified or sent to a
@@ -12,6 +12,17 @@ same arguments.
 Slots are used when the loader has workers and collates with :func:`collate_samples` (the
 default); with a ``collate_fn`` of the caller's, it behaves as a DataLoader. Its workers
 keep the memory they free for the next batch (:mod:`mars_pairs.allocator`).
+
+Only public torch API is used (``DataLoader.__iter__``, its ``collate_fn`` attribute,
+``get_worker_info``, ``Tensor.share_memory_`` / ``is_shared``). The loader relies on two
+behaviours of ``DataLoader.__iter__`` (``tests/torch/test_loader.py::
+test_torch_behaviours_the_loader_relies_on`` fails if torch changes them):
+
+- with workers, the iterator it returns has taken ``collate_fn`` as it was during the call
+  (the loader sets its slot-filling collate function for the call only, so the attribute
+  stays the caller's plain one, for wrappers that rebuild loaders from it);
+- with ``persistent_workers``, every call returns the same iterator, reset, whose workers
+  keep running (so the loader keeps that iterator's slot flags).
 """
 
 from __future__ import annotations
@@ -122,31 +133,33 @@ class MarsPairsLoader(DataLoader):
         self.fresh = 0
         self.allocations: dict[int, int] = {}  # worker id -> slot blocks it has allocated
         self._warm = WarmBuffers(keep=_slot_count(prefetch_factor))
+        self._persistent_flags: torch.Tensor | None = None  # the persistent workers' flags
 
     @property
     def recycles(self) -> bool:
         """Whether this loader's workers recycle their batch slots."""
         return self.num_workers > 0 and self.collate_fn is collate_samples
 
-    def _get_iterator(self) -> Any:
-        """torch's iterator, its workers collating into slots freed through flags of its own
-        (two iterators alive at once never share a slot)."""
+    def __iter__(self) -> LoaderIterator:  # type: ignore[override]
+        """DataLoader's iterator, its workers collating into slots freed through flags of its
+        own (two iterators alive at once never share a slot), each batch copied out."""
         if not self.recycles:
-            return super()._get_iterator()
+            return LoaderIterator(self, super().__iter__(), None)
+        if self.persistent_workers and self._persistent_flags is not None:
+            # the same iterator again, reset: its workers run, collating with their flags
+            return LoaderIterator(self, super().__iter__(), self._persistent_flags)
         flags = torch.full((self.num_workers, _slot_count(self.prefetch_factor)), FREE,
                            dtype=torch.uint8)  # fmt: skip
         flags.share_memory_()
         plain = self.collate_fn
-        self.collate_fn = RecyclingCollate(flags)  # read when the workers start, just below
+        self.collate_fn = RecyclingCollate(flags)  # the new iterator's workers take this one
         try:
-            inner = super()._get_iterator()
+            inner = super().__iter__()
         finally:
             self.collate_fn = plain
-        inner._mars_pairs_flags = flags
-        return inner
-
-    def __iter__(self) -> LoaderIterator:  # type: ignore[override]
-        return LoaderIterator(self, super().__iter__())
+        if self.persistent_workers:
+            self._persistent_flags = flags
+        return LoaderIterator(self, inner, flags)
 
     def _receive(self, batch: Any, flags: torch.Tensor | None) -> Any:
         """The caller's copy of a received batch; its slot handed back to the worker."""
@@ -172,9 +185,10 @@ class LoaderIterator:
     iterator in a reference cycle, whose late collection waits 5 s for each worker.
     """
 
-    def __init__(self, loader: MarsPairsLoader, inner: Any) -> None:
+    def __init__(self, loader: MarsPairsLoader, inner: Any, flags: torch.Tensor | None) -> None:
         self._loader = loader
         self._inner = inner
+        self._flags = flags
 
     def __iter__(self) -> LoaderIterator:
         return self
@@ -193,7 +207,7 @@ class LoaderIterator:
                 raise error
             finally:
                 error = None  # no cycle through this frame either
-        return self._loader._receive(batch, getattr(self._inner, "_mars_pairs_flags", None))
+        return self._loader._receive(batch, self._flags)
 
     def __len__(self) -> int:
         return len(self._inner)

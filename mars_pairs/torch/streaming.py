@@ -55,7 +55,7 @@ class MarsPairsIterableDataset(IterableDataset):
         self.shuffle_buffer = int(shuffle_buffer)
         self.seed = int(seed)
         self.epoch = 0
-        self._by_shard = self._inner._index.shard_order(self._inner.fields[0])
+        self._by_shard = self._inner.shard_order()
         self.shards = sorted(self._by_shard)
 
     def close(self) -> None:

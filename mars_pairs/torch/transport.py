@@ -1,13 +1,14 @@
 """Tensors for DataLoader worker transport: shared memory, batch buffers, recycled slots.
 
-A batch leaves a DataLoader worker through shared memory. Fresh shared memory is expensive on
-virtual machines (measured here: 1.03 ms per MB to create and fill, 0.054 ms per MB to refill
-a buffer already mapped, load 0.7), and a sample's default fields are ~3 MB, so a worker
-spent half as long on transport as on decoding. :class:`BatchSlots` lets a worker refill the
-same shared buffers: the main process copies a received batch out (warm memory, ~0.05 ms per
-MB) and marks its slot free in a small shared flag array (:class:`~mars_pairs.torch.loader.
-MarsPairsLoader` does both). Only public torch APIs: ``Tensor.share_memory_`` and the
-DataLoader's own pickling of shared tensors.
+A batch leaves a DataLoader worker through shared memory. Creating and filling fresh shared
+memory costs about 20 times as much per byte as refilling a buffer already mapped (figures in
+the README's loader benchmark). :class:`BatchSlots` lets a worker refill the same shared
+buffers: the main process copies a received batch out into reused memory
+(:class:`WarmBuffers`) and marks its slot free in a small shared uint8 flag array
+(:class:`~mars_pairs.torch.loader.MarsPairsLoader` does both). This module uses public torch
+API only (``Tensor.share_memory_``, ``untyped_storage``, ``set_``, ``numpy``/``from_numpy``);
+the DataLoader carries the shared tensors across with its own pickling. Sizes are bytes,
+shapes torch's (rows first).
 """
 
 from __future__ import annotations
@@ -145,9 +146,9 @@ class WarmBuffers:
 
     A received batch is copied into a buffer from here; its tensors keep the buffer while
     any of them (or a view) lives, and the buffer comes back for a later batch when the last
-    one is gone: a training loop that drops each batch refills the same pages (~0.05 ms per
-    MB) instead of faulting in fresh ones (~1 ms per MB on a VM); a caller who keeps batches
-    only makes the cache allocate more. At most ``keep`` free buffers are kept.
+    one is gone: a training loop that drops each batch refills the same pages instead of
+    faulting in fresh ones; a caller who keeps batches only makes the cache allocate more.
+    At most ``keep`` free buffers are kept.
     """
 
     def __init__(self, keep: int = 8) -> None:

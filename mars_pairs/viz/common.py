@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from mars_pairs.errors import MarsPairsError
+from mars_pairs.raster.shading import lambert_shading
 from mars_pairs.store.query import Manifest
 
 DPI = 90
@@ -70,18 +71,16 @@ def manifest_rows(root: Path) -> list[dict[str, Any]]:
 def hillshade(
     dem: np.ndarray, res: float, azimuth: float = 315.0, altitude: float = 35.0
 ) -> np.ndarray:
-    """Hillshade in [0, 1] of an elevation grid (metres, ``res`` metres per pixel; NaN kept).
+    """Hillshade in [0, 1] of an elevation grid (metres, ``res`` metres per pixel; NaN kept):
+    :func:`~mars_pairs.raster.shading.lambert_shading`, no-data cells filled with the median
+    for the slopes of their neighbours.
 
-    ``azimuth`` is the light's direction clockwise from the grid's up (row 0) direction.
+    ``azimuth`` is the light's direction in degrees clockwise from the grid's up (row 0)
+    direction, ``altitude`` its elevation in degrees.
     """
     finite = np.isfinite(dem)
     z = np.where(finite, dem, np.nanmedian(dem) if finite.any() else 0.0)
-    gy, gx = np.gradient(z, res)  # gy: d z / d row (rows go down the grid)
-    slope = np.arctan(np.hypot(gx, gy))
-    aspect = np.arctan2(-gx, gy)  # the downhill direction, clockwise from up
-    az, alt = np.radians(azimuth), np.radians(altitude)
-    shade = np.sin(alt) * np.cos(slope) + np.cos(alt) * np.sin(slope) * np.cos(az - aspect)
-    return np.where(finite, np.clip(shade, 0, 1), np.nan)
+    return np.where(finite, lambert_shading(z, res, azimuth, altitude), np.nan)
 
 
 def nice_length(length: float) -> float:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from mission_config import cheap_config
 
-from mars_pairs.pipeline.build.local_pool import LocalPool, worker_context
+from mars_pairs.pipeline.build.local_pool import LocalPool, pool_processes, worker_context
 
 
 def test_results_in_order_with_a_bounded_window(small_mission: Path, tmp_path: Path) -> None:
@@ -36,21 +36,51 @@ def test_workers_come_from_a_fork_server_where_there_is_one() -> None:
         assert ctx.get_start_method() == "spawn"
 
 
-def _environ(name: str) -> str | None:
+def _environ(*names: str) -> dict[str, str | None]:
     import os
 
-    return os.environ.get(name)
+    return {name: os.environ.get(name) for name in names}
 
 
-def test_workers_see_the_environment_of_the_build_not_of_the_fork_server(
+def test_workers_take_the_builds_settings_not_the_fork_servers_nor_the_rest(
     small_mission: Path, tmp_path: Path, monkeypatch
 ) -> None:
     """GDAL and AWS options set after a first build (a notebook) reach the next build's
-    workers, though the fork server started before."""
+    workers, though the fork server started before; other variables of the driver do not;
+    the workers run with the process defaults (OMP_WAIT_POLICY)."""
+    names = ("GDAL_HTTP_TIMEOUT", "AWS_PROFILE", "MARS_PAIRS_TEST_OPTION", "OMP_WAIT_POLICY")
     config = cheap_config(small_mission, tmp_path / "ds")
+    monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
     with LocalPool(config, workers=1) as pool:  # starts the server if not running
-        pool._pool.submit(_environ, "MARS_PAIRS_TEST_OPTION").result()
+        pool._pool.submit(_environ, *names).result()
+    monkeypatch.setenv("GDAL_HTTP_TIMEOUT", "17")
+    monkeypatch.setenv("AWS_PROFILE", "set-later")
     monkeypatch.setenv("MARS_PAIRS_TEST_OPTION", "set-later")
     with LocalPool(config, workers=1) as pool:
-        seen = pool._pool.submit(_environ, "MARS_PAIRS_TEST_OPTION").result()
-    assert seen == "set-later"
+        seen = pool._pool.submit(_environ, *names).result()
+    assert seen == {
+        "GDAL_HTTP_TIMEOUT": "17",
+        "AWS_PROFILE": "set-later",
+        "MARS_PAIRS_TEST_OPTION": None,
+        "OMP_WAIT_POLICY": "PASSIVE",
+    }
+
+
+def test_pool_processes_are_the_pools_live_workers() -> None:
+    """The one standard-library private attribute the pool reads (``pool_processes``): a
+    started pool lists its worker processes, alive, with their pids; a Python that renames
+    or reshapes it fails here, not silently at a Ctrl-C."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(2, mp_context=mp.get_context("spawn")) as pool:
+        pids = set(pool.map(_pid, range(4)))
+        processes = pool_processes(pool)
+        assert processes, "ProcessPoolExecutor no longer keeps its processes in _processes"
+        assert {p.pid for p in processes} >= pids
+        assert all(p.is_alive() for p in processes)
+
+
+def _pid(_: int) -> int:
+    import os
+
+    return os.getpid()

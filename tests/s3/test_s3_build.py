@@ -177,6 +177,11 @@ def test_a_rebuild_on_s3_clears_the_old_build_and_refuses_a_strangers_file(
     assert not [f for f in fs.list_files(s3_prefix) if f.startswith("parts/") or ".tmp-" in f]
 
 
+def test_append_on_s3_is_refused_naming_the_url(small_mission: Path, s3_prefix: str) -> None:
+    with pytest.raises(ConfigError, match=r"--append: output\.dir s3://.* object storage"):
+        run_build(config_for(small_mission, s3_prefix), append=True, progress=False)
+
+
 def test_duplicates_across_chunks_on_s3_give_the_local_bytes(
     small_mission: Path, s3_prefix: str, tmp_path: Path
 ) -> None:

@@ -10,7 +10,7 @@ from mars_pairs.errors import DatasetError
 from mars_pairs.store.integrity import checksum
 from mars_pairs.store.manifest import MANIFEST_SCHEMA
 from mars_pairs.store.members import MEMBERS
-from mars_pairs.store.shards import MemberLocation, ShardWriter, read_member
+from mars_pairs.store.shards import MemberLocation, ShardWriter, read_member, read_members
 
 
 def test_checksum_is_crc32c() -> None:
@@ -47,3 +47,35 @@ def test_short_reads_and_missing_shards_name_the_shard(tmp_path: Path) -> None:
         read_member(tmp_path, too_long, name="k.x.bin")
     with pytest.raises(DatasetError, match=r"gone\.tar: cannot read"):
         read_member(tmp_path, MemberLocation("gone.tar", 0, 4))
+
+
+def test_read_members_opens_each_shard_once_and_names_the_member(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from mars_pairs.store import shards
+
+    with ShardWriter(tmp_path, "s.tar") as shard:
+        locs = shard.add("k", {"a.bin": b"aa", "b.bin": b"bbb", "c.bin": b"c"})
+    resolved: list[str] = []
+    original = shards.shard_path
+
+    def counted(root: Path, shard: str, member: str | None = None) -> Path:
+        resolved.append(shard)
+        return original(root, shard, member)
+
+    monkeypatch.setattr(shards, "shard_path", counted)
+    got = read_members(tmp_path, locs, key="k", verify=True)
+    assert got == {"a.bin": b"aa", "b.bin": b"bbb", "c.bin": b"c"} and resolved == ["s.tar"]
+    flipped = {**locs, "b.bin": MemberLocation("s.tar", locs["b.bin"].offset, 3, 0)}
+    with pytest.raises(DatasetError, match=r"s\.tar: k\.b\.bin: checksum mismatch"):
+        read_members(tmp_path, flipped, key="k", verify=True)
+
+
+def test_repeated_keys_are_counted_and_sorted() -> None:
+    import pyarrow as pa
+
+    from mars_pairs.store.integrity import repeated_keys
+
+    keys = pa.chunked_array([["b", "a", "b"], ["c", "a", "b"]])
+    assert repeated_keys(keys) == [("a", 2), ("b", 3)]
+    assert repeated_keys(pa.array(["x", "y"])) == []

@@ -298,6 +298,20 @@ def stream_keys(ds: MarsPairsIterableDataset, workers: int = 0) -> list[str]:
     return [s["meta"]["key"] for s in loader]
 
 
+def test_shard_order_lists_every_sample_once_in_file_order(dataset_dir: Path) -> None:
+    with MarsPairsDataset(dataset_dir, fields=("viewshed", "dem")) as ds:
+        order = ds.shard_order()
+        assert sorted(int(i) for ids in order.values() for i in ids) == list(range(len(ds)))
+        rows = Manifest.open(dataset_dir).to_table(columns=["key", "dem_shard", "dem_offset"])
+        where = {r["key"]: (r["dem_shard"], r["dem_offset"]) for r in rows.to_pylist()}
+        for shard, ids in ds.shard_order("dem").items():
+            found = [where[ds[int(i)]["meta"]["key"]] for i in ids]
+            assert {s for s, _ in found} == {shard}
+            assert [o for _, o in found] == sorted(o for _, o in found)
+        with pytest.raises(ArgumentError, match="ground"):
+            ds.shard_order("ground")
+
+
 def test_iterable_yields_every_sample_once_across_workers(dataset_dir: Path) -> None:
     ds = MarsPairsIterableDataset(dataset_dir, fields=("viewshed",), shuffle_buffer=4, seed=1)
     assert len(ds.shards) == 3 and len(ds) == 9

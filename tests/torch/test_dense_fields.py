@@ -13,11 +13,13 @@ import torch
 from affine import Affine
 from mission_inputs import mission_inputs
 
+from mars_pairs import Manifest
 from mars_pairs.errors import MarsPairsError
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import parse_config
 from mars_pairs.store.members import DENSE_FIELDS
 from mars_pairs.torch import MarsPairsDataset
+from mars_pairs.torch.files import ShardFiles
 from mars_pairs.torch.transforms import CarryToChip, CarryToImage, Compose, Flip, Rotate
 
 STRIDE = 8
@@ -56,6 +58,30 @@ def test_dense_fields_shapes_dtypes_and_targets(dense_dir: Path) -> None:
     assert s["dense_ground"].shape == (2, h, w)
     assert float(s["dense_ground"][0, 0, 1]) == pytest.approx(STRIDE + 0.5)
     assert s["rover_px"].shape == (2,) and 0.0 <= float(s["heading_deg"]) < 360.0
+
+
+def test_verified_localization_reads_meta_once(
+    dense_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """verify=True checks meta.json and the localization targets come from those bytes: the
+    member is read once (plus its tar header), not again for the targets."""
+    with MarsPairsDataset(dense_dir, fields=("ortho",), localization=True) as plain:
+        want = plain[0]
+    rows = Manifest.open(dense_dir).to_table(columns=["key", "meta_offset"]).to_pylist()
+    meta_offset = {r["key"]: r["meta_offset"] for r in rows}[want["meta"]["key"]]
+    reads: list[int] = []
+    original = ShardFiles.read
+
+    def counted(self: ShardFiles, shard: str, offset: int, size: int) -> bytearray:
+        reads.append(offset)
+        return original(self, shard, offset, size)
+
+    monkeypatch.setattr(ShardFiles, "read", counted)
+    with MarsPairsDataset(dense_dir, fields=("ortho",), localization=True, verify=True) as ds:
+        got = ds[0]
+    assert reads.count(meta_offset) == 1
+    for name in ("rover_px", "camera_px", "heading_deg"):
+        assert torch.equal(got[name], want[name]), name
 
 
 def test_carry_reproduces_ground_on_map_and_ortho_view(dense_dir: Path) -> None:

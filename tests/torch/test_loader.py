@@ -245,3 +245,35 @@ def test_warm_buffers_of_several_sizes() -> None:
     gc.collect()
     again = warm.copy(torch.full((32,), 7, dtype=torch.uint8))  # the second free buffer
     assert warm.allocations == 2 and int(again[0]) == 7
+
+
+class Tag:
+    """A collate function that names itself instead of collating."""
+
+    def __init__(self, tag: str) -> None:
+        self.tag = tag
+
+    def __call__(self, batch: list) -> str:
+        return self.tag
+
+
+def test_torch_behaviours_the_loader_relies_on() -> None:
+    """The two DataLoader behaviours named in ``mars_pairs.torch.loader``'s docstring: fails
+    when torch changes them (the loader would then silently stop recycling its slots)."""
+    loader = DataLoader(range(4), batch_size=2, num_workers=1)
+    loader.collate_fn = Tag("when iter() was called")
+    batches = iter(loader)
+    loader.collate_fn = Tag("after")
+    assert list(batches) == ["when iter() was called"] * 2
+    persistent = DataLoader(range(4), batch_size=2, num_workers=1, persistent_workers=True)
+    first = iter(persistent)
+    assert len(list(first)) == 2
+    assert iter(persistent) is first
+
+
+def test_persistent_workers_keep_their_slots_across_epochs() -> None:
+    loader = MarsPairsLoader(Numbers(8), batch_size=2, num_workers=1, persistent_workers=True)
+    for _ in range(3):
+        assert [int(b["x"][0, 0]) for b in loader] == [0, 2, 4, 6]
+    assert loader.recycled == 12 and loader.fresh == 0
+    assert sum(loader.allocations.values()) <= 6

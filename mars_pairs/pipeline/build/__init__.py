@@ -6,7 +6,8 @@ engines implement (``InProcess`` here, ``local_pool.LocalPool``, ``dask_engine.D
 ``worker`` what a worker process runs for one chunk; ``outputs`` what the output folder
 keeps (part paths, the stamp, clearing); ``commit`` what a built chunk commits (a pure
 selection, then the writes); ``finish`` the merge into manifest.parquet and
-dataset.json; ``run`` the driver that ties them. The samples themselves are
+dataset.json; ``append`` what ``--append`` adds to a finished dataset (a new release's labels
+as new chunks, merged at the end); ``run`` the driver that ties them. The samples themselves are
 ``pipeline.sample``'s.
 
 The public names below are resolved on first use (the Dask engine needs the ``dask`` extra).
@@ -23,6 +24,8 @@ _HOMES = {
     "BuildSummary": "finish",
     "BuildPlan": "plan",
     "plan_build": "plan",
+    "AppendPlan": "append",
+    "plan_append": "append",
     "iter_matches": "label_list",
     "Engine": "engine",
     "ChunkTask": "engine",

@@ -28,7 +28,7 @@ from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.store import fs
 from mars_pairs.store.atomic import rename_into_place
 from mars_pairs.store.manifest import with_locations
-from mars_pairs.store.shards import ShardWriter, read_member
+from mars_pairs.store.shards import ShardWriter, read_members
 
 #: The failure row's columns a strict build's error names, in order.
 _STOP_COLUMNS = ("path", "stage", "error_type", "message")
@@ -147,10 +147,7 @@ def _rewrite_shard(
             if o.kind != "ok":
                 kept.append(o)
                 continue
-            members = {
-                name: read_member(out, loc, name=f"{o.key}.{name}", verify=True)
-                for name, loc in o.members.items()
-            }
+            members = read_members(out, o.members, key=str(o.key), verify=True)
             if shard is None:
                 shard = ShardWriter(out, result.shard)
             locs = shard.add(str(o.key), members)

@@ -78,6 +78,9 @@ def _plugin(config: BuildConfig) -> Any:
             self.config = config
 
         def setup(self, worker: Any) -> None:
+            from mars_pairs.runtime import configure_process
+
+            configure_process()
             run_chunk(self.config, None)
 
         def teardown(self, worker: Any) -> None:

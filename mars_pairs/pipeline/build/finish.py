@@ -25,6 +25,7 @@ import pyarrow as pa
 
 from mars_pairs.pipeline.build.outputs import (
     FINISHED_KEY,
+    input_files,
     part_paths,
     remove_empty_parts,
     stamp_digest,
@@ -38,10 +39,7 @@ from mars_pairs.store import fs
 from mars_pairs.store.card import CardFacts, dataset_card, default_license
 from mars_pairs.store.croissant import croissant_metadata, dataset_description, sha256_of
 from mars_pairs.store.geoparquet import crs_name, named_crs, table_geo_metadata
-from mars_pairs.store.manifest import (
-    FAILURE_SCHEMA,
-    MANIFEST_SCHEMA,
-)
+from mars_pairs.store.manifest import FAILURE_SCHEMA, MANIFEST_SCHEMA
 
 #: What dataset.json says of its paths.
 PATHS_NOTE = (
@@ -62,6 +60,7 @@ class BuildSummary:
     chunks_resumed: int
     seconds: float
     stage_seconds: dict[str, float]  # summed over the samples built in this run
+    appended: str | None = None  # ``--append``: what the append did, one line
 
     def format(self) -> str:
         """A short human-readable summary."""
@@ -72,6 +71,8 @@ class BuildSummary:
             f"time: {self.seconds:.1f} s ({rate:.1f} samples/s)",
             f"chunks: {self.chunks_built} built, {self.chunks_resumed} resumed",
         ]
+        if self.appended is not None:
+            lines.append(self.appended)
         lines += [
             f"  failed at {reason}: {n}" for reason, n in sorted(self.failures_by_reason.items())
         ]
@@ -83,6 +84,18 @@ def merge_parts(config: BuildConfig, n_chunks: int) -> tuple[pa.Table, pa.Table]
     out = config.output.dir
     parts = [fs.read_parquet(part_paths(out, k)[1]) for k in range(n_chunks)]
     fails = [fs.read_parquet(part_paths(out, k)[2]) for k in range(n_chunks)]
+    return write_merged(config, parts, fails)
+
+
+def write_merged(
+    config: BuildConfig, parts: list[pa.Table], fails: list[pa.Table]
+) -> tuple[pa.Table, pa.Table]:
+    """Write manifest.parquet (the rows of ``parts``, in Hilbert order, then by key, with the
+    GeoParquet metadata) and failures.parquet (the rows of ``fails``, in order); returns
+    both tables. The parts' schemas may differ in their metadata only."""
+    out = config.output.dir
+    parts = [t.replace_schema_metadata(None) for t in parts]
+    fails = [t.replace_schema_metadata(None) for t in fails]
     manifest = pa.concat_tables(parts) if parts else MANIFEST_SCHEMA.empty_table()
     manifest = manifest.sort_by([("hilbert", "ascending"), ("key", "ascending")])
     failures = pa.concat_tables(fails) if fails else FAILURE_SCHEMA.empty_table()
@@ -95,7 +108,7 @@ def merge_parts(config: BuildConfig, n_chunks: int) -> tuple[pa.Table, pa.Table]
 
 def dataset_crs(config: BuildConfig) -> str:
     with open_raster(config.inputs.dem) as src:
-        return src.crs.to_wkt()
+        return str(src.crs.to_wkt())
 
 
 def named_wkt(crs: str) -> str:
@@ -141,9 +154,13 @@ def write_dataset_json(
     manifest: pa.Table,
     dropped: int,
     fingerprint: dict[str, Any] | None = None,
+    extra: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Write dataset.json (with the finished build's ``build_stamp`` when ``fingerprint``,
-    the build's stamp, is given); returns the document."""
+    the build's stamp, is given; ``extra``'s keys over the document's: an append's
+    ``appends`` and ``build_stamp``); returns the document. ``input_files`` holds the
+    fingerprints of the PLACES table, DEM and ortho without their paths
+    (``outputs.input_files``), which ``--append`` checks."""
     import numba
     import numpy
     import pyarrow
@@ -186,8 +203,10 @@ def write_dataset_json(
         "failures_by_reason": summary.failures_by_reason,
         "build_seconds": round(summary.seconds, 3),
     }
+    doc["input_files"] = input_files(config)
     if fingerprint is not None:
         doc[FINISHED_KEY] = stamp_digest(fingerprint)
+    doc.update(extra or {})
     fs.put_bytes(fs.join(out, "dataset.json"), json.dumps(doc, indent=2).encode())
     return doc
 

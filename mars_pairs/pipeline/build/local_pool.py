@@ -4,9 +4,10 @@
   build starts, and each opens the rasters and the PLACES table while the driver lists the
   labels and clears the output.
 - Processes come from a fork server that imported the build's modules once (numba, GDAL,
-  pyarrow: ~0.7 s a process when each spawned worker imported them itself); each worker is
-  a fork of that clean server, never of the driver, whose numba OpenMP threads make forking
-  unsafe. Where there is no fork server (Windows), workers are spawned.
+  pyarrow), so a worker does not import them again; each worker is a fork of that clean
+  server, never of the driver, whose numba OpenMP threads make forking unsafe. Where there is
+  no fork server (Windows), workers are spawned. A worker takes the driver's build settings
+  and the process defaults (:mod:`mars_pairs.runtime`) before it opens its context.
 - A build hands the pool whole chunks (``run``, the ``pipeline.build.engine.Engine`` contract): a
   worker builds a chunk's samples and writes its shard itself, and returns only rows; at most
   2 chunks per worker are in flight, and results come back in chunk order. (``results``
@@ -35,8 +36,10 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from itertools import islice
 from multiprocessing.context import BaseContext
+from multiprocessing.process import BaseProcess
 from typing import Any
 
+from mars_pairs import runtime
 from mars_pairs.errors import WorkerDiedError, WorkerStartError
 from mars_pairs.pipeline.build import worker
 from mars_pairs.pipeline.build.engine import ChunkResult, ChunkTask, build_chunk
@@ -107,10 +110,14 @@ def _exit_with_driver() -> None:
     threading.Thread(target=watch, name="exit-with-driver", daemon=True).start()
 
 
-def _start_worker(config: BuildConfig, environ: dict[str, str]) -> None:
-    """A worker's initializer: watch the driver, then open the build context."""
+def _start_worker(config: BuildConfig, settings: dict[str, str]) -> None:
+    """A worker's initializer: watch the driver, take the driver's build ``settings``
+    (``runtime.build_settings``: a fork server's workers inherit the server's environment,
+    from when it started), set the process defaults, then open the build context."""
     _exit_with_driver()
-    worker.open_context(config, environ)
+    runtime.take_build_settings(settings)
+    runtime.configure_process()
+    worker.open_context(config)
 
 
 class LocalPool:
@@ -130,7 +137,7 @@ class LocalPool:
             workers,
             mp_context=ctx,
             initializer=_start_worker,
-            initargs=(config, dict(os.environ)),  # this build's environment, not the server's
+            initargs=(config, runtime.build_settings()),  # this build's, not the server's
         )
         try:
             with _sigint_deferred():  # a Ctrl-C mid-start would orphan a starting worker
@@ -197,7 +204,7 @@ class LocalPool:
         """Let the workers finish and exit; with ``abort`` (an error, Ctrl-C), drop what is
         queued and kill the workers rather than wait for the samples they are building."""
         if abort:
-            for process in list((getattr(self._pool, "_processes", None) or {}).values()):
+            for process in pool_processes(self._pool):
                 process.kill()
         self._pool.shutdown(wait=True, cancel_futures=abort)
 
@@ -206,6 +213,16 @@ class LocalPool:
 
     def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
         self.close(abort=exc_type is not None)
+
+
+def pool_processes(pool: ProcessPoolExecutor) -> list[BaseProcess]:
+    """The worker processes of ``pool``: the one private attribute of the standard library
+    this package reads (``ProcessPoolExecutor._processes``, pid -> process, CPython 3.10 to
+    3.13; 3.14 adds the public ``kill_workers``). ``tests/pipeline/test_local_pool.py``
+    fails when it changes; a pool without it gives [] (the pool then waits for its workers
+    instead of killing them)."""
+    processes = getattr(pool, "_processes", None)
+    return list(processes.values()) if isinstance(processes, dict) else []
 
 
 def _started() -> None:

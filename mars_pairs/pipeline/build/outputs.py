@@ -52,6 +52,10 @@ BUILD_FILES = (
     WIDS_INDEX,
     "README.md",
     "croissant.json",
+    # an append's snapshot of the dataset it appends to (``pipeline.build.append``)
+    "parts/base-manifest.parquet",
+    "parts/base-failures.parquet",
+    "parts/base-dataset.json",
 )
 #: dataset.json's key holding the stamp of the finished build (``stamp_digest``).
 FINISHED_KEY = "build_stamp"
@@ -187,6 +191,28 @@ def inputs_fingerprint(config: BuildConfig) -> dict[str, Any]:
     return {key: file_fingerprint(getattr(config.inputs, key)) for key in INPUT_KEYS}
 
 
+def without_paths(doc: Any) -> Any:
+    """A file fingerprint (``file_fingerprint``) without its ``path`` keys, at every level: what
+    identifies the file's content wherever it lies (dataset.json holds no input path)."""
+    if isinstance(doc, dict):
+        return {k: without_paths(v) for k, v in doc.items() if k != "path"}
+    if isinstance(doc, list):
+        return [without_paths(v) for v in doc]
+    return doc
+
+
+def input_files(config: BuildConfig) -> dict[str, Any]:
+    """``inputs_fingerprint`` without paths (``without_paths``): dataset.json's
+    ``input_files``, which ``--append`` checks the DEM and ortho against."""
+    return without_paths(inputs_fingerprint(config))
+
+
+def input_change(before: Any, after: Any) -> str:
+    """What differs between two file fingerprints, in words (size, content, mtime, VRT
+    sources; "not recorded" when one is not a fingerprint)."""
+    return _change(before, after)
+
+
 def _change(before: Any, after: Any) -> str:
     """What differs between two file fingerprints, in words."""
     if not (isinstance(before, dict) and isinstance(after, dict)):
@@ -289,19 +315,26 @@ def finished_stamp(out: fs.Location) -> dict[str, Any] | None:
 
 def stamp_chunks(stamp: Any) -> int | None:
     """The chunk count of the build a stamp describes (its label count over its
-    ``output.shard_size``); None when ``stamp`` is not a build's fingerprint. A finished
-    build's dataset.json (its ``build_stamp``) describes that build."""
+    ``output.shard_size``, or its ``chunks`` when larger: an append's stamp and an appended
+    dataset's ``build_stamp`` count the chunks before it too); None when ``stamp`` is not a
+    build's fingerprint. A finished build's dataset.json (its ``build_stamp``) describes that
+    build."""
     try:
         if isinstance(stamp, dict) and isinstance(stamp.get(FINISHED_KEY), dict):
             count, size = stamp[FINISHED_KEY]["count"], stamp[FINISHED_KEY]["shard_size"]
+            chunks = stamp[FINISHED_KEY].get("chunks")
         else:
             count, size = stamp["count"], stamp["config"]["output"]["shard_size"]
-    except (KeyError, TypeError):
+            chunks = stamp.get("chunks")
+    except (KeyError, TypeError, AttributeError):
         return None
     ints = all(isinstance(v, int) and not isinstance(v, bool) for v in (count, size))
     if not ints or count < 0 or size < 1:
         return None
-    return -(-count // size)
+    n = -(-count // size)
+    if isinstance(chunks, int) and not isinstance(chunks, bool) and chunks > n:
+        return chunks  # an appended dataset's (or an append's): chunks beyond its count's
+    return n
 
 
 def written_by(chunks: int | None, rel: str) -> bool:
@@ -345,11 +378,20 @@ def stamped_chunks(out: fs.Location) -> int | None:
     return max(valid) if valid else None
 
 
+def appended_to(stamp: Any) -> int:
+    """The chunks of the finished dataset an append's stamp appends to (its first chunk: a
+    finished build vouched for them); 0 for any other stamp."""
+    append = stamp.get("append") if isinstance(stamp, dict) else None
+    first = append.get("first_chunk") if isinstance(append, dict) else None
+    return first if isinstance(first, int) and not isinstance(first, bool) else 0
+
+
 def foreign_file(out: fs.Location) -> str | None:
     """The first entry of ``out`` (sorted, relative, with ``/``) that the build that stamped
     it did not write: a file it does not list, a shard or failure part of an unfinished
     chunk that does not read as one (``_as_built``; a finished build's chunks are all
-    finished, vouched for by its dataset.json), a symbolic link, a folder other than
+    finished, vouched for by its dataset.json, and so are those of the dataset an
+    interrupted append appends to: ``appended_to``), a symbolic link, a folder other than
     ``shards`` and ``parts``; None when a build may clear or resume the folder. On object
     storage, every object under the prefix (one listing)."""
     if not isinstance(out, Path):
@@ -358,6 +400,7 @@ def foreign_file(out: fs.Location) -> str | None:
         return None
     chunks = stamped_chunks(out)
     finished = finished_stamp(out) is not None and not stamp_path(out).exists()
+    vouched = 2**62 if finished else appended_to(read_stamp(stamp_path(out)))
     for folder, dirs, files in os.walk(out):
         dirs.sort()
         rel_dir = os.path.relpath(folder, out).replace(os.sep, "/")
@@ -369,7 +412,7 @@ def foreign_file(out: fs.Location) -> str | None:
                 return rel
             if not (written_by(chunks, rel) or is_temporary(rel)):
                 return rel
-            if not (finished or _as_built(out, rel)):
+            if not _as_built(out, rel, vouched):
                 return rel
         for name in dirs:
             if (
@@ -388,10 +431,11 @@ def _foreign_object(out: str) -> str | None:
         return None
     chunks = stamped_chunks(out)
     finished = finished_stamp(out) is not None and "parts/build.json" not in files
+    vouched = 2**62 if finished else appended_to(read_stamp(stamp_path(out)))
     for rel in files:
         if not (written_by(chunks, rel) or is_temporary(rel)):
             return rel
-        if not (finished or _as_built(out, rel)):
+        if not _as_built(out, rel, vouched):
             return rel
     return None
 
@@ -399,15 +443,17 @@ def _foreign_object(out: str) -> str | None:
 _MEMBER = re.compile(r"[^./]+\.[^/]+")  # <key>.<field> (``ShardWriter``)
 
 
-def _as_built(out: fs.Location, rel: str) -> bool:
+def _as_built(out: fs.Location, rel: str, vouched: int = 0) -> bool:
     """Whether the chunk file ``rel`` reads as one a build writes, when its chunk is not
-    finished (no manifest part: no build vouches for it): a shard is a tar of regular
+    finished (no manifest part, and not one of the first ``vouched`` chunks, which a finished
+    build vouches for: the dataset an append appends to): a shard is a tar of regular
     ``<key>.<field>`` members, a failure part a parquet file of the failure columns. Other
     files: True. Reads tar headers and the parquet footer only."""
     m = _CHUNK_FILE.fullmatch(rel)
     if m is None or rel.startswith("parts/manifest-"):
         return True
-    if fs.exists(part_paths(out, int(m[2] or m[3]))[1]):
+    k = int(m[2] or m[3])
+    if k < vouched or fs.exists(part_paths(out, k)[1]):
         return True
     path = fs.join(out, rel)
     if m[2] is not None:
@@ -500,6 +546,7 @@ def clear_outputs(out: fs.Location) -> None:
         "failures.parquet",
         "parts/manifest-*.parquet",
         "parts/*.parquet",
+        "parts/base-dataset.json",
         "shards/*.tar",
     ):
         for stale in sorted(out.glob(pattern)):
@@ -521,6 +568,7 @@ _CLEARED = (
     "failures.parquet",
     "parts/manifest-*.parquet",
     "parts/*.parquet",
+    "parts/base-dataset.json",
     "shards/*.tar",
 )
 

@@ -203,11 +203,18 @@ def plan_build(
         n = stamp["count"]
         if n == 0:  # the files went between the check and the listing
             raise ConfigError(f"inputs.labels: no file matches {list(config.inputs.labels)}")
+        if resume and previous is not None and "append" in previous:
+            raise ConfigError(
+                f"{out}: cannot resume: the folder holds an interrupted --append; rerun it "
+                "with --append (and the config of the release it appends)"
+            )
         why = stamp_difference(previous, stamp) if resume and previous is not None else None
         if why is not None:
             raise ConfigError(f"{out}: cannot resume: {why}; rerun without --resume")
         finished = finished_stamp(out) if previous is None else None  # parts/ removed
-        if resume and finished is not None and finished != stamp_digest(stamp):
+        # (an appended dataset's build_stamp also counts its chunks: the digest decides)
+        same = finished is not None and finished.get("sha256") == stamp_digest(stamp)["sha256"]
+        if resume and finished is not None and not same:
             raise ConfigError(
                 f"{out}: cannot resume: the config, the label list or an input file changed "
                 "since the finished build; rerun without --resume"

@@ -11,7 +11,8 @@ lives on in dataset.json, so ``--resume`` over it does nothing. The labels are n
 planning pass counts them and sums their fingerprint (the stamp), the build pass streams them
 again to the engine, chunk by chunk. The engine's workers write the shards and stage the parts
 (``pipeline.build.engine``); the driver receives rows only, and commits the chunks in order
-(``pipeline.build.commit``).
+(``pipeline.build.commit``). ``append``: the labels a finished dataset does not hold yet become
+chunks after its own, the same way, then the union is merged (``pipeline.build.append``).
 """
 
 from __future__ import annotations
@@ -20,13 +21,29 @@ import contextlib
 import json
 import time
 from collections import Counter
+from collections.abc import Iterator
 from pathlib import Path
 
+import pyarrow as pa
+import pyarrow.parquet as pq
 from tqdm import tqdm
 
 from mars_pairs.errors import ConfigError
+from mars_pairs.pipeline.build.append import (
+    BASE_FILES,
+    AppendPlan,
+    dataset_extra,
+    labels_done,
+    merge_append,
+    new_chunks,
+    new_labels,
+    plan_append,
+    remove_append_parts,
+    remove_base,
+    snapshot_base,
+)
 from mars_pairs.pipeline.build.commit import select_chunk, write_chunk
-from mars_pairs.pipeline.build.engine import ChunkTask, Engine, InProcess
+from mars_pairs.pipeline.build.engine import ChunkResult, ChunkTask, Engine, InProcess
 from mars_pairs.pipeline.build.finish import (
     BuildSummary,
     finished_summary,
@@ -48,12 +65,14 @@ from mars_pairs.pipeline.build.plan import (
     check_clearable,
     chunks_of,
     done_chunks,
+    is_done,
     labels_of,
     plan_build,
 )
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.config_section import check_regular
 from mars_pairs.store import fs
+from mars_pairs.store.atomic import atomic_write_bytes
 from mars_pairs.store.wids_index import write_wids_index
 
 
@@ -76,24 +95,69 @@ def run_build(
     strict: bool = False,
     progress: bool = True,
     engine: Engine | None = None,
+    append: bool = False,
 ) -> BuildSummary:
     """Build the dataset described by ``config`` into ``config.output.dir``.
 
     ``engine``: None for this machine's process pool of ``workers`` (this process when 1),
     or another :class:`~mars_pairs.pipeline.build.engine.Engine` (``dask_engine.DaskEngine``).
+    ``append``: add the labels the dataset in the folder does not hold yet as new chunks
+    (``pipeline.build.append``; an interrupted append of the same release is continued,
+    with or without ``resume``).
     """
     start = time.perf_counter()
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ConfigError(f"--workers: expected an integer >= 1, got {workers!r}")
+    if append and limit is not None:
+        raise ConfigError("--limit: not with --append (an append builds every new label)")
+    if append and not isinstance(config.output.dir, Path):
+        raise ConfigError(
+            f"--append: output.dir {config.output.dir} is on object storage, where an append "
+            "is not supported yet; append to a local copy, or rebuild"
+        )
     check_input_files(config)  # before any process opens them
-    if not resume:  # refused before any worker starts (resume: once the stamp is read)
+    if not resume and not append:  # refused before any worker starts (else: once planned)
         check_clearable(config.output.dir)
+    if append:  # planned before any worker starts: a refused append starts none
+        plan = plan_append(config)
+        if plan.labels_new == 0:
+            return _nothing_to_append(config, plan, start)
     # the workers start now: their imports and raster opening overlap the planning
     pool = LocalPool(config, workers) if engine is None and workers > 1 else None
     if engine is None:
         engine = pool if pool is not None else InProcess()
     with pool if pool is not None else contextlib.nullcontext():
+        if append:
+            return _run_append(config, plan, start, strict, progress, engine)
         return _run(config, start, resume, limit, strict, progress, engine)
+
+
+def _commit_all(
+    config: BuildConfig,
+    results: Iterator[ChunkResult],
+    bar: tqdm,
+    strict: bool,
+    stage_seconds: Counter[str],
+    seen: dict[str, str],
+) -> int:
+    """Commit every chunk of ``results`` in order (``commit.select_chunk``, then
+    ``commit.write_chunk``; ``seen``: key -> label of the samples built, updated), the bar
+    following; closes the bar and the results. The number of chunks committed."""
+    built = 0
+    try:
+        for result in results:
+            bar.update(len(result.outcomes))
+            selection = select_chunk(result, seen, strict)
+            write_chunk(config, result, selection)
+            seen.update(selection.built)
+            stage_seconds.update(selection.stage_seconds)
+            built += 1
+    finally:
+        bar.close()
+        close = getattr(results, "close", None)
+        if close:
+            close()
+    return built
 
 
 def _run(
@@ -134,20 +198,7 @@ def _run(
         desc="build",
     )
     stage_seconds: Counter[str] = Counter()
-    built = 0
-    try:
-        for result in results:
-            bar.update(len(result.outcomes))
-            selection = select_chunk(result, seen, strict)
-            write_chunk(config, result, selection)
-            seen.update(selection.built)
-            stage_seconds.update(selection.stage_seconds)
-            built += 1
-    finally:
-        bar.close()
-        close = getattr(results, "close", None)
-        if close:
-            close()
+    built = _commit_all(config, results, bar, strict, stage_seconds, seen)
     remove_temporaries(out)  # of a worker killed mid-shard, whose chunk was built again
     listed = plan.fingerprint
     if (digest.count, digest.hexdigest()) != (listed["count"], listed["labels"]):
@@ -182,4 +233,111 @@ def _run(
     write_card(config, manifest, doc)
     if not config.output.keep_parts:
         remove_parts(out, plan.chunks)  # the last step: a kill before it resumes
+    return summary
+
+
+def _summary(
+    out: Path,
+    manifest: pa.Table,
+    failures: pa.Table,
+    built: int,
+    resumed: int,
+    start: float,
+    stage_seconds: dict[str, float],
+    appended: str | None = None,
+) -> BuildSummary:
+    """The summary of a build whose merged tables are ``manifest`` and ``failures``."""
+    reasons = Counter(
+        f"{s} ({e})"
+        for s, e in zip(
+            failures.column("stage").to_pylist(),
+            failures.column("error_type").to_pylist(),
+            strict=True,
+        )
+    )
+    return BuildSummary(
+        out_dir=out,
+        samples=manifest.num_rows,
+        failures=failures.num_rows,
+        failures_by_reason=dict(reasons),
+        chunks_built=built,
+        chunks_resumed=resumed,
+        seconds=time.perf_counter() - start,
+        stage_seconds=stage_seconds,
+        appended=appended,
+    )
+
+
+def _nothing_to_append(config: BuildConfig, plan: AppendPlan, start: float) -> BuildSummary:
+    """The summary of an append that finds no new label: nothing is built or written (a base
+    snapshot left by a killed append's last step is removed)."""
+    out = config.output.dir
+    remove_base(out)
+    manifest = pq.read_table(out / "manifest.parquet", columns=["key"])
+    failures = pq.read_table(out / "failures.parquet", columns=["stage", "error_type"])
+    return _summary(out, manifest, failures, 0, 0, start, {}, plan.summary_line())
+
+
+def _run_append(
+    config: BuildConfig,
+    plan: AppendPlan,
+    start: float,
+    strict: bool,
+    progress: bool,
+    engine: Engine,
+) -> BuildSummary:
+    """run_build's work for ``--append`` (``pipeline.build.append``), planned, its workers
+    starting: the base kept (``snapshot_base``) and the stamp written unless an interrupted
+    append of this release is continued, the new chunks built and committed after the
+    dataset's, then the union merged and described, and parts/ removed."""
+    out = config.output.dir
+    remove_temporaries(out)  # of a killed build
+    if not plan.resumed:
+        snapshot_base(out)  # before the stamp: while the stamp is there, the base is whole
+        atomic_write_bytes(stamp_path(out), json.dumps(plan.fingerprint).encode())
+    chunks = new_chunks(plan)
+    seen = dict(plan.keys)
+    seen.update(built_keys(out, (k for k in chunks if is_done(out, k))))
+    digest = LabelDigest()  # the second pass must list what the first did
+    listed = chunks_of(digest.tally(new_labels(config, plan.known, LabelDigest())), plan.chunk_size)
+    todo = (
+        ChunkTask(k, tuple(labels))
+        for k, labels in zip(chunks, listed, strict=False)
+        if not is_done(out, k)
+    )
+    results = engine.run(config, todo)
+    bar = tqdm(
+        total=plan.labels_new,
+        initial=labels_done(plan),
+        unit="img",
+        disable=not progress,
+        desc="append",
+    )
+    stage_seconds: Counter[str] = Counter()
+    built = _commit_all(config, results, bar, strict, stage_seconds, seen)
+    remove_temporaries(out)
+    stamp = plan.fingerprint
+    if (digest.count, digest.hexdigest()) != (stamp["count"], stamp["labels"]):
+        raise ConfigError(
+            f"inputs.labels: the matching files changed during the append ({stamp['count']} "
+            f"new labels listed, then {digest.count}); rerun the append"
+        )
+    manifest, failures, dropped = merge_append(config, plan)
+    added = manifest.num_rows - pq.read_metadata(out / BASE_FILES["manifest.parquet"]).num_rows
+    base_failures = pq.read_metadata(out / BASE_FILES["failures.parquet"]).num_rows
+    summary = _summary(
+        out,
+        manifest,
+        failures,
+        built,
+        plan.chunks - built,
+        start,
+        dict(stage_seconds),
+        plan.summary_line(),
+    )
+    extra = dataset_extra(config, plan, added, failures.num_rows - base_failures)
+    doc = write_dataset_json(config, summary, manifest, dropped, extra=extra)
+    write_wids_index(out, manifest)
+    write_card(config, manifest, doc)
+    remove_append_parts(out, plan)  # the stamp before the base: see pipeline.build.append
     return summary

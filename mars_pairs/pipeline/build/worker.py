@@ -8,7 +8,6 @@ when the process could not open its context.
 from __future__ import annotations
 
 import contextlib
-import os
 import re
 from pathlib import Path
 from typing import Any
@@ -30,17 +29,12 @@ _CONTEXT: SampleContext | None = None
 _START_ERROR: str | None = None  # why the process could not open its context, if it could not
 
 
-def open_context(config: BuildConfig, environ: dict[str, str] | None = None) -> None:
+def open_context(config: BuildConfig) -> None:
     """Open this process's context for ``config``. Never raises: a pool respawns workers whose
     initializer raised, for ever; the error is kept and reported by the first task.
 
-    ``environ``: the driver's environment when the build started, to replace this process's
-    (a fork server's workers inherit the server's, from when it started: GDAL_* and AWS_*
-    options set since would not reach them)."""
+    The process's environment is set up before (``mars_pairs.runtime``)."""
     global _CONTEXT, _START_ERROR
-    if environ is not None and environ != dict(os.environ):
-        os.environ.clear()
-        os.environ.update(environ)
     close_context()
     reuse_freed_memory()  # a worker process: keep freed blocks for the next sample
     try:
@@ -50,7 +44,7 @@ def open_context(config: BuildConfig, environ: dict[str, str] | None = None) -> 
         own = isinstance(exc, MarsPairsError)
         _START_ERROR = str(exc) if own else f"{type(exc).__name__}: {exc}"
         return
-    # while the driver still plans: the first sample no longer loads them (only a head
+    # while the driver still plans, so the first sample does not load them (only a head
     # start: if it fails, the first sample loads what is missing)
     with contextlib.suppress(Exception):
         warm_kernels()

@@ -65,7 +65,7 @@ def build_sample(label: Path, ctx: SampleContext) -> Sample:
                 stride = out.dense_stride or ctx.config.geometry.ray_stride
                 radius = ctx.config.geometry.radius
                 dense, dense_meta = dense_members(
-                    view, grid, chips, ground, out.members, stride, radius, (ctx.ortho, ctx.dem)
+                    view, grid, chips, ground, out.members, stride, radius, ctx.ortho
                 )
         with stage("encode"):
             row = manifest_row(obs, pose, view, grid, ctx, cover)

@@ -41,6 +41,7 @@ from mars_pairs.pipeline.sample.encode import npy_bytes, png_bytes
 from mars_pairs.pipeline.sample.ground import GroundImage
 from mars_pairs.pipeline.sample.view import View
 from mars_pairs.raster.chips import ChipGrid, ChipReader
+from mars_pairs.raster.terrain import DemWindow
 from mars_pairs.raster.transfer import sample_at
 from mars_pairs.store.members import DENSE_MEMBERS, MEMBER_FILES
 
@@ -95,16 +96,18 @@ def _times_transposed(rows: np.ndarray, matrix: np.ndarray) -> np.ndarray:
 
 
 def map_from_rover(
-    rays: DenseRays, crs: str, ortho: ChipReader, dem: ChipReader
+    rays: DenseRays, crs: str, ortho: ChipReader, dem: DemWindow
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(ortho_view uint8, dem_view float32 metres, valid bool) on the dense grid: the ortho
-    and DEM rasters sampled bilinearly on their own grids at each ray's hit (map x, y in
-    ``crs``, the dataset's; one windowed read each, ``ChipReader.read_points``); the ortho
-    scaled to 0..255 by its ``value_range`` (as its chip); valid where both have data
-    around the hit, else 0 and NaN."""
+    raster sampled bilinearly on its own grid at each ray's hit (map x, y in ``crs``, the
+    dataset's; one windowed read, ``ChipReader.read_points``) and scaled to 0..255 by its
+    ``value_range`` (as its chip); the DEM window the rays were cast over (``dem``, the same
+    CRS as the hits) sampled bilinearly there, no read; valid where both have data around
+    the hit, else 0 and NaN."""
     x, y = rays.hits[..., 0], rays.hits[..., 1]
     ortho_values = ortho.read_points(x, y, crs)
-    dem_view = dem.read_points(x, y, crs)
+    col, row = dem.xy_to_colrow(x, y)
+    dem_view = sample_at(dem.data, col, row, nearest=False)[0]
     valid = np.isfinite(ortho_values) & np.isfinite(dem_view)
     ortho_view = ortho.value_range().to_uint8(np.where(valid, ortho_values, np.nan))
     return ortho_view, np.where(valid, dem_view, np.nan).astype(np.float32), valid
@@ -164,11 +167,12 @@ def dense_members(
     members: tuple[str, ...],
     stride: int,
     max_range_m: float,
-    readers: tuple[ChipReader, ChipReader],
+    ortho: ChipReader,
 ) -> tuple[dict[str, bytes], dict[str, Any]]:
     """The member bytes of ``members`` (see the module docstring) and their meta entries;
     ``ground``: the ground member (its decoded pixels when kept, else its bytes decoded);
-    ``readers``: the ortho and DEM rasters (the map seen from the rover samples them)."""
+    ``ortho``: the ortho raster (the map seen from the rover samples it, and the DEM window
+    ``view.window``)."""
     out: dict[str, bytes] = {}
     meta: dict[str, Any] = {"dense_members": list(members)}
     wanted = set(members)
@@ -183,7 +187,7 @@ def dense_members(
         if "hits" in wanted:
             out["hits.npy"] = npy_bytes(rays.hits)
         if wanted & {"ortho_view", "dem_view"}:
-            ortho_view, dem_view, valid = map_from_rover(rays, grid.crs, *readers)
+            ortho_view, dem_view, valid = map_from_rover(rays, grid.crs, ortho, view.window)
             if "ortho_view" in wanted:
                 out["ortho_view.png"] = png_bytes(ortho_view)
             out["view_valid.png"] = png_bytes(valid.astype(np.uint8) * 255)

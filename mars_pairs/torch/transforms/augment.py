@@ -11,11 +11,11 @@ from mars_pairs.torch.transforms.geometric import (
     Flip,
     Rotate,
     Sample,
-    _chip_hw,
-    _ground_hw,
-    _hw,
-    _like,
-    _target,
+    check_target,
+    chip_hw,
+    ground_hw,
+    like_image,
+    size_hw,
 )
 
 
@@ -29,12 +29,12 @@ class RandomCrop:
     def __init__(
         self, size: int | Sequence[int], target: str, generator: torch.Generator | None = None
     ) -> None:
-        self.size = _hw(size, "size")
-        self.target = _target(target, ("ground", "chip"))
+        self.size = size_hw(size, "size")
+        self.target = check_target(target, ("ground", "chip"))
         self.generator = generator
 
     def __call__(self, sample: Sample) -> Sample:
-        hw = _ground_hw(sample) if self.target == "ground" else _chip_hw(sample)
+        hw = ground_hw(sample) if self.target == "ground" else chip_hw(sample)
         assert self.size is not None
         top = round(_uniform(0, max(hw[0] - self.size[0], 0), self.generator))
         left = round(_uniform(0, max(hw[1] - self.size[1], 0), self.generator))
@@ -71,7 +71,7 @@ class RandomRotate:
         generator: torch.Generator | None = None,
     ) -> None:
         self.degrees = (float(degrees[0]), float(degrees[1]))
-        self.target, self.quarter_turns = _target(target), quarter_turns
+        self.target, self.quarter_turns = check_target(target), quarter_turns
         self.generator = generator
 
     def __call__(self, sample: Sample) -> Sample:
@@ -112,5 +112,5 @@ class ColorJitter:
                 grey = (0.299 * x[0] + 0.587 * x[1] + 0.114 * x[2])[None]
                 s = _uniform(1 - self.saturation, 1 + self.saturation, self.generator)
                 x = (x - grey) * s + grey
-            out[name] = _like(x.clamp_(0, top), image)
+            out[name] = like_image(x.clamp_(0, top), image)
         return out

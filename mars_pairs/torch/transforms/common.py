@@ -9,7 +9,7 @@ from typing import ClassVar
 import numpy as np
 import torch
 
-from mars_pairs.torch.transforms.geometric import CHIP_FIELDS, Sample, _chip_hw, _ground_hw
+from mars_pairs.torch.transforms.geometric import CHIP_FIELDS, Sample, chip_hw, ground_hw
 
 
 class ToFloat:
@@ -52,8 +52,8 @@ def keypoints(sample: Sample, inside: bool = True) -> tuple[torch.Tensor, torch.
     chip = sample["corr"].reshape(2, -1).T
     keep = torch.isfinite(ground).all(dim=1) & torch.isfinite(chip).all(dim=1)
     if inside:
-        gh, gw = _ground_hw(sample) if "ground" in sample else (math.inf, math.inf)
-        ch, cw = _chip_hw(sample) if any(f in sample for f in CHIP_FIELDS) else (math.inf, math.inf)
+        gh, gw = ground_hw(sample) if "ground" in sample else (math.inf, math.inf)
+        ch, cw = chip_hw(sample) if any(f in sample for f in CHIP_FIELDS) else (math.inf, math.inf)
         keep &= (ground[:, 0] >= 0) & (ground[:, 0] <= gw) & (ground[:, 1] >= 0)
         keep &= (ground[:, 1] <= gh) & (chip[:, 0] >= 0) & (chip[:, 0] <= cw)
         keep &= (chip[:, 1] >= 0) & (chip[:, 1] <= ch)

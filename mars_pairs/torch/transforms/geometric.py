@@ -77,10 +77,10 @@ def _warp(
     out = F.grid_sample(src, grid, mode=mode, padding_mode="border", align_corners=False)[0]
     outside = (sx < 0) | (sx > w) | (sy < 0) | (sy > h)
     out[:, outside] = fill
-    return _like(out, image)
+    return like_image(out, image)
 
 
-def _like(values: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
+def like_image(values: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
     if image.dtype == torch.uint8:
         return values.round().clamp_(0, 255).to(torch.uint8)
     return values.to(image.dtype)
@@ -91,7 +91,7 @@ def _resize(image: torch.Tensor, out_hw: tuple[int, int], mode: str) -> torch.Te
     if mode == "bilinear":
         kwargs.update(align_corners=False, antialias=True)
     out = F.interpolate(image.float()[None], size=out_hw, **kwargs)[0]
-    return _like(out, image)
+    return like_image(out, image)
 
 
 class _Geometric:
@@ -116,7 +116,7 @@ class _Geometric:
     def __call__(self, sample: Sample) -> Sample:
         out = dict(sample)
         if self.target in ("ground", "both"):
-            made = self._ground_map(*_ground_hw(sample, "corr_ground", "dense_ground"))
+            made = self._ground_map(*ground_hw(sample, "corr_ground", "dense_ground"))
             if made is not None:
                 m, new_hw = made
                 if "ground" in out:
@@ -128,7 +128,7 @@ class _Geometric:
                     moved = _move_points(out["ground_px"] + 0.5, np.linalg.inv(m))
                     out["ground_px"] = moved - 0.5
         if self.target in ("chip", "both"):
-            made = self._chip_map(*_chip_hw(sample, "corr", "transform", *LOCALIZATION_POINTS))
+            made = self._chip_map(*chip_hw(sample, "corr", "transform", *LOCALIZATION_POINTS))
             if made is not None:
                 m, new_hw = made
                 for name in CHIP_FIELDS + DENSE_CHIP_FIELDS:
@@ -166,7 +166,7 @@ def move_localization(sample: Sample, m_inv: np.ndarray) -> Sample:
     return out
 
 
-def _ground_hw(sample: Sample, *needing: str) -> tuple[int, int]:
+def ground_hw(sample: Sample, *needing: str) -> tuple[int, int]:
     """The ground image's (H, W); ArgumentError when a field that moves with it is there
     without the image (its size is unknown)."""
     if "ground" in sample:
@@ -176,7 +176,7 @@ def _ground_hw(sample: Sample, *needing: str) -> tuple[int, int]:
     return (1, 1)
 
 
-def _chip_hw(sample: Sample, *needing: str) -> tuple[int, int]:
+def chip_hw(sample: Sample, *needing: str) -> tuple[int, int]:
     """The chips' (H, W); ArgumentError when a field that moves with them is there without
     any chip."""
     for name in CHIP_FIELDS + DENSE_CHIP_FIELDS:
@@ -189,13 +189,13 @@ def _chip_hw(sample: Sample, *needing: str) -> tuple[int, int]:
     return (1, 1)
 
 
-def _target(target: str, allowed: Sequence[str] = ("ground", "chip", "both")) -> str:
+def check_target(target: str, allowed: Sequence[str] = ("ground", "chip", "both")) -> str:
     if target not in allowed:
         raise ArgumentError(f"target: expected one of {list(allowed)}, got {target!r}")
     return target
 
 
-def _hw(value: int | Sequence[int] | None, name: str) -> tuple[int, int] | None:
+def size_hw(value: int | Sequence[int] | None, name: str) -> tuple[int, int] | None:
     if value is None:
         return None
     try:
@@ -221,7 +221,7 @@ class Resize(_Geometric):
     def __init__(
         self, ground: int | Sequence[int] | None = None, chip: int | Sequence[int] | None = None
     ) -> None:
-        self.ground, self.chip = _hw(ground, "ground"), _hw(chip, "chip")
+        self.ground, self.chip = size_hw(ground, "ground"), size_hw(chip, "chip")
         self.target = "both"
 
     def _ground_map(self, h: int, w: int) -> tuple[np.ndarray, tuple[int, int]] | None:
@@ -251,7 +251,7 @@ class Crop(_Geometric):
 
     def __init__(self, top: int, left: int, height: int, width: int, target: str) -> None:
         self.box = tuple(int(v) for v in (top, left, height, width))
-        self.target = _target(target, ("ground", "chip"))
+        self.target = check_target(target, ("ground", "chip"))
 
     def _map(self, h: int, w: int) -> tuple[np.ndarray, tuple[int, int]]:
         top, left, height, width = self.box
@@ -281,7 +281,7 @@ class Flip(_Geometric):
     def __init__(self, axis: str = "horizontal", target: str = "ground") -> None:
         if axis not in ("horizontal", "vertical"):
             raise ArgumentError(f"axis: expected 'horizontal' or 'vertical', got {axis!r}")
-        self.axis, self.target = axis, _target(target)
+        self.axis, self.target = axis, check_target(target)
 
     def _map(self, h: int, w: int) -> tuple[np.ndarray, tuple[int, int]]:
         if self.axis == "horizontal":
@@ -310,7 +310,7 @@ class Rotate(_Geometric):
     a non-square image swaps its height and width)."""
 
     def __init__(self, degrees: float, target: str = "chip") -> None:
-        self.degrees, self.target = float(degrees), _target(target)
+        self.degrees, self.target = float(degrees), check_target(target)
 
     def _quarter_turns(self) -> int | None:
         k = self.degrees / 90.0
