@@ -54,15 +54,20 @@ def _load(path: fs.Location) -> dict[str, Any]:
     return doc
 
 
-def dataset_json_path(root: str | Path) -> fs.Location:
-    """The dataset.json of the dataset folder ``root`` (a local folder or a URL)."""
+def dataset_json_path(root: str | Path) -> Path:
+    """The dataset.json of the dataset folder ``root``."""
+    return Path(root) / DATASET_JSON
+
+
+def _location(root: str | Path) -> fs.Location:
+    """The dataset.json of the dataset root ``root``: a local folder or a URL (``store.fs``)."""
     return fs.join(fs.dataset_root(root), DATASET_JSON)
 
 
 def _load_required(root: str | Path) -> tuple[fs.Location, dict[str, Any]]:
     """(path, document) of the dataset.json of ``root``; DatasetError naming it when it is
     missing, unreadable or not a JSON object."""
-    path = dataset_json_path(root)
+    path = _location(root)
     if not fs.exists(path):
         reason = "missing (it holds the ray stride, CRS and chip size: rebuild or restore it)"
         raise DatasetError(path, None, reason)
@@ -105,7 +110,7 @@ def read_dataset_doc(root: str | Path) -> dict[str, Any]:
     """The whole dataset.json document of the dataset folder ``root``, for readers that work
     without it (the pictures, the report): {} when the file is absent; DatasetError naming the
     file when it is unreadable or not a JSON object."""
-    path = dataset_json_path(root)
+    path = _location(root)
     return _load(path) if fs.exists(path) else {}
 
 

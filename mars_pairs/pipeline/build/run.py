@@ -34,6 +34,7 @@ from mars_pairs.pipeline.build.append import (
     AppendPlan,
     dataset_extra,
     labels_done,
+    local_dir,
     merge_append,
     new_chunks,
     new_labels,
@@ -110,11 +111,6 @@ def run_build(
         raise ConfigError(f"--workers: expected an integer >= 1, got {workers!r}")
     if append and limit is not None:
         raise ConfigError("--limit: not with --append (an append builds every new label)")
-    if append and not isinstance(config.output.dir, Path):
-        raise ConfigError(
-            f"--append: output.dir {config.output.dir} is on object storage, where an append "
-            "is not supported yet; append to a local copy, or rebuild"
-        )
     check_input_files(config)  # before any process opens them
     if not resume and not append:  # refused before any worker starts (else: once planned)
         check_clearable(config.output.dir)
@@ -271,7 +267,7 @@ def _summary(
 def _nothing_to_append(config: BuildConfig, plan: AppendPlan, start: float) -> BuildSummary:
     """The summary of an append that finds no new label: nothing is built or written (a base
     snapshot left by a killed append's last step is removed)."""
-    out = config.output.dir
+    out = local_dir(config)
     remove_base(out)
     manifest = pq.read_table(out / "manifest.parquet", columns=["key"])
     failures = pq.read_table(out / "failures.parquet", columns=["stage", "error_type"])
@@ -290,7 +286,7 @@ def _run_append(
     starting: the base kept (``snapshot_base``) and the stamp written unless an interrupted
     append of this release is continued, the new chunks built and committed after the
     dataset's, then the union merged and described, and parts/ removed."""
-    out = config.output.dir
+    out = local_dir(config)
     remove_temporaries(out)  # of a killed build
     if not plan.resumed:
         snapshot_base(out)  # before the stamp: while the stamp is there, the base is whole
