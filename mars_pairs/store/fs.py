@@ -121,6 +121,19 @@ def read_range(path: Location, offset: int, length: int) -> bytes:
         return fh.read(length)
 
 
+def read_ranges(requests: list[tuple[str, int, int]]) -> list[bytes]:
+    """The bytes of each ``(url, offset, length)`` of ``requests`` (fewer at a file's end), in
+    order, as one concurrent batch of range requests (fsspec ``cat_ranges``): one round trip
+    where a loop of :func:`read_range` makes one a request. URLs of one file system."""
+    if not requests:
+        return []
+    filesystem_, _ = filesystem(requests[0][0])
+    paths = [filesystem(url)[1] for url, _, _ in requests]
+    starts = [offset for _, offset, _ in requests]
+    ends = [offset + length for _, offset, length in requests]
+    return [bytes(b) for b in filesystem_.cat_ranges(paths, starts, ends, on_error="raise")]
+
+
 def open_input(path: Location) -> Any:
     """``path`` opened for binary reading (seekable; remote reads are range requests)."""
     if is_url(path):

@@ -81,6 +81,28 @@ class ShardFiles:
             done += n
         return buf
 
+    @property
+    def remote(self) -> bool:
+        """Whether the shards are on object storage (``root`` a URL)."""
+        return self._remote
+
+    def read_many(self, requests: list[tuple[str, int, int]]) -> list[bytearray]:
+        """``read`` of each ``(shard, offset, size)`` of ``requests``, in order; on object
+        storage one concurrent batch of range requests (``store.fs.read_ranges``)."""
+        if not self._remote:
+            return [self.read(shard, offset, size) for shard, offset, size in requests]
+        urls = []
+        for shard, offset, size in requests:
+            problem = bounds_problem(offset, size, self._fd(shard)[1])
+            if problem is not None:
+                raise DatasetError(fs.join(self.root, shard), None, problem)
+            urls.append((str(shard_location(self.root, shard)), offset, size))
+        out = [bytearray(data) for data in fs.read_ranges(urls)]
+        for (shard, offset, size), data in zip(requests, out, strict=True):
+            if len(data) != size:
+                raise OSError(f"{fs.join(self.root, shard)}: short read at offset {offset}")
+        return out
+
     def close(self) -> None:
         """Close this process's descriptors."""
         if self._pid == os.getpid():

@@ -103,15 +103,18 @@ def test_the_readers_read_a_dataset_on_s3(
     (and ``mars-pairs verify URL``) read the dataset on the server as the local one."""
     fields = ("ground", "ortho", "dem", "viewshed", "corr")
     with (
-        MarsPairsDataset(s3_build, fields=fields, verify=True) as remote,
+        MarsPairsDataset(s3_build, fields=fields, verify=True) as checked,
+        MarsPairsDataset(s3_build, fields=fields) as fetched,  # one batch of ranges a sample
         MarsPairsDataset(local_build, fields=fields) as local,
     ):
-        assert len(remote) == len(local) == 4
+        assert len(checked) == len(fetched) == len(local) == 4
         for i in range(len(local)):
-            a, b = remote[i], local[i]
-            assert a["meta"] == b["meta"]
-            for name in fields:
-                torch.testing.assert_close(a[name], b[name], rtol=0, atol=0, equal_nan=True)
+            for remote in (checked[i], fetched[i]):
+                assert remote["meta"] == local[i]["meta"]
+                for name in fields:
+                    torch.testing.assert_close(
+                        remote[name], local[i][name], rtol=0, atol=0, equal_nan=True
+                    )
     with MarsPairsIterableDataset(s3_build, fields=("ortho",), shuffle_buffer=1) as stream:
         assert sorted(s["meta"]["key"] for s in stream) == sorted(local_build_keys(local_build))
     assert len(Manifest.open(s3_build).filter(split="train")) == len(
