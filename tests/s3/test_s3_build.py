@@ -15,6 +15,7 @@ from typing import Any
 
 import pytest
 import torch
+import yaml
 from built_dataset import build_config
 
 from mars_pairs.cli.main import main
@@ -178,6 +179,28 @@ def test_a_rebuild_on_s3_clears_the_old_build_and_refuses_a_strangers_file(
     assert run_build(config, progress=False).samples == 4
     assert digests(s3_prefix) == digests(local_build)
     assert not [f for f in fs.list_files(s3_prefix) if f.startswith("parts/") or ".tmp-" in f]
+
+
+def test_the_cli_builds_to_an_s3_url(
+    small_mission: Path,
+    local_build: Path,
+    s3_prefix: str,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """``mars-pairs build --out s3://...``: a dry run writes nothing there, the build gives
+    the local build's bytes and prints the URL; ``inspect`` reads it."""
+    doc = build_config(small_mission, tmp_path / "unused")
+    path = tmp_path / "config.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    assert main(["build", "--config", str(path), "--out", s3_prefix + "/", "--dry-run"]) == 0
+    assert f"nothing written to {s3_prefix}" in capsys.readouterr().out
+    assert fs.list_files(s3_prefix) == []
+    assert main(["build", "--config", str(path), "--out", s3_prefix, "--quiet"]) == 0
+    assert f"dataset: {s3_prefix}" in capsys.readouterr().out
+    assert digests(s3_prefix) == digests(local_build)
+    assert main(["inspect", s3_prefix]) == 0
+    assert "samples: 4" in capsys.readouterr().out
 
 
 def test_append_on_s3_is_refused_naming_the_url(small_mission: Path, s3_prefix: str) -> None:
