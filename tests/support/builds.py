@@ -12,7 +12,7 @@ import pyarrow.parquet as pq
 
 from mars_pairs.cli.main import main
 from mars_pairs.pipeline.build.run import run_build
-from support.configs import build_config, config_file
+from support.configs import build_config, config_doc, config_file
 
 # the small build of the store and CLI tests: 64 m chips of 32 px, 2 samples a shard
 SMALL: dict[str, dict[str, Any]] = {"chips": {"size_px": 32}, "output": {"shard_size": 2}}
@@ -33,6 +33,11 @@ def small_sections(**sections: dict[str, Any] | None) -> dict[str, Any]:
     for name, values in sections.items():
         merged[name] = None if values is None else {**merged.get(name, {}), **values}
     return merged
+
+
+def small_doc(mission: Path, out: Path, **sections: Any) -> dict[str, Any]:
+    """The config document of the small build (``SMALL``, updated by ``sections``)."""
+    return config_doc(mission, out, **small_sections(**sections))
 
 
 def build_small(mission: Path, out: Path, resume: bool = False, **sections: Any) -> Path:
