@@ -15,7 +15,7 @@ import signal
 import sys
 from pathlib import Path
 
-from built_dataset import build_config
+from support.builds import small_doc
 
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import parse_config
@@ -44,7 +44,7 @@ def main(mission: Path, url: str, target: str) -> None:
         os.kill(os.getpid(), signal.SIGKILL)
 
     fs.upload = upload  # type: ignore[assignment]
-    doc = build_config(mission, Path("/unused"))
+    doc = small_doc(mission, Path("/unused"))
     doc["output"]["dir"] = url
     run_build(parse_config(doc, base=mission), progress=False)
 

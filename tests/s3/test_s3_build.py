@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 import torch
 import yaml
-from built_dataset import build_config
+from support.builds import small_doc
 
 from mars_pairs.cli.main import main
 from mars_pairs.cli.summary import inspect_dataset
@@ -36,7 +36,7 @@ SAME_BYTES = ("manifest.parquet", "failures.parquet")
 
 def config_for(mission: Path, out: str | Path, **sections: Any) -> BuildConfig:
     """The cheap build of ``mission`` (2 samples a shard) into ``out`` (a folder or URL)."""
-    doc = build_config(mission, Path("/unused"), **sections)
+    doc = small_doc(mission, Path("/unused"), **sections)
     doc["output"]["dir"] = str(out)
     return parse_config(doc, base=mission)
 
@@ -152,7 +152,7 @@ def test_rasters_on_s3_build_as_local(
     resume, naming the input."""
     for name in ("dem.tif", "ortho.tif"):
         fs.upload(small_mission / "orbital" / name, fs.join(s3_prefix, name))
-    doc = build_config(small_mission, tmp_path / "ds", output={"keep_parts": True})
+    doc = small_doc(small_mission, tmp_path / "ds", output={"keep_parts": True})
     doc["inputs"] |= {"dem": f"{s3_prefix}/dem.tif", "ortho": f"{s3_prefix}/ortho.tif"}
     config = parse_config(doc, base=small_mission)
     assert str(config.inputs.dem).startswith("/vsis3/")
@@ -190,7 +190,7 @@ def test_the_cli_builds_to_an_s3_url(
 ) -> None:
     """``mars-pairs build --out s3://...``: a dry run writes nothing there, the build gives
     the local build's bytes and prints the URL; ``inspect`` reads it."""
-    doc = build_config(small_mission, tmp_path / "unused")
+    doc = small_doc(small_mission, tmp_path / "unused")
     path = tmp_path / "config.yaml"
     path.write_text(yaml.safe_dump(doc))
     assert main(["build", "--config", str(path), "--out", s3_prefix + "/", "--dry-run"]) == 0
@@ -225,7 +225,7 @@ def test_duplicates_across_chunks_on_s3_give_the_local_bytes(
     shutil.copy(first[3], labels / "zzz_copy.xml")
 
     def build(out: str | Path) -> None:
-        doc = build_config(small_mission, Path("/unused"))
+        doc = small_doc(small_mission, Path("/unused"))
         doc["inputs"]["labels"] = str(labels / "*.xml")
         doc["output"]["dir"] = str(out)
         summary = run_build(parse_config(doc, base=small_mission), progress=False)
