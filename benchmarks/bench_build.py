@@ -125,7 +125,8 @@ def _time_the_ends() -> None:
 
 
 class _ExternalCluster:
-    """A Dask scheduler and ``workers`` single-threaded workers, each its own subprocess."""
+    """A Dask scheduler and ``workers`` single-threaded workers, each its own subprocess,
+    preloaded as a long-lived cluster's would be (``pipeline.build.dask_preload``)."""
 
     def __init__(self, root: Path, workers: int) -> None:
         dask = Path(sys.executable).with_name("dask")
@@ -140,7 +141,8 @@ class _ExternalCluster:
             time.sleep(0.1)
         self.procs.append(
             subprocess.Popen([str(dask), "worker", "--scheduler-file", str(file), "--nworkers",
-                              str(workers), "--nthreads", "1", "--no-dashboard"], **quiet)
+                              str(workers), "--nthreads", "1", "--no-dashboard",
+                              "--preload", "mars_pairs.pipeline.build.dask_preload"], **quiet)
         )  # fmt: skip
         from distributed import Client
 

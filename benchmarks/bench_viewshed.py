@@ -10,7 +10,7 @@ against gdal_viewshed's full 360-degree run, and the machine load (os.getloadavg
 after: numba's threads stall when other processes hold the cores, so compare rows of one run.
 
 Accuracy: each viewshed (ours and gdal_viewshed's) is compared with the exact line-of-sight
-reference of the tests (tests/kernels/los_reference.py: bilinear terrain, the whole segment
+reference of the tests (tests/support/los_reference.py: bilinear terrain, the whole segment
 from the eye to each cell centre tested exactly) on --ref-cells cells drawn at random inside
 the case's band (all of them when the band holds fewer): visible-set IoU, false positives and
 false negatives per 1000 sampled cells.
@@ -35,9 +35,9 @@ from affine import Affine
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests" / "kernels"))
+sys.path.insert(0, str(ROOT / "tests"))
 
-from los_reference import exact_viewshed  # noqa: E402
+from support.los_reference import exact_viewshed  # noqa: E402
 
 from mars_pairs.kernels import cast_rays, compute_viewshed  # noqa: E402
 from mars_pairs.kernels.raycast import max_pyramid  # noqa: E402

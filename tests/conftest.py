@@ -1,4 +1,5 @@
-"""Shared fixtures: the real PDS samples beside the checkout (skipped when absent)."""
+"""Shared fixtures: the real PDS samples beside the checkout (skipped when absent) and the
+synthetic missions, generated once per session (``support.missions``)."""
 
 from __future__ import annotations
 
@@ -6,7 +7,8 @@ from pathlib import Path
 
 import pytest
 from hypothesis import settings
-from real_samples import SAMPLES
+from support.missions import MissionCache
+from support.real_samples import SAMPLES
 
 # Property tests give the same verdict on every machine: examples come from a fixed seed
 # (derandomize) and no example database carries failures from one run to the next; every
@@ -24,10 +26,13 @@ def samples_dir() -> Path:
 
 
 @pytest.fixture(scope="session")
-def small_mission(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A 4-image synthetic Perseverance mission (2 stops x 2 images), generated once."""
-    from mars_pairs.synth import generate_mission
+def missions(tmp_path_factory: pytest.TempPathFactory) -> MissionCache:
+    """Synthetic missions by parameters, each generated once per session (read only; a test
+    that changes one takes ``missions.copy(tmp_path / "m", **params)``)."""
+    return MissionCache(tmp_path_factory.mktemp("missions"))
 
-    root = tmp_path_factory.mktemp("small_mission")
-    generate_mission(root, seed=3, mission="m2020", stops=2, images_per_stop=2, size="small")
-    return root
+
+@pytest.fixture(scope="session")
+def small_mission(missions: MissionCache) -> Path:
+    """A 4-image synthetic Perseverance mission (2 stops x 2 images, seed 3). Read only."""
+    return missions(seed=3, stops=2, images_per_stop=2)

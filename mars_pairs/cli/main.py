@@ -71,10 +71,13 @@ def _cmd_build(args: argparse.Namespace) -> int:
     from mars_pairs.errors import BuildError
     from mars_pairs.pipeline.build.run import run_build
     from mars_pairs.pipeline.config import load_config
+    from mars_pairs.store.fs import dataset_root
 
     config = load_config(args.config)
     if args.out:
-        config = replace(config, output=replace(config.output, dir=Path(args.out).resolve()))
+        out = dataset_root(args.out)
+        out = out.resolve() if isinstance(out, Path) else out
+        config = replace(config, output=replace(config.output, dir=out))
     if args.dry_run and args.append:  # the new labels and chunks; writes nothing
         from mars_pairs.pipeline.build.append import plan_append
 
@@ -254,7 +257,7 @@ def _cmd_query(args: argparse.Namespace) -> int:
 
 def _add_build_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", required=True, help="build configuration (YAML)")
-    p.add_argument("--out", help="dataset folder (overrides output.dir)")
+    p.add_argument("--out", help="dataset folder or URL (s3://bucket/prefix; overrides output.dir)")
     p.add_argument("--workers", type=count(1), default=1, help="worker processes (default 1)")
     p.add_argument("--resume", action="store_true", help="keep finished shards of a killed build")
     p.add_argument(
@@ -341,11 +344,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_build)
 
     p = sub.add_parser("inspect", help="counts, failures and size of a built dataset")
-    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("dataset", help="dataset folder, or its URL (s3://bucket/prefix)")
     p.set_defaults(func=_cmd_inspect)
 
     p = sub.add_parser("verify", help="check every member's tar header, size and checksum")
-    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("dataset", help="dataset folder, or its URL (s3://bucket/prefix)")
     p.set_defaults(func=_cmd_verify)
 
     p = sub.add_parser(

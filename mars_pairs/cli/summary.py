@@ -7,9 +7,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from mars_pairs.errors import DatasetError
+from mars_pairs.store import fs
 from mars_pairs.store.dataset_info import read_dataset_doc
 from mars_pairs.store.query import Manifest
 
@@ -18,10 +18,6 @@ def _counts(title: str, values: Sequence[object]) -> list[str]:
     lines = [f"{title}:"]
     lines += [f"  {value!s:<24} {n:>8}" for value, n in sorted(Counter(values).items(), key=str)]
     return lines
-
-
-def _size(root: Path) -> int:
-    return sum(p.stat().st_size for p in root.rglob("*") if p.is_file())
 
 
 def split_warnings(dataset: str | Path) -> list[str]:
@@ -38,17 +34,18 @@ def split_warnings(dataset: str | Path) -> list[str]:
 
 
 def inspect_dataset(dataset: str | Path) -> str:
-    """A text report: counts by mission, sol, instrument and split; failures; size."""
-    root = Path(dataset)
+    """A text report: counts by mission, sol, instrument and split; failures; size.
+    ``dataset``: a local folder or an fsspec URL (``store.fs``)."""
+    root = fs.dataset_root(dataset)
     columns = ["mission", "sol", "instrument", "split"]
     manifest = Manifest.open(root).require(columns).to_table(columns=columns)
     lines = [f"dataset: {root}", f"samples: {manifest.num_rows}"]
     for name in ("mission", "instrument", "split", "sol"):
         lines += _counts(name, manifest.column(name).to_pylist())
-    failures_path = root / "failures.parquet"
-    if failures_path.is_file():
+    failures_path = fs.join(root, "failures.parquet")
+    if fs.is_file(failures_path):
         try:
-            failures = pq.read_table(failures_path, columns=["stage", "error_type"])
+            failures = fs.read_parquet(failures_path, columns=["stage", "error_type"])
         except (pa.ArrowException, OSError, KeyError) as exc:
             raise DatasetError(failures_path, None, f"unreadable: {exc}") from None
         reasons = [
@@ -62,5 +59,5 @@ def inspect_dataset(dataset: str | Path) -> str:
         lines.append(f"failures: {failures.num_rows}")
         lines += _counts("failures by reason", reasons)[1:] if reasons else []
     lines += [f"warning: {text}" for text in split_warnings(root)]
-    lines.append(f"size on disk: {_size(root) / 1e6:.1f} MB")
+    lines.append(f"size on disk: {fs.total_size(root) / 1e6:.1f} MB")
     return "\n".join(lines)

@@ -8,7 +8,8 @@ confined to the dataset folder, its bytes inside the shard, the tar header just 
 (name ``<key>.<field>...``, size equal to the manifest's), its bytes read in full and their
 CRC-32C against the manifest's ``<member>_crc32c``. Damage is reported per member, naming the
 shard and the member (per key for the manifest, per field for dataset.json); shards are
-read in file order, one open each.
+read in file order, one open each. ``DIR`` may be an fsspec URL (``s3://bucket/prefix``:
+``store.fs``): a shard is then read in order through one file object (range requests).
 """
 
 from __future__ import annotations
@@ -20,8 +21,9 @@ from pathlib import Path
 from typing import BinaryIO
 
 from mars_pairs.errors import DatasetError
+from mars_pairs.store import fs
 from mars_pairs.store.dataset_info import DATASET_JSON, read_dataset_info
-from mars_pairs.store.integrity import MemberSpec, check_member, repeated_keys, shard_path
+from mars_pairs.store.integrity import MemberSpec, check_member, repeated_keys, shard_location
 from mars_pairs.store.members import DENSE_FIELDS, MEMBERS
 from mars_pairs.store.query import Manifest
 
@@ -45,7 +47,7 @@ class Damage:
 class VerifyReport:
     """What ``verify_dataset`` checked and found."""
 
-    root: Path
+    root: Path | str
     members: int = 0
     shards: int = 0
     unchecked: int = 0  # members without a checksum (a dataset built before checksums)
@@ -65,7 +67,7 @@ class VerifyReport:
 def verify_dataset(root: str | Path) -> VerifyReport:
     """Check the dataset at ``root`` (see the module docstring). A manifest that cannot be
     read or lacks a location column raises DatasetError naming it and the column."""
-    root = Path(root)
+    root = fs.dataset_root(root)
     manifest = Manifest.open(root)
     names = set(manifest.schema.names)
     # the optional dense members (output.members) that this manifest locates
@@ -102,7 +104,7 @@ def verify_dataset(root: str | Path) -> VerifyReport:
     return report
 
 
-def _dataset_json_damage(root: Path) -> list[Damage]:
+def _dataset_json_damage(root: fs.Location) -> list[Damage]:
     try:
         read_dataset_info(root)
     except DatasetError as exc:
@@ -110,11 +112,13 @@ def _dataset_json_damage(root: Path) -> list[Damage]:
     return []
 
 
-def _verify_shard(root: Path, shard: str, specs: list[MemberSpec], report: VerifyReport) -> None:
+def _verify_shard(
+    root: fs.Location, shard: str, specs: list[MemberSpec], report: VerifyReport
+) -> None:
     report.members += len(specs)
     report.unchecked += sum(s.crc32c is None for s in specs)
     try:
-        fh = open(shard_path(root, shard), "rb")  # noqa: SIM115 - closed below
+        fh = fs.open_input(shard_location(root, shard))
     except DatasetError as exc:  # a shard path outside the dataset folder
         report.damage += [Damage(shard, s.name, exc.reason) for s in specs]
         return
@@ -122,7 +126,7 @@ def _verify_shard(root: Path, shard: str, specs: list[MemberSpec], report: Verif
         report.damage += [Damage(shard, s.name, f"cannot open: {exc}") for s in specs]
         return
     with fh:
-        size = os.fstat(fh.fileno()).st_size
+        size = os.fstat(fh.fileno()).st_size if isinstance(root, Path) else fh.size
         for spec in specs:
             try:
                 _, problem = check_member(spec, lambda o, n: _read(fh, o, n), size)

@@ -98,7 +98,7 @@ class OutputConfig:
     ``keep_parts``: keep ``parts/`` (the chunk parts and build stamp) after a finished build,
     so that deleting a chunk's part and resuming redoes that chunk alone."""
 
-    dir: Path
+    dir: Path | str  # a local folder, or an fsspec URL ("s3://bucket/prefix": store.fs)
     shard_size: int = 64
     image_encoding: str = "png"
     license: str | None = None
@@ -263,6 +263,17 @@ def _members(value: Any) -> tuple[str, ...]:
     return tuple(m for m in DENSE_MEMBERS if m in items)
 
 
+def _output_dir(out: Section, base: Path) -> Path | str:
+    """``output.dir``: an fsspec URL (``s3://bucket/prefix``, its trailing ``/`` removed) or a
+    local folder relative to ``base``."""
+    from mars_pairs.store.fs import dataset_root, is_url
+
+    value = out.raw("dir")
+    if is_url(value):
+        return dataset_root(value)
+    return out.path("dir", base)
+
+
 def _is_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
@@ -355,7 +366,7 @@ def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConf
             offset_m=offset_m,
         ),
         output=OutputConfig(
-            dir=out.path("dir", base),
+            dir=_output_dir(out, base),
             shard_size=out.integer("shard_size", 64),
             image_encoding=out.choice("image_encoding", IMAGE_ENCODINGS, "png"),
             license=license,

@@ -38,9 +38,9 @@ def splits_report(config: BuildConfig, manifest: pa.Table, dropped: int) -> dict
     """The split rule's buffer and reach, the buffer's count, the measured leak check and
     ``warnings``: a sentence per configured split left empty (each also an
     EmptySplitWarning, see ``store.splits.empty_split_warnings``)."""
-    import rasterio
+    from mars_pairs.raster.vsi import open_raster
 
-    with rasterio.open(config.inputs.dem) as src:
+    with open_raster(config.inputs.dem) as src:
         rule = split_rule(config, src.crs.to_wkt(), tuple(src.bounds), src.res)
     in_buffer = int(pc.sum(pc.equal(manifest["split"], BUFFER)).as_py() or 0)
     counts = Counter(manifest["split"].to_pylist())

@@ -30,6 +30,7 @@ from mars_pairs.geometry.frames import crs_string
 from mars_pairs.kernels.resample import sample_affine
 from mars_pairs.raster.grid import NorthUp
 from mars_pairs.raster.transfer import sample_at
+from mars_pairs.raster.vsi import open_raster
 
 #: Most pixels ``ChipReader.read_points`` holds at once (a strip of its window).
 POINT_STRIP_PIXELS = 1 << 22
@@ -156,7 +157,7 @@ class ChipReader:
     def __init__(self, path: str | Path) -> None:
         self.path = str(path)
         try:
-            self.dataset = rasterio.open(self.path)
+            self.dataset = open_raster(self.path)
         except rasterio.errors.RasterioError as exc:
             raise TerrainError(f"{self.path}: cannot open the raster: {exc}") from None
         try:

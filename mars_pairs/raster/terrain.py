@@ -35,6 +35,7 @@ from mars_pairs.errors import TerrainError
 from mars_pairs.geometry.frames import MARS_LONLAT, crs_string, map_to_map
 from mars_pairs.raster.crs import check_map_crs
 from mars_pairs.raster.grid import NorthUp
+from mars_pairs.raster.vsi import open_raster
 
 Bounds = tuple[float, float, float, float]
 
@@ -394,7 +395,7 @@ class Terrain:
 def _open_raster(path: str, what: str) -> Any:
     """rasterio.open with a TerrainError naming the file on failure."""
     try:
-        return rasterio.open(path)
+        return open_raster(path)
     except rasterio.errors.RasterioIOError as exc:
         raise TerrainError(f"{path}: cannot open {what}: {exc}") from exc
 

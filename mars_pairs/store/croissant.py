@@ -80,10 +80,12 @@ def croissant_type(t: pa.DataType) -> str | None:
     return None
 
 
-def sha256_of(path: Path) -> str:
-    """The hex SHA-256 of a file's bytes."""
+def sha256_of(path: Path | str) -> str:
+    """The hex SHA-256 of a file's bytes (a local path or an fsspec URL: ``store.fs``)."""
+    from mars_pairs.store import fs
+
     h = hashlib.sha256()
-    with open(path, "rb") as fh:
+    with fs.open_input(path if isinstance(path, str) and fs.is_url(path) else Path(path)) as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()

@@ -5,7 +5,7 @@ is no default stride to fall back on.
 Every reader of a dataset folder's ``dataset.json`` goes through this module:
 :func:`read_dataset_info` (the torch datasets, ``verify``), :func:`read_dataset_doc` (the whole
 document: the report, the overview, the query, the summary) and :func:`dataset_crs` (the QGIS
-export)."""
+export). A dataset root may be a local folder or an fsspec URL (``store.fs``)."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from mars_pairs.errors import DatasetError
+from mars_pairs.store import fs
 
 #: the file's name in a dataset folder
 DATASET_JSON = "dataset.json"
@@ -29,7 +30,7 @@ class DatasetInfo:
     ``chip_px`` (chip side in pixels; None when absent), ``ray_stride`` (ground-image pixels
     between rays, >= 1) and the whole document."""
 
-    path: Path
+    path: Path | str
     crs: str | None
     chip_px: int | None
     ray_stride: int
@@ -42,10 +43,10 @@ def _positive_int(value: Any) -> int | None:
     return value
 
 
-def _load(path: Path) -> dict[str, Any]:
+def _load(path: fs.Location) -> dict[str, Any]:
     """The JSON object in ``path``; DatasetError naming it when unreadable or not an object."""
     try:
-        doc = json.loads(path.read_text())
+        doc = json.loads(fs.read_bytes(path))
     except (OSError, ValueError) as exc:
         raise DatasetError(path, None, f"unreadable: {exc}") from None
     if not isinstance(doc, dict):
@@ -58,11 +59,16 @@ def dataset_json_path(root: str | Path) -> Path:
     return Path(root) / DATASET_JSON
 
 
-def _load_required(root: str | Path) -> tuple[Path, dict[str, Any]]:
+def _location(root: str | Path) -> fs.Location:
+    """The dataset.json of the dataset root ``root``: a local folder or a URL (``store.fs``)."""
+    return fs.join(fs.dataset_root(root), DATASET_JSON)
+
+
+def _load_required(root: str | Path) -> tuple[fs.Location, dict[str, Any]]:
     """(path, document) of the dataset.json of ``root``; DatasetError naming it when it is
     missing, unreadable or not a JSON object."""
-    path = dataset_json_path(root)
-    if not path.exists():
+    path = _location(root)
+    if not fs.exists(path):
         reason = "missing (it holds the ray stride, CRS and chip size: rebuild or restore it)"
         raise DatasetError(path, None, reason)
     return path, _load(path)
@@ -104,8 +110,8 @@ def read_dataset_doc(root: str | Path) -> dict[str, Any]:
     """The whole dataset.json document of the dataset folder ``root``, for readers that work
     without it (the pictures, the report): {} when the file is absent; DatasetError naming the
     file when it is unreadable or not a JSON object."""
-    path = dataset_json_path(root)
-    return _load(path) if path.exists() else {}
+    path = _location(root)
+    return _load(path) if fs.exists(path) else {}
 
 
 def build_input(root: str | Path, doc: dict[str, Any], name: str) -> Path | None:

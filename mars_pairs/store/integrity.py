@@ -30,6 +30,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from mars_pairs.errors import DatasetError
+from mars_pairs.store.fs import Location, is_url, join
 
 #: a tar block: every member's data starts this many bytes after its header's start
 BLOCK = tarfile.BLOCKSIZE
@@ -60,6 +61,19 @@ def shard_path(root: Path, shard: str, member: str | None = None) -> Path:
     if not stat.S_ISREG(mode):
         raise DatasetError(path, member, "shard path is not a regular file")
     return resolved
+
+
+def shard_location(root: Location, shard: str, member: str | None = None) -> Location:
+    """The file of the manifest's shard path ``shard`` in the dataset root ``root``: for a
+    local folder :func:`shard_path`; for a URL (object storage: no links, no folders) the
+    object under ``root``, ``shard`` checked as relative and without ``..`` (DatasetError
+    naming the shard and ``member``)."""
+    if isinstance(root, Path) or not is_url(root):
+        return shard_path(Path(root), shard, member)
+    problem = _path_problem(shard)
+    if problem is not None:
+        raise DatasetError(shard, member, problem)
+    return join(root, shard)
 
 
 def _path_problem(shard: object) -> str | None:

@@ -13,6 +13,7 @@ import pyarrow as pa
 
 from mars_pairs.errors import DatasetError
 from mars_pairs.geometry.body import MARS_RADIUS_M, great_circle_m
+from mars_pairs.store import fs
 from mars_pairs.store.columns import RENAMED, canonical_names, rename_to, stored_name, warn_renamed
 from mars_pairs.store.filter_args import geometry, integers, numbers, shapely_module, strings
 from mars_pairs.store.manifest import CORE_COLUMNS
@@ -26,16 +27,23 @@ class Manifest:
 
     >>> m = Manifest.open("out/demo/dataset").filter(near=(18.44, 77.45, 500.0), split="train")
     >>> len(m), m.to_pandas()
+
+    ``root``: a local folder or an fsspec URL (``s3://bucket/prefix``: ``store.fs``).
     """
 
     def __init__(
-        self, root: Path, expression: Any = None, exact: tuple[Any, ...] = (), dataset: Any = None
+        self,
+        root: Path | str,
+        expression: Any = None,
+        exact: tuple[Any, ...] = (),
+        dataset: Any = None,
     ) -> None:
         import pyarrow.dataset as ds
 
-        self.root = Path(root)
+        self.root = fs.dataset_root(root)
         if dataset is None:  # filtered Manifests share their parent's (footer read once)
-            dataset = ds.dataset(self.root / "manifest.parquet", format="parquet")
+            source, filesystem = fs.parquet_source(fs.join(self.root, "manifest.parquet"))
+            dataset = ds.dataset(source, format="parquet", filesystem=filesystem)
         self._dataset = dataset
         self._expression = expression
         self._exact = exact  # callables table -> boolean mask, applied after the scan
@@ -45,12 +53,13 @@ class Manifest:
         """The manifest of a built dataset folder."""
         import pyarrow.dataset as ds
 
-        root = Path(root)
-        path = root / "manifest.parquet"
-        if not path.is_file():
+        root = fs.dataset_root(root)
+        path = fs.join(root, "manifest.parquet")
+        if not fs.is_file(path):
             raise DatasetError(root, None, "no manifest.parquet (not a mars-pairs dataset)")
         try:
-            dataset = ds.dataset(path, format="parquet")
+            source, filesystem = fs.parquet_source(path)
+            dataset = ds.dataset(source, format="parquet", filesystem=filesystem)
             dataset.schema.field("key")
         except (pa.ArrowException, OSError) as exc:
             raise DatasetError(path, None, f"unreadable Parquet: {exc}") from None
@@ -63,7 +72,7 @@ class Manifest:
         names = set(self.column_names)  # a dataset built before a rename has the new names
         missing = [c for c in columns if RENAMED.get(c, c) not in names]
         if missing:
-            path = self.root / "manifest.parquet"
+            path = fs.join(self.root, "manifest.parquet")
             raise DatasetError(path, missing[0], f"no such column ({len(missing)} missing)")
         return self
 
@@ -194,7 +203,7 @@ class Manifest:
         try:
             table = self._dataset.to_table(columns=needed, filter=self._expression)
         except (pa.ArrowException, OSError) as exc:  # a damaged file or a missing column
-            raise DatasetError(self.root / "manifest.parquet", None, str(exc)) from None
+            raise DatasetError(fs.join(self.root, "manifest.parquet"), None, str(exc)) from None
         for predicate in self._exact:
             table = table.filter(predicate(table))
         if columns is None:
@@ -210,7 +219,8 @@ class Manifest:
             try:
                 return int(self._dataset.count_rows(filter=self._expression))
             except (pa.ArrowException, OSError) as exc:
-                raise DatasetError(self.root / "manifest.parquet", None, str(exc)) from None
+                where = fs.join(self.root, "manifest.parquet")
+                raise DatasetError(where, None, str(exc)) from None
         return int(self.to_table(columns=["key"]).num_rows)
 
 

@@ -52,6 +52,7 @@ from mars_pairs.errors import (
 )
 from mars_pairs.store.dataset_info import read_dataset_info
 from mars_pairs.store.filter_args import check_split_names, configured_splits, sample_index
+from mars_pairs.store.fs import Location, dataset_root, join
 from mars_pairs.store.integrity import MemberSpec, check_member, repeated_keys
 from mars_pairs.store.manifest import SUMMARY_COLUMNS
 from mars_pairs.store.member_index import MemberIndex
@@ -120,14 +121,14 @@ def _check_fields(fields: Sequence[str]) -> tuple[str, ...]:
     return tuple(fields)
 
 
-def _refuse_duplicate_keys(root: Path, table: pa.Table) -> None:
+def _refuse_duplicate_keys(root: Location, table: pa.Table) -> None:
     """DatasetError naming the manifest and the first key (in key order) that more than one
     row holds."""
     repeated = repeated_keys(table["key"])
     if repeated:
         key, count = repeated[0]
         raise DatasetError(
-            root / "manifest.parquet",
+            join(root, "manifest.parquet"),
             key,
             f"{count} rows hold this key ({len(repeated)} keys repeated)",
         )
@@ -144,7 +145,8 @@ class MarsPairsDataset(Dataset):
     (tar header, size, CRC-32C; see the module docstring): one extra 512-byte read per member.
     A ``split`` the dataset does not know (dataset.json's split config and counts) is an
     ArgumentError listing the known ones; a known split without samples gives 0 rows.
-    Use as a context manager, or call :meth:`close`.
+    Use as a context manager, or call :meth:`close`. ``root`` is a local folder or an fsspec
+    URL (``s3://bucket/prefix``: ``store.fs``; each member one range request).
     """
 
     def __init__(
@@ -165,7 +167,7 @@ class MarsPairsDataset(Dataset):
             raise ArgumentError(f"unknown filter argument(s) {sorted(unknown)}")
         if transform is not None and not callable(transform):
             raise ArgumentError(f"transform: expected a callable, got {transform!r}")
-        self.root = Path(root)
+        self.root = dataset_root(root)
         self.fields = _check_fields(fields)
         self.transform = transform
         self.ground_size = _ground_size(ground_size)
@@ -281,7 +283,21 @@ class MarsPairsDataset(Dataset):
             raise DatasetError(exc.path, self.member_name(index, field), exc.reason) from None
         except OSError as exc:
             name = self.member_name(index, field)
-            raise DatasetError(self.root / shard, name, f"cannot read: {exc}") from None
+            raise DatasetError(join(self.root, shard), name, f"cannot read: {exc}") from None
+
+    def _prefetched(self, index: int) -> dict[str, bytes | bytearray]:
+        """On object storage, the bytes of sample ``index``'s fields (and ``meta`` with
+        ``localization``) in one concurrent batch of range requests (not checked); {} for a
+        local dataset (each member is read as it is decoded)."""
+        if not self._files.remote:
+            return {}
+        names = [*self.fields, *(["meta"] if self.localization else [])]
+        requests = [self._index.location(index, name) for name in names]
+        try:
+            datas = self._files.read_many(requests)
+        except (DatasetError, OSError):  # read one by one: the error names the member
+            return {}
+        return dict(zip(names, datas, strict=True))
 
     def _verified(self, index: int) -> dict[str, bytes | bytearray]:
         """Every member of sample ``index`` checked as ``mars-pairs verify`` does
@@ -312,9 +328,9 @@ class MarsPairsDataset(Dataset):
             except DatasetError as exc:
                 raise DatasetError(exc.path, name, exc.reason) from None
             except OSError as exc:
-                raise DatasetError(self.root / shard, name, f"cannot read: {exc}") from None
+                raise DatasetError(join(self.root, shard), name, f"cannot read: {exc}") from None
             if problem is not None:
-                raise DatasetError(self.root / shard, name, problem)
+                raise DatasetError(join(self.root, shard), name, problem)
             if field in wanted:
                 assert data is not None  # check_member: the bytes when there is no problem
                 out[field] = data
@@ -324,21 +340,21 @@ class MarsPairsDataset(Dataset):
         """Sample ``index``'s fields decoded (stage 1) and its localization targets (none
         without ``localization``); every member read once."""
         raw = {}
-        verified = self._verified(index) if self.verify else {}
+        verified = self._verified(index) if self.verify else self._prefetched(index)
         for name in self.fields:
-            data = verified[name] if self.verify else self._bytes(index, name)
+            data = verified[name] if name in verified else self._bytes(index, name)
             try:
                 raw[name] = decode_raw(name, data, self.ground_size, self.normalize_dem)
             except (OSError, ValueError, SyntaxError, EOFError) as exc:  # PIL, numpy headers
                 shard = self._index.location(index, name)[0]
                 raise DatasetError(
-                    self.root / shard,
+                    join(self.root, shard),
                     self.member_name(index, name),
                     f"cannot decode: {type(exc).__name__}: {exc}",
                 ) from None
         if not self.localization:
             return raw, {}
-        meta = verified["meta"] if self.verify else self._bytes(index, "meta")
+        meta = verified["meta"] if "meta" in verified else self._bytes(index, "meta")
         return raw, self._localization(index, meta)
 
     def _georef(self, index: int, raw: dict[str, np.ndarray]) -> dict[str, Any]:
@@ -396,7 +412,7 @@ class MarsPairsDataset(Dataset):
             values = {k: meta[k] for k in ("rover_px", "camera_px", "heading_deg")}
         except (ValueError, KeyError) as exc:
             raise DatasetError(
-                self.root / self._index.location(index, "meta")[0],
+                join(self.root, self._index.location(index, "meta")[0]),
                 self.member_name(index, "meta"),
                 f"no localization targets ({exc}): build with chips.offset_m or output.members",
             ) from None

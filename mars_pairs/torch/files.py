@@ -1,5 +1,5 @@
 """Shard files opened lazily per process, with positioned reads confined to the dataset
-folder and to each file's size."""
+folder and to each file's size; on object storage (a URL root), one range request a read."""
 
 from __future__ import annotations
 
@@ -10,7 +10,8 @@ from pathlib import Path
 from typing import Any
 
 from mars_pairs.errors import DatasetError
-from mars_pairs.store.integrity import bounds_problem, shard_path
+from mars_pairs.store import fs
+from mars_pairs.store.integrity import bounds_problem, shard_location, shard_path
 
 
 class ShardFiles:
@@ -21,10 +22,13 @@ class ShardFiles:
     A shard path that is not confined to ``root`` (:func:`~mars_pairs.store.integrity.
     shard_path`) and a read past a shard's end raise DatasetError naming the shard (no
     member: the caller adds it) before anything is read or allocated; I/O errors are OSError.
+    A dataset on object storage (``root`` a URL: ``store.fs``) holds no descriptors: each
+    read is one range request (fsspec), each shard's size is asked once.
     """
 
-    def __init__(self, root: Path, max_open: int = 64) -> None:
+    def __init__(self, root: fs.Location, max_open: int = 64) -> None:
         self.root = root
+        self._remote = not isinstance(root, Path)
         self.max_open = max_open
         self._pid = -1
         self._files: OrderedDict[str, tuple[int, int]] = OrderedDict()
@@ -34,10 +38,13 @@ class ShardFiles:
         if self._pid != os.getpid():  # inherited through fork: the parent's, leave them be
             self._files, self._pid = OrderedDict(), os.getpid()
         entry = self._files.get(shard)
-        if entry is None:
+        if entry is None and self._remote:
+            size = fs.size(shard_location(self.root, shard))
+            entry = self._files[shard] = (-1, size)
+        elif entry is None:
             while len(self._files) >= self.max_open:
                 os.close(self._files.popitem(last=False)[1][0])
-            fd = os.open(shard_path(self.root, shard), os.O_RDONLY)
+            fd = os.open(shard_path(Path(self.root), shard), os.O_RDONLY)
             entry = self._files[shard] = (fd, os.fstat(fd).st_size)
         else:
             self._files.move_to_end(shard)
@@ -52,7 +59,13 @@ class ShardFiles:
         fd, shard_size = self._fd(shard)
         problem = bounds_problem(offset, size, shard_size)
         if problem is not None:
-            raise DatasetError(self.root / shard, None, problem)
+            raise DatasetError(fs.join(self.root, shard), None, problem)
+        if self._remote:
+            data = fs.read_range(shard_location(self.root, shard), offset, size)
+            if len(data) != size:
+                where = fs.join(self.root, shard)
+                raise OSError(f"{where}: short read at offset {offset}")
+            return bytearray(data)
         buf = bytearray(size)
         view, done = memoryview(buf), 0
         while done < size:
@@ -64,15 +77,38 @@ class ShardFiles:
                 view[done : done + len(chunk)] = chunk
                 n = len(chunk)
             if n <= 0:
-                raise OSError(f"{self.root / shard}: short read at offset {offset}")
+                raise OSError(f"{fs.join(self.root, shard)}: short read at offset {offset}")
             done += n
         return buf
+
+    @property
+    def remote(self) -> bool:
+        """Whether the shards are on object storage (``root`` a URL)."""
+        return self._remote
+
+    def read_many(self, requests: list[tuple[str, int, int]]) -> list[bytearray]:
+        """``read`` of each ``(shard, offset, size)`` of ``requests``, in order; on object
+        storage one concurrent batch of range requests (``store.fs.read_ranges``)."""
+        if not self._remote:
+            return [self.read(shard, offset, size) for shard, offset, size in requests]
+        urls = []
+        for shard, offset, size in requests:
+            problem = bounds_problem(offset, size, self._fd(shard)[1])
+            if problem is not None:
+                raise DatasetError(fs.join(self.root, shard), None, problem)
+            urls.append((str(shard_location(self.root, shard)), offset, size))
+        out = [bytearray(data) for data in fs.read_ranges(urls)]
+        for (shard, offset, size), data in zip(requests, out, strict=True):
+            if len(data) != size:
+                raise OSError(f"{fs.join(self.root, shard)}: short read at offset {offset}")
+        return out
 
     def close(self) -> None:
         """Close this process's descriptors."""
         if self._pid == os.getpid():
             for fd, _ in self._files.values():
-                os.close(fd)
+                if fd >= 0:
+                    os.close(fd)
         self._files = OrderedDict()
 
     def __del__(self) -> None:
@@ -80,7 +116,13 @@ class ShardFiles:
             self.close()
 
     def __getstate__(self) -> dict[str, Any]:
-        return {"root": self.root, "max_open": self.max_open, "_pid": -1, "_files": {}}
+        return {
+            "root": self.root,
+            "max_open": self.max_open,
+            "_remote": self._remote,
+            "_pid": -1,
+            "_files": {},
+        }
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state, _files=OrderedDict())

@@ -15,27 +15,17 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-import yaml
-from mission_inputs import mission_inputs
+from support.builds import build_small
+from support.members import manifest_keys
 
 from mars_pairs.cli.main import main
-from mars_pairs.pipeline.build.run import run_build
-from mars_pairs.pipeline.config import load_config
 
 
 @pytest.fixture(scope="module")
 def built(small_mission: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    tmp = tmp_path_factory.mktemp("built")
-    doc = {
-        "inputs": mission_inputs(small_mission),
-        "geometry": {"radius": 300, "ray_stride": 32},
-        "chips": {"size_m": 64, "size_px": 32},
-        "output": {"dir": str(tmp / "ds"), "shard_size": 2},
-        "splits": {"block_m": 100},
-    }
-    (tmp / "c.yaml").write_text(yaml.safe_dump(doc))
-    assert run_build(load_config(tmp / "c.yaml"), progress=False).samples == 4
-    return tmp / "ds"
+    out = build_small(small_mission, tmp_path_factory.mktemp("built") / "ds")
+    assert len(manifest_keys(out)) == 4
+    return out
 
 
 @pytest.fixture()

@@ -165,7 +165,7 @@ def test_label_frustum_mask_is_inside_the_image_and_band_is_the_studys(
 
     Checked with the independent truth (label fields, numpy + pyproj; no mars_pairs code).
     """
-    import independent_truth as truth
+    from support import independent_truth as truth
 
     dem = write_dem(tmp_path / "dem.tif", ROVER_XY, fractal_slope(1200))
     counts, inside = {}, {}

@@ -6,7 +6,6 @@ from __future__ import annotations
 import io
 import json
 import warnings
-from contextlib import redirect_stdout
 from pathlib import Path
 
 import pyarrow as pa
@@ -14,51 +13,15 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 import pytest
 import yaml
-from mission_inputs import mission_inputs
+from support.builds import cli_built_dataset
 
 from mars_pairs.cli.main import build_parser, main
 from mars_pairs.errors import ArgumentError, SampleKeyError
 
 
-def built_dataset(base: Path, mission: Path) -> Path:
-    """A 4-sample dataset of ``mission`` (2 stops x 2 images) built once per test run by
-    ``mars-pairs build`` (its stdout in ``../build.out``): cross-area splits holding out a
-    20 m box around the last stop (``test``), the first stop within the buffer zone, so no
-    sample is ``train``."""
-    work = base / "first-minutes"
-    root = work / "ds"
-    if (root / "dataset.json").is_file():
-        return root
-    work.mkdir(exist_ok=True)
-    truth = pq.read_table(mission / "truth.parquet").to_pylist()
-    last = max(truth, key=lambda r: r["stop"])
-    first = min(truth, key=lambda r: r["stop"])
-    x, y = last["easting"], last["northing"]
-    apart = ((x - first["easting"]) ** 2 + (y - first["northing"]) ** 2) ** 0.5
-    doc = {
-        "inputs": mission_inputs(mission),
-        "geometry": {"radius": 400, "ray_stride": 16},
-        "chips": {"size_m": 128, "size_px": 128},
-        "output": {"dir": str(root), "shard_size": 2},
-        "splits": {
-            "style": "cross-area",
-            "guard": "chip",
-            "buffer_m": max(5.0, apart),
-            "areas": {"test": [[x - 10, y - 10, x + 10, y + 10]]},
-        },
-    }
-    config = work / "c.yaml"
-    config.write_text(yaml.safe_dump(doc))
-    out = io.StringIO()
-    with redirect_stdout(out):
-        assert main(["build", "--config", str(config), "--quiet"]) == 0
-    (work / "build.out").write_text(out.getvalue())
-    return root
-
-
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory: pytest.TempPathFactory, small_mission: Path) -> Path:
-    return built_dataset(tmp_path_factory.getbasetemp(), small_mission)
+    return cli_built_dataset(tmp_path_factory.getbasetemp(), small_mission)
 
 
 def rows(root: Path) -> list[dict]:

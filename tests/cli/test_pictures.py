@@ -3,14 +3,13 @@ panels carry scale bars, the overview names its CRS and axes and draws the held-
 
 from __future__ import annotations
 
-import json
-import tarfile
 from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from test_first_minutes import built_dataset
+from support.builds import cli_built_dataset
+from support.members import metas
 
 from mars_pairs.viz.common import SPLIT_COLOURS
 
@@ -19,17 +18,11 @@ pytest.importorskip("matplotlib")
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory: pytest.TempPathFactory, small_mission: Path) -> Path:
-    return built_dataset(tmp_path_factory.getbasetemp(), small_mission)
+    return cli_built_dataset(tmp_path_factory.getbasetemp(), small_mission)
 
 
 def meta_json(root: Path, key: str) -> dict:
-    for shard in sorted((root / "shards").glob("*.tar")):
-        with tarfile.open(shard) as tar:
-            try:
-                return json.load(tar.extractfile(f"{key}.meta.json"))
-            except KeyError:
-                continue
-    raise AssertionError(f"{key}.meta.json not in any shard")
+    return metas(root)[key]
 
 
 def test_the_wedge_starts_at_the_camera_centre() -> None:

@@ -11,9 +11,9 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import rasterio
-from built_dataset import build_small
 from PIL import Image
 from pyproj import CRS
+from support.builds import build_small
 
 from mars_pairs.cli import main
 from mars_pairs.store.shards import MemberLocation, read_member

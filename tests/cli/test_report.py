@@ -28,13 +28,13 @@ from typing import Any
 import pyarrow.parquet as pq
 import pytest
 import yaml
-from mission_inputs import mission_inputs
 from PIL import Image
+from support.configs import config_file, mission_inputs
+from support.missions import MissionCache
 
 from mars_pairs.cli.main import main
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
-from mars_pairs.synth import generate_mission
 
 pytest.importorskip("matplotlib")
 
@@ -42,25 +42,21 @@ BROKEN = ("ZZ_truncated.xml", "ZZ_random.xml")
 
 
 @pytest.fixture(scope="module")
-def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def dataset(missions: MissionCache, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """4 samples (2 stops x 2 images 26 m apart), the first stop in a held-out test area,
     and 2 broken labels (failures)."""
     tmp = tmp_path_factory.mktemp("report")
-    mission = tmp / "mission"
-    generate_mission(mission, seed=5, mission="m2020", stops=2, images_per_stop=2, size="small")
+    mission = missions.copy(tmp / "mission", seed=5, stops=2, images_per_stop=2)
     labels = mission / "labels"
     text = sorted(labels.glob("*.xml"))[0].read_text()
     (labels / BROKEN[0]).write_text(text[: len(text) // 2])
     (labels / BROKEN[1]).write_bytes(bytes(range(256)) * 2)
-    doc = {
-        "inputs": mission_inputs(mission),
-        "geometry": {"radius": 400, "ray_stride": 16},
-        "chips": {"size_m": 24, "size_px": 64},
-        "output": {"dir": str(tmp / "ds"), "shard_size": 2},
-        "splits": {"style": "cross-area", "areas": {"test": [first_stop_box(mission, 3.0)]},
-                   "guard": "chip", "buffer_m": 1},
-    }  # fmt: skip
-    (tmp / "c.yaml").write_text(yaml.safe_dump(doc))
+    splits = {"style": "cross-area", "areas": {"test": [first_stop_box(mission, 3.0)]},
+              "guard": "chip", "buffer_m": 1}  # fmt: skip
+    config_file(
+        tmp / "c.yaml", mission, tmp / "ds", fine=True, geometry={"radius": 400},
+        chips={"size_m": 24, "size_px": 64}, output={"shard_size": 2}, whole={"splits": splits},
+    )  # fmt: skip
     summary = run_build(load_config(tmp / "c.yaml"), workers=1, progress=False)
     assert summary.samples == 4 and summary.failures == len(BROKEN)
     return tmp / "ds"

@@ -9,43 +9,25 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pyarrow.parquet as pq
 import pytest
-import yaml
-from mission_inputs import mission_inputs
 from PIL import Image
 from pyproj import CRS
+from support.builds import build
+from support.members import manifest_rows as rows_of
+from support.missions import MissionCache
 
 from mars_pairs.cli.main import main
-from mars_pairs.pipeline.build.run import run_build
-from mars_pairs.pipeline.config import load_config
 from mars_pairs.store.shards import MemberLocation, read_member
-from mars_pairs.synth import generate_mission
 
 pytest.importorskip("matplotlib")
 
 
 @pytest.fixture(scope="module")
-def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def dataset(missions: MissionCache, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A 4-sample dataset (2 stops x 2 images) with small chips and a coarse ray stride."""
-    tmp = tmp_path_factory.mktemp("viz")
-    mission = tmp / "mission"
-    generate_mission(mission, seed=5, mission="m2020", stops=2, images_per_stop=2, size="small")
-    doc = {
-        "inputs": mission_inputs(mission),
-        "geometry": {"radius": 400, "ray_stride": 16},
-        "chips": {"size_m": 128, "size_px": 128},
-        "output": {"dir": str(tmp / "ds"), "shard_size": 2},
-        "splits": {"block_m": 100},
-    }
-    (tmp / "c.yaml").write_text(yaml.safe_dump(doc))
-    summary = run_build(load_config(tmp / "c.yaml"), workers=1, progress=False)
-    assert summary.failures == 0
-    return tmp / "ds"
-
-
-def rows_of(root: Path) -> list[dict]:
-    return sorted(pq.read_table(root / "manifest.parquet").to_pylist(), key=lambda r: r["key"])
+    mission = missions(seed=5, stops=2, images_per_stop=2)
+    out = tmp_path_factory.mktemp("viz") / "ds"
+    return build(mission, out, fine=True, geometry={"radius": 400}, output={"shard_size": 2})
 
 
 def dataset_crs(root: Path) -> CRS:

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import fetch_archive
 import pytest
-from fetch_server import ArchiveServer
+from support import fetch_archive
+from support.fetch_server import ArchiveServer
 
 
 @pytest.fixture()

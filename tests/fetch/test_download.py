@@ -6,10 +6,10 @@ import hashlib
 import os
 from pathlib import Path, PurePosixPath
 
-import fetch_server
 import numpy as np
 import pytest
 import requests
+from support import fetch_server
 
 from mars_pairs.errors import FetchError
 from mars_pairs.fetch.cache import Cache, archive_path

@@ -4,43 +4,19 @@ from __future__ import annotations
 
 import hashlib
 import shutil
-from pathlib import Path
 
-import fetch_archive
 import pyarrow.parquet as pq
 import pytest
 import yaml
-from fetch_server import ArchiveServer
+from support import fetch_archive
+from support.fetch_archive import write_config
+from support.fetch_server import ArchiveServer
 
 from mars_pairs.errors import ConfigError
 from mars_pairs.fetch.config import load_fetch_config
 from mars_pairs.fetch.products import ProductFilter
 from mars_pairs.fetch.run import FAILURES, fetch_products
 from mars_pairs.pds import read_observation
-
-
-def write_config(tmp: Path, url: str, mission: str, **products) -> Path:
-    """A build config whose fetch section points at the loopback archive."""
-    if mission == "msl":
-        prod = {"mission": "msl", "archive": f"{url}/msl", "volumes": ["MSLMST_0001"]}
-        places = {"archive": f"{url}/msl", "path": fetch_archive.MSL_PLACES}
-    else:
-        prod = {
-            "mission": "m2020",
-            "archive": f"{url}/mars2020",
-            "bundle": fetch_archive.M2020_BUNDLE,
-            "label_path": fetch_archive.LABEL_TEMPLATE,
-        }
-        places = {"archive": f"{url}/mars2020", "path": fetch_archive.M2020_PLACES}
-    prod.update(products)
-    doc = {
-        "fetch": {"cache": "cache", "retries": 1, "backoff_s": 0.01, "timeout_s": 0.5,
-                  "workers": 2, "products": prod, "places": places},
-        "geometry": {"radius": 200},
-    }  # fmt: skip
-    path = tmp / f"{mission}.yaml"
-    path.write_text(yaml.safe_dump(doc))
-    return path
 
 
 def _gets(srv: ArchiveServer, suffix: str) -> list[str]:

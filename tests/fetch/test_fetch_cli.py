@@ -10,10 +10,10 @@ import sys
 import time
 from pathlib import Path
 
-import fetch_archive
 import yaml
-from fetch_server import ArchiveServer
-from test_fetch_archive import write_config
+from support import fetch_archive
+from support.fetch_archive import write_config
+from support.fetch_server import ArchiveServer
 
 from mars_pairs.cli.main import main
 from mars_pairs.fetch.config import load_fetch_config

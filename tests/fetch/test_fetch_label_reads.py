@@ -15,10 +15,9 @@ from collections import Counter
 from dataclasses import replace
 from pathlib import Path, PurePosixPath
 
-import fetch_archive
-import fetch_server
 import pytest
-from test_fetch_archive import write_config
+from support import fetch_archive, fetch_server
+from support.fetch_archive import write_config
 
 from mars_pairs.errors import FetchError
 from mars_pairs.fetch.cache import Cache

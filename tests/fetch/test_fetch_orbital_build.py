@@ -9,7 +9,7 @@ import rasterio
 import yaml
 from pyproj import Transformer
 from rasterio.windows import from_bounds
-from test_fetch_archive import write_config
+from support.fetch_archive import write_config
 
 from mars_pairs.fetch.config import load_fetch_config
 from mars_pairs.fetch.orbital import cut_planned, rover_positions, source_info

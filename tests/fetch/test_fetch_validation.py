@@ -20,13 +20,13 @@ import time
 from dataclasses import replace
 from pathlib import Path, PurePosixPath
 
-import fetch_archive
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from fetch_server import ArchiveServer
 from lxml import etree
-from test_fetch_archive import write_config
+from support import fetch_archive
+from support.fetch_archive import write_config
+from support.fetch_server import ArchiveServer
 
 from mars_pairs.errors import FetchError
 from mars_pairs.fetch.cache import Cache

@@ -15,8 +15,8 @@ import pytest
 import rasterio
 import yaml
 from affine import Affine
-from fetch_server import ArchiveServer
 from pyproj import CRS
+from support.fetch_server import ArchiveServer
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import FetchError

@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-import replica_archive as replica
 import yaml
-from fetch_server import ArchiveServer
+from support import replica_archive as replica
+from support.fetch_server import ArchiveServer
 
 from mars_pairs.geometry.places import Places
 from mars_pairs.pds import read_observation

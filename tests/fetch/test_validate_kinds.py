@@ -9,12 +9,12 @@ import io
 import shutil
 from pathlib import Path
 
-import fetch_archive
 import numpy as np
 import pytest
 import rasterio
 from PIL import Image
 from rasterio.transform import from_origin
+from support import fetch_archive
 
 from mars_pairs.fetch.validate import (
     KINDS,

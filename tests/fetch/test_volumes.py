@@ -6,12 +6,12 @@ from __future__ import annotations
 import shutil
 from pathlib import Path, PurePosixPath
 
-import fetch_archive
 import pyarrow.parquet as pq
 import pytest
 import yaml
-from fetch_server import ArchiveServer
-from test_fetch_archive import write_config
+from support import fetch_archive
+from support.fetch_archive import write_config
+from support.fetch_server import ArchiveServer
 
 from mars_pairs.errors import ConfigError, FetchError
 from mars_pairs.fetch.config import load_fetch_config

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from real_samples import sample_labels
+from support.real_samples import sample_labels
 
 from mars_pairs.geometry.locate import model_pointing_deg
 from mars_pairs.geometry.mapcam import MapCamera

@@ -20,40 +20,33 @@ import json
 import tarfile
 from pathlib import Path
 
-import independent_truth as truth
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from PIL import Image
+from support import independent_truth as truth
+from support.configs import build_config
+from support.missions import MissionCache
 
 from mars_pairs.pipeline.build.run import run_build
-from mars_pairs.pipeline.config import parse_config
-from mars_pairs.synth import generate_mission
 
 STRIDE = 16
 RADIUS_M = 600.0
 
 
 @pytest.fixture(scope="module")
-def built(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    root = tmp_path_factory.mktemp("truth")
-    mission = root / "mission"
-    generate_mission(mission, seed=11, mission="both", stops=2, images_per_stop=3, size="small")
-    out = root / "dataset"
+def built(missions: MissionCache, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    mission = missions(seed=11, mission="both", stops=2, images_per_stop=3)
+    out = tmp_path_factory.mktemp("truth") / "dataset"
     for name in ("m2020", "msl"):
         sub = mission / name if (mission / name).is_dir() else mission
-        doc = {
-            "inputs": {
-                "labels": str(sub / "labels" / ("*.xml" if name == "m2020" else "*.LBL")),
-                "places": str(next((sub / "places").glob("*.csv"))),
-                "dem": str(sub / "orbital" / "dem.tif"),
-                "ortho": str(sub / "orbital" / "ortho.tif"),
-            },
-            "geometry": {"radius": RADIUS_M, "ray_stride": STRIDE},
-            "chips": {"size_m": 256, "size_px": 512},
-            "output": {"dir": str(out / name), "shard_size": 4},
-        }
-        result = run_build(parse_config(doc, root))
+        config = build_config(
+            sub, out / name, labels=sub / "labels" / ("*.xml" if name == "m2020" else "*.LBL"),
+            places=next((sub / "places").glob("*.csv")),
+            geometry={"radius": RADIUS_M, "ray_stride": STRIDE},
+            chips={"size_m": 256, "size_px": 512}, output={"shard_size": 4}, splits=None,
+        )  # fmt: skip
+        result = run_build(config)
         assert result.failures == 0
     return mission, out
 

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from support.configs import build_config
 
 from mars_pairs.geometry.attitude import image_centre_pointing_deg
 from mars_pairs.geometry.camera import CameraModel
@@ -135,7 +136,6 @@ def test_manifest_pointing_is_the_centre_ray_and_keeps_the_labels(
     """A label whose SITE_FRAME pointing is 20 degrees off its camera: the manifest's
     azimuth is still the image centre's (the mission's truth), the label's value beside it."""
     from mars_pairs.pipeline.build.run import run_build
-    from mars_pairs.pipeline.config import parse_config
 
     labels = tmp_path / "labels"
     shutil.copytree(small_mission / "labels", labels)
@@ -147,21 +147,7 @@ def test_manifest_pointing_is_the_centre_ray_and_keeps_the_labels(
     edited.write_text(text.replace(old, f">{(obs.azimuth_deg + 20.0) % 360.0!r}</geom:"
                                    "instrument_azimuth>"))  # fmt: skip
     assert read_observation(edited).azimuth_deg == pytest.approx((obs.azimuth_deg + 20) % 360)
-    config = parse_config(
-        {
-            "inputs": {
-                "labels": str(labels / "*.xml"),
-                "places": str(small_mission / "places" / "best_interp.csv"),
-                "dem": str(small_mission / "orbital" / "dem.tif"),
-                "ortho": str(small_mission / "orbital" / "ortho.tif"),
-            },
-            "geometry": {"radius": 300, "ray_stride": 32},
-            "chips": {"size_m": 64, "size_px": 64},
-            "output": {"dir": str(tmp_path / "ds")},
-            "splits": {"block_m": 100},
-        },
-        tmp_path,
-    )
+    config = build_config(small_mission, tmp_path / "ds", base=tmp_path, labels=labels / "*.xml")
     assert run_build(config, workers=1, progress=False).failures == 0
     rows = pq.read_table(tmp_path / "ds" / "manifest.parquet").to_pylist()
     truth = {t["product_id"]: t for t in pq.read_table(small_mission / "truth.parquet").to_pylist()}

@@ -1,4 +1,4 @@
-"""Viewshed against the exact line-of-sight reference (``los_reference``, written from the
+"""Viewshed against the exact line-of-sight reference (``support.los_reference``, written from the
 definition, sharing no code with the kernel): visible-set IoU on fractal terrain and on the real
 Gale DEM, wedge and full circle. Map frame: x east, y north (metres)."""
 
@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from los_reference import exact_viewshed, iou, segment_clear
-from test_viewshed import centre_xy, fractal_dem, grid
+from support.los_reference import exact_viewshed, iou, segment_clear
+from support.terrain import centre_xy, fractal_dem, grid
 
 from mars_pairs.geometry.body import MARS_RADIUS_M
 from mars_pairs.kernels import compute_viewshed
@@ -78,6 +78,60 @@ def test_reference_on_analytic_terrain():
     # curvature: an eye h above a sphere of radius R sees the plane out to sqrt(2 R h)
     vis = exact_viewshed(flat, 40, 40, 2.0, 40.0, planet_radius=200.0)
     assert vis[40, 40 + 27] == 1 and vis[40, 40 + 30] == 0
+
+
+@pytest.mark.parametrize(
+    ("k", "p", "q", "planet_radius", "a", "e"),
+    [
+        (0.0, 0.0, 0.0, 200.0, 1.0, -1.0),  # flat plane: the horizon at sqrt(2 R h)
+        (0.0, 0.3, -0.2, 500.0, 2.0, -1.5),  # tilted plane, oblong cells
+        (0.02, 0.0, 0.0, 0.0, 1.0, -1.0),  # saddle: the cross term alone
+        (-0.015, 0.1, 0.25, 900.0, 1.0, -0.5),  # tilted saddle with curvature
+    ],
+)
+def test_reference_on_bilinear_terrain_in_closed_form(k, p, q, planet_radius, a, e):
+    # z = k (u - 40)(v - 41) + p u + q v is bilinear: the DEM's interpolant is z itself. Along
+    # the sight line from h above the ground at grid (u0, v0) to the ground at cell (u0 + du,
+    # v0 + dv), D metres away, terrain minus line is g(t) = (t - 1)(A t + h) with
+    # A = k du dv - D^2 / (2R) (the linear terms cancel); on [0, 1] g <= 0 iff A >= -h.
+    n, u0, v0, h = 81, 40.3, 40.6, 2.5
+    rr, cc = np.mgrid[0:n, 0:n].astype(np.float64)
+    dem = k * (cc - 40.0) * (rr - 41.0) + p * cc + q * rr
+    eye = k * (u0 - 40.0) * (v0 - 41.0) + p * u0 + q * v0 + h
+    vis = exact_viewshed(dem, u0, v0, eye, 1e9, a=a, e=e, planet_radius=planet_radius) == 1
+    du, dv = cc - u0, rr - v0
+    d2 = (du * a) ** 2 + (dv * e) ** 2
+    big_a = k * du * dv - (d2 / (2.0 * planet_radius) if planet_radius else 0.0)
+    # hidden cells rise (A + h)^2 / (4 |A|) above the line at most: within 0.05 m of A = -h
+    # that is below the reference's 1e-6 m tolerance, so those tangent cells are left out
+    clear = np.abs(big_a + h) > 0.05
+    want = big_a >= -h
+    assert want[clear].any() and not want[clear].all()
+    assert (vis[clear] == want[clear]).all(), np.argwhere(clear & (vis != want))[:5]
+
+
+def test_reference_on_a_ridge_in_closed_form():
+    # a ridge along the rows: 4 m high at column 55, faces of slope 2 (feet at 53 and 57); the
+    # DEM's interpolant is the profile itself. From 11 m above the plain at u0, the far face
+    # (steeper than any sight line) is hidden, and the plain beyond is seen from the column
+    # where the line to it clears the crest: h (c - 55) >= 4 (c - u0), c >= (55 h - 4 u0)/(h - 4)
+    n, u0, v0, h = 81, 40.3, 40.6, 11.0
+    rr, cc = np.mgrid[0:n, 0:n]
+    ridge = np.maximum(0.0, 4.0 - 2.0 * np.abs(cc - 55.0))
+    vis = exact_viewshed(ridge, u0, v0, h, 38.0) == 1
+    inside = np.hypot(cc - u0, rr - v0) <= 38.0
+    want = inside & ((cc <= 55) | (cc >= (55.0 * h - 4.0 * u0) / (h - 4.0)))
+    assert (vis == want).all(), np.argwhere(vis != want)[:5]
+
+
+def test_reference_treats_nodata_as_the_definition_says():
+    dem = np.zeros((21, 21))
+    dem[:, 14] = 10.0  # a wall 4 m east of the observer
+    eye = 2.0
+    assert not segment_clear(dem, 10.0, 10.0, eye, 18, 10, 1.0, -1.0, 0.0, 0.0)
+    dem[10, 14] = np.nan  # its quads in the line's way have a nodata corner: they never block
+    assert segment_clear(dem, 10.0, 10.0, eye, 18, 10, 1.0, -1.0, 0.0, 0.0)
+    assert not segment_clear(dem, 10.0, 10.0, eye, 14, 10, 1.0, -1.0, 0.0, 0.0)  # nodata cell
 
 
 def test_reference_agrees_with_dense_sampling():

@@ -26,15 +26,14 @@ from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-if str(HERE) not in sys.path:
-    sys.path.insert(0, str(HERE))
+if __name__ == "__main__":  # run as a script: pytest's pythonpath (tests/) is not set
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from test_labels_fuzz import PDS3_SEED, PDS4_SEED  # noqa: E402
+from support.label_seeds import PDS3_SEED, PDS4_SEED
 
-from mars_pairs.errors import LabelError  # noqa: E402
-from mars_pairs.geometry.camera import CameraModel  # noqa: E402
-from mars_pairs.pds import read_observation  # noqa: E402
+from mars_pairs.errors import LabelError
+from mars_pairs.geometry.camera import CameraModel
+from mars_pairs.pds import read_observation
 
 TOKENS = [
     b"=", b"(", b")", b'"', b"/*", b"*/", b"END", b"END_GROUP", b"END_OBJECT", b"GROUP = X",

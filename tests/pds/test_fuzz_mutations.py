@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 from fuzz_labels import run
-from test_labels_fuzz import PDS4_SEED
+from support.label_seeds import PDS4_SEED
 
 from mars_pairs.errors import LabelError
 from mars_pairs.pds import read_observation

@@ -11,7 +11,7 @@ import warnings
 from pathlib import Path
 
 import pytest
-from label_shapes import SHAPES, densest_accepted, slowest_accepted
+from support.label_shapes import SHAPES, densest_accepted, slowest_accepted
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import LabelError

@@ -7,8 +7,8 @@ import warnings
 from pathlib import Path
 
 import pytest
-from test_labels import assert_same
-from test_labels_fuzz import PDS3_SEED
+from support.label_seeds import PDS3_SEED
+from support.observations import assert_same
 
 from mars_pairs.errors import LabelError
 from mars_pairs.pds import read_observation, read_pds3

@@ -9,7 +9,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import tarfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -22,19 +21,19 @@ import shapely
 import shapely.geometry
 import yaml
 from pyproj import CRS
+from support.configs import config_file
+from support.members import manifest_rows, tar_members
+from support.missions import MissionCache
 
 from mars_pairs.cli.main import main
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.store.members import MEMBERS
-from mars_pairs.synth import generate_mission
 
 
 @pytest.fixture(scope="module")
-def mission(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    root = tmp_path_factory.mktemp("mission")
-    generate_mission(root, seed=3, mission="m2020", stops=3, images_per_stop=2, size="small")
-    return root
+def mission(missions: MissionCache) -> Path:
+    return missions(seed=3, stops=3, images_per_stop=2)
 
 
 def write_config(
@@ -45,38 +44,10 @@ def write_config(
     shard_size: int = 2,
     **geometry: object,
 ) -> Path:
-    doc = {
-        "inputs": {
-            "labels": labels or str(mission / "labels" / "*.xml"),
-            "places": str(mission / "places" / "best_interp.csv"),
-            "dem": str(mission / "orbital" / "dem.tif"),
-            "ortho": str(mission / "orbital" / "ortho.tif"),
-        },
-        "geometry": {"radius": 600, "ray_stride": 16, **geometry},
-        "chips": {"size_m": 128, "size_px": 128},
-        "output": {"dir": str(out), "shard_size": shard_size},
-        "splits": {"block_m": 100},
-    }
-    path.write_text(yaml.safe_dump(doc))
-    return path
-
-
-def read_rows(out: Path) -> list[dict]:
-    rows = pq.read_table(out / "manifest.parquet").to_pylist()
-    return sorted(rows, key=lambda r: r["key"])
-
-
-def member_bytes(out: Path) -> dict[str, bytes]:
-    """Every member of every shard, by name, read through tarfile."""
-    found: dict[str, bytes] = {}
-    for shard in sorted((out / "shards").glob("*.tar")):
-        with tarfile.open(shard) as tar:
-            for info in tar.getmembers():
-                data = tar.extractfile(info)
-                assert data is not None
-                assert info.name not in found, f"duplicate member {info.name}"
-                found[info.name] = data.read()
-    return found
+    return config_file(
+        path, mission, out, fine=True, labels=labels, geometry=geometry,
+        output={"shard_size": shard_size},
+    )  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -89,11 +60,11 @@ def built(mission: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_every_image_becomes_a_sample_with_all_members(mission: Path, built: Path) -> None:
-    rows = read_rows(built)
+    rows = manifest_rows(built)
     n_images = len(list((mission / "labels").glob("*.xml")))
     assert len(rows) == n_images
     assert len({r["key"] for r in rows}) == n_images
-    members = member_bytes(built)
+    members = tar_members(built)
     for row in rows:
         for name in MEMBERS:
             member = row["ground_member"] if name == "ground" else None
@@ -108,8 +79,8 @@ def test_every_image_becomes_a_sample_with_all_members(mission: Path, built: Pat
 
 
 def test_every_offset_reads_back_the_tar_member(built: Path) -> None:
-    members = member_bytes(built)
-    for row in read_rows(built):
+    members = tar_members(built)
+    for row in manifest_rows(built):
         for name in MEMBERS:
             with open(built / row[f"{name}_shard"], "rb") as fh:
                 fh.seek(row[f"{name}_offset"])
@@ -130,8 +101,8 @@ def test_every_offset_reads_back_the_tar_member(built: Path) -> None:
 
 
 def test_ground_member_is_the_original_image(mission: Path, built: Path) -> None:
-    members = member_bytes(built)
-    row = read_rows(built)[0]
+    members = tar_members(built)
+    row = manifest_rows(built)[0]
     original = (mission / "labels" / row["label_path"]).with_suffix(".jpg")  # labels root
     assert members[f"{row['key']}.{row['ground_member']}"] == original.read_bytes()
 
@@ -145,7 +116,7 @@ def test_geoparquet_metadata_and_dataset_json(built: Path) -> None:
     assert params["Latitude of 1st standard parallel"] == 18.4663  # M2020 PLACES eqc
     assert crs.ellipsoid.semi_major_metre == 3396190.0
     doc = json.loads((built / "dataset.json").read_text())
-    assert doc["counts"]["samples"] == len(read_rows(built))
+    assert doc["counts"]["samples"] == len(manifest_rows(built))
     assert doc["chip"]["size_px"] == 128
     # GeoParquet 1.1: geopandas reads it; the bbox holds every footprint (not only the chips)
     import geopandas
@@ -171,14 +142,14 @@ def test_buffer_samples_can_be_dropped_and_are_counted(
 ) -> None:
     path = write_config(tmp_path / "c.yaml", mission, tmp_path / "ds")
     doc = yaml.safe_load(path.read_text())
-    x, y = read_rows(built)[0]["easting"], read_rows(built)[0]["northing"]
+    x, y = manifest_rows(built)[0]["easting"], manifest_rows(built)[0]["northing"]
     test_area = [[x - 5.0, y - 5.0, x + 5.0, y + 5.0]]  # one stop; the others are in its buffer
     doc["splits"] = {"style": "cross-area", "areas": {"test": test_area}}
     doc["splits"].update(guard="chip", buffer_policy="drop")
     path.write_text(yaml.safe_dump(doc))
     summary = run_build(load_config(path), progress=False)
     splits = json.loads((tmp_path / "ds" / "dataset.json").read_text())["splits"]
-    rows = read_rows(tmp_path / "ds")
+    rows = manifest_rows(tmp_path / "ds")
     n_images = len(list((mission / "labels").glob("*.xml")))
     assert splits["dropped_in_buffer"] == splits["in_buffer"] == n_images - len(rows) > 0
     assert summary.samples == len(rows) > 0
@@ -191,9 +162,9 @@ def test_corr_points_land_on_the_chip_where_the_viewshed_is(built: Path) -> None
 
     from PIL import Image
 
-    members = member_bytes(built)
+    members = tar_members(built)
     inside = agree = 0
-    for row in read_rows(built):
+    for row in manifest_rows(built):
         corr = np.load(io.BytesIO(members[f"{row['key']}.corr.npy"]))
         vis = np.asarray(Image.open(io.BytesIO(members[f"{row['key']}.viewshed.png"]))) > 0
         if vis.sum() < 25:
@@ -260,8 +231,8 @@ def test_broken_labels_become_failure_rows(mission: Path, tmp_path: Path) -> Non
 def test_two_workers_give_the_same_output(mission: Path, built: Path, tmp_path: Path) -> None:
     config = load_config(write_config(tmp_path / "c.yaml", mission, tmp_path / "ds2"))
     run_build(config, workers=2, progress=False)
-    assert read_rows(tmp_path / "ds2") == read_rows(built)
-    assert member_bytes(tmp_path / "ds2") == member_bytes(built)
+    assert manifest_rows(tmp_path / "ds2") == manifest_rows(built)
+    assert tar_members(tmp_path / "ds2") == tar_members(built)
 
 
 def _kill_when(cmd: list[str], ready: Callable[[], bool], timeout: float = 60.0) -> bool:
@@ -309,9 +280,9 @@ def test_killed_build_resumes_to_the_same_dataset(
     done = subprocess.run(cmd, capture_output=True, text=True, check=False)
     assert done.returncode == 0, done.stderr
     assert " resumed" in done.stdout and "0 built" not in done.stdout
-    assert read_rows(out) == read_rows(reference)
-    assert member_bytes(out) == member_bytes(reference)
-    assert {r["key"] for r in read_rows(out)} == {r["key"] for r in read_rows(built)}
+    assert manifest_rows(out) == manifest_rows(reference)
+    assert tar_members(out) == tar_members(reference)
+    assert {r["key"] for r in manifest_rows(out)} == {r["key"] for r in manifest_rows(built)}
     assert not list(out.rglob(".*.tmp-*"))
 
 
@@ -325,12 +296,12 @@ def test_resume_refuses_a_changed_config(mission: Path, tmp_path: Path) -> None:
 def test_inspect_counts(built: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["inspect", str(built)]) == 0
     out = capsys.readouterr().out
-    assert f"samples: {len(read_rows(built))}" in out and "m2020" in out
+    assert f"samples: {len(manifest_rows(built))}" in out and "m2020" in out
     assert main(["inspect", str(built / "nope")]) == 2
 
 
 def test_query_cli_formats(built: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    rows = read_rows(built)
+    rows = manifest_rows(built)
     lat = sum(r["latitude"] for r in rows) / len(rows)
     lon = sum(r["longitude"] for r in rows) / len(rows)
     assert main(["query", str(built), "--near", str(lat), str(lon), "5000", "--format", "csv"]) == 0
@@ -401,9 +372,9 @@ def test_heading_up_chips_put_the_view_above_the_rover(mission: Path, tmp_path: 
     doc["chips"]["orientation"] = "heading-up"
     path.write_text(yaml.safe_dump(doc))
     run_build(load_config(path), progress=False)
-    members = member_bytes(tmp_path / "ds")
+    members = tar_members(tmp_path / "ds")
     above = total = 0
-    for row in read_rows(tmp_path / "ds"):
+    for row in manifest_rows(tmp_path / "ds"):
         assert row["chip_rotation_deg"] != 0.0
         vis = np.asarray(Image.open(io.BytesIO(members[f"{row['key']}.viewshed.png"]))) > 0
         rows_visible = np.nonzero(vis)[0]

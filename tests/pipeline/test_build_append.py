@@ -16,6 +16,7 @@ from typing import Any
 import pyarrow.parquet as pq
 import pytest
 import yaml
+from support.configs import config_file
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
@@ -59,27 +60,21 @@ def _config(
     truth = pq.read_table(mission / "truth.parquet", columns=["stop", "easting", "northing"])
     last = max(truth.to_pylist(), key=lambda row: row["stop"])
     x, y = last["easting"], last["northing"]
-    doc: dict[str, Any] = {
-        "inputs": {
-            "labels": labels,
-            "places": str(mission / "places" / "best_interp.csv"),
-            "dem": str(mission / "orbital" / "dem.tif"),
-            "ortho": str(mission / "orbital" / "ortho.tif"),
-        },
+    splits = {
+        "style": "cross-area",
+        "areas": {"test": [[x - 2, y - 2, x + 2, y + 2]]},
+        "guard": "chip",
+        "buffer_m": 0,
+    }
+    base = {
         "geometry": {"radius": 200, "ray_stride": 64},
         "chips": {"size_m": 8, "size_px": 16},
-        "output": {"dir": str(out), "shard_size": 1},
-        "splits": {
-            "style": "cross-area",
-            "areas": {"test": [[x - 2, y - 2, x + 2, y + 2]]},
-            "guard": "chip",
-            "buffer_m": 0,
-        },
+        "output": {"shard_size": 1},
     }
-    for name, values in sections.items():
-        doc[name] = {**doc.get(name, {}), **values}
-    path.write_text(yaml.safe_dump(doc))
-    return path
+    merged = {name: {**base.get(name, {}), **values} for name, values in sections.items()}
+    return config_file(
+        path, mission, out, labels=labels, whole={"splits": splits}, **{**base, **merged}
+    )
 
 
 def _rows(out: Path) -> list[dict[str, Any]]:

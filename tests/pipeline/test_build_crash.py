@@ -10,26 +10,17 @@ import sys
 from pathlib import Path
 
 import pytest
-import yaml
+from support.configs import config_file
 
 DRIVER = Path(__file__).with_name("crash_driver.py")
 
 
 def _config(path: Path, mission: Path, out: Path, labels: str, shard_size: int) -> Path:
-    doc = {
-        "inputs": {
-            "labels": str(mission / "labels" / labels),
-            "places": str(mission / "places" / "best_interp.csv"),
-            "dem": str(mission / "orbital" / "dem.tif"),
-            "ortho": str(mission / "orbital" / "ortho.tif"),
-        },
-        "geometry": {"radius": 200, "ray_stride": 64},
-        "chips": {"size_m": 32, "size_px": 16},
-        "output": {"dir": str(out), "shard_size": shard_size},
-        "splits": {"block_m": 100},
-    }
-    path.write_text(yaml.safe_dump(doc))
-    return path
+    return config_file(
+        path, mission, out, labels=mission / "labels" / labels,
+        geometry={"radius": 200, "ray_stride": 64}, chips={"size_m": 32, "size_px": 16},
+        output={"shard_size": shard_size},
+    )  # fmt: skip
 
 
 @pytest.mark.slow

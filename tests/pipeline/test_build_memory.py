@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import rasterio
 from rasterio.windows import Window
-
-from mars_pairs.synth import generate_mission
+from support.configs import config_file
+from support.missions import MissionCache
 
 BIG = 8192
 
@@ -45,18 +45,15 @@ def _embed(src_path: Path, dst_path: Path, size: int) -> None:
 
 @pytest.mark.slow
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs Linux /proc")
-def test_an_8192_dem_builds_under_one_gigabyte(tmp_path: Path) -> None:
-    mission = tmp_path / "mission"
-    generate_mission(mission, seed=2, mission="m2020", stops=2, images_per_stop=2, size="small")
-    dem, ortho = tmp_path / "dem8k.tif", mission / "orbital" / "ortho.tif"
+def test_an_8192_dem_builds_under_one_gigabyte(missions: MissionCache, tmp_path: Path) -> None:
+    mission = missions(seed=2, stops=2, images_per_stop=2)
+    dem = tmp_path / "dem8k.tif"
     _embed(mission / "orbital" / "dem.tif", dem, BIG)
-    config = tmp_path / "c.yaml"
-    config.write_text(
-        f"inputs:\n  labels: {mission}/labels/*.xml\n  places: {mission}/places/best_interp.csv\n"
-        f"  dem: {dem}\n  ortho: {ortho}\n"
-        "geometry: {radius: 1000, ray_stride: 8}\nchips: {size_m: 256, size_px: 512}\n"
-        f"output: {{dir: {tmp_path / 'ds'}, shard_size: 2}}\n"
-    )
+    config = config_file(
+        tmp_path / "c.yaml", mission, tmp_path / "ds", inputs={"dem": str(dem)},
+        geometry={"radius": 1000, "ray_stride": 8}, chips={"size_m": 256, "size_px": 512},
+        output={"shard_size": 2}, splits=None,
+    )  # fmt: skip
     # The build runs in one process (one worker) and reports its own peak resident set:
     # VmHWM, which starts afresh at exec (ru_maxrss would carry over the forked parent's). A
     # first, unmeasured run compiles the numba kernels into their on-disk cache: compiling

@@ -13,8 +13,6 @@ from __future__ import annotations
 import io
 import json
 import math
-import tarfile
-from datetime import datetime
 from pathlib import Path
 
 import numpy as np
@@ -22,22 +20,14 @@ import pytest
 import rasterio
 import yaml
 from PIL import Image
-from rasterio.warp import Resampling, reproject
+from support.members import sample_members
+from support.real_gale import DRIVE, GALE, SHARED, SITE, gale_row, make_gale_labels, read_dem
 
-from mars_pairs.geometry.frames import MSL_PLACES_CRS, quaternion_to_matrix
-from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.geometry.places import Places
-from mars_pairs.observation import MotionCounter, Observation
 from mars_pairs.pds import read_observation
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
-from mars_pairs.synth.cameras import build_camera, centre_pointing_site, mission_cameras
-from mars_pairs.synth.labels import write_pds3_label
-from mars_pairs.synth.render import DemGrid, block_ranges, render_view
 
-SHARED = Path(__file__).resolve().parents[2].parent / "shared"
-GALE = SHARED / "real-gale"
-SITE, DRIVE, SOL = 48, 2470, 1051
 RADIUS_M = 90.0  # the rover stands 99 m from the DEM's southern edge
 
 
@@ -48,72 +38,11 @@ def gale() -> Path:
     return GALE
 
 
-def _row(places_csv: Path, site: int, drive: int) -> dict[str, float]:
-    import pyarrow.csv as pacsv
-
-    t = pacsv.read_csv(places_csv).to_pylist()
-    return next(r for r in t if r["frame"] == "ROVER" and r["site"] == site and r["drive"] == drive)
-
-
-def _dem(path: Path) -> tuple[np.ndarray, rasterio.Affine]:
-    with rasterio.open(path) as ds:
-        z = ds.read(1).astype(np.float64)
-        z[z == ds.nodata] = np.nan
-        return z, ds.transform
-
-
-def _ortho_on_dem_grid(path: Path, dem_shape, dem_tr, factor: int) -> np.ndarray:
-    """The ortho's first band resampled onto the DEM grid at ``factor`` pixels per cell."""
-    out = np.zeros((dem_shape[0] * factor, dem_shape[1] * factor), np.uint8)
-    tr = dem_tr * rasterio.Affine.scale(1.0 / factor)
-    with rasterio.open(path) as ds:
-        reproject(rasterio.band(ds, 1), out, dst_transform=tr, dst_crs=ds.crs,
-                  resampling=Resampling.bilinear, dst_nodata=0)  # fmt: skip
-    return out
-
-
-def _make_labels(gale: Path, out: Path) -> list[Path]:
-    """Four synthetic Mastcam views from the real sol-1051 pose, rendered over the real map."""
-    places = Places.from_csv(gale / "rover_positions.csv")
-    row = _row(gale / "rover_positions.csv", SITE, DRIVE)
-    q = np.array([row["quat_s"], row["quat_v1"], row["quat_v2"], row["quat_v3"]])
-    rot = quaternion_to_matrix(q)
-    z, tr = _dem(gale / "dem.tif")
-    grid, blocks = DemGrid(z, tr), block_ranges(z)
-    ortho = _ortho_on_dem_grid(gale / "ortho.tif", z.shape, tr, 2)
-    rng = np.random.default_rng(1051)
-    labels = []
-    for j, (az, el) in enumerate(((20.0, -9.0), (110.0, -10.0), (200.0, -8.0), (290.0, -11.0))):
-        spec = mission_cameras("msl", "small")[j % 2]
-        hfov = spec.hfov_choices[0] if j % 2 == 0 else 15.0
-        camera = build_camera(rng, spec, rot, az, el, hfov, "CAHVOR" if j % 2 else "CAHV")
-        pid = f"{SOL:04d}M{spec.eye}{48000 + j:06d}{j + 1:03d}{702000 + j:07d}E01_DRCL"
-        label = out / f"{pid}.LBL"
-        hfov_m, vfov_m = camera.fov_deg(spec.width, spec.height)
-        az_c, el_c = centre_pointing_site(camera, spec.width, spec.height, rot)
-        obs = Observation(
-            label_path=label, mission="msl", product_id=pid, instrument=spec.instrument,
-            sol=SOL, rmc=MotionCounter(SITE, DRIVE, None), width=spec.width,
-            height=spec.height, camera=camera, rover_offset_m=np.zeros(3),
-            rover_quaternion=q, azimuth_deg=float(az_c), elevation_deg=float(el_c),
-            hfov_deg=hfov_m, vfov_deg=vfov_m, start_time=datetime(2015, 7, 21, 12, j),
-            image_path=label.with_suffix(".jpg"),
-        )  # fmt: skip
-        pose = places.locate(obs)
-        assert pose.source == "places"
-        rgb = render_view(MapCamera.from_observation(obs, pose, MSL_PLACES_CRS), grid, blocks,
-                          ortho, 2)[0]  # fmt: skip
-        Image.fromarray(rgb).save(obs.image_path, quality=95)
-        write_pds3_label(obs, label)
-        labels.append(label)
-    return labels
-
-
 @pytest.fixture(scope="module")
 def built(gale, tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("real-gale")
     (root / "labels").mkdir()
-    _make_labels(gale, root / "labels")
+    make_gale_labels(gale, root / "labels")
     config = {
         "inputs": {"labels": "labels/*.LBL", "places": str(gale / "rover_positions.csv"),
                    "dem": str(gale / "dem.tif"), "ortho": str(gale / "ortho.tif")},
@@ -126,16 +55,6 @@ def built(gale, tmp_path_factory) -> Path:
     summary = run_build(load_config(path), progress=False)
     assert summary.samples == 4 and summary.failures == 0, summary.failures_by_reason
     return root / "dataset"
-
-
-def _members(dataset: Path) -> dict[str, dict[str, bytes]]:
-    out: dict[str, dict[str, bytes]] = {}
-    for shard in sorted((dataset / "shards").glob("*.tar")):
-        with tarfile.open(shard) as tar:
-            for m in tar.getmembers():
-                key, _, member = m.name.partition(".")
-                out.setdefault(key, {})[member] = tar.extractfile(m).read()  # type: ignore[union-attr]
-    return out
 
 
 class ExactLos:
@@ -235,10 +154,10 @@ class SphereRays:
 
 
 def test_real_gale_build_matches_exact_line_of_sight(gale, built):
-    z, tr = _dem(gale / "dem.tif")
+    z, tr = read_dem(gale / "dem.tif")
     los = ExactLos(z, tr)
-    row = _row(gale / "rover_positions.csv", SITE, DRIVE)
-    members = _members(built)
+    row = gale_row(gale / "rover_positions.csv", SITE, DRIVE)
+    members = sample_members(built)
     assert len(members) == 4
     checked = 0
     for key, files in members.items():
@@ -303,11 +222,11 @@ def _angle_between(rays: SphereRays, los: ExactLos, centre, a_xy, b_xy) -> np.nd
 
 def test_ray_hits_match_an_independent_ray_cast_on_the_sphere(gale, built):
     """Each strided pixel's hit equals the first crossing of its ray cast here (CAHV labels)."""
-    z, tr = _dem(gale / "dem.tif")
+    z, tr = read_dem(gale / "dem.tif")
     los = ExactLos(z, tr)
-    row = _row(gale / "rover_positions.csv", SITE, DRIVE)
+    row = gale_row(gale / "rover_positions.csv", SITE, DRIVE)
     compared = 0
-    for key, files in _members(built).items():
+    for key, files in sample_members(built).items():
         meta = json.loads(files["meta.json"])
         obs = read_observation(built.parent / "labels" / meta["label_path"])  # labels root
         if obs.camera.model_type != "CAHV":
@@ -349,7 +268,7 @@ def test_real_sol_1429_labels_are_located_with_rover_positions(gale):
     if not labels:
         pytest.skip("real sol-1429 labels not found in ../shared/pds-samples/msl")
     places = Places.from_csv(gale / "rover_positions.csv")
-    row = _row(gale / "rover_positions.csv", 56, 1632)
+    row = gale_row(gale / "rover_positions.csv", 56, 1632)
     for label in labels:
         obs = read_observation(label)
         pose = places.locate(obs)

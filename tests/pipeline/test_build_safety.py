@@ -18,9 +18,7 @@ import time
 from pathlib import Path
 
 import pytest
-import yaml
-from mission_config import cheap_config
-from mission_inputs import mission_inputs
+from support.configs import build_config, config_file
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
@@ -31,15 +29,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def _write_config(path: Path, mission: Path, out: Path, **inputs: str) -> Path:
-    doc = {
-        "inputs": {**mission_inputs(mission), **inputs},
-        "geometry": {"radius": 300, "ray_stride": 32},
-        "chips": {"size_m": 64, "size_px": 64},
-        "output": {"dir": str(out), "shard_size": 2},
-        "splits": {"block_m": 100},
-    }
-    path.write_text(yaml.safe_dump(doc))
-    return path
+    return config_file(path, mission, out, inputs=inputs, output={"shard_size": 2})
 
 
 def _files(root: Path) -> dict[str, str]:
@@ -85,18 +75,18 @@ def test_a_finished_dataset_with_a_strangers_file_is_refused_but_resumes(
     small_mission: Path, tmp_path: Path
 ) -> None:
     out = tmp_path / "ds"
-    run_build(cheap_config(small_mission, out, output={"shard_size": 2}), progress=False)
+    run_build(build_config(small_mission, out, output={"shard_size": 2}), progress=False)
     (out / "parts").mkdir()  # a finished build left none
     (out / "parts" / "my-notes.txt").write_text("mine\n")
     hidden = out / "shards" / ".scratch.tmp-1"  # like a temporary name, not one of ours
     hidden.write_text("mine too\n")
     before = _files(out)
-    other = cheap_config(small_mission, out, output={"shard_size": 1})  # another build
+    other = build_config(small_mission, out, output={"shard_size": 1})  # another build
     with pytest.raises(ConfigError, match=r"parts/my-notes\.txt.*nothing was removed"):
         run_build(other, progress=False)
     assert _files(out) == before
     # the same config resumed: refused the same way, the stranger's files left alone
-    same = cheap_config(small_mission, out, output={"shard_size": 2})
+    same = build_config(small_mission, out, output={"shard_size": 2})
     with pytest.raises(ConfigError, match=r"parts/my-notes\.txt.*nothing was removed"):
         run_build(same, resume=True, progress=False)
     assert _files(out) == before
@@ -110,12 +100,12 @@ def test_a_rebuild_clears_its_own_dataset_and_its_killed_temporaries(
     small_mission: Path, tmp_path: Path
 ) -> None:
     out = tmp_path / "ds"
-    run_build(cheap_config(small_mission, out, output={"shard_size": 1}), progress=False)
+    run_build(build_config(small_mission, out, output={"shard_size": 1}), progress=False)
     assert (out / "shards" / "shard-000003.tar").exists()
     (out / "shards" / ".shard-000001.tar.tmp-4242").write_bytes(b"half a shard")
     (out / "parts").mkdir()  # a finished build left none
     (out / "parts" / ".build.json.tmp-4242").write_bytes(b"{")
-    run_build(cheap_config(small_mission, out, output={"shard_size": 2}), progress=False)
+    run_build(build_config(small_mission, out, output={"shard_size": 2}), progress=False)
     names = set(_files(out))
     assert "shards/shard-000001.tar" in names and "shards/shard-000002.tar" not in names
     assert not any(".tmp-" in n for n in names)
@@ -144,7 +134,7 @@ def test_a_fifo_input_is_refused_at_once(small_mission: Path, tmp_path: Path, ke
     assert done.stderr.count("\n") == 1 and f"inputs.{key}" in done.stderr, done.stderr
     assert time.monotonic() - start < 30  # the interpreter's start-up, not a hang
     # a config built in code, its path swapped for a FIFO after parsing: run_build refuses
-    ok = cheap_config(small_mission, tmp_path / "ds2")
+    ok = build_config(small_mission, tmp_path / "ds2")
     from dataclasses import replace
 
     bad = replace(ok, inputs=replace(ok.inputs, **{key: fifo}))

@@ -5,7 +5,6 @@ the chip pixels with data."""
 from __future__ import annotations
 
 import math
-import tarfile
 from pathlib import Path
 
 import numpy as np
@@ -13,13 +12,15 @@ import pyarrow.parquet as pq
 import pytest
 import rasterio
 from affine import Affine
-from mission_config import cheap_config
+from support.configs import build_config
+from support.members import manifest_rows as rows_of
+from support.members import tar_members as members_of
 
 from mars_pairs.errors import ConfigError, TerrainError
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import parse_config
 
-SIZE_M, SIZE_PX = 64.0, 64  # cheap_config's chips
+SIZE_M, SIZE_PX = 64.0, 64  # the config builder's cheap chips
 
 
 def rewrite(src: Path, dst: Path, transform: Affine, change=lambda a: a) -> Path:
@@ -41,27 +42,14 @@ def south_up(src: Path, dst: Path) -> Path:
     return rewrite(src, dst, tr, lambda a: a[:, ::-1, :])
 
 
-def rows_of(out: Path) -> list[dict]:
-    return sorted(pq.read_table(out / "manifest.parquet").to_pylist(), key=lambda r: r["key"])
-
-
 def failures_of(out: Path) -> list[dict]:
     return pq.read_table(out / "failures.parquet").to_pylist()
-
-
-def members_of(out: Path) -> dict[str, bytes]:
-    found = {}
-    for shard in sorted((out / "shards").glob("*.tar")):
-        with tarfile.open(shard) as tar:
-            for info in tar.getmembers():
-                found[info.name] = tar.extractfile(info).read()  # type: ignore[union-attr]
-    return found
 
 
 @pytest.fixture(scope="module")
 def north_build(small_mission: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("north") / "ds"
-    summary = run_build(cheap_config(small_mission, out), progress=False)
+    summary = run_build(build_config(small_mission, out), progress=False)
     assert summary.samples == 4 and summary.failures == 0, summary.failures_by_reason
     return out
 
@@ -71,7 +59,7 @@ def test_a_south_up_dem_and_ortho_build_the_same_dataset(small_mission, north_bu
     dem = south_up(orbital / "dem.tif", tmp_path / "dem_south.tif")
     ortho = south_up(orbital / "ortho.tif", tmp_path / "ortho_south.tif")
     out = tmp_path / "ds"
-    config = cheap_config(small_mission, out, inputs={"dem": str(dem), "ortho": str(ortho)})
+    config = build_config(small_mission, out, inputs={"dem": str(dem), "ortho": str(ortho)})
     summary = run_build(config, progress=False)
     assert summary.failures == 0, summary.failures_by_reason
     assert rows_of(out) == rows_of(north_build)
@@ -87,7 +75,7 @@ def test_a_rotated_ortho_stops_the_build_before_any_sample(small_mission, tmp_pa
         t = ds.transform
     turned = t * Affine.rotation(2.0)
     ortho = rewrite(src, tmp_path / "turned.tif", turned)
-    config = cheap_config(small_mission, tmp_path / "ds", inputs={"ortho": str(ortho)})
+    config = build_config(small_mission, tmp_path / "ds", inputs={"ortho": str(ortho)})
     with pytest.raises(TerrainError, match=r"turned\.tif: raster grid is rotated.*gdalwarp"):
         run_build(config, progress=False)
     assert not (tmp_path / "ds" / "shards").exists() or not any((tmp_path / "ds").rglob("*.tar"))
@@ -100,7 +88,7 @@ def test_an_ortho_off_the_dem_gives_failure_rows_naming_it(small_mission, tmp_pa
     shift = 5000.0  # metres east: nowhere near the DEM (1 km square)
     ortho = rewrite(src, tmp_path / "elsewhere.tif", Affine.translation(shift, 0.0) * t)
     out = tmp_path / "ds"
-    config = cheap_config(small_mission, out, inputs={"ortho": str(ortho)})
+    config = build_config(small_mission, out, inputs={"ortho": str(ortho)})
     summary = run_build(config, progress=False)
     assert summary.samples == 0 and summary.failures == 4
     left, top = t.c + shift, t.f
@@ -132,7 +120,7 @@ def test_coverage_columns_count_the_chip_pixels_with_data(small_mission, north_b
 
     ortho = rewrite(src, tmp_path / "half.tif", t, blank_west)
     out = tmp_path / "ds"
-    config = cheap_config(
+    config = build_config(
         small_mission, out, inputs={"ortho": str(ortho)}, chips={"min_coverage": 0.0}
     )
     run_build(config, progress=False)
@@ -154,7 +142,7 @@ def test_coverage_columns_count_the_chip_pixels_with_data(small_mission, north_b
     assert 0.3 < built[first["key"]]["ortho_coverage"] < 0.4
     # the default minimum (0.5) refuses it
     out = tmp_path / "ds_default"
-    run_build(cheap_config(small_mission, out, inputs={"ortho": str(ortho)}), progress=False)
+    run_build(build_config(small_mission, out, inputs={"ortho": str(ortho)}), progress=False)
     assert first["key"] not in {r["key"] for r in rows_of(out)}
     reasons = {f["path"]: f for f in failures_of(out)}
     row = reasons[str(small_mission / "labels" / first["label_path"])]  # the labels root
@@ -164,10 +152,10 @@ def test_coverage_columns_count_the_chip_pixels_with_data(small_mission, north_b
 
 
 def test_min_coverage_is_a_fraction(small_mission, tmp_path):
-    assert cheap_config(small_mission, tmp_path).chips.min_coverage == 0.5
+    assert build_config(small_mission, tmp_path).chips.min_coverage == 0.5
     for bad in (-0.1, 1.5, "half", True):
         with pytest.raises(ConfigError, match=r"chips\.min_coverage"):
-            cheap_config(small_mission, tmp_path, chips={"min_coverage": bad})
+            build_config(small_mission, tmp_path, chips={"min_coverage": bad})
     for good in (0, 0.25, 1):
         doc = {
             "inputs": {"labels": "x", "places": "p", "dem": "d", "ortho": "o"},

@@ -4,45 +4,32 @@ failure row, the rest are built."""
 
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
-import yaml
-from mission_inputs import mission_inputs
+from support.configs import config_file
+from support.label_shapes import SHAPES
+from support.missions import MissionCache
 
 from mars_pairs.cli.main import main
-from mars_pairs.synth import generate_mission
 
 distributed = pytest.importorskip("distributed", reason="the dask extra is not installed")
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "pds"))
-from label_shapes import SHAPES  # noqa: E402
 
 BAD_SHAPE = "10k duplicate pointers"  # pdr alone: 59 s on a thread (quadratic)
 EXTRA_BUDGET_S = 20.0  # what the bad label may add to the build of the good ones
 
 
 def _config(tmp: Path, mission: Path, out: str) -> Path:
-    doc = {
-        "inputs": mission_inputs(mission),
-        "geometry": {"radius": 600, "ray_stride": 16},
-        "chips": {"size_m": 128, "size_px": 128},
-        "output": {"dir": str(tmp / out), "shard_size": 2},
-        "splits": {"block_m": 100},
-    }
-    path = tmp / f"{out}.yaml"
-    path.write_text(yaml.safe_dump(doc))
-    return path
+    return config_file(tmp / f"{out}.yaml", mission, tmp / out, fine=True, output={"shard_size": 2})
 
 
 def test_a_dask_build_with_a_pathological_label_fails_that_label_only(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    missions: MissionCache, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    mission = tmp_path / "mission"
-    generate_mission(mission, seed=5, mission="m2020", stops=2, images_per_stop=1, size="small")
+    mission = missions.copy(tmp_path / "mission", seed=5, stops=2, images_per_stop=1)
     good = sorted((mission / "labels").glob("*.xml"))
     with (
         distributed.LocalCluster(

@@ -12,13 +12,13 @@ from pathlib import Path
 
 import pytest
 import yaml
-from mission_inputs import mission_inputs
+from support.configs import config_file
+from support.missions import MissionCache
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import WorkerStartError
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
-from mars_pairs.synth import generate_mission
 
 distributed = pytest.importorskip("distributed", reason="the dask extra is not installed")
 
@@ -26,10 +26,8 @@ from mars_pairs.pipeline.build.dask_engine import DaskEngine  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def mission(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    root = tmp_path_factory.mktemp("mission")
-    generate_mission(root, seed=3, mission="m2020", stops=3, images_per_stop=2, size="small")
-    return root
+def mission(missions: MissionCache) -> Path:
+    return missions(seed=3, stops=3, images_per_stop=2)
 
 
 @pytest.fixture(scope="module")
@@ -46,16 +44,8 @@ def cluster():
 
 
 def config(tmp: Path, mission: Path, out: str, shard_size: int = 2) -> Path:
-    doc = {
-        "inputs": mission_inputs(mission),
-        "geometry": {"radius": 600, "ray_stride": 16},
-        "chips": {"size_m": 128, "size_px": 128},
-        "output": {"dir": str(tmp / out), "shard_size": shard_size, "keep_parts": True},
-        "splits": {"block_m": 100},
-    }
-    path = tmp / f"{out}.yaml"
-    path.write_text(yaml.safe_dump(doc))
-    return path
+    output = {"shard_size": shard_size, "keep_parts": True}
+    return config_file(tmp / f"{out}.yaml", mission, tmp / out, fine=True, output=output)
 
 
 def digests(out: Path) -> dict[str, str]:

@@ -7,21 +7,20 @@ from __future__ import annotations
 
 import io
 import json
-import tarfile
 from pathlib import Path
 from typing import Any
 
-import independent_truth as truth
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import rasterio
 from affine import Affine
-from mission_inputs import mission_inputs
 from PIL import Image
+from support import independent_truth as truth
+from support.configs import build_config
+from support.members import rows_by_key, sample_members
 
 from mars_pairs.pipeline.build.run import run_build
-from mars_pairs.pipeline.config import parse_config
 from mars_pairs.store.manifest import MANIFEST_SCHEMA
 
 STRIDE = 8
@@ -30,27 +29,13 @@ CHIP = {"size_m": 128, "size_px": 512}  # 0.25 m: the ortho's own resolution
 
 
 def _build(mission: Path, out: Path, **sections: Any) -> Path:
-    doc: dict[str, Any] = {
-        "inputs": mission_inputs(mission),
-        "geometry": {"radius": RADIUS_M, "ray_stride": STRIDE},
-        "chips": dict(CHIP),
-        "output": {"dir": str(out)},
-    }
-    for name, values in sections.items():
-        doc[name] = {**doc.get(name, {}), **values}
-    result = run_build(parse_config(doc, mission))
+    config = build_config(
+        mission, out, geometry={"radius": RADIUS_M, "ray_stride": STRIDE},
+        **{"splits": None, **sections, "chips": {**CHIP, **sections.get("chips", {})}},
+    )  # fmt: skip
+    result = run_build(config)
     assert result.failures == 0
     return out
-
-
-def _samples(out: Path) -> dict[str, dict[str, bytes]]:
-    members: dict[str, dict[str, bytes]] = {}
-    for shard in sorted(out.glob("**/*.tar")):
-        with tarfile.open(shard) as tar:
-            for info in tar.getmembers():
-                key, name = info.name.split(".", 1)
-                members.setdefault(key, {})[name] = tar.extractfile(info).read()  # type: ignore[union-attr]
-    return members
 
 
 def _img(data: bytes) -> np.ndarray:
@@ -83,7 +68,7 @@ def test_members_written_located_and_checksummed(dense: Path) -> None:
                   "ground_on_map", "ground_on_map_cover", "ground_px"):  # fmt: skip
         for row in rows:
             assert row[f"{field}_size"] > 0 and row[f"{field}_crc32c"] is not None
-    samples = _samples(dense)
+    samples = sample_members(dense)
     for m in samples.values():
         meta = json.loads(m["meta.json"])
         h, w = (len(range(0, meta["height"], STRIDE)), len(range(0, meta["width"], STRIDE)))
@@ -104,7 +89,7 @@ def test_default_build_is_unchanged_and_members_leave_the_rest_alone(
     assert pq.read_schema(plain / "manifest.parquet").remove_metadata() == MANIFEST_SCHEMA
     doc = json.loads((plain / "dataset.json").read_text())
     assert "members" not in doc["config"]["output"] and "offset_m" not in doc["config"]["chips"]
-    a, b = _samples(plain), _samples(dense)
+    a, b = sample_members(plain), sample_members(dense)
     assert a.keys() == b.keys()
     for key in a:
         assert set(a[key]) == {n for n in b[key] if "." in n and n.split(".")[0] in
@@ -121,7 +106,7 @@ def test_closure_ground_on_map_and_map_from_rover(dense: Path) -> None:
     pixel, and is valid wherever a ray hits the map within the radius, off the chip too."""
     checked_map = checked_view = 0
     beyond_chip = 0
-    for key, m in _samples(dense).items():
+    for key, m in sample_members(dense).items():
         ortho = _img(m["ortho.png"]).astype(np.float64)
         cover = _img(m["ground_on_map_cover.png"]) > 0
         on_map = _grey(_img(m["ground_on_map.png"]))
@@ -174,8 +159,8 @@ def _label(dataset: Path, row: dict) -> Path:
 
 def test_range_and_depth_match_the_independent_march(dense: Path, small_mission: Path) -> None:
     errors_r, errors_d = [], []
-    rows = {r["key"]: r for r in pq.read_table(dense / "manifest.parquet").to_pylist()}
-    for key, m in list(_samples(dense).items())[:2]:
+    rows = rows_by_key(dense)
+    for key, m in list(sample_members(dense).items())[:2]:
         r, d = _npy(m["range.npy"]), _npy(m["depth.npy"])
         h, w = r.shape
         lines, samples = np.meshgrid(np.arange(h)[::2], np.arange(w)[::2], indexing="ij")
@@ -196,10 +181,10 @@ def test_range_and_depth_match_the_independent_march(dense: Path, small_mission:
 def test_offset_chips_rover_px_camera_px_heading(small_mission: Path, tmp_path: Path) -> None:
     out = _build(small_mission, tmp_path / "a", chips={"offset_m": 20.0})
     again = _build(small_mission, tmp_path / "b", chips={"offset_m": 20.0})
-    assert _samples(out) == _samples(again)  # seeded per sample
+    assert sample_members(out) == sample_members(again)  # seeded per sample
     res = CHIP["size_m"] / CHIP["size_px"]
     shifts = []
-    for key, m in _samples(out).items():
+    for key, m in sample_members(out).items():
         meta = json.loads(m["meta.json"])
         tr = Affine(*meta["chip_transform"])
         col, row = ~tr * (meta["easting"], meta["northing"])
@@ -270,9 +255,9 @@ def test_classes_move_between_image_and_chip(
     from mars_pairs.raster.transfer import chip_to_image, image_to_chip
 
     path, _, codes = _class_mission(small_mission, tmp_path)
-    rows = {r["key"]: r for r in pq.read_table(dense / "manifest.parquet").to_pylist()}
+    rows = rows_by_key(dense)
     checked = checked_back = 0
-    for key, m in _samples(dense).items():
+    for key, m in sample_members(dense).items():
         meta = json.loads(m["meta.json"])
         n = CHIP["size_px"]
         grid = ChipGrid(Affine(*meta["chip_transform"]), meta["crs"], n, 0.0, 0.0, CHIP["size_m"])
@@ -347,10 +332,10 @@ def test_heading_up_chips_point_the_camera_up(small_mission: Path, tmp_path: Pat
         small_mission, tmp_path / "h", chips={"offset_m": 10.0, "orientation": "heading-up"}
     )
     north = _build(small_mission, tmp_path / "n", chips={"offset_m": 10.0})
-    rows = {r["key"]: r for r in pq.read_table(out / "manifest.parquet").to_pylist()}
-    north_meta = {k: json.loads(m["meta.json"]) for k, m in _samples(north).items()}
+    rows = rows_by_key(out)
+    north_meta = {k: json.loads(m["meta.json"]) for k, m in sample_members(north).items()}
     bearings = []
-    for key, m in _samples(out).items():
+    for key, m in sample_members(out).items():
         meta = json.loads(m["meta.json"])
         label = _label(out, rows[key])
         bearing = _chip_bearing_of_axis(label, small_mission, meta["chip_transform"])

@@ -5,14 +5,13 @@ from __future__ import annotations
 
 import io
 import json
-import tarfile
 from pathlib import Path
 
-import independent_truth as truth
 import numpy as np
-import pyarrow.parquet as pq
 import pytest
-from test_build_real_gale import GALE, _make_labels
+from support import independent_truth as truth
+from support.members import rows_by_key, sample_members
+from support.real_gale import GALE, make_gale_labels
 
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import parse_config
@@ -27,7 +26,7 @@ def built(tmp_path_factory: pytest.TempPathFactory) -> Path:
         pytest.skip(f"real Gale terrain not found at {GALE} (../shared beside the checkout)")
     root = tmp_path_factory.mktemp("dense-gale")
     (root / "labels").mkdir()
-    _make_labels(GALE, root / "labels")
+    make_gale_labels(GALE, root / "labels")
     doc = {
         "inputs": {"labels": "labels/*.LBL", "places": str(GALE / "rover_positions.csv"),
                    "dem": str(GALE / "dem.tif"), "ortho": str(GALE / "ortho.tif")},
@@ -41,16 +40,12 @@ def built(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_range_and_depth_on_real_gale(built: Path) -> None:
-    rows = {r["key"]: r for r in pq.read_table(built / "manifest.parquet").to_pylist()}
+    rows = rows_by_key(built)
     labels = built / json.loads((built / "dataset.json").read_text())["labels_root"]
     arrays: dict[str, dict[str, np.ndarray]] = {}
-    for shard in sorted((built / "shards").glob("*.tar")):
-        with tarfile.open(shard) as tar:
-            for m in tar.getmembers():
-                key, _, name = m.name.partition(".")
-                if name in ("range.npy", "depth.npy"):
-                    data = tar.extractfile(m).read()  # type: ignore[union-attr]
-                    arrays.setdefault(key, {})[name] = np.load(io.BytesIO(data))
+    for key, members in sample_members(built).items():
+        for name in ("range.npy", "depth.npy"):
+            arrays.setdefault(key, {})[name] = np.load(io.BytesIO(members[name]))
     er, ed = [], []
     for key, a in arrays.items():
         lab = truth.read_label_fields(labels / rows[key]["label_path"])  # relative to the root

@@ -18,8 +18,7 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from mission_config import cheap_config
-from mission_inputs import mission_inputs
+from support.configs import build_config
 
 from mars_pairs.errors import MarsPairsError
 from mars_pairs.pipeline.build import run as build
@@ -27,7 +26,7 @@ from mars_pairs.pipeline.build.engine import ChunkResult, ChunkTask, InProcess
 from mars_pairs.pipeline.build.local_pool import LocalPool
 from mars_pairs.pipeline.build.outputs import is_temporary
 from mars_pairs.pipeline.build.run import run_build
-from mars_pairs.pipeline.config import BuildConfig, parse_config
+from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.store.manifest import MANIFEST_SCHEMA
 from mars_pairs.store.shards import MemberLocation, ShardWriter, read_member
 
@@ -58,7 +57,7 @@ def _leaves(value: Any, path: str = "") -> Iterator[tuple[str, Any]]:
 def test_a_pool_worker_writes_the_shard_and_sends_back_rows_only(
     small_mission: Path, tmp_path: Path
 ) -> None:
-    config = cheap_config(small_mission, tmp_path / "ds", output={"shard_size": 4})
+    config = build_config(small_mission, tmp_path / "ds", output={"shard_size": 4})
     labels = tuple(sorted(str(p) for p in (small_mission / "labels").glob("*.xml")))
     with LocalPool(config, workers=1) as pool:
         (result,) = list(pool.run(config, iter([ChunkTask(0, labels)])))
@@ -103,14 +102,7 @@ def duplicates(small_mission: Path, tmp_path_factory: pytest.TempPathFactory) ->
 
 
 def _dup_config(small_mission: Path, labels: Path, out: Path) -> BuildConfig:
-    doc = {
-        "inputs": mission_inputs(small_mission, labels=labels / "*.xml"),
-        "geometry": {"radius": 300, "ray_stride": 32},
-        "chips": {"size_m": 64, "size_px": 64},
-        "output": {"dir": str(out), "shard_size": 2},
-        "splits": {"block_m": 100},
-    }
-    return parse_config(doc, small_mission)
+    return build_config(small_mission, out, labels=labels / "*.xml", output={"shard_size": 2})
 
 
 def test_duplicates_in_and_across_chunks_give_the_same_bytes_on_any_worker_count(
@@ -171,7 +163,7 @@ def test_a_dead_workers_temporary_shard_is_gone_when_the_build_ends(
     def leave_a_temporary(out: Path, result: ChunkResult) -> None:
         (out / "shards" / f".shard-{result.index:06d}.tar.tmp-999999").write_bytes(b"half")
 
-    config = cheap_config(small_mission, tmp_path / "ds", output={"shard_size": 2})
+    config = build_config(small_mission, tmp_path / "ds", output={"shard_size": 2})
     summary = run_build(config, engine=_Meddling(leave_a_temporary), progress=False)
     assert summary.samples == 4
     assert sorted(p.name for p in (tmp_path / "ds" / "shards").iterdir()) == [
@@ -187,7 +179,7 @@ def test_a_shard_changed_after_its_worker_wrote_it_is_not_committed(
         with open(out / result.shard, "r+b") as fh:
             fh.truncate(result.shard_bytes - 512)
 
-    config = cheap_config(small_mission, tmp_path / "ds", output={"shard_size": 2})
+    config = build_config(small_mission, tmp_path / "ds", output={"shard_size": 2})
     with pytest.raises(MarsPairsError, match=r"shard-000000\.tar: .* bytes, but its worker"):
         run_build(config, engine=_Meddling(truncate), progress=False)
     assert not (tmp_path / "ds" / "parts" / "manifest-000000.parquet").exists()

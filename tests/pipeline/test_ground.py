@@ -10,15 +10,16 @@ from __future__ import annotations
 import io
 import json
 import shutil
-import tarfile
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-import yaml
 from PIL import Image
+from support.configs import config_file
+from support.members import metas as read_metas
+from support.missions import MissionCache
 
 from mars_pairs.errors import ImageError
 from mars_pairs.geometry.camera import CameraModel
@@ -27,15 +28,12 @@ from mars_pairs.pds import read_observation
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.pipeline.sample.ground import ground_image
-from mars_pairs.synth import generate_mission
 from mars_pairs.synth.labels import write_pds3_img, write_pds3_label, write_pds4_label
 
 
 @pytest.fixture(scope="module")
-def mission(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    root = tmp_path_factory.mktemp("mission")
-    generate_mission(root, seed=5, mission="m2020", stops=2, images_per_stop=2, size="small")
-    return root
+def mission(missions: MissionCache) -> Path:
+    return missions(seed=5, stops=2, images_per_stop=2)
 
 
 def observations(mission: Path) -> list[Observation]:
@@ -218,21 +216,10 @@ def test_bad_images_are_refused_naming_the_file(mission: Path, tmp_path: Path) -
 
 
 def _config(tmp: Path, mission: Path, globs: list[str]) -> Path:
-    doc = {
-        "inputs": {
-            "labels": globs,
-            "places": str(mission / "places" / "best_interp.csv"),
-            "dem": str(mission / "orbital" / "dem.tif"),
-            "ortho": str(mission / "orbital" / "ortho.tif"),
-        },
-        "geometry": {"radius": 400, "ray_stride": 16},
-        "chips": {"size_m": 128, "size_px": 64},
-        "output": {"dir": str(tmp / "out"), "shard_size": 8},
-        "splits": {"block_m": 100},
-    }
-    path = tmp / "config.yaml"
-    path.write_text(yaml.safe_dump(doc))
-    return path
+    return config_file(
+        tmp / "config.yaml", mission, tmp / "out", fine=True, labels=globs,
+        geometry={"radius": 400}, chips={"size_px": 64}, output={"shard_size": 8},
+    )  # fmt: skip
 
 
 def test_every_new_kind_builds_into_samples_with_no_failure(
@@ -248,12 +235,7 @@ def test_every_new_kind_builds_into_samples_with_no_failure(
     assert len(rows) == sum(len(v) for v in kinds.values())
     by_tag = {r["product_id"].rsplit("_", 1)[1] for r in rows}
     assert by_tag == {"MIPL", "ATT", "ORE3", "ORE4", "IMG4"}
-    metas = {}
-    for shard in (out / "shards").glob("*.tar"):
-        with tarfile.open(shard) as tar:
-            for info in tar.getmembers():
-                if info.name.endswith(".meta.json"):
-                    metas[info.name] = json.loads(tar.extractfile(info).read())
+    metas = read_metas(out)
     assert len(metas) == len(rows)
     types = {m["product_id"].rsplit("_", 1)[1]: m["camera_model_type"] for m in metas.values()}
     assert types["ORE3"] == types["ORE4"] == "CAHVORE"

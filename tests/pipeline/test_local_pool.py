@@ -7,7 +7,7 @@ import multiprocessing as mp
 from collections.abc import Iterator
 from pathlib import Path
 
-from mission_config import cheap_config
+from support.configs import build_config
 
 from mars_pairs.pipeline.build.local_pool import LocalPool, pool_processes, worker_context
 
@@ -20,7 +20,7 @@ def test_results_in_order_with_a_bounded_window(small_mission: Path, tmp_path: P
             pulled.append(label := str(tmp_path / f"missing_{i:03d}.xml"))
             yield label
 
-    with LocalPool(cheap_config(small_mission, tmp_path / "ds"), workers=2, window=6) as pool:
+    with LocalPool(build_config(small_mission, tmp_path / "ds"), workers=2, window=6) as pool:
         got = []
         for status, row in pool.results(labels()):
             got.append((status, row["path"]))
@@ -49,7 +49,7 @@ def test_workers_take_the_builds_settings_not_the_fork_servers_nor_the_rest(
     workers, though the fork server started before; other variables of the driver do not;
     the workers run with the process defaults (OMP_WAIT_POLICY)."""
     names = ("GDAL_HTTP_TIMEOUT", "AWS_PROFILE", "MARS_PAIRS_TEST_OPTION", "OMP_WAIT_POLICY")
-    config = cheap_config(small_mission, tmp_path / "ds")
+    config = build_config(small_mission, tmp_path / "ds")
     monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
     with LocalPool(config, workers=1) as pool:  # starts the server if not running
         pool._pool.submit(_environ, *names).result()

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
-from mission_config import cheap_config
+from support.configs import build_config
 
 from mars_pairs.errors import WorkerDiedError
 from mars_pairs.pipeline.build import local_pool
@@ -47,20 +47,20 @@ def test_a_killed_worker_fails_the_build_and_resume_finishes_it(
     start = time.perf_counter()
     with pytest.raises(WorkerDiedError, match="rerun with --resume"):
         run_build(
-            cheap_config(small_mission, tmp_path / "ds", output={"shard_size": 1}),
+            build_config(small_mission, tmp_path / "ds", output={"shard_size": 1}),
             workers=2,
             progress=False,
         )
     assert time.perf_counter() - start < 60  # failed, not hung
     monkeypatch.undo()
     resumed = run_build(
-        cheap_config(small_mission, tmp_path / "ds", output={"shard_size": 1}),
+        build_config(small_mission, tmp_path / "ds", output={"shard_size": 1}),
         workers=2,
         resume=True,
         progress=False,
     )
     clean = run_build(
-        cheap_config(small_mission, tmp_path / "clean", output={"shard_size": 1}),
+        build_config(small_mission, tmp_path / "clean", output={"shard_size": 1}),
         workers=1,
         progress=False,
     )

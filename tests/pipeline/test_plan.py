@@ -12,8 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import yaml
-from mission_inputs import mission_inputs
+from support.configs import config_file
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
@@ -88,15 +87,11 @@ def test_planning_memory_is_flat_in_the_label_count(tmp_path: Path) -> None:
 
 
 def _cheap_config(path: Path, mission: Path, out: Path) -> Path:
-    doc = {
-        "inputs": mission_inputs(mission),
-        "geometry": {"radius": 200, "ray_stride": 64},
-        "chips": {"size_m": 32, "size_px": 16},
-        "output": {"dir": str(out), "shard_size": 1, "keep_parts": True},  # parts deleted below
-        "splits": {"block_m": 100},
-    }
-    path.write_text(yaml.safe_dump(doc))
-    return path
+    return config_file(
+        path, mission, out, geometry={"radius": 200, "ray_stride": 64},
+        chips={"size_m": 32, "size_px": 16},
+        output={"shard_size": 1, "keep_parts": True},  # parts deleted below
+    )  # fmt: skip
 
 
 def test_dry_run_after_a_partial_build_counts_the_chunks_done_and_writes_nothing(

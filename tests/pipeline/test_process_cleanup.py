@@ -21,8 +21,7 @@ import uuid
 from pathlib import Path
 
 import pytest
-import yaml
-from mission_inputs import mission_inputs
+from support.configs import config_file
 
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
@@ -40,15 +39,7 @@ pytestmark = pytest.mark.skipif(
 
 
 def _config(path: Path, mission: Path, out: Path) -> Path:
-    doc = {
-        "inputs": mission_inputs(mission),
-        "geometry": {"radius": 300, "ray_stride": 32},
-        "chips": {"size_m": 64, "size_px": 64},
-        "output": {"dir": str(out), "shard_size": 1},
-        "splits": {"block_m": 100},
-    }
-    path.write_text(yaml.safe_dump(doc))
-    return path
+    return config_file(path, mission, out, output={"shard_size": 1})
 
 
 def _marked(tag: str) -> list[int]:

@@ -19,8 +19,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from mission_config import cheap_config
-from mission_inputs import mission_inputs
+from support.configs import build_config, config_doc, config_file
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
@@ -38,14 +37,15 @@ def _files(root: Path) -> dict[str, str]:
     }
 
 
+ONE_A_CHUNK = {"shard_size": 1, "keep_parts": True}  # parts are deleted to fake a kill
+
+
 def _config(mission: Path, tmp_path: Path, out: Path) -> tuple[BuildConfig, Path]:
     """A cheap config of one label a chunk over ``mission``, its PLACES table a copy."""
     places = tmp_path / "places.csv"
     if not places.exists():
         shutil.copyfile(mission / "places" / "best_interp.csv", places)
-    inputs = mission_inputs(mission, places=places)
-    output = {"shard_size": 1, "keep_parts": True}  # parts are deleted to fake a kill
-    return cheap_config(mission, out, inputs=inputs, output=output), places
+    return build_config(mission, out, places=places, output=ONE_A_CHUNK), places
 
 
 def _killed_after(out: Path, done: int, chunks: int = 4) -> None:
@@ -55,21 +55,10 @@ def _killed_after(out: Path, done: int, chunks: int = 4) -> None:
         part_paths(out, k)[1].unlink()
 
 
-def _cli_yaml(config: BuildConfig, path: Path) -> Path:
-    """``config`` (a ``cheap_config`` of one label a chunk) as a YAML file for the CLI."""
-    inputs = config.inputs
-    doc = {
-        "inputs": {
-            "labels": list(inputs.labels),
-            **{key: str(getattr(inputs, key)) for key in ("places", "dem", "ortho")},
-        },
-        "geometry": {"radius": 300, "ray_stride": 32},
-        "chips": {"size_m": 64, "size_px": 64},
-        "output": {"dir": str(config.output.dir), "shard_size": 1, "keep_parts": True},
-        "splits": {"block_m": 100},
-    }
-    path.write_text(yaml.safe_dump(doc))
-    return path
+def _cli_yaml(mission: Path, tmp_path: Path, out: Path) -> Path:
+    """``_config``'s config as ``tmp_path/c.yaml``, for the CLI."""
+    places = tmp_path / "places.csv"
+    return config_file(tmp_path / "c.yaml", mission, out, places=places, output=ONE_A_CHUNK)
 
 
 def test_a_resume_after_the_places_table_changed_is_refused(
@@ -91,7 +80,7 @@ def test_a_resume_after_the_places_table_changed_is_refused(
     assert str(places) in str(err.value) and "content (sha256" in str(err.value)
     assert _files(out) == before
     # the dry run refuses the same way, in one line
-    yaml_path = _cli_yaml(config, tmp_path / "c.yaml")
+    yaml_path = _cli_yaml(small_mission, tmp_path, out)
     assert main(["build", "--config", str(yaml_path), "--dry-run", "--resume"]) == 2
     printed = capsys.readouterr().err
     assert printed.count("\n") == 1 and "inputs.places changed" in printed, printed
@@ -164,7 +153,7 @@ def test_a_resume_refuses_a_strangers_files_and_keeps_its_own_leftovers(
         "parts/notes.parquet": b"PAR1 notes PAR1",
         "parts/failures-000002.parquet": b"not a parquet file",
     }
-    yaml_path = _cli_yaml(config, tmp_path / "c.yaml")
+    yaml_path = _cli_yaml(small_mission, tmp_path, out)
     for rel, data in theirs.items():
         kept = (out / rel).read_bytes() if (out / rel).exists() else None
         (out / rel).write_bytes(data)
@@ -239,10 +228,7 @@ def test_a_fifo_or_a_folder_as_a_file_input_expects_a_regular_file(
     fifo = tmp_path / f"{key}.fifo"
     os.mkfifo(fifo)
     for bad, kind in ((fifo, "a FIFO"), (tmp_path, "a folder")):
-        doc = {
-            "inputs": {**mission_inputs(small_mission), key: str(bad)},
-            "output": {"dir": str(tmp_path / "ds")},
-        }
+        doc = config_doc(small_mission, tmp_path / "ds", inputs={key: str(bad)})
         path = tmp_path / "c.yaml"
         path.write_text(yaml.safe_dump(doc))
         with pytest.raises(ConfigError) as err:

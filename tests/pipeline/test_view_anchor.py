@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rasterio
-from mission_config import cheap_config
+from support.configs import build_config
 
 from mars_pairs.errors import StageError, TerrainError
 from mars_pairs.geometry.mapcam import MapCamera
@@ -33,7 +33,7 @@ def test_the_build_and_viewshed_label_anchor_the_same_camera_at_the_same_height(
     small_mission: Path, tmp_path: Path, observer_height: float | None
 ) -> None:
     geometry = {"radius": RADIUS_M, "viewshed": "wedge", "observer_height": observer_height}
-    ctx = SampleContext.open(cheap_config(small_mission, tmp_path / "out", geometry=geometry))
+    ctx = SampleContext.open(build_config(small_mission, tmp_path / "out", geometry=geometry))
     try:
         for label in _labels(small_mission):
             sample = build_sample(label, ctx)  # the build's path, as a worker runs it
@@ -71,7 +71,7 @@ def _mask_on(view: View, other: View) -> np.ndarray:
 
 
 def test_the_view_is_frozen(small_mission: Path, tmp_path: Path) -> None:
-    ctx = SampleContext.open(cheap_config(small_mission, tmp_path / "out"))
+    ctx = SampleContext.open(build_config(small_mission, tmp_path / "out"))
     try:
         label = _labels(small_mission)[0]
         obs = read_observation(label)
@@ -93,7 +93,7 @@ def test_the_build_times_the_view_stages_by_name(
     small_mission: Path, tmp_path: Path, method: str, stages: set[str]
 ) -> None:
     geometry = {"radius": RADIUS_M, "viewshed": method}
-    ctx = SampleContext.open(cheap_config(small_mission, tmp_path / "out", geometry=geometry))
+    ctx = SampleContext.open(build_config(small_mission, tmp_path / "out", geometry=geometry))
     try:
         sample = build_sample(_labels(small_mission)[0], ctx)
     finally:
@@ -108,7 +108,7 @@ def test_a_rover_over_dem_nodata_is_a_terrain_error_on_both_paths(
     mission = tmp_path / "mission"
     shutil.copytree(small_mission, mission)
     label = _labels(mission)[0]
-    ctx = SampleContext.open(cheap_config(mission, tmp_path / "out"))
+    ctx = SampleContext.open(build_config(mission, tmp_path / "out"))
     obs = read_observation(label)
     pose = ctx.places.locate(obs)
     ox, oy = MapCamera.from_observation(obs, pose, ctx.crs_wkt).origin_map[:2]
@@ -118,7 +118,7 @@ def test_a_rover_over_dem_nodata_is_a_terrain_error_on_both_paths(
         row, col = dem.index(ox, oy)
         z[row - 3 : row + 4, col - 3 : col + 4] = dem.nodata if dem.nodata is not None else np.nan
         dem.write(z, 1)
-    ctx = SampleContext.open(cheap_config(mission, tmp_path / "out"))
+    ctx = SampleContext.open(build_config(mission, tmp_path / "out"))
     try:
         with pytest.raises(StageError) as failed:
             build_sample(label, ctx)

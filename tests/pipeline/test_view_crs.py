@@ -15,17 +15,17 @@ import pytest
 import rasterio
 from pyproj import Transformer
 from rasterio.warp import Resampling, calculate_default_transform, reproject
+from support.configs import build_config
+from support.missions import MissionCache
 
 from mars_pairs.errors import TerrainError
 from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.pds import read_observation
-from mars_pairs.pipeline.config import parse_config
 from mars_pairs.pipeline.sample.build_sample import view_stages
 from mars_pairs.pipeline.sample.context import SampleContext
 from mars_pairs.pipeline.sample.stages import Stages
 from mars_pairs.pipeline.sample.view import View
 from mars_pairs.raster.terrain import Terrain
-from mars_pairs.synth import generate_mission
 
 SPHERE = "+R=3396190 +units=m +no_defs +type=crs"
 TARGETS = {
@@ -36,10 +36,8 @@ TARGETS = {
 
 
 @pytest.fixture(scope="module")
-def mission(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    root = tmp_path_factory.mktemp("mission")
-    generate_mission(root, seed=5, mission="m2020", stops=2, images_per_stop=3, size="small")
-    return root
+def mission(missions: MissionCache) -> Path:
+    return missions(seed=5, stops=2, images_per_stop=3)
 
 
 def _warp(src_path: Path, dst_path: Path, crs: str) -> None:
@@ -62,17 +60,11 @@ def _warp(src_path: Path, dst_path: Path, crs: str) -> None:
 
 
 def _views(mission: Path, dem: Path, tmp: Path) -> dict[str, View]:
-    doc = {
-        "inputs": {
-            "labels": str(mission / "labels" / "*.xml"),
-            "places": str(mission / "places" / "best_interp.csv"),
-            "dem": str(dem),
-            "ortho": str(mission / "orbital" / "ortho.tif"),
-        },
-        "geometry": {"radius": 400, "ray_stride": 32, "viewshed": "wedge"},
-        "output": {"dir": str(tmp / "unused")},
-    }
-    ctx = SampleContext.open(parse_config(doc, tmp))
+    config = build_config(
+        mission, tmp / "unused", base=tmp, inputs={"dem": str(dem)},
+        geometry={"radius": 400, "ray_stride": 32, "viewshed": "wedge"}, chips=None, splits=None,
+    )  # fmt: skip
+    ctx = SampleContext.open(config)
     views = {}
     try:
         for label in sorted((mission / "labels").glob("*.xml")):

@@ -9,7 +9,7 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from built_dataset import build_small
+from support.builds import build_small
 
 from mars_pairs.store.croissant import croissant_type
 

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
-from built_dataset import build_small
+from support.builds import build_small, small_sections
+from support.configs import build_config
 
 from mars_pairs.cli.verify import verify_dataset
 from mars_pairs.errors import ConfigError
@@ -99,25 +100,19 @@ def test_resume_and_rebuild_over_a_finished_build(small_mission: Path, tmp_path:
     out = build_small(small_mission, tmp_path / "ds")
     before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
     # --resume over the same finished build: nothing to do, nothing written
-    from built_dataset import build_config
-
-    config = parse_config(build_config(small_mission, out), base=small_mission)
+    config = build_config(small_mission, out, **small_sections())
     summary = run_build(config, resume=True, progress=False)
     assert (summary.chunks_built, summary.chunks_resumed) == (0, 2)
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
     # another config: --resume refuses, a rebuild clears the finished build's files
-    other = parse_config(
-        build_config(small_mission, out, output={"shard_size": 4}), base=small_mission
-    )
+    other = build_config(small_mission, out, **small_sections(output={"shard_size": 4}))
     with pytest.raises(ConfigError, match="cannot resume"):
         run_build(other, resume=True, progress=False)
     run_build(other, progress=False)
     assert sorted(p.name for p in (out / "shards").iterdir()) == ["shard-000000.tar"]
     assert not (out / "parts").exists()
     # output.keep_parts keeps them (a deleted part then redoes its chunk alone)
-    kept = parse_config(
-        build_config(small_mission, out, output={"keep_parts": True}), base=small_mission
-    )
+    kept = build_config(small_mission, out, **small_sections(output={"keep_parts": True}))
     run_build(kept, progress=False)
     assert (out / "parts" / "build.json").is_file()
 

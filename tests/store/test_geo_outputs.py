@@ -11,8 +11,8 @@ import geopandas
 import pyarrow.parquet as pq
 import pytest
 import shapely
-from built_dataset import build_small
 from pyproj import CRS
+from support.builds import build_small
 
 from mars_pairs.cli import main
 from mars_pairs.geometry.body import M2020_PLACES_CRS, MSL_PLACES_CRS

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 import torch
 from PIL import Image
+from support.members import manifest_keys
 from torch.utils.data import DataLoader
-from torch_members import all_keys
 
 import mars_pairs.torch.datasets as mpd
 import mars_pairs.torch.streaming as mps
@@ -28,7 +28,7 @@ from mars_pairs.torch import MarsPairsDataset, MarsPairsIterableDataset, collate
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def manifest_keys(root: Path, **filters: Any) -> set[str]:
+def filtered_keys(root: Path, **filters: Any) -> set[str]:
     table = Manifest.open(root).filter(**filters).to_table(columns=["key"])
     return set(table.column("key").to_pylist())
 
@@ -48,7 +48,7 @@ GEO_KEYS = {"crs", "bounds", "transform", "rotation"}
 def test_samples_match_the_tar_members(dataset_dir: Path, members: dict[str, bytes]) -> None:
     ds = MarsPairsDataset(dataset_dir, fields=mpd.ALL_FIELDS, image_dtype=torch.float32)
     assert len(ds) == 9
-    assert sorted(dataset_keys(ds)) == sorted(all_keys(dataset_dir))
+    assert sorted(dataset_keys(ds)) == sorted(manifest_keys(dataset_dir))
     for i in range(len(ds)):
         s = ds[i]
         key = s["meta"]["key"]
@@ -179,7 +179,7 @@ def test_filters_match_the_manifest(dataset_dir: Path) -> None:
     lat = np.asarray(table.column("latitude").to_pylist())
     lon = np.asarray(table.column("longitude").to_pylist())
     splits = set(table.column("split").to_pylist())
-    everything = all_keys(dataset_dir)
+    everything = manifest_keys(dataset_dir)
     cases: list[dict[str, Any]] = [{"split": s} for s in sorted(splits)]
     cases += [
         {"sol": (99_999, 99_999)},  # nothing
@@ -197,7 +197,7 @@ def test_filters_match_the_manifest(dataset_dir: Path) -> None:
     ]
     seen = set()
     for filters in cases:
-        expected = manifest_keys(dataset_dir, **filters)
+        expected = filtered_keys(dataset_dir, **filters)
         ds = MarsPairsDataset(dataset_dir, fields=("viewshed",), **filters)
         keys = dataset_keys(ds)
         assert len(keys) == len(set(keys)) and set(keys) == expected, filters
@@ -207,7 +207,7 @@ def test_filters_match_the_manifest(dataset_dir: Path) -> None:
         seen.add(len(keys))
     # the cases are not all trivial: some subset strictly between nothing and everything
     assert 0 in seen and len(everything) in seen and any(0 < n < len(everything) for n in seen)
-    assert 0 < len(manifest_keys(dataset_dir, near=(float(lat[0]), float(lon[0]), 1.0))) < 9
+    assert 0 < len(filtered_keys(dataset_dir, near=(float(lat[0]), float(lon[0]), 1.0))) < 9
     # a split name the dataset does not know is refused, the known ones listed
     with pytest.raises(ArgumentError, match=r"'none-such'; its splits are .*train"):
         MarsPairsDataset(dataset_dir, split="none-such")
@@ -256,7 +256,7 @@ def test_dataloader_with_two_workers(dataset_dir: Path, context: str) -> None:
                 assert torch.equal(batch[name][j], single[name]), (name, key)
             assert batch["ground"].dtype == torch.uint8
         keys += batch["meta"]["key"]
-    assert sorted(keys) == sorted(all_keys(dataset_dir))
+    assert sorted(keys) == sorted(manifest_keys(dataset_dir))
 
 
 def stack_ground(batch: Sequence[dict[str, Any]]) -> tuple[torch.Tensor, list[str]]:
@@ -316,10 +316,10 @@ def test_iterable_yields_every_sample_once_across_workers(dataset_dir: Path) -> 
     ds = MarsPairsIterableDataset(dataset_dir, fields=("viewshed",), shuffle_buffer=4, seed=1)
     assert len(ds.shards) == 3 and len(ds) == 9
     single = stream_keys(ds)
-    assert sorted(single) == sorted(all_keys(dataset_dir))
+    assert sorted(single) == sorted(manifest_keys(dataset_dir))
     assert single == stream_keys(ds)  # same epoch: same order
     two = stream_keys(ds, workers=2)
-    assert sorted(two) == sorted(all_keys(dataset_dir))
+    assert sorted(two) == sorted(manifest_keys(dataset_dir))
     ds.set_epoch(1)
     assert sorted(stream_keys(ds)) == sorted(single)
 
@@ -356,7 +356,7 @@ def test_iterable_splits_shards_across_ranks(
         monkeypatch.setattr(mps, "_world", lambda rank=rank: (rank, 2))
         per_rank.append(stream_keys(ds))
         per_rank_workers.append(stream_keys(ds, workers=2))  # 2 ranks x 2 workers, 3 shards
-    everything = all_keys(dataset_dir)
+    everything = manifest_keys(dataset_dir)
     for got in (per_rank, per_rank_workers):
         a, b = (set(keys) for keys in got)
         assert len(got[0]) == len(a) and len(got[1]) == len(b)

@@ -11,12 +11,11 @@ import numpy as np
 import pytest
 import torch
 from affine import Affine
-from mission_inputs import mission_inputs
+from support.configs import build_config
 
 from mars_pairs import Manifest
 from mars_pairs.errors import MarsPairsError
 from mars_pairs.pipeline.build.run import run_build
-from mars_pairs.pipeline.config import parse_config
 from mars_pairs.store.members import DENSE_FIELDS
 from mars_pairs.torch import MarsPairsDataset
 from mars_pairs.torch.files import ShardFiles
@@ -28,13 +27,11 @@ STRIDE = 8
 @pytest.fixture(scope="module")
 def dense_dir(small_mission: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("dense-torch")
-    doc: dict[str, Any] = {
-        "inputs": mission_inputs(small_mission),
-        "geometry": {"radius": 300, "ray_stride": STRIDE},
-        "chips": {"size_m": 64, "size_px": 256},
-        "output": {"dir": str(out), "members": ["all"]},
-    }
-    assert run_build(parse_config(doc, small_mission)).failures == 0
+    config = build_config(
+        small_mission, out, geometry={"ray_stride": STRIDE}, chips={"size_px": 256},
+        output={"members": ["all"]}, splits=None,
+    )  # fmt: skip
+    assert run_build(config).failures == 0
     return out
 
 
@@ -170,13 +167,7 @@ def test_classes_round_trip_nearest(dense_dir: Path, moved: bool) -> None:
 
 
 def test_dense_fields_of_a_default_dataset_are_refused(small_mission: Path, tmp_path: Path) -> None:
-    doc: dict[str, Any] = {
-        "inputs": mission_inputs(small_mission),
-        "geometry": {"radius": 300, "ray_stride": 32},
-        "chips": {"size_m": 64, "size_px": 64},
-        "output": {"dir": str(tmp_path / "plain")},
-    }
-    run_build(parse_config(doc, small_mission))
+    run_build(build_config(small_mission, tmp_path / "plain", splits=None))
     with pytest.raises(MarsPairsError, match="range"):
         MarsPairsDataset(tmp_path / "plain", fields=("ground", "range"))
     ds = MarsPairsDataset(tmp_path / "plain", fields=("ortho",), localization=True)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import tarfile
 from pathlib import Path
 
 import numpy as np
@@ -12,22 +11,10 @@ import pytest
 import rasterio
 import torch
 from pyproj import CRS
+from support.members import metas
 
 from mars_pairs import Manifest
 from mars_pairs.torch import ALL_FIELDS, MarsPairsDataset, collate_samples
-
-
-def metas(root: Path) -> dict[str, dict]:
-    """Every sample's meta.json, read through tarfile (independent of the dataset)."""
-    out = {}
-    for shard in sorted((root / "shards").glob("*.tar")):
-        with tarfile.open(shard) as tar:
-            for info in tar.getmembers():
-                if info.name.endswith(".meta.json"):
-                    fh = tar.extractfile(info)
-                    assert fh is not None
-                    out[info.name.split(".")[0]] = json.loads(fh.read())
-    return out
 
 
 @pytest.mark.parametrize("which", ["dataset_dir", "heading_up_dir"])

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from torch_members import SUFFIX, all_keys
+from support.members import SUFFIX, manifest_keys
 
 from mars_pairs.store.wids_index import WIDS_INDEX
 from mars_pairs.torch import ALL_FIELDS, MarsPairsDataset, decode_member
@@ -17,7 +17,7 @@ def test_shards_read_with_webdataset(dataset_dir: Path, members: dict[str, bytes
     wds = pytest.importorskip("webdataset")
     urls = [str(p) for p in sorted((dataset_dir / "shards").glob("*.tar"))]
     samples = list(wds.WebDataset(urls, shardshuffle=False))
-    assert sorted(s["__key__"] for s in samples) == sorted(all_keys(dataset_dir))
+    assert sorted(s["__key__"] for s in samples) == sorted(manifest_keys(dataset_dir))
     expected = {name.split(".", 1)[0]: name for name in members}
     assert len(expected) == len(samples)
     for s in samples:
@@ -37,7 +37,7 @@ def test_the_shard_index_opens_with_wids(
     assert not list(dataset_dir.glob(f".{WIDS_INDEX}.tmp-*"))  # written through a rename
     ds = wids.ShardListDataset(str(index), cache_dir=str(tmp_path / "cache"), transformations=[])
     try:
-        assert len(ds) == len(all_keys(dataset_dir)) == 9
+        assert len(ds) == len(manifest_keys(dataset_dir)) == 9
         seen = []
         with MarsPairsDataset(dataset_dir, fields=ALL_FIELDS) as ours:
             for i in range(len(ds)):
@@ -54,6 +54,6 @@ def test_the_shard_index_opens_with_wids(
                     fields[ext].seek(0)
                     tensor = decode_member(name, fields[ext].read())
                     assert torch.equal(tensor.nan_to_num(-1), mine[name].nan_to_num(-1)), name
-        assert sorted(seen) == sorted(all_keys(dataset_dir))
+        assert sorted(seen) == sorted(manifest_keys(dataset_dir))
     finally:
         ds.close()

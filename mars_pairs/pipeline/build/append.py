@@ -162,13 +162,25 @@ def _lookup(doc: Any, dotted: str) -> Any:
     return doc
 
 
+def local_dir(config: BuildConfig) -> Path:
+    """``output.dir``, a local folder; ConfigError naming it when it is on object storage
+    (an fsspec URL: an append's base snapshot and merge work on local files)."""
+    out = config.output.dir
+    if not isinstance(out, Path):
+        raise ConfigError(
+            f"--append: output.dir {out} is on object storage, where an append is not "
+            "supported yet; append to a local copy, or rebuild"
+        )
+    return out
+
+
 def check_append_config(config: BuildConfig, base: dict[str, Any]) -> None:
     """ConfigError naming the key when ``config`` may not append to the dataset whose
     dataset.json is ``base``: a config key other than ``MAY_CHANGE`` changed, the labels root
     moved, the DEM or ortho file changed (``input_files``), or the config asks for what an
     append does not support (``splits.buffer_policy: drop``; ``output.keep_parts`` is
     refused by ``plan_append``)."""
-    out = config.output.dir
+    out = local_dir(config)
     why = f"{out}: cannot --append"
     old = base.get("config")
     if not isinstance(old, dict):
@@ -242,7 +254,7 @@ def plan_append(config: BuildConfig) -> AppendPlan:
     the key or the file otherwise (see ``check_append_config``; no finished dataset; an
     interrupted build that is not an append, or an interrupted append of another release)."""
     start = time.perf_counter()
-    out = config.output.dir
+    out = local_dir(config)
     if config.output.keep_parts:  # (its finished build's stamp is still in parts/)
         raise ConfigError(
             f"output.keep_parts: true: {out}: cannot --append: parts/ is an append's working state"
@@ -364,7 +376,7 @@ def merge_append(config: BuildConfig, plan: AppendPlan) -> tuple[pa.Table, pa.Ta
     (``finish.write_merged``: Hilbert order; failures: the base's, then the new chunks' in
     chunk order); returns both tables and the count of samples dropped in the split buffer
     (the base's and the new chunks')."""
-    out = config.output.dir
+    out = local_dir(config)
     parts = [pq.read_table(out / BASE_FILES["manifest.parquet"])]
     fails = [pq.read_table(out / BASE_FILES["failures.parquet"])]
     dropped = int((plan.base.get("splits") or {}).get("dropped_in_buffer") or 0)

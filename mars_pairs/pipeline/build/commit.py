@@ -7,7 +7,10 @@ samples dropped in the split buffer are counted, the committed samples' stage ti
 and a strict build stops at the chunk's first failure row. :func:`write_chunk` then makes it
 so in the output folder: it renames the parts the worker staged into place (the failure part,
 then the manifest part: the chunk's commit marker) or, when duplicates changed the chunk,
-writes the shard again without them and writes the parts itself.
+writes the shard again without them and writes the parts itself. On object storage
+(``output.dir`` a URL: ``store.fs``) a rename is a server-side copy and a delete (the copy
+appears whole), and a shard rewritten is downloaded, written again locally and uploaded
+whole.
 """
 
 from __future__ import annotations
@@ -22,7 +25,8 @@ from mars_pairs.errors import BuildError, MarsPairsError
 from mars_pairs.pipeline.build.engine import ChunkResult, Outcome, duplicate_row, part_tables
 from mars_pairs.pipeline.build.outputs import part_paths
 from mars_pairs.pipeline.config import BuildConfig
-from mars_pairs.store.atomic import rename_into_place, write_parquet_atomic
+from mars_pairs.store import fs
+from mars_pairs.store.atomic import rename_into_place
 from mars_pairs.store.manifest import with_locations
 from mars_pairs.store.shards import ShardWriter, read_members
 
@@ -98,27 +102,34 @@ def write_chunk(config: BuildConfig, result: ChunkResult, selection: ChunkSelect
     out = config.output.dir
     _, manifest_part, failures_part = part_paths(out, result.index)
     if result.shard is not None:
-        size = (out / result.shard).stat().st_size
+        size = fs.size(fs.join(out, result.shard))
         if size != result.shard_bytes:
             raise MarsPairsError(
-                f"{out / result.shard}: {size} bytes, but its worker ({result.worker}) wrote "
-                f"{result.shard_bytes}; rerun the build with --resume"
+                f"{fs.join(out, result.shard)}: {size} bytes, but its worker "
+                f"({result.worker}) wrote {result.shard_bytes}; rerun the build with --resume"
             )
     if selection.parts_staged and selection.stop is None:
         assert result.staged is not None
-        rename_into_place(out / result.staged[0], failures_part)
-        rename_into_place(out / result.staged[1], manifest_part)  # commit marker
+        if isinstance(out, Path):
+            rename_into_place(out / result.staged[0], failures_part)
+            rename_into_place(out / result.staged[1], manifest_part)  # commit marker
+        else:  # copied on the server: the manifest part appears last
+            fs.replace(fs.join(out, result.staged[0]), failures_part)
+            fs.replace(fs.join(out, result.staged[1]), manifest_part)  # commit marker
         return
     for rel in result.staged or ():
-        (out / rel).unlink(missing_ok=True)
+        fs.remove(fs.join(out, rel))
     if selection.stop is not None:
         raise BuildError(selection.stop)
     outcomes = selection.outcomes
     if selection.rewrite_shard:
-        outcomes = _rewrite_shard(out, result, outcomes)
+        if isinstance(out, Path):
+            outcomes = _rewrite_shard(out, result, outcomes)
+        else:
+            outcomes = _rewrite_remote_shard(out, result, outcomes)
     failures, manifest = part_tables(config, outcomes)
-    write_parquet_atomic(failures, failures_part)
-    write_parquet_atomic(manifest, manifest_part)  # commit marker
+    fs.write_parquet(failures, failures_part)
+    fs.write_parquet(manifest, manifest_part)  # commit marker
 
 
 def _rewrite_shard(
@@ -150,3 +161,21 @@ def _rewrite_shard(
     else:
         shard.close()
     return tuple(kept)
+
+
+def _rewrite_remote_shard(
+    out: str, result: ChunkResult, outcomes: tuple[Outcome, ...]
+) -> tuple[Outcome, ...]:
+    """``_rewrite_shard`` of a shard on object storage under ``out``: downloaded into a local
+    temporary folder, written again there, then uploaded whole (or removed)."""
+    assert result.shard is not None
+    with fs.local_staging() as staging:
+        local = staging / result.shard
+        local.parent.mkdir(parents=True, exist_ok=True)
+        local.write_bytes(fs.read_bytes(fs.join(out, result.shard)))
+        kept = _rewrite_shard(staging, result, outcomes)
+        if local.exists():
+            fs.upload(local, fs.join(out, result.shard))
+        else:
+            fs.remove(fs.join(out, result.shard))
+    return kept

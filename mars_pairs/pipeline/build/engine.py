@@ -27,7 +27,12 @@ any engine and worker count. Samples in the split buffer are dropped by the work
 config says so (``splits.buffer_policy: drop``) and reported as ``dropped`` outcomes.
 
 The workers need write access to the output folder, at the same path as the driver (a
-shared file system for a cluster).
+shared file system for a cluster), or to the same object storage (``output.dir`` an fsspec
+URL: ``store.fs``). On object storage a worker writes the chunk's shard and parts into a
+local temporary folder exactly as above, then uploads the shard under its final name and
+the parts under their temporary names, each object whole (it appears only when its upload
+completes: a worker killed mid-upload leaves nothing under the name); the driver's commit
+copies the parts to their final names on the server, the manifest part last.
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ import socket
 import time
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal, Protocol
 
 import pyarrow as pa
@@ -46,6 +52,7 @@ from mars_pairs.pipeline.build import worker
 from mars_pairs.pipeline.build.outputs import DROPPED_KEY, part_paths
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.sample.context import SampleContext
+from mars_pairs.store import fs
 from mars_pairs.store.atomic import write_parquet_staged
 from mars_pairs.store.manifest import (
     FAILURE_SCHEMA,
@@ -148,9 +155,25 @@ def part_tables(config: BuildConfig, outcomes: Iterable[Outcome]) -> tuple[pa.Ta
 def build_chunk(config: BuildConfig, task: ChunkTask) -> ChunkResult:
     """Build chunk ``task`` in this process (its context open: ``worker.open_context``) and
     write its shard into ``config.output.dir``; WorkerStartError when the context could not
-    be opened. A sample is written as soon as it is built (one sample in memory)."""
+    be opened. A sample is written as soon as it is built (one sample in memory). On object
+    storage the chunk is written to a local temporary folder, then uploaded (``_upload``)."""
+    if not isinstance(config.output.dir, Path):
+        with fs.local_staging() as staging:
+            return _upload(config.output.dir, staging, _build_chunk(config, task, staging))
+    return _build_chunk(config, task, config.output.dir)
+
+
+def _upload(out: str, staging: Path, result: ChunkResult) -> ChunkResult:
+    """Upload the files of ``result``, written under ``staging``, to the same names under the
+    URL ``out``, each whole: the shard, then the staged failure part and manifest part."""
+    for rel in (*((result.shard,) if result.shard is not None else ()), *(result.staged or ())):
+        fs.upload(staging / rel, fs.join(out, rel))
+    return result
+
+
+def _build_chunk(config: BuildConfig, task: ChunkTask, out: Path) -> ChunkResult:
+    """``build_chunk`` with the chunk's files written into the local folder ``out``."""
     start = time.perf_counter()
-    out = config.output.dir
     shard_rel = part_paths(out, task.index)[0]
     drop = config.splits.buffer_policy == "drop"
     outcomes: list[Outcome] = []

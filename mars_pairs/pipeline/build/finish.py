@@ -5,10 +5,13 @@ files that explain the folder (dataset.json, README.md, croissant.json), then ``
 Every path written in the folder is relative to it: dataset.json's config names its inputs
 relative to the dataset folder as they were at build time, the manifest's ``label_path`` is
 relative to the labels root (``labels_root``), croissant.json's files relative to the folder;
-moving the folder keeps it whole."""
+moving the folder keeps it whole. A dataset on object storage (``output.dir`` an fsspec URL:
+``store.fs``) names its local inputs and labels root by their absolute paths (no path leads
+from a bucket to them); every file is uploaded whole."""
 
 from __future__ import annotations
 
+import fnmatch
 import json
 import os
 import platform
@@ -19,7 +22,6 @@ from pathlib import Path
 from typing import Any
 
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from mars_pairs.pipeline.build.outputs import (
     FINISHED_KEY,
@@ -32,7 +34,8 @@ from mars_pairs.pipeline.build.plan import BuildPlan
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.sample.record import labels_root
 from mars_pairs.pipeline.splitting import splits_report
-from mars_pairs.store.atomic import atomic_write_bytes, write_parquet_atomic
+from mars_pairs.raster.vsi import open_raster
+from mars_pairs.store import fs
 from mars_pairs.store.card import CardFacts, dataset_card, default_license
 from mars_pairs.store.croissant import croissant_metadata, dataset_description, sha256_of
 from mars_pairs.store.geoparquet import crs_name, named_crs, table_geo_metadata
@@ -49,7 +52,7 @@ PATHS_NOTE = (
 class BuildSummary:
     """Counts and timing of one build."""
 
-    out_dir: Path
+    out_dir: Path | str  # a local folder or an fsspec URL (store.fs)
     samples: int
     failures: int
     failures_by_reason: dict[str, int]
@@ -79,8 +82,8 @@ class BuildSummary:
 def merge_parts(config: BuildConfig, n_chunks: int) -> tuple[pa.Table, pa.Table]:
     """Concatenate the chunk parts into manifest.parquet (Hilbert order) and failures.parquet."""
     out = config.output.dir
-    parts = [pq.read_table(part_paths(out, k)[1]) for k in range(n_chunks)]
-    fails = [pq.read_table(part_paths(out, k)[2]) for k in range(n_chunks)]
+    parts = [fs.read_parquet(part_paths(out, k)[1]) for k in range(n_chunks)]
+    fails = [fs.read_parquet(part_paths(out, k)[2]) for k in range(n_chunks)]
     return write_merged(config, parts, fails)
 
 
@@ -98,15 +101,13 @@ def write_merged(
     failures = pa.concat_tables(fails) if fails else FAILURE_SCHEMA.empty_table()
     crs = dataset_crs(config)
     manifest = manifest.replace_schema_metadata(table_geo_metadata(manifest, crs))
-    write_parquet_atomic(manifest, out / "manifest.parquet", row_group_size=1024)
-    write_parquet_atomic(failures, out / "failures.parquet")
+    fs.write_parquet(manifest, fs.join(out, "manifest.parquet"), row_group_size=1024)
+    fs.write_parquet(failures, fs.join(out, "failures.parquet"))
     return manifest, failures
 
 
 def dataset_crs(config: BuildConfig) -> str:
-    import rasterio
-
-    with rasterio.open(config.inputs.dem) as src:
+    with open_raster(config.inputs.dem) as src:
         return str(src.crs.to_wkt())
 
 
@@ -119,12 +120,15 @@ def named_wkt(crs: str) -> str:
 
 def relative_config(config: BuildConfig) -> dict[str, Any]:
     """``config.to_dict()`` with every local path relative to the dataset folder (POSIX
-    separators); remote rasters (GDAL ``/vsi...`` paths) as given; ``output.dir`` is ``.``."""
+    separators); remote rasters (GDAL ``/vsi...`` paths) as given; ``output.dir`` is ``.``.
+    A dataset on object storage keeps the absolute local paths."""
     out = config.output.dir
 
     def rel(value: Any) -> Any:
         if value is None or (isinstance(value, str) and value.startswith("/vsi")):
             return value
+        if not isinstance(out, Path):
+            return Path(value).as_posix()
         return Path(os.path.relpath(str(value), out)).as_posix()
 
     doc = config.to_dict()
@@ -170,11 +174,14 @@ def write_dataset_json(
         counts["by_mission"] = dict(Counter(manifest.column("mission").to_pylist()))
     crs = named_wkt(dataset_crs(config))
     out = config.output.dir
+    root = labels_root(config.inputs.labels)
     doc: dict[str, Any] = {
         "config": relative_config(config),
         "paths": PATHS_NOTE,
         # the folder the manifest's label_path is relative to (relative to this folder)
-        "labels_root": Path(os.path.relpath(labels_root(config.inputs.labels), out)).as_posix(),
+        "labels_root": Path(
+            os.path.relpath(root, out) if isinstance(out, Path) else root
+        ).as_posix(),
         "license": license_of(config),
         "versions": {
             "mars_pairs": __version__,
@@ -200,7 +207,7 @@ def write_dataset_json(
     if fingerprint is not None:
         doc[FINISHED_KEY] = stamp_digest(fingerprint)
     doc.update(extra or {})
-    atomic_write_bytes(out / "dataset.json", json.dumps(doc, indent=2).encode())
+    fs.put_bytes(fs.join(out, "dataset.json"), json.dumps(doc, indent=2).encode())
     return doc
 
 
@@ -211,8 +218,12 @@ def write_card(config: BuildConfig, manifest: pa.Table, doc: dict[str, Any]) -> 
 
     out = config.output.dir
     synthetic = config.inputs.synthetic is not None
-    schema = pq.read_schema(out / "manifest.parquet")
-    shards = sorted(p.name for p in (out / "shards").glob("shard-*.tar"))
+    schema = fs.parquet_schema(fs.join(out, "manifest.parquet"))
+    shards = sorted(
+        name
+        for name in fs.list_files(fs.join(out, "shards"))
+        if "/" not in name and fnmatch.fnmatchcase(name, "shard-*.tar")
+    )
     facts = CardFacts(
         version=__version__,
         config=doc["config"],
@@ -225,7 +236,7 @@ def write_card(config: BuildConfig, manifest: pa.Table, doc: dict[str, Any]) -> 
         shards=shards,
         failures_by_reason=doc.get("failures_by_reason") or {},
     )
-    atomic_write_bytes(out / "README.md", dataset_card(facts).encode())
+    fs.put_bytes(fs.join(out, "README.md"), dataset_card(facts).encode())
     meta = croissant_metadata(
         name="mars-pairs-dataset",
         description=dataset_description(doc["counts"], synthetic),
@@ -233,10 +244,10 @@ def write_card(config: BuildConfig, manifest: pa.Table, doc: dict[str, Any]) -> 
         license=doc["license"],
         synthetic=synthetic,
         schema=schema,
-        manifest_sha256=sha256_of(out / "manifest.parquet"),
+        manifest_sha256=sha256_of(fs.join(out, "manifest.parquet")),
         missions=list(doc["counts"].get("by_mission") or {}),
     )
-    atomic_write_bytes(out / "croissant.json", json.dumps(meta, indent=2).encode())
+    fs.put_bytes(fs.join(out, "croissant.json"), json.dumps(meta, indent=2).encode())
 
 
 def finished_summary(config: BuildConfig, plan: BuildPlan, start: float) -> BuildSummary:
@@ -245,8 +256,8 @@ def finished_summary(config: BuildConfig, plan: BuildPlan, start: float) -> Buil
 
     out = config.output.dir
     remove_empty_parts(out)
-    samples = pq.read_metadata(out / "manifest.parquet").num_rows
-    failures = pq.read_table(out / "failures.parquet", columns=["stage", "error_type"])
+    samples = fs.parquet_metadata(fs.join(out, "manifest.parquet")).num_rows
+    failures = fs.read_parquet(fs.join(out, "failures.parquet"), columns=["stage", "error_type"])
     reasons = Counter(
         f"{s} ({e})"
         for s, e in zip(

@@ -13,10 +13,15 @@ that a kill at any point resumes.
 A finished build removes ``parts/`` (``remove_parts``, unless ``output.keep_parts``): its stamp
 lives on as ``build_stamp`` in dataset.json (``finished_stamp``: the label count, shard size and
 the SHA-256 of the fingerprint, no paths), written before the parts go.
+
+The output folder may be object storage (an fsspec URL: ``store.fs``): the same files under
+the same names, listed with one listing; a rename there is a server-side copy and a delete
+(``fs.replace``), and there are no folders (nor links) to find.
 """
 
 from __future__ import annotations
 
+import fnmatch
 import hashlib
 import json
 import os
@@ -27,9 +32,9 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
-import pyarrow.parquet as pq
-
+from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.config import BuildConfig
+from mars_pairs.store import fs
 from mars_pairs.store.atomic import temporary_target
 from mars_pairs.store.manifest import FAILURE_SCHEMA
 from mars_pairs.store.wids_index import WIDS_INDEX
@@ -59,24 +64,26 @@ _CHUNK_FILE = re.compile(
 )
 
 
-def part_paths(out: Path, k: int) -> tuple[str, Path, Path]:
+def part_paths(out: fs.Location, k: int) -> tuple[str, Any, Any]:
+    """Chunk k's shard (relative to ``out``), manifest part and failure part (in ``out``: a
+    Path for a local folder, a URL for object storage)."""
     return (
         f"shards/shard-{k:06d}.tar",
-        out / "parts" / f"manifest-{k:06d}.parquet",
-        out / "parts" / f"failures-{k:06d}.parquet",
+        fs.join(out, f"parts/manifest-{k:06d}.parquet"),
+        fs.join(out, f"parts/failures-{k:06d}.parquet"),
     )
 
 
-def stamp_path(out: Path) -> Path:
+def stamp_path(out: fs.Location) -> Any:
     """The build stamp: the fingerprint of the build that wrote the parts."""
-    return out / "parts" / "build.json"
+    return fs.join(out, "parts/build.json")
 
 
-def dropped_count(out: Path, n_chunks: int) -> int:
+def dropped_count(out: fs.Location, n_chunks: int) -> int:
     """Samples dropped in the split buffer, summed over the chunk parts."""
     total = 0
     for k in range(n_chunks):
-        meta = pq.read_schema(part_paths(out, k)[1]).metadata or {}
+        meta = fs.parquet_schema(part_paths(out, k)[1]).metadata or {}
         total += int(meta.get(DROPPED_KEY, b"0"))
     return total
 
@@ -119,9 +126,12 @@ def file_fingerprint(path: Path | str, *, depth: int = 0) -> dict[str, Any]:
     """What identifies the input file ``path``: its path, and its size and sha256 (a file
     of up to ``HASHED_BYTES``) or its size and ``st_mtime_ns`` (a larger one); a VRT also
     lists its source files' (``SourceFilename``, relative to the VRT when it says so; a VRT
-    of VRTs to 4 levels). A URL or GDAL ``/vsi`` path: the string only; an absent or
-    unreadable file: ``missing`` (the error's words)."""
+    of VRTs to 4 levels). An object on S3 (``/vsis3/``): its path, size and ETag. Another URL
+    or GDAL ``/vsi`` path: the string only; an absent or unreadable file: ``missing`` (the
+    error's words)."""
     text = str(path)
+    if text.startswith("/vsis3/"):
+        return _object_fingerprint(text)
     if text.startswith("/vsi") or "://" in text:
         return {"path": text}
     is_vrt = text.lower().endswith(".vrt")
@@ -142,6 +152,18 @@ def file_fingerprint(path: Path | str, *, depth: int = 0) -> dict[str, Any]:
         sources = vrt_sources(Path(text), data)
         doc["sources"] = [file_fingerprint(src, depth=depth + 1) for src in sources]
     return doc
+
+
+def _object_fingerprint(text: str) -> dict[str, Any]:
+    """``file_fingerprint`` of the S3 object behind the GDAL path ``/vsis3/BUCKET/KEY``: its
+    size and ETag (one HEAD request, with the environment's credentials: ``store.fs``)."""
+    url = "s3://" + text.removeprefix("/vsis3/")
+    try:
+        filesystem, key = fs.filesystem(url)
+        info = filesystem.info(key)
+    except (OSError, ConfigError) as exc:
+        return {"path": text, "missing": str(exc) or type(exc).__name__}
+    return {"path": text, "size": info.get("size"), "etag": info.get("ETag")}
 
 
 def vrt_sources(vrt: Path, data: bytes) -> list[str]:
@@ -208,6 +230,8 @@ def _change(before: Any, after: Any) -> str:
     if before.get("sha256") != after.get("sha256"):
         old, new = (str(d.get("sha256", "none"))[:12] for d in (before, after))
         parts.append(f"content (sha256 {old}... -> {new}...)")
+    if before.get("etag") != after.get("etag"):
+        parts.append(f"ETag {before.get('etag')} -> {after.get('etag')}")
     if before.get("mtime_ns") != after.get("mtime_ns"):
         parts.append(f"mtime_ns {before.get('mtime_ns')} -> {after.get('mtime_ns')}")
     old_src, new_src = before.get("sources", []), after.get("sources", [])
@@ -262,10 +286,10 @@ def stamp_of(config: BuildConfig, digest: LabelDigest) -> dict[str, Any]:
     }
 
 
-def read_stamp(stamp: Path) -> dict[str, Any] | None:
+def read_stamp(stamp: fs.Location) -> dict[str, Any] | None:
     """The fingerprint of the build that wrote the parts; None when absent or damaged."""
     try:
-        doc = json.loads(stamp.read_bytes())
+        doc = json.loads(fs.read_bytes(stamp))
     except (OSError, ValueError):
         return None
     return doc if isinstance(doc, dict) else None
@@ -282,10 +306,10 @@ def stamp_digest(stamp: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def finished_stamp(out: Path) -> dict[str, Any] | None:
+def finished_stamp(out: fs.Location) -> dict[str, Any] | None:
     """The ``stamp_digest`` of the finished build in ``out`` (dataset.json's ``build_stamp``);
     None when there is none."""
-    doc = read_stamp(out / "dataset.json")
+    doc = read_stamp(fs.join(out, "dataset.json"))
     digest = doc.get(FINISHED_KEY) if doc is not None else None
     return digest if isinstance(digest, dict) else None
 
@@ -346,11 +370,11 @@ def is_temporary(rel: str) -> bool:
     return rel in BUILD_FILES or _chunk_of(rel) is not None
 
 
-def stamped_chunks(out: Path) -> int | None:
+def stamped_chunks(out: fs.Location) -> int | None:
     """The chunks of the build(s) whose stamp the folder holds (the build's, and a clearing's
     left by a killed clearing); None when it holds no valid stamp."""
     stamps = ("parts/build.json", CLEARING, "dataset.json")
-    counts = [stamp_chunks(read_stamp(out / rel)) for rel in stamps]
+    counts = [stamp_chunks(read_stamp(fs.join(out, rel))) for rel in stamps]
     valid = [n for n in counts if n is not None]
     return max(valid) if valid else None
 
@@ -363,13 +387,16 @@ def appended_to(stamp: Any) -> int:
     return first if isinstance(first, int) and not isinstance(first, bool) else 0
 
 
-def foreign_file(out: Path) -> str | None:
+def foreign_file(out: fs.Location) -> str | None:
     """The first entry of ``out`` (sorted, relative, with ``/``) that the build that stamped
     it did not write: a file it does not list, a shard or failure part of an unfinished
     chunk that does not read as one (``_as_built``; a finished build's chunks are all
     finished, vouched for by its dataset.json, and so are those of the dataset an
     interrupted append appends to: ``appended_to``), a symbolic link, a folder other than
-    ``shards`` and ``parts``; None when a build may clear or resume the folder."""
+    ``shards`` and ``parts``; None when a build may clear or resume the folder. On object
+    storage, every object under the prefix (one listing)."""
+    if not isinstance(out, Path):
+        return _foreign_object(out)
     if not out.is_dir():
         return None
     chunks = stamped_chunks(out)
@@ -398,10 +425,26 @@ def foreign_file(out: Path) -> str | None:
     return None
 
 
+def _foreign_object(out: str) -> str | None:
+    """``foreign_file`` of the object storage prefix ``out``."""
+    files = fs.list_files(out)
+    if not files:
+        return None
+    chunks = stamped_chunks(out)
+    finished = finished_stamp(out) is not None and "parts/build.json" not in files
+    vouched = 2**62 if finished else appended_to(read_stamp(stamp_path(out)))
+    for rel in files:
+        if not (written_by(chunks, rel) or is_temporary(rel)):
+            return rel
+        if not _as_built(out, rel, vouched):
+            return rel
+    return None
+
+
 _MEMBER = re.compile(r"[^./]+\.[^/]+")  # <key>.<field> (``ShardWriter``)
 
 
-def _as_built(out: Path, rel: str, vouched: int = 0) -> bool:
+def _as_built(out: fs.Location, rel: str, vouched: int = 0) -> bool:
     """Whether the chunk file ``rel`` reads as one a build writes, when its chunk is not
     finished (no manifest part, and not one of the first ``vouched`` chunks, which a finished
     build vouches for: the dataset an append appends to): a shard is a tar of regular
@@ -411,24 +454,29 @@ def _as_built(out: Path, rel: str, vouched: int = 0) -> bool:
     if m is None or rel.startswith("parts/manifest-"):
         return True
     k = int(m[2] or m[3])
-    if k < vouched or part_paths(out, k)[1].exists():
+    if k < vouched or fs.exists(part_paths(out, k)[1]):
         return True
-    path = out / rel
+    path = fs.join(out, rel)
     if m[2] is not None:
         try:
-            with tarfile.open(path, mode="r:") as tar:
+            with fs.open_input(path) as fh, tarfile.open(fileobj=fh, mode="r:") as tar:
                 return all(t.isreg() and _MEMBER.fullmatch(t.name) for t in tar)
         except (OSError, tarfile.TarError):
             return False
     try:
-        return bool(pq.read_schema(path).names == FAILURE_SCHEMA.names)
+        return bool(fs.parquet_schema(path).names == FAILURE_SCHEMA.names)
     except (OSError, ValueError):
         return False
 
 
-def remove_temporaries(out: Path) -> None:
+def remove_temporaries(out: fs.Location) -> None:
     """Remove the temporary files a killed build left (``is_temporary`` names only, in the
     output folder, ``shards/`` and ``parts/``)."""
+    if not isinstance(out, Path):
+        for rel in fs.list_files(out):
+            if is_temporary(rel):
+                fs.remove(fs.join(out, rel))
+        return
     for sub in ("", "shards/", "parts/"):
         folder = out / sub
         if not folder.is_dir():
@@ -439,35 +487,37 @@ def remove_temporaries(out: Path) -> None:
                 path.unlink()
 
 
-def remove_parts(out: Path, chunks: int) -> None:
+def remove_parts(out: fs.Location, chunks: int) -> None:
     """Remove ``parts/`` of a finished build (its dataset.json holds the stamp): the chunk
     commit markers first, then the failure parts, the stamp, the folder. A kill at any point
     resumes: a chunk without its manifest part is rebuilt, byte for byte."""
     for k in range(chunks):
-        part_paths(out, k)[1].unlink(missing_ok=True)
+        fs.remove(part_paths(out, k)[1])
     for k in range(chunks):
-        part_paths(out, k)[2].unlink(missing_ok=True)
-    stamp_path(out).unlink(missing_ok=True)
+        fs.remove(part_paths(out, k)[2])
+    fs.remove(stamp_path(out))
     remove_empty_parts(out)
 
 
-def remove_empty_parts(out: Path) -> None:
-    """Remove ``parts/`` when it is an empty folder."""
+def remove_empty_parts(out: fs.Location) -> None:
+    """Remove ``parts/`` when it is an empty folder (object storage has no folders)."""
+    if not isinstance(out, Path):
+        return
     parts = out / "parts"
     if parts.is_dir() and not parts.is_symlink() and not any(parts.iterdir()):
         parts.rmdir()
 
 
-def built_keys(out: Path, done: Iterable[int]) -> dict[str, str]:
+def built_keys(out: fs.Location, done: Iterable[int]) -> dict[str, str]:
     """Sample key -> label path of the chunks a resumed build keeps (for duplicate ids)."""
     seen: dict[str, str] = {}
     for k in done:
-        part = pq.read_table(part_paths(out, k)[1], columns=["key", "label_path"])
+        part = fs.read_parquet(part_paths(out, k)[1], columns=["key", "label_path"])
         seen.update(zip(part["key"].to_pylist(), part["label_path"].to_pylist(), strict=True))
     return seen
 
 
-def clear_outputs(out: Path) -> None:
+def clear_outputs(out: fs.Location) -> None:
     """Remove what the earlier build(s) stamped in ``out`` wrote (``written_by``; the caller
     has checked that the folder holds nothing else: ``foreign_file``), crash-safely. The
     stamp is renamed first (``parts/clearing.json``): a build killed at any point of the
@@ -475,7 +525,11 @@ def clear_outputs(out: Path) -> None:
     renamed stamp still lists what is left (a finished build's stamp is its dataset.json,
     renamed the same way). Then the dataset's own commit marker (manifest.parquet) goes, so
     no reader sees a manifest whose shards are going; then the chunk commit markers (manifest
-    parts) before the failure parts and shards they vouch for; the renamed stamp goes last."""
+    parts) before the failure parts and shards they vouch for; the renamed stamp goes last.
+    On object storage the same, in the same order (a rename is a copy and a delete)."""
+    if not isinstance(out, Path):
+        _clear_objects(out)
+        return
     chunks = stamped_chunks(out)
     stamp = stamp_path(out)
     finished = out / "dataset.json"
@@ -503,3 +557,38 @@ def clear_outputs(out: Path) -> None:
     clearing = out / CLEARING
     if clearing.is_file():
         clearing.unlink()
+
+
+#: What ``clear_outputs`` removes, in order (patterns relative to the output folder).
+_CLEARED = (
+    "manifest.parquet",
+    "dataset.json",
+    "README.md",
+    "croissant.json",
+    WIDS_INDEX,
+    "failures.parquet",
+    "parts/manifest-*.parquet",
+    "parts/*.parquet",
+    "parts/base-dataset.json",
+    "shards/*.tar",
+)
+
+
+def _clear_objects(out: str) -> None:
+    """``clear_outputs`` of the object storage prefix ``out``."""
+    chunks = stamped_chunks(out)
+    stamp, clearing = stamp_path(out), fs.join(out, CLEARING)
+    if fs.is_file(stamp):
+        fs.replace(stamp, clearing)
+    elif finished_stamp(out) is not None and not fs.is_file(clearing):
+        fs.replace(fs.join(out, "dataset.json"), clearing)
+    files = fs.list_files(out)
+    done: set[str] = set()
+    for pattern in _CLEARED:
+        for rel in files:
+            if rel not in done and fnmatch.fnmatchcase(rel, pattern) and written_by(chunks, rel):
+                if "/" in pattern and rel.count("/") != pattern.count("/"):
+                    continue
+                fs.remove(fs.join(out, rel))
+                done.add(rel)
+    fs.remove(clearing)

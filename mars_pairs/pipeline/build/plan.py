@@ -35,6 +35,8 @@ from mars_pairs.pipeline.build.outputs import (
 )
 from mars_pairs.pipeline.config import BuildConfig, SyntheticSpec
 from mars_pairs.pipeline.splitting import split_rule
+from mars_pairs.raster.vsi import open_raster
+from mars_pairs.store import fs
 
 
 def check_inputs(config: BuildConfig) -> None:
@@ -48,16 +50,16 @@ def check_inputs(config: BuildConfig) -> None:
     for key in ("dem", "ortho"):
         path = getattr(config.inputs, key)
         try:
-            with rasterio.open(path) as src:
+            with open_raster(path) as src:
                 if src.crs is None:
                     raise ConfigError(f"inputs.{key}: {path} has no CRS")
         except rasterio.errors.RasterioIOError as exc:
             raise ConfigError(f"inputs.{key}: cannot open {path}: {exc}") from None
-    with rasterio.open(config.inputs.dem) as src:  # a split config error stops it here
+    with open_raster(config.inputs.dem) as src:  # a split config error stops it here
         split_rule(config, src.crs.to_wkt(), tuple(src.bounds), src.res)
 
 
-def check_clearable(out: Path, *, resume: bool = False) -> None:
+def check_clearable(out: fs.Location, *, resume: bool = False) -> None:
     """ConfigError unless a build may clear (``resume``: resume in) ``out``: absent, empty, or
     holding only what an earlier mars-pairs build wrote there, as its stamp lists
     (``outputs.foreign_file``). A folder holding anything else is refused whole: nothing in
@@ -111,7 +113,7 @@ def check_limit(limit: int | None) -> None:
 class BuildPlan:
     """What a build of a config would do: counts of labels and chunks, and what is done."""
 
-    out_dir: Path
+    out_dir: Path | str  # a local folder or an fsspec URL (store.fs)
     labels: int  # after --limit
     chunk_size: int  # labels per chunk (output.shard_size); the last chunk may hold fewer
     chunks: int
@@ -217,7 +219,7 @@ def plan_build(
                 f"{out}: cannot resume: the config, the label list or an input file changed "
                 "since the finished build; rerun without --resume"
             )
-    is_finished = resume and finished is not None and (out / "manifest.parquet").is_file()
+    is_finished = resume and finished is not None and fs.is_file(fs.join(out, "manifest.parquet"))
     clears = not resume or (previous is None and not is_finished)  # no stamp: no part trusted
     check_clearable(out, resume=not clears)  # a stranger's file is never touched
     size = config.output.shard_size
@@ -225,10 +227,9 @@ def plan_build(
     done = labels_done = 0
     if is_finished:
         done, labels_done = chunks, n
-    for k in range(0 if clears or is_finished else chunks):
-        if is_done(out, k):
-            done += 1
-            labels_done += min(size, n - k * size)
+    for k in sorted(done_chunks(out, 0 if clears or is_finished else chunks)):
+        done += 1
+        labels_done += min(size, n - k * size)
     return BuildPlan(
         out_dir=out,
         labels=n,
@@ -245,6 +246,15 @@ def plan_build(
     )
 
 
-def is_done(out: Path, k: int) -> bool:
+def is_done(out: fs.Location, k: int) -> bool:
     """Whether chunk k is finished: its manifest part (the chunk's commit marker) exists."""
-    return part_paths(out, k)[1].exists()
+    return fs.exists(part_paths(out, k)[1])
+
+
+def done_chunks(out: fs.Location, chunks: int) -> set[int]:
+    """The finished chunks among the first ``chunks`` (``is_done``); on object storage from
+    one listing of ``parts/``, not a request a chunk."""
+    if isinstance(out, Path) or chunks == 0:
+        return {k for k in range(chunks) if is_done(out, k)}
+    listed = set(fs.list_files(fs.join(out, "parts")))
+    return {k for k in range(chunks) if f"manifest-{k:06d}.parquet" in listed}

@@ -35,6 +35,7 @@ from mars_pairs.pipeline.build.append import (
     AppendPlan,
     dataset_extra,
     labels_done,
+    local_dir,
     merge_append,
     new_chunks,
     new_labels,
@@ -65,12 +66,14 @@ from mars_pairs.pipeline.build.outputs import (
 from mars_pairs.pipeline.build.plan import (
     check_clearable,
     chunks_of,
+    done_chunks,
     is_done,
     labels_of,
     plan_build,
 )
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.config_section import check_regular
+from mars_pairs.store import fs
 from mars_pairs.store.atomic import atomic_write_bytes
 from mars_pairs.store.wids_index import write_wids_index
 
@@ -169,17 +172,20 @@ def _run(
     plan = plan_build(config, resume=resume, limit=limit)
     if plan.finished:
         return finished_summary(config, plan, start)
-    out.mkdir(parents=True, exist_ok=True)
+    if isinstance(out, Path):
+        out.mkdir(parents=True, exist_ok=True)
     remove_temporaries(out)  # of a killed build
     if plan.clears:
         clear_outputs(out)
     stamp = stamp_path(out)
-    stamp.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(stamp, json.dumps(plan.fingerprint).encode())
-    seen = built_keys(out, (k for k in range(plan.chunks) if is_done(out, k)))
+    if isinstance(stamp, Path):
+        stamp.parent.mkdir(parents=True, exist_ok=True)
+    fs.put_bytes(stamp, json.dumps(plan.fingerprint).encode())
+    done = done_chunks(out, plan.chunks)
+    seen = built_keys(out, sorted(done))
     digest = LabelDigest()  # the second pass must list what the first did
     chunks = enumerate(chunks_of(digest.tally(labels_of(config, limit)), plan.chunk_size))
-    todo = (ChunkTask(k, tuple(labels)) for k, labels in chunks if not is_done(out, k))
+    todo = (ChunkTask(k, tuple(labels)) for k, labels in chunks if k not in done)
     results = engine.run(config, todo)
     bar = tqdm(
         total=plan.labels,
@@ -262,7 +268,7 @@ def _summary(
 def _nothing_to_append(config: BuildConfig, plan: AppendPlan, start: float) -> BuildSummary:
     """The summary of an append that finds no new label: nothing is built or written (a base
     snapshot left by a killed append's last step is removed)."""
-    out = config.output.dir
+    out = local_dir(config)
     remove_base(out)
     manifest = pq.read_table(out / "manifest.parquet", columns=["key"])
     failures = pq.read_table(out / "failures.parquet", columns=["stage", "error_type"])
@@ -281,7 +287,7 @@ def _run_append(
     starting: the base kept (``snapshot_base``) and the stamp written unless an interrupted
     append of this release is continued, the new chunks built and committed after the
     dataset's, then the union merged and described, and parts/ removed."""
-    out = config.output.dir
+    out = local_dir(config)
     remove_temporaries(out)  # of a killed build
     if not plan.resumed:
         snapshot_base(out)  # before the stamp: while the stamp is there, the base is whole

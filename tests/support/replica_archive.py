@@ -51,8 +51,8 @@ from rasterio.transform import from_origin
 
 from mars_pairs.synth.ortho import make_ortho
 from mars_pairs.synth.terrain import make_dem
+from support.real_samples import SHARED
 
-SHARED = Path(__file__).resolve().parents[2].parent / "shared"
 SAMPLES = SHARED / "pds-samples"
 REAL_ARCHIVE = SHARED / "real-archive"
 REAL_GALE = SHARED / "real-gale"
@@ -126,7 +126,7 @@ def _index_rows(label: Path, volume: str) -> dict[str, object]:
 
 
 def _msl_archive(root: Path) -> tuple[str, ...]:
-    from fetch_archive import write_pds3_index
+    from support.fetch_archive import write_pds3_index
 
     labels = sorted((SAMPLES / "msl").glob("1429*.LBL"))
     volume = "MSLMST_0014"  # the labels' RELEASE_ID

@@ -1,10 +1,11 @@
-"""Where the real PDS samples lie (``../shared/pds-samples`` beside the checkout)."""
+"""Where the real data lies: ``../shared`` beside the checkout (``SHARED``), its PDS samples."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-SAMPLES = Path(__file__).resolve().parents[1].parent / "shared" / "pds-samples"
+SHARED = Path(__file__).resolve().parents[2].parent / "shared"
+SAMPLES = SHARED / "pds-samples"
 
 
 def sample_labels() -> list[Path]:

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import rasterio
 import rasterio.shutil
+import yaml
 from lxml import etree
 from rasterio.warp import Resampling, calculate_default_transform, reproject
 
@@ -211,3 +212,27 @@ def shared_archive(base: Path) -> Archive:
     src = base / "fetch-mission"
     generate_mission(src, mission="both", stops=2, images_per_stop=2, size="small")
     return build_archive(src / "msl", src / "m2020", base / "fetch-archive")
+
+
+def write_config(tmp: Path, url: str, mission: str, **products) -> Path:
+    """A build config whose fetch section points at the loopback archive."""
+    if mission == "msl":
+        prod = {"mission": "msl", "archive": f"{url}/msl", "volumes": ["MSLMST_0001"]}
+        places = {"archive": f"{url}/msl", "path": MSL_PLACES}
+    else:
+        prod = {
+            "mission": "m2020",
+            "archive": f"{url}/mars2020",
+            "bundle": M2020_BUNDLE,
+            "label_path": LABEL_TEMPLATE,
+        }
+        places = {"archive": f"{url}/mars2020", "path": M2020_PLACES}
+    prod.update(products)
+    doc = {
+        "fetch": {"cache": "cache", "retries": 1, "backoff_s": 0.01, "timeout_s": 0.5,
+                  "workers": 2, "products": prod, "places": places},
+        "geometry": {"radius": 200},
+    }  # fmt: skip
+    path = tmp / f"{mission}.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
