@@ -90,8 +90,10 @@ def version_text() -> str:
 class VersionAction(argparse.Action):
     """``--version``: print :func:`version_text` and exit 0 (computed only when asked)."""
 
-    def __init__(self, option_strings: list[str], dest: str = argparse.SUPPRESS, **kw: object):
-        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kw)
+    def __init__(
+        self, option_strings: list[str], dest: str = argparse.SUPPRESS, help: str | None = None
+    ) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, help=help)
 
     def __call__(self, parser: argparse.ArgumentParser, *args: object) -> None:
         print(version_text())

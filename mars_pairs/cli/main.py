@@ -23,6 +23,7 @@ from mars_pairs.store.splits import EmptySplitWarning
 
 if TYPE_CHECKING:
     from mars_pairs.pipeline.build.engine import Engine
+    from mars_pairs.pipeline.config import BuildConfig
 
 
 def _cmd_locate(args: argparse.Namespace) -> int:
@@ -123,13 +124,16 @@ def _engine(args: argparse.Namespace) -> Engine | None:
     return DaskEngine(scheduler=args.scheduler, workers=args.workers)
 
 
-def _ensure_synthetic(config: object) -> None:
+def _ensure_synthetic(config: BuildConfig) -> None:
     """Generate the config's synthetic mission when its files are absent (the demo)."""
-    spec = config.inputs.synthetic  # type: ignore[attr-defined]
-    inputs = config.inputs  # type: ignore[attr-defined]
+    spec = config.inputs.synthetic
+    inputs = config.inputs
     if spec is None:
         return
-    if inputs.dem.exists() and inputs.places.exists() and next(iter_matches(inputs.labels), None):
+    from pathlib import Path
+
+    dem_there = not isinstance(inputs.dem, Path) or inputs.dem.exists()  # (a str: remote)
+    if dem_there and inputs.places.exists() and next(iter_matches(inputs.labels), None):
         return
     import subprocess
     import time

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Sequence
 from pathlib import Path
 
 import pyarrow as pa
@@ -13,7 +14,7 @@ from mars_pairs.store.dataset_info import read_dataset_doc
 from mars_pairs.store.query import Manifest
 
 
-def _counts(title: str, values: list[object]) -> list[str]:
+def _counts(title: str, values: Sequence[object]) -> list[str]:
     lines = [f"{title}:"]
     lines += [f"  {value!s:<24} {n:>8}" for value, n in sorted(Counter(values).items(), key=str)]
     return lines

@@ -198,8 +198,15 @@ def _products(data: Any, base: Path) -> ProductsSpec | None:
     return spec
 
 
-def _number(d: dict[str, Any], name: str, key: str, default: float | None) -> float | None:
-    value = d.get(name, default)
+def _number(d: dict[str, Any], name: str, key: str, default: float) -> float:
+    """A non-negative number; ``default`` when the key is absent or null."""
+    value = _optional_number(d, name, key)
+    return default if value is None else value
+
+
+def _optional_number(d: dict[str, Any], name: str, key: str) -> float | None:
+    """A non-negative number, None when the key is absent or null; else ConfigError."""
+    value = d.get(name)
     if value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:
@@ -221,7 +228,7 @@ def _orbital(data: Any, base: Path) -> OrbitalSpec:
     max_cells = o.get("max_cells", MAX_CELLS)
     if isinstance(max_cells, bool) or not isinstance(max_cells, int) or max_cells < 1:
         raise ConfigError(f"{key}.max_cells: expected a positive integer, got {max_cells!r}")
-    margin = _number(o, "margin_m", key, None)
+    margin = _optional_number(o, "margin_m", key)
     if margin is None:
         margin = OrbitalSpec.margin_m
     return OrbitalSpec(rasters["dem"], rasters["ortho"], margin, max_cells)
@@ -244,8 +251,8 @@ def parse_fetch(data: Any, base: Path, radius_m: float, chip_size_m: float = 256
             raise ConfigError(f"fetch.{name}: expected a non-negative integer, got {value!r}")
     policy = FetchPolicy(
         retries=retries,
-        backoff_s=_number(d, "backoff_s", "fetch", 0.5),  # type: ignore[arg-type]
-        read_timeout_s=_number(d, "timeout_s", "fetch", 60.0),  # type: ignore[arg-type]
+        backoff_s=_number(d, "backoff_s", "fetch", 0.5),
+        read_timeout_s=_number(d, "timeout_s", "fetch", 60.0),
         workers=workers,
     )
     places = None

@@ -330,15 +330,16 @@ class Downloader:
         nothing is resumed (a 304 raises ``_NotModified``).
         """
         started = Validator.read(sidecar(part), remote.url)
+        if_range = None if started is None else started.if_range
         offset = part.stat().st_size if part.is_file() else 0
-        if offset and (started is None or started.if_range is None):
+        if offset and if_range is None:
             offset = 0  # nothing proves the remote file is still the one the part began
         if remote.size is not None and offset > remote.size:
             offset = 0
         headers: dict[str, str] = {}
-        if offset:
+        if offset and if_range is not None:  # (an offset is kept only with a validator)
             headers["Range"] = f"bytes={offset}-"
-            headers["If-Range"] = started.if_range  # type: ignore[union-attr,assignment]
+            headers["If-Range"] = if_range
         elif known is not None:
             if known.etag:
                 headers["If-None-Match"] = known.etag
@@ -356,10 +357,10 @@ class Downloader:
         with response as r:
             if r.status_code == 304 and known is not None and not offset:
                 raise _NotModified()
-            if r.status_code == 416 and offset:
+            if r.status_code == 416 and offset and started is not None:
                 # If-Range matched (else the answer is the whole file), so the part is of the
                 # current version; when it is already whole it is checked, then promoted
-                whole = self._whole_size(remote.url, r, started)  # type: ignore[arg-type]
+                whole = self._whole_size(remote.url, r, started)
                 if whole == offset and remote.size in (None, offset):
                     return 0, True
                 _discard(part)

@@ -31,6 +31,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow.csv as pacsv
@@ -100,11 +101,14 @@ def rover_positions(
         raw = pacsv.read_csv(places_csv).to_pydict()
     except (OSError, ValueError) as exc:
         raise FetchError(places_csv, f"unreadable PLACES table: {exc}") from None
-    cols = {}
+    cols: dict[str, list[Any]] = {}
     for col in ("frame", "site", "drive", "easting", "northing", "longitude", "sol"):
-        cols[col] = _column(raw, col)
-        if cols[col] is None and col not in ("drive", "sol"):
+        values = _column(raw, col)
+        if values is not None:
+            cols[col] = values
+        elif col not in ("drive", "sol"):
             raise FetchError(places_csv, f"column {col!r}: missing")
+    sol_col, drive_col = cols.get("sol"), cols.get("drive")
     rows = []  # (sol or None, x, y, name, longitude)
     for i, frame in enumerate(cols["frame"]):
         if str(frame).strip().upper() != "ROVER":
@@ -115,11 +119,11 @@ def rover_positions(
         site = int(cols["site"][i])
         if sites and site not in sites:
             continue
-        sol = cols["sol"][i] if cols["sol"] is not None else None
+        sol = sol_col[i] if sol_col is not None else None
         sol = int(sol) if sol is not None else None
-        drive = cols["drive"][i] if cols["drive"] is not None else "?"
+        drive = drive_col[i] if drive_col is not None else "?"
         rows.append((sol, x, y, f"site {site} drive {drive} (sol {sol})", cols["longitude"][i]))
-    if sols is not None and cols["sol"] is not None:
+    if sols is not None and sol_col is not None:
         before = [k for k, r in enumerate(rows) if r[0] is not None and r[0] < sols[0]]
         keep = [k for k, r in enumerate(rows) if r[0] is not None and sols[0] <= r[0] <= sols[1]]
         if before:
@@ -256,7 +260,9 @@ def cut_planned(win: PlannedWindow, info: SourceInfo, out: Path) -> WindowResult
         )
 
 
-def _write_window(src, win: Window, out: Path, request: dict) -> None:  # type: ignore[no-untyped-def]
+def _write_window(
+    src: rasterio.io.DatasetReader, win: Window, out: Path, request: dict[str, Any]
+) -> None:
     """Copy ``win`` of ``src`` to a deflate COG at ``out`` (row blocks; temporary names)."""
     out.parent.mkdir(parents=True, exist_ok=True)
     stage = temporary_path(out, ".stage.tif")

@@ -166,7 +166,7 @@ def products_from_inventory(
                 mission="m2020",
                 product_id=product_id,
                 label=RemoteFile(rel, join_url(archive_root, rel)),
-                **fields,  # type: ignore[arg-type]
+                **fields,
             )
         )
     out.products, older = newest_only(out.products)

@@ -43,11 +43,18 @@ from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path, PurePosixPath
+from typing import SupportsIndex, SupportsInt, TypedDict
 
 from mars_pairs.errors import FetchError, LabelError
 from mars_pairs.fetch.cache import archive_path, join_url
 from mars_pairs.fetch.download import RemoteFile
-from mars_pairs.fetch.validate import label_fault, pds3_extent, pds4_extent, read_pds3_label
+from mars_pairs.fetch.validate import (
+    Extent,
+    label_fault,
+    pds3_extent,
+    pds4_extent,
+    read_pds3_label,
+)
 
 PDS4_NS = "http://pds.nasa.gov/pds4/pds/v1"
 _DIGITS = "0123456789"
@@ -240,7 +247,21 @@ def parse_m2020_id(product_id: str) -> M2020Id:
     )  # fmt: skip
 
 
-def zcam_fields(product_id: str) -> dict[str, object]:
+class ZcamFields(TypedDict, total=False):
+    """The ``Product`` fields a Mastcam-Z product id encodes (``zcam_fields``)."""
+
+    sol: int
+    instrument: str
+    product_type: str
+    site: int | None
+    drive: int | None
+    filter: str
+    geometry: str
+    thumbnail: bool
+    version: int | None
+
+
+def zcam_fields(product_id: str) -> ZcamFields:
     """Fields a Mastcam-Z product id encodes ({} when it is not one): sol, instrument,
     product_type, site, drive, filter, geometry, thumbnail, version (None in the LID form)."""
     try:
@@ -250,7 +271,7 @@ def zcam_fields(product_id: str) -> dict[str, object]:
     return zcam_fields_of(pid)
 
 
-def zcam_fields_of(pid: M2020Id) -> dict[str, object]:
+def zcam_fields_of(pid: M2020Id) -> ZcamFields:
     """``zcam_fields`` of an id already parsed ({} when it is not a Mastcam-Z id)."""
     if not pid.is_mastcamz:
         return {}
@@ -398,7 +419,7 @@ class ProductFilter:
     def why_not(self, p: Product, *, unknown_ok: bool = True) -> tuple[str, str] | None:
         """None when ``p`` passes, else (reason, detail); a field the index does not give
         passes if ``unknown_ok``."""
-        checks: list[tuple[str, object, tuple]] = [  # type: ignore[type-arg]
+        checks: list[tuple[str, object, tuple]] = [
             ("instrument", p.instrument, tuple(i.upper() for i in self.instruments)),
             ("product type", p.product_type, tuple(t.upper() for t in self.product_types)),
             ("site", p.site, self.sites),
@@ -444,7 +465,20 @@ def _sibling(label: RemoteFile, name: str, where: str) -> PurePosixPath:
     return archive_path(str(label.rel.parent / name), where=where)
 
 
-def pds3_label_facts(path: Path) -> dict[str, object]:
+class LabelFacts(TypedDict, total=False):
+    """What a product label says of its image (``pds3_label_facts``, ``pds4_label_facts``):
+    the file name, size (bytes), MD5 (hex, lower case), ``Extent``, and the label's raw site
+    and drive values (PDS3)."""
+
+    image: str | None
+    size: int | None
+    md5: str | None
+    extent: Extent | None
+    site: object
+    drive: object
+
+
+def pds3_label_facts(path: Path) -> LabelFacts:
     """Image file name (``^IMAGE``), its ``Extent``, site and drive of a downloaded PDS3
     label, read by the bounded label loader (``validate.read_pds3_label``); ``FetchError``
     naming ``path``."""
@@ -457,7 +491,7 @@ def pds3_label_facts(path: Path) -> dict[str, object]:
     values = meta.get("ROVER_MOTION_COUNTER")
     if isinstance(pointer, (list, tuple)):
         pointer = pointer[0]
-    facts: dict[str, object] = {"image": str(pointer) if pointer else None}
+    facts: LabelFacts = {"image": str(pointer) if pointer else None}
     if pointer:
         facts["extent"] = pds3_extent(meta, str(pointer))
     if names and values and len(names) == len(values):
@@ -466,7 +500,7 @@ def pds3_label_facts(path: Path) -> dict[str, object]:
     return facts
 
 
-def pds4_label_facts(path: Path) -> dict[str, object]:
+def pds4_label_facts(path: Path) -> LabelFacts:
     """Image file name, size (bytes), MD5 and ``Extent`` from a PDS4 label's
     File_Area_Observational, read by the bounded XML loader (``pds.xml.load_xml``);
     ``FetchError`` naming ``path``."""
@@ -515,9 +549,9 @@ def with_label_facts(p: Product, label_path: Path, archive_root: str) -> Product
     image = RemoteFile(
         rel,
         join_url(archive_root, rel),
-        facts.get("size"),  # type: ignore[arg-type]
-        facts.get("md5"),  # type: ignore[arg-type]
-        extent=facts.get("extent"),  # type: ignore[arg-type]
+        facts.get("size"),
+        facts.get("md5"),
+        extent=facts.get("extent"),
     )
     site = p.site if p.site is not None else _int_or_none(facts.get("site"))
     drive = p.drive if p.drive is not None else _int_or_none(facts.get("drive"))
@@ -525,7 +559,10 @@ def with_label_facts(p: Product, label_path: Path, archive_root: str) -> Product
 
 
 def _int_or_none(value: object) -> int | None:
+    """``int(value)``, or None when ``value`` is None or no integer (what ``int`` refuses)."""
+    if not isinstance(value, (str, bytes, SupportsInt, SupportsIndex)):
+        return None
     try:
-        return None if value is None else int(value)  # type: ignore[call-overload]
+        return int(value)
     except (TypeError, ValueError):
         return None

@@ -174,17 +174,18 @@ def _one(
             skip = Skipped(p.product_id, p.label.url, "label", *why)
             return _Outcome(None, (got.status,), got.bytes_received, 0, skipped=skip)
         assert p.image is not None
-        stage, url = "image", p.image.url
-        target = dl.cache.path(p.image.rel, where=url)
-        cached = target.is_file() and (p.image.size in (None, target.stat().st_size))
+        image = p.image
+        stage, url = "image", image.url
+        target = dl.cache.path(image.rel, where=url)
+        cached = target.is_file() and (image.size in (None, target.stat().st_size))
         if dry_run:
-            size = p.image.size if p.image.size is not None else dl.head_size(p.image.url)
-            if p.image.size is None and size is not None:
-                p = replace(p, image=replace(p.image, size=size))
+            size = image.size if image.size is not None else dl.head_size(image.url)
+            if image.size is None and size is not None:
+                p = replace(p, image=replace(image, size=size))
             return _Outcome(p, (got.status,), got.bytes_received, 0 if cached else (size or 0))
-        img = dl.fetch(replace(p.image, label=got.path))  # the label tells what it must be
-        if p.image.size is None:
-            p = replace(p, image=replace(p.image, size=img.path.stat().st_size))
+        img = dl.fetch(replace(image, label=got.path))  # the label tells what it must be
+        if image.size is None:
+            p = replace(p, image=replace(image, size=img.path.stat().st_size))
         return _Outcome(p, (got.status, img.status), got.bytes_received + img.bytes_received, 0)
     except MarsPairsError as exc:
         reason = exc.reason if isinstance(exc, FetchError) else str(exc)
@@ -236,7 +237,8 @@ def fetch_products(
             if out.product is not None:
                 report.products.append(out.product)
                 report.selected += 1
-                report.image_bytes += out.product.image.size or 0  # type: ignore[union-attr]
+                assert out.product.image is not None  # a selected product has its image
+                report.image_bytes += out.product.image.size or 0
                 report.to_fetch_bytes += out.to_fetch
     bar.close()
     report.products.sort(key=lambda p: str(p.label.rel))

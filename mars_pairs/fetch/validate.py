@@ -193,7 +193,7 @@ def _pds4_root(path: Path, where: object, what: str = "PDS4 label") -> Any:
         root = load_xml(_small(path, what, where), path)
     except LabelError as exc:
         raise ContentError(where, exc.reason) from None
-    local = root.tag.rsplit("}", 1)[-1]
+    local = str(root.tag).rsplit("}", 1)[-1]
     if not local.startswith("Product_"):
         raise ContentError(where, f"not a PDS4 product: root element is {local}")
     return root
@@ -347,8 +347,9 @@ def _pds3_table(path: Path, label: Path | None, where: object) -> None:
         raise ContentError(where, f"its label {label} points at no file {path_name(path)}")
     obj, pointer = found
     table = meta.get(obj)
-    rows = table.get("ROWS") if hasattr(table, "get") else None
-    row_bytes = table.get("ROW_BYTES") if hasattr(table, "get") else None
+    rows = row_bytes = None
+    if table is not None and hasattr(table, "get"):
+        rows, row_bytes = table.get("ROWS"), table.get("ROW_BYTES")
     offset = _pds3_offset(pointer, meta)
     if not (isinstance(rows, int) and isinstance(row_bytes, int)) or offset is None:
         return
@@ -413,7 +414,7 @@ def pds3_extent(meta: Mapping[str, Any], name: str) -> Extent:
         return Extent(None)
     obj, pointer = found
     image, offset = meta.get(obj), _pds3_offset(pointer, meta)
-    if not hasattr(image, "get") or offset is None:
+    if image is None or not hasattr(image, "get") or offset is None:
         return Extent(None)
     dims = [image.get(k, 1) for k in ("LINES", "LINE_SAMPLES", "BANDS", "SAMPLE_BITS")]
     if not all(isinstance(d, int) for d in dims):
@@ -450,9 +451,10 @@ def _pds4_object_bytes(obj: Any, local: str, ns: str) -> int | None:
         dtype = (obj.findtext(f"{ns}Element_Array/{ns}data_type") or "").strip()
         width = _pds4_type_bytes(dtype)
         axes = [_int_text(a.findtext(f"{ns}elements")) for a in obj.iter(f"{ns}Axis_Array")]
-        if width is None or not axes or any(a is None for a in axes):
+        counts = [a for a in axes if a is not None]
+        if width is None or not axes or len(counts) < len(axes):
             return None
-        return width * math.prod(axes)  # type: ignore[arg-type]
+        return width * math.prod(counts)
     if local in ("Header", "Table_Delimited", "Stream_Text", "Encoded_Image"):
         return _int_text(obj.findtext(f"{ns}object_length"))
     if local in ("Table_Binary", "Table_Character"):

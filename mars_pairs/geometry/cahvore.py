@@ -80,7 +80,8 @@ def pupil_shift(theta: FloatArray, e: FloatArray) -> FloatArray:
     poly = e[0] + (e[1] + e[2] * t2) * t2
     safe = np.where(theta > 1e-8, theta, 1.0)
     ratio = np.where(theta > 1e-8, safe / np.sin(safe) - 1.0, t2 / 6.0)
-    return ratio * poly
+    shift: FloatArray = ratio * poly
+    return shift
 
 
 def distort(p: FloatArray, o: FloatArray, r: FloatArray, e: FloatArray, lin: float) -> FloatArray:

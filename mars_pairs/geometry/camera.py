@@ -112,8 +112,10 @@ class CameraModel:
         if self.model_type == "CAHVOR":
             p = _cahvor_distort(self, p)
         elif self.model_type == "CAHVORE":
+            lin = self.linearity
             assert self.o is not None and self.r is not None and self.e is not None
-            p = cahvore.distort(p, self.o, self.r, self.e, float(self.linearity))
+            assert lin is not None
+            p = cahvore.distort(p, self.o, self.r, self.e, lin)
         denom = p @ self.a
         with np.errstate(divide="ignore", invalid="ignore"):
             x = (p @ self.h) / denom
@@ -133,8 +135,10 @@ class CameraModel:
         xy = np.asarray(pixels, dtype=np.float64)
         u = _cahv_ray(self, xy[..., 0], xy[..., 1])
         if self.model_type == "CAHVORE":
+            lin = self.linearity
             assert self.o is not None and self.r is not None and self.e is not None
-            return cahvore.undistort(u, self.c, self.o, self.r, self.e, float(self.linearity))
+            assert lin is not None
+            return cahvore.undistort(u, self.c, self.o, self.r, self.e, lin)
         if self.model_type == "CAHVOR":
             u = _cahvor_undistort(self, u)
         origin = np.broadcast_to(self.c, u.shape).copy()
@@ -204,7 +208,8 @@ def _cahvor_distort(cam: CameraModel, p: FloatArray) -> FloatArray:
     with np.errstate(divide="ignore", invalid="ignore"):
         tau = np.einsum("...i,...i->...", lam, lam) / (zeta * zeta)
     mu = cam.r[0] + cam.r[1] * tau + cam.r[2] * tau * tau
-    return p + mu[..., None] * lam
+    distorted: FloatArray = p + mu[..., None] * lam
+    return distorted
 
 
 def _cahvor_undistort(cam: CameraModel, rr: FloatArray) -> FloatArray:
@@ -231,4 +236,5 @@ def _cahvor_undistort(cam: CameraModel, rr: FloatArray) -> FloatArray:
         if np.all(np.abs(du) < _NEWTON_TOL):
             break
     out = wo + u[..., None] * lam
-    return out / np.linalg.norm(out, axis=-1, keepdims=True)
+    unit: FloatArray = out / np.linalg.norm(out, axis=-1, keepdims=True)
+    return unit

@@ -17,12 +17,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pyproj import CRS, Transformer
 
-from mars_pairs.geometry.body import (  # noqa: F401  (re-exported)
-    M2020_PLACES_CRS,
-    MARS_LONLAT,
-    MARS_RADIUS_M,
-    MSL_PLACES_CRS,
-)
+# re-exported: importers name these constants from frames
+from mars_pairs.geometry.body import M2020_PLACES_CRS as M2020_PLACES_CRS
+from mars_pairs.geometry.body import MARS_LONLAT as MARS_LONLAT
+from mars_pairs.geometry.body import MARS_RADIUS_M as MARS_RADIUS_M
+from mars_pairs.geometry.body import MSL_PLACES_CRS as MSL_PLACES_CRS
 
 FloatArray = NDArray[np.float64]
 
@@ -103,7 +102,8 @@ def site_to_local_ned(
     d metres away the two levels differ by d / R (168 m: 0.003 deg, which moves a grazing
     ray's ground hit at 200 m by ~0.5 m). v_local = M @ v_site.
     """
-    return _ned_basis(lon_deg, lat_deg) @ _ned_basis(site_lon_deg, site_lat_deg).T
+    m: FloatArray = _ned_basis(lon_deg, lat_deg) @ _ned_basis(site_lon_deg, site_lat_deg).T
+    return m
 
 
 @dataclass(frozen=True)
@@ -136,7 +136,8 @@ class TangentFrame:
         basis = _ned_basis(self.lon_deg, self.lat_deg)
         origin = _unit_sphere(self.lon_deg, self.lat_deg) * (self.radius_m + self.height_m)
         p = _unit_sphere(lon_deg, lat_deg) * (self.radius_m + np.asarray(height_m))[..., None]
-        return (p - origin) @ basis.T
+        ned: FloatArray = (p - origin) @ basis.T
+        return ned
 
 
 # -- map projections ------------------------------------------------------------------------------

@@ -123,7 +123,8 @@ class MapCamera:
     def map_to_local(self, points_map: ArrayLike) -> FloatArray:
         """Map points (..., 3) -> local NED metres at the rover (inverse of the Jacobian)."""
         rel = np.asarray(points_map, dtype=np.float64) - self.origin_map
-        return rel @ np.linalg.inv(self.jacobian).T
+        local: FloatArray = rel @ np.linalg.inv(self.jacobian).T
+        return local
 
     def project_map(self, points_map: ArrayLike) -> FloatArray:
         """Map points (..., 3) -> pixels (..., 2) as (sample, line); NaN behind the camera."""
@@ -148,7 +149,8 @@ class MapCamera:
         az = np.radians(np.asarray(true_azimuth_deg, dtype=np.float64))
         north_east = np.stack([np.cos(az), np.sin(az)], axis=-1)
         grid = north_east @ self.jacobian[:2, :2].T  # (x east, y north) map units
-        return np.degrees(np.arctan2(grid[..., 0], grid[..., 1])) % 360.0
+        az_grid: FloatArray = np.degrees(np.arctan2(grid[..., 0], grid[..., 1])) % 360.0
+        return az_grid
 
     def local_points(self, points_map: ArrayLike, planet_radius: float) -> FloatArray:
         """Map points (..., 3) -> local NED metres at the rover, with the planet's curvature.

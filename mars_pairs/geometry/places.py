@@ -171,7 +171,7 @@ class Places:
         """A site, drive or pose number: an integer in [-1, 2**31); else PlacesError."""
         v = self._cols[column][row]
         try:
-            number = float(v)  # type: ignore[arg-type]
+            number = float(v)
         except (TypeError, ValueError):
             number = math.nan
         if not (math.isfinite(number) and number == int(number) and -1 <= number < 2**31):
@@ -348,7 +348,7 @@ class Places:
         lon0, lat0, elev0 = origin
         lon, lat, h = TangentFrame(lon0, lat0, elev0).ned_to_lonlat(obs.rover_offset_m)
         x, y = lonlat_to_map(lon, lat, self.crs)
-        q = obs.rover_quaternion
+        label_q = obs.rover_quaternion
         return Pose(
             site=site,
             drive=drive,
@@ -358,9 +358,9 @@ class Places:
             latitude=float(lat),
             longitude=float(lon),
             elevation_m=float(h),
-            quaternion=None if q is None else np.asarray(q, dtype=np.float64),
+            quaternion=None if label_q is None else np.asarray(label_q, dtype=np.float64),
             source="label",
-            attitude_source=None if q is None else "label",
+            attitude_source=None if label_q is None else "label",
             site_lonlat=site_lonlat,
             match=MATCH_LABEL,
         )

@@ -6,14 +6,18 @@ x = c + a (u + 0.5), y = f + e (v + 0.5) in the raster's map units.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 import numpy as np
 from affine import Affine
 from numba import njit
 
+#: a raster's affine: an ``Affine`` or its coefficients (a, b, c, d, e, f[, 0, 0, 1])
+Transform = Affine | Sequence[float]
 
-def as_grid(window: Any, transform: Any = None) -> tuple[np.ndarray, Affine]:
+
+def as_grid(window: Any, transform: Transform | None = None) -> tuple[np.ndarray, Affine]:
     """(float32 C-contiguous DEM array, Affine) from a DemWindow, (array, transform) or array.
 
     ``transform`` may be a rasterio ``Affine`` or its six coefficients (a, b, c, d, e, f).
@@ -38,11 +42,11 @@ def as_grid(window: Any, transform: Any = None) -> tuple[np.ndarray, Affine]:
     return arr, tr
 
 
-def _as_affine(tr: Any) -> Affine:
+def _as_affine(tr: Affine | Iterable[float]) -> Affine:
     """Affine from an Affine or a sequence of 6 (or 9) coefficients a, b, c, d, e, f."""
     if isinstance(tr, Affine):
         return tr
-    coeffs = [float(v) for v in tr]  # type: ignore[union-attr]
+    coeffs = [float(v) for v in tr]
     if len(coeffs) not in (6, 9):
         raise ValueError(f"transform needs 6 coefficients (a, b, c, d, e, f), got {len(coeffs)}")
     return Affine(*coeffs[:6])

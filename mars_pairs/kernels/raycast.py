@@ -23,15 +23,20 @@ from typing import Any
 
 import numpy as np
 from numba import njit, prange
+from numpy.typing import ArrayLike, NDArray
 
 from mars_pairs.geometry.body import MARS_RADIUS_M
-from mars_pairs.kernels.grid import as_grid, bilinear
+from mars_pairs.kernels.grid import Transform, as_grid, bilinear
 
 _MAX_LEVEL = 9  # coarsest pyramid blocks: 512 x 512 quads
 _BASE = 2  # finest stored level (4 x 4 quads); below it rays walk the quads themselves
 _NUDGE = 1e-7  # cells: block lookups look this far ahead along the ray (progress at edges)
 _CHUNK = 32  # consecutive rays per work item
 _SCATTER = 7919  # prime stride that scatters the work items over the threads
+
+Dem = NDArray[np.float32]  # the DEM window (``as_grid``), its pyramid levels, row scratch
+Index = NDArray[np.int64]  # pyramid offsets (levels + 1,) and dims (levels, 2)
+Vectors = NDArray[np.float64]  # ray origins, directions and hits, (3,) or (N, 3); ranges (N,)
 
 
 @dataclass(frozen=True)
@@ -42,10 +47,10 @@ class MaxPyramid:
     other; ``offsets[k]`` / ``dims[k]`` = start and (rows, cols) of level k (level 0 = quads).
     """
 
-    dem: np.ndarray
-    data: np.ndarray
-    offsets: np.ndarray
-    dims: np.ndarray
+    dem: Dem
+    data: Dem
+    offsets: Index
+    dims: Index
 
     @property
     def n_levels(self) -> int:
@@ -54,7 +59,7 @@ class MaxPyramid:
 
 
 @njit(cache=True)
-def _rows_max(dem, r0, r1, tmp, poison):
+def _rows_max(dem: Dem, r0: int, r1: int, tmp: Dem, poison: Dem) -> None:
     """Column-wise max of rows r0..r1-1 into ``tmp``; ``poison`` turns NaN under NaN/inf."""
     w = dem.shape[1]
     for r in range(r0, r1):
@@ -67,7 +72,7 @@ def _rows_max(dem, r0, r1, tmp, poison):
 
 
 @njit(cache=True, parallel=True)
-def _pyramid_kernel(dem, n_levels):
+def _pyramid_kernel(dem: Dem, n_levels: int) -> tuple[Dem, Index, Index]:
     """(data, offsets, dims) of the max pyramid of ``dem``: levels _BASE..n_levels stored
     (dims/offsets rows for the levels below _BASE are placeholders)."""
     h, w = dem.shape
@@ -121,7 +126,7 @@ def _pyramid_kernel(dem, n_levels):
     return data, offsets, dims
 
 
-def max_pyramid(window: Any, transform: Any = None) -> MaxPyramid:
+def max_pyramid(window: Any, transform: Transform | None = None) -> MaxPyramid:
     """Maximum mipmap of a DEM window (``DemWindow``, (array, transform) or array), to pass as
     ``cast_rays(..., pyramid=...)`` when casting several ray sets over the same window."""
     if isinstance(window, np.ndarray) and transform is None:
@@ -138,18 +143,25 @@ def max_pyramid(window: Any, transform: Any = None) -> MaxPyramid:
 
 
 @njit(cache=True, inline="always")
-def _gap(dem, t, o, d, c, a, f, e, obs_x, obs_y, inv2r):
+def _gap(
+    dem: Dem, t: float, o: Vectors, d: Vectors, c: float, a: float, f: float, e: float,
+    obs_x: float, obs_y: float, inv2r: float,
+) -> float:  # fmt: skip
     """Ray height above the curvature-lowered terrain at ray parameter t (NaN off-grid)."""
     x = o[0] + t * d[0]
     y = o[1] + t * d[1]
     z = bilinear(dem, (x - c) / a - 0.5, (y - f) / e - 0.5)
     ddx = x - obs_x
     ddy = y - obs_y
-    return o[2] + t * d[2] - (z - (ddx * ddx + ddy * ddy) * inv2r)
+    gap: float = o[2] + t * d[2] - (z - (ddx * ddx + ddy * ddy) * inv2r)
+    return gap
 
 
 @njit(cache=True, inline="always")
-def _quad_hit(dem, bu, bv, ts, te, uo, vo, du, dv, o, d, px, py, hor2, inv2r):
+def _quad_hit(
+    dem: Dem, bu: int, bv: int, ts: float, te: float, uo: float, vo: float, du: float, dv: float,
+    o: Vectors, d: Vectors, px: float, py: float, hor2: float, inv2r: float,
+) -> float:  # fmt: skip
     """First ray parameter in [ts, te] where the ray meets the bilinear, curvature-lowered
     surface of quad (bu, bv); -1 when it stays above, NaN when a corner is nodata."""
     z00 = np.float64(dem[bv, bu])
@@ -186,7 +198,11 @@ def _quad_hit(dem, bu, bv, ts, te, uo, vo, du, dv, o, d, px, py, hor2, inv2r):
 
 
 @njit(cache=True, inline="always")
-def _cast_one(dem, pyr, offs, dims, zmax, o, d, max_range, c, a, f, e, obs_x, obs_y, inv2r):
+def _cast_one(
+    dem: Dem, pyr: Dem, offs: Index, dims: Index, zmax: float, o: Vectors, d: Vectors,
+    max_range: float, c: float, a: float, f: float, e: float, obs_x: float, obs_y: float,
+    inv2r: float,
+) -> float:  # fmt: skip
     """Ray parameter (metres) of the first terrain hit of one ray, NaN when none."""
     h, w = dem.shape
     if not _gap(dem, 0.0, o, d, c, a, f, e, obs_x, obs_y, inv2r) > 0.0:
@@ -252,7 +268,11 @@ def _cast_one(dem, pyr, offs, dims, zmax, o, d, max_range, c, a, f, e, obs_x, ob
 
 
 @njit(cache=True, parallel=True)
-def _cast_kernel(dem, pyr, offs, dims, origins, dirs, max_range, c, a, f, e, obs_x, obs_y, inv2r):
+def _cast_kernel(
+    dem: Dem, pyr: Dem, offs: Index, dims: Index, origins: Vectors, dirs: Vectors,
+    max_range: float, c: float, a: float, f: float, e: float, obs_x: float, obs_y: float,
+    inv2r: float,
+) -> tuple[Vectors, Vectors]:  # fmt: skip
     """(hits (N, 3), ranges (N,)) for every ray; NaN rows for rays without a hit.
 
     Rays go out in blocks of ``_CHUNK`` consecutive rays (coherent: neighbouring pixels), the
@@ -284,16 +304,16 @@ def _cast_kernel(dem, pyr, offs, dims, origins, dirs, max_range, c, a, f, e, obs
 
 
 def cast_rays(
-    origins: Any,
-    directions: Any,
+    origins: ArrayLike,
+    directions: ArrayLike,
     window: Any,
     *,
     max_range: float,
     observer_xy: tuple[float, float] | None = None,
     planet_radius: float = MARS_RADIUS_M,
-    transform: Any = None,
+    transform: Transform | None = None,
     pyramid: MaxPyramid | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[Vectors, Vectors]:
     """First terrain hit of each ray over a DEM window.
 
     ``origins`` (N, 3) and ``directions`` (N, 3; normalised here) in the window's map frame

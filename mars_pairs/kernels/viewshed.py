@@ -40,9 +40,10 @@ from typing import Any
 import numpy as np
 from affine import Affine
 from numba import njit, prange
+from numpy.typing import NDArray
 
 from mars_pairs.geometry.body import MARS_RADIUS_M
-from mars_pairs.kernels.grid import as_grid, bilinear, xy_to_uv
+from mars_pairs.kernels.grid import Transform, as_grid, bilinear, xy_to_uv
 
 # no 'nnan'/'ninf': NaN nodata and +-inf band limits must compare exactly
 _SAFE_FM = {"arcp", "contract"}
@@ -57,6 +58,19 @@ _TREE_BARS = 0.5
 _TREE_MIN_RAYS = 16  # rays per side at the root of the full circle's tree of rays
 _CHUNK = 64  # rays per parallel work item (one scratch buffer each)
 _TOL_M = 1e-6  # metres the terrain may rise above a sight line (rounding at the target)
+
+Dem = NDArray[np.float32]  # the DEM window (``as_grid``), or its raveled ``flat`` view
+Scratch = NDArray[np.float64]  # per-ray horizon samples (``s_hi``) and their stack
+Lines = NDArray[np.int64]  # grid lines of the kept samples (``s_j``), ray indices, step counts
+Mask = NDArray[np.uint8]  # 1 = visible
+# (h, w, ic, ir, u0, v0, a, e, eye, radius, inv2r, th, tmin, tmax, az_on, az_min, az_w):
+# the window and observer every ray of one call shares (``_viewshed_kernel``)
+Geo = tuple[
+    int, int, int, int, float, float, float, float, float, float, float, float, float, float,
+    bool, float, float,
+]  # fmt: skip
+# (q, rem, hi, lo, hi1, lo1, n_c): one ray's stepping state (``_march``)
+RayState = tuple[int, int, float, float, float, float, int]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -86,7 +100,7 @@ def _in_az(cx: float, cy: float, az_min: float, az_width: float) -> bool:
 
 
 @njit(cache=True, fastmath=_SAFE_FM)
-def _line_z(flat, major, st_maj, st_min, n_min, mn):
+def _line_z(flat: Dem, major: int, st_maj: int, st_min: int, n_min: int, mn: float) -> float:
     """Terrain (metres) at minor coordinate ``mn`` on grid line ``major`` (linear along the
     line); NaN when off the grid or nodata."""
     m0 = math.floor(mn)
@@ -94,11 +108,15 @@ def _line_z(flat, major, st_maj, st_min, n_min, mn):
     if m0 < 0 or m0 > n_min - 1 or (m0 == n_min - 1 and fm > 0.0):
         return np.nan
     idx = major * st_maj + m0 * st_min
-    return flat[idx] if fm == 0.0 else flat[idx] * (1.0 - fm) + flat[idx + st_min] * fm
+    z: float = flat[idx] if fm == 0.0 else flat[idx] * (1.0 - fm) + flat[idx + st_min] * fm
+    return z
 
 
 @njit(cache=True, fastmath=_SAFE_FM)
-def _quad_rise(flat, w, i, j, u0, v0, du, dv, ta, tb, q2c, eye, slope):
+def _quad_rise(
+    flat: Dem, w: int, i: int, j: int, u0: float, v0: float, du: float, dv: float, ta: float,
+    tb: float, q2c: float, eye: float, slope: float,
+) -> float:  # fmt: skip
     """Max over t in [ta, tb] of (bilinear terrain - curvature drop - sight line), metres, in
     the quad with top-left cell centre (col i, row j); -inf when a corner is nodata."""
     idx = j * w + i
@@ -117,7 +135,7 @@ def _quad_rise(flat, w, i, j, u0, v0, du, dv, ta, tb, q2c, eye, slope):
     q2 = cc * du * dv - q2c
     q1 = ca * du + cb * dv + cc * (fu0 * dv + fv0 * du) - slope
     q0 = z00 + ca * fu0 + cb * fv0 + cc * fu0 * fv0 - eye
-    best = max(q0 + ta * (q1 + ta * q2), q0 + tb * (q1 + tb * q2))
+    best: float = max(q0 + ta * (q1 + ta * q2), q0 + tb * (q1 + tb * q2))
     if q2 < 0.0:
         tv = -q1 / (2.0 * q2)
         if ta < tv < tb:
@@ -126,7 +144,10 @@ def _quad_rise(flat, w, i, j, u0, v0, du, dv, ta, tb, q2c, eye, slope):
 
 
 @njit(cache=True, fastmath=_SAFE_FM)
-def _segment_clear(flat, h, w, u0, v0, col, row, a, e, eye, zt, inv2r, t0, t1):
+def _segment_clear(
+    flat: Dem, h: int, w: int, u0: float, v0: float, col: int, row: int, a: float, e: float,
+    eye: float, zt: float, inv2r: float, t0: float, t1: float,
+) -> bool:  # fmt: skip
     """Does the sight line from grid (u0, v0) at elevation ``eye`` to the surface point of
     cell (col, row) at ``zt`` (curvature-lowered, metres) stay on or above the bilinear,
     curvature-lowered terrain for t in [t0, t1]? Exact: the line is cut at every grid line it
@@ -174,7 +195,10 @@ def _segment_clear(flat, h, w, u0, v0, col, row, a, e, eye, zt, inv2r, t0, t1):
 
 
 @njit(cache=True, fastmath=_SAFE_FM)
-def _march(flat, out, geo, umaj, sgn, k, big_p, s0, s1, off_m, st, s_hi, s_j):
+def _march(
+    flat: Dem, out: Mask, geo: Geo, umaj: bool, sgn: int, k: int, big_p: int, s0: int, s1: int,
+    off_m: float, st: RayState, s_hi: Scratch, s_j: Lines,
+) -> tuple[RayState, bool]:  # fmt: skip
     """March one ray over steps ``s0`` + 1 .. ``s1`` and judge every cell it owns.
 
     The ray leaves the observer's cell along its major axis (``umaj``: u, the column axis;
@@ -290,9 +314,10 @@ def _march(flat, out, geo, umaj, sgn, k, big_p, s0, s1, off_m, st, s_hi, s_j):
 
 @njit(cache=True, fastmath=_SAFE_FM)
 def _head_clear(
-    flat, h, w, u0, v0, col, row, a, e, eye, zt, inv2r, sl, s_hi, s_j, n_c, j_max, o_off,
-    inv_n, t_tail,
-):  # fmt: skip
+    flat: Dem, h: int, w: int, u0: float, v0: float, col: int, row: int, a: float, e: float,
+    eye: float, zt: float, inv2r: float, sl: float, s_hi: Scratch, s_j: Lines, n_c: int,
+    j_max: int, o_off: float, inv_n: float, t_tail: float,
+) -> bool:  # fmt: skip
     """Exact test of the sight line (slope ``sl``) near every kept ray sample on lines up to
     ``j_max`` whose upper bound reaches it: between the grid lines on either side of it.
     ``o_off``: the observer's offset from its cell centre along the major axis (cells);
@@ -312,7 +337,10 @@ def _head_clear(
 
 
 @njit(cache=True)
-def _ray_steps(big_d, big_p, a, e, az_on, az_min, az_w, ratio):
+def _ray_steps(
+    big_d: int, big_p: int, a: float, e: float, az_on: bool, az_min: float, az_w: float,
+    ratio: float,
+) -> Lines:  # fmt: skip
     """Steps to march per ray: all of them in the band, a few near it, 4 elsewhere."""
     n = 8 * big_p
     steps = np.empty(n, dtype=np.int64)
@@ -333,7 +361,10 @@ def _ray_steps(big_d, big_p, a, e, az_on, az_min, az_w, ratio):
 
 
 @njit(cache=True, fastmath=_SAFE_FM)
-def _flat_rays(flat, out, geo, rays, steps, big_p, s_hi, s_j):
+def _flat_rays(
+    flat: Dem, out: Mask, geo: Geo, rays: Lines, steps: Lines, big_p: int, s_hi: Scratch,
+    s_j: Lines,
+) -> None:  # fmt: skip
     """Sweep ``rays`` (indices at resolution ``big_p``), each from the observer on its own."""
     _, _, ic, ir, u0, v0 = geo[:6]
     for i in range(rays.size):
@@ -346,7 +377,10 @@ def _flat_rays(flat, out, geo, rays, steps, big_p, s_hi, s_j):
 
 
 @njit(cache=True, fastmath=_SAFE_FM)
-def _tree_ray(flat, out, geo, r, big_p, n_lev, s_max, off_m, s_hi, s_j, stk_hi, stk_j):
+def _tree_ray(
+    flat: Dem, out: Mask, geo: Geo, r: int, big_p: int, n_lev: int, s_max: int, off_m: float,
+    s_hi: Scratch, s_j: Lines, stk_hi: Scratch, stk_j: Lines,
+) -> None:  # fmt: skip
     """Sweep the tree of rays under coarse ray ``r`` (resolution ``big_p`` >> ``n_lev``).
 
     A ray of resolution P owns cells out to P steps; there it goes on as ray 2k of resolution
@@ -415,7 +449,9 @@ def _tree_ray(flat, out, geo, r, big_p, n_lev, s_max, off_m, s_hi, s_j, stk_hi, 
 
 
 @njit(cache=True, parallel=True)
-def _tree_parallel(flat, out, geo, big_p, n_lev, s_max, off_m):
+def _tree_parallel(
+    flat: Dem, out: Mask, geo: Geo, big_p: int, n_lev: int, s_max: int, off_m: float
+) -> None:
     """All coarse rays' trees over the threads (each cell has one owner: no write conflicts)."""
     n_r = 8 * (big_p >> n_lev)
     for r in prange(n_r):
@@ -427,7 +463,9 @@ def _tree_parallel(flat, out, geo, big_p, n_lev, s_max, off_m):
 
 
 @njit(cache=True)
-def _tree_serial(flat, out, geo, big_p, n_lev, s_max, off_m):
+def _tree_serial(
+    flat: Dem, out: Mask, geo: Geo, big_p: int, n_lev: int, s_max: int, off_m: float
+) -> None:
     """All coarse rays' trees on the calling thread (small jobs)."""
     s_hi = np.empty(s_max + 2)
     s_j = np.empty(s_max + 2, dtype=np.int64)
@@ -438,7 +476,7 @@ def _tree_serial(flat, out, geo, big_p, n_lev, s_max, off_m):
 
 
 @njit(cache=True, parallel=True)
-def _flat_parallel(flat, out, geo, rays, steps, big_p):
+def _flat_parallel(flat: Dem, out: Mask, geo: Geo, rays: Lines, steps: Lines, big_p: int) -> None:
     """``_flat_rays`` over the threads, in chunks of ``_CHUNK`` rays (one scratch each)."""
     n_s = steps.max() + 2
     for c in prange((rays.size + _CHUNK - 1) // _CHUNK):
@@ -449,7 +487,7 @@ def _flat_parallel(flat, out, geo, rays, steps, big_p):
 
 
 @njit(cache=True)
-def _flat_serial(flat, out, geo, rays, steps, big_p):
+def _flat_serial(flat: Dem, out: Mask, geo: Geo, rays: Lines, steps: Lines, big_p: int) -> None:
     """``_flat_rays`` on the calling thread (small jobs: wedges, the short rays)."""
     n_s = (steps.max() if steps.size else 0) + 2
     s_hi = np.empty(n_s)
@@ -459,9 +497,10 @@ def _flat_serial(flat, out, geo, rays, steps, big_p):
 
 @njit(cache=True)
 def _viewshed_kernel(
-    dem, u0, v0, a, e, eye, radius, inv2r, th, tmin, tmax, el_min_deg, el_max_deg, az_on,
-    az_min, az_w, big_d, big_p, n_lev,
-):  # fmt: skip
+    dem: Dem, u0: float, v0: float, a: float, e: float, eye: float, radius: float,
+    inv2r: float, th: float, tmin: float, tmax: float, el_min_deg: float, el_max_deg: float,
+    az_on: bool, az_min: float, az_w: float, big_d: int, big_p: int, n_lev: int,
+) -> Mask:  # fmt: skip
     """uint8 visibility mask of ``dem`` seen from grid point (u0, v0) at elevation ``eye``.
 
     ``big_d``: steps per ray (radius in cells + 1); ``big_p``: perimeter resolution, i.e.
@@ -502,7 +541,10 @@ def _viewshed_kernel(
 
 
 @njit(cache=True)
-def _judge_origin(dem, out, ic, ir, u0, v0, a, e, eye, th, el_min, el_max, az_on, az_min, az_w):
+def _judge_origin(
+    dem: Dem, out: Mask, ic: int, ir: int, u0: float, v0: float, a: float, e: float, eye: float,
+    th: float, el_min: float, el_max: float, az_on: bool, az_min: float, az_w: float,
+) -> None:  # fmt: skip
     """The observer's own cell: nothing lies in between; only the bands apply."""
     zc = dem[ir, ic]
     if zc != zc:
@@ -573,7 +615,7 @@ def compute_viewshed(
     el_band: Sequence[float] | None = None,
     target_height: float = 0.0,
     planet_radius: float = MARS_RADIUS_M,
-    transform: Any = None,
+    transform: Transform | None = None,
     oversample: int = 1,
 ) -> np.ndarray:
     """Visibility mask (uint8, 1 = visible) on the DEM window grid.

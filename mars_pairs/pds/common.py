@@ -191,7 +191,7 @@ class Fields:
             self.fail(field, f"offset beyond {MAX_OFFSET_M:g} m: {values.tolist()}")
         return values
 
-    def quaternion(self, values: Sequence[float], field: str) -> np.ndarray:
+    def quaternion(self, values: Sequence[float] | np.ndarray, field: str) -> np.ndarray:
         """A (s, v1, v2, v3) quaternion of norm close to 1, normalised."""
         q = np.asarray(values, dtype=np.float64)
         with np.errstate(over="ignore", under="ignore"):  # an inf norm is refused below

@@ -26,7 +26,7 @@ from collections import Counter
 from collections.abc import Mapping
 from datetime import datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -323,10 +323,26 @@ def _camera(f: Fields, label: Mapping[str, Any]) -> CameraModel:
     return f.camera(name, kind, vectors, frame)
 
 
-def _rover_pose(f: Fields, label: Mapping[str, Any]) -> dict[str, np.ndarray | None]:
+class _RoverPose(TypedDict):
+    """The ``Observation`` fields of a label's rover pose (``_rover_pose``)."""
+
+    rover_offset_m: np.ndarray | None
+    rover_quaternion: np.ndarray | None
+
+
+class _Pointing(TypedDict):
+    """The ``Observation`` fields of a label's pointing (``_pointing``)."""
+
+    azimuth_deg: float | None
+    elevation_deg: float | None
+    hfov_deg: float | None
+    vfov_deg: float | None
+
+
+def _rover_pose(f: Fields, label: Mapping[str, Any]) -> _RoverPose:
     """ROVER_NAV_FRAME origin (metres, SITE_FRAME) and quaternion (ROVER_NAV_FRAME ->
     SITE_FRAME); None if absent or given in another frame."""
-    none: dict[str, np.ndarray | None] = {"rover_offset_m": None, "rover_quaternion": None}
+    none: _RoverPose = {"rover_offset_m": None, "rover_quaternion": None}
     name = next((g for g in ROVER_GROUPS if label.get(g) is not None), ROVER_GROUPS[0])
     group = _group(f, label, name, required=False)
     frame = group.get("COORDINATE_SYSTEM_NAME", "ROVER_NAV_FRAME")
@@ -345,7 +361,7 @@ def _rover_pose(f: Fields, label: Mapping[str, Any]) -> dict[str, np.ndarray | N
     }
 
 
-def _pointing(f: Fields, label: Mapping[str, Any]) -> dict[str, float | None]:
+def _pointing(f: Fields, label: Mapping[str, Any]) -> _Pointing:
     """Derived SITE_FRAME azimuth/elevation and the field of view (each optional).
 
     Mastcam RDRs: DERIVED_IMAGE_PARMS FIXED_INSTRUMENT_AZIMUTH/ELEVATION. MIPL products:

@@ -7,6 +7,7 @@ the key (``geometry.radius``) and what was expected.
 from __future__ import annotations
 
 import os
+from collections.abc import Hashable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -153,7 +154,7 @@ class BuildConfig:
                 return [plain(v) for v in value]
             return value
 
-        doc = plain(asdict(self))
+        doc: dict[str, Any] = plain(asdict(self))
         # opt-in keys appear only when set: a default config's fingerprint stays as it was
         for section, key, unset in _OPT_IN_KEYS:
             if doc[section].get(key) == unset:
@@ -162,7 +163,7 @@ class BuildConfig:
 
 
 #: (section, key, unset value) of the opt-in keys left out of ``BuildConfig.to_dict``.
-_OPT_IN_KEYS = (
+_OPT_IN_KEYS: tuple[tuple[str, str, object], ...] = (
     ("chips", "offset_m", None),
     ("output", "members", []),
     ("output", "dense_stride", None),
@@ -185,7 +186,7 @@ def _inputs(data: Any, base: Path) -> InputsConfig:
             {"root", "mission", "seed", "stops", "images_per_stop", "size"},
         )
         synthetic = SyntheticSpec(
-            root=syn.path("root", base),  # type: ignore[arg-type]
+            root=syn.path("root", base),
             mission=syn.choice("mission", ("m2020", "msl"), "m2020"),
             seed=syn.integer("seed", 0, minimum=0),
             stops=syn.integer("stops", 6),
@@ -194,7 +195,7 @@ def _inputs(data: Any, base: Path) -> InputsConfig:
         )
     return InputsConfig(
         labels=tuple(str(base / Path(p).expanduser()) for p in labels),
-        places=sec.path("places", base, folder=False),  # type: ignore[arg-type]
+        places=sec.path("places", base, folder=False),
         dem=sec.raster("dem", base),
         ortho=sec.raster("ortho", base),
         images=sec.path("images", base, None),
@@ -270,7 +271,7 @@ def _output_dir(out: Section, base: Path) -> Path | str:
     value = out.raw("dir")
     if is_url(value):
         return dataset_root(value)
-    return out.path("dir", base)  # type: ignore[return-value]
+    return out.path("dir", base)
 
 
 def _is_number(value: Any) -> bool:
@@ -292,20 +293,21 @@ def _areas(data: Any) -> dict[str, tuple[tuple[float, float, float, float], ...]
         if isinstance(boxes, list) and boxes and not isinstance(boxes[0], list):
             boxes = [boxes]
         good = isinstance(boxes, list) and boxes
-        out = []
+        out: list[tuple[float, float, float, float]] = []
         for box in boxes if good else []:
             nums = isinstance(box, list) and len(box) == 4
             nums = nums and all(_is_number(v) for v in box)
             if not nums or not (box[0] < box[2] and box[1] < box[3]):
                 good = False
                 break
-            out.append(tuple(float(v) for v in box))
+            xmin, ymin, xmax, ymax = (float(v) for v in box)
+            out.append((xmin, ymin, xmax, ymax))
         if not good:
             raise ConfigError(
                 f"{key}: expected a list of map boxes [xmin, ymin, xmax, ymax] with xmin < xmax "
                 f"and ymin < ymax, got {boxes!r}"
             )
-        areas[name] = tuple(out)  # type: ignore[assignment]
+        areas[name] = tuple(out)
     names = list(areas)
     for i, a in enumerate(names):
         for b in names[i + 1 :]:
@@ -394,7 +396,7 @@ class _ConfigLoader(yaml.SafeLoader):
         _check_expansion(node)
         return super().construct_document(node)
 
-    def construct_mapping(self, node: yaml.Node, deep: bool = False) -> Any:
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Hashable, Any]:
         if isinstance(node, yaml.MappingNode):
             first: dict[Any, str] = {}
             for key_node, _ in node.value:  # before flattening: merged keys are not here

@@ -8,7 +8,8 @@ import re
 import reprlib
 import stat
 from pathlib import Path
-from typing import Any
+from types import EllipsisType
+from typing import Any, overload
 
 from mars_pairs.errors import ConfigError
 
@@ -139,11 +140,18 @@ class Section:
         if isinstance(value, str) and is_remote(value):
             use_remote_defaults()
             return gdal_path(value)
-        return self.path(key, base, folder=False)  # type: ignore[return-value]
+        return self.path(key, base, folder=False)
 
-    def path(self, key: str, base: Path, default: Any = ..., *, folder: bool = True) -> Path | None:
+    @overload
+    def path(self, key: str, base: Path, *, folder: bool = True) -> Path: ...
+    @overload
+    def path(self, key: str, base: Path, default: None, *, folder: bool = True) -> Path | None: ...
+    def path(
+        self, key: str, base: Path, default: EllipsisType | None = ..., *, folder: bool = True
+    ) -> Path | None:
         """A path, relative to ``base``; ConfigError if it names a FIFO, a socket or a device
-        (``check_regular``: a regular file, a folder when ``folder``, or absent)."""
+        (``check_regular``: a regular file, a folder when ``folder``, or absent). Required
+        unless ``default`` is None (then None when absent)."""
         value = self.raw(key, default)
         if value is None:
             return None

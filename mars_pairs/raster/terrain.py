@@ -56,7 +56,8 @@ class DemWindow:
     @property
     def shape(self) -> tuple[int, int]:
         """(rows, cols) of the window."""
-        return self.data.shape  # type: ignore[return-value]
+        rows, cols = self.data.shape
+        return rows, cols
 
     @property
     def res(self) -> tuple[float, float]:
@@ -75,7 +76,8 @@ class DemWindow:
 
     def colrow_to_xy(self, col: ArrayLike, row: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Fractional (col, row), centres at integers -> map x, y of the raster CRS."""
-        x, y = self.transform @ (np.asarray(col, float) + 0.5, np.asarray(row, float) + 0.5)
+        colrow = (np.asarray(col, float) + 0.5, np.asarray(row, float) + 0.5)
+        x, y = self.transform @ colrow  # type: ignore[operator]  # affine's hints: floats, not arrays
         return np.asarray(x), np.asarray(y)
 
 
@@ -359,6 +361,7 @@ class Terrain:
             resampling=Resampling.bilinear,
         )
         valid = ~np.ma.getmaskarray(data).any(axis=0)
+        assert isinstance(valid, np.ndarray)  # (bands, rows, cols) reduced over the bands
         return np.ma.filled(data, 0), valid
 
     def _ortho_reprojected(
@@ -384,7 +387,9 @@ class Terrain:
             }
             reproject(np.ma.filled(src[b], 0), dst[b], resampling=Resampling.bilinear, **kw)
             reproject(ok, dst_ok[b], resampling=Resampling.nearest, **kw)
-        return dst, dst_ok.all(axis=0)
+        valid = dst_ok.all(axis=0)
+        assert isinstance(valid, np.ndarray)  # (bands, rows, cols) reduced over the bands
+        return dst, valid
 
 
 def _open_raster(path: str, what: str) -> Any:

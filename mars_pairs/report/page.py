@@ -14,6 +14,7 @@ import io
 import json
 import math
 from collections import Counter
+from collections.abc import Set
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -79,7 +80,7 @@ def _img(png: bytes, alt: str, cls: str = "") -> str:
     )
 
 
-def _table(header: list[str], rows: list[list[Any]], numeric: set[int] = frozenset()) -> str:
+def _table(header: list[str], rows: list[list[Any]], numeric: Set[int] = frozenset()) -> str:
     head = "".join(f"<th>{_esc(h)}</th>" for h in header)
     body = "".join(
         "<tr>"

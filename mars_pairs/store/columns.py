@@ -49,7 +49,7 @@ def rename_to(table: pa.Table, names: Sequence[str]) -> pa.Table:
     return table.rename_columns(list(names))
 
 
-class SampleMeta(dict):
+class SampleMeta(dict[str, Any]):
     """A sample's meta values; an old column name reads its new one, with a warning."""
 
     def __missing__(self, key: Any) -> Any:

@@ -39,7 +39,7 @@ def named_crs(crs: Any) -> dict[str, Any]:
             break
         if crs.equals(iau, ignore_axis_order=True):
             return iau.to_json_dict()
-    doc = crs.to_json_dict()
+    doc: dict[str, Any] = crs.to_json_dict()
     radius = crs.ellipsoid.semi_major_metre if crs.ellipsoid is not None else None
     sphere = (
         crs.ellipsoid is not None

@@ -36,7 +36,7 @@ from mars_pairs.store.fs import Location, is_url, join
 BLOCK = tarfile.BLOCKSIZE
 
 
-def checksum(data: bytes) -> int:
+def checksum(data: bytes | bytearray | memoryview) -> int:
     """CRC-32C (Castagnoli) of ``data`` as an unsigned 32-bit int (fits the int64 column)."""
     return int(_crc32c.crc32c(data))
 
@@ -172,7 +172,7 @@ def bytes_problem(data: bytes | bytearray, size: int | None, crc32c: int | None)
     if len(data) != size:
         return f"truncated: {len(data)} of {size} bytes"
     if crc32c is not None and crc32c >= 0:
-        got = checksum(data)  # type: ignore[arg-type]  (any buffer)
+        got = checksum(data)
         if got != crc32c:
             return f"checksum mismatch (crc32c {got:#010x}, manifest {crc32c:#010x})"
     return None
@@ -197,7 +197,8 @@ def check_member(
     problem = location_problem(spec, shard_size)
     if problem is not None:
         return None, problem
-    offset, size = int(spec.offset), int(spec.size)  # type: ignore[arg-type]
+    assert spec.offset is not None and spec.size is not None  # location_problem checked
+    offset, size = int(spec.offset), int(spec.size)
     problem = header_problem(spec, read(offset - BLOCK, BLOCK))
     if problem is not None:
         return None, problem

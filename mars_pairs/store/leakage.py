@@ -34,7 +34,9 @@ def chip_polygons(
         ],
         axis=1,
     )
-    return shapely.polygons(corners)
+    chips = shapely.polygons(corners)
+    assert isinstance(chips, np.ndarray)  # (N, 4, 2) corners: N polygons, not one
+    return chips
 
 
 def _pairs(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -31,7 +31,7 @@ class MemberIndex:
 
     def __init__(self, table: pa.Table, fields: Sequence[str], meta_columns: Sequence[str]) -> None:
         self.fields = tuple(fields)
-        self._length = table.num_rows
+        self._length: int = table.num_rows
         meta = table.select(list(meta_columns)).combine_chunks()
         self._meta_columns = [
             (name, column.chunk(0) if column.num_chunks == 1 else column)

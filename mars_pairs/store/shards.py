@@ -48,7 +48,7 @@ class ShardWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._tmp = temporary_path(self.path)
         self._fh = open(self._tmp, "wb")  # noqa: SIM115 - closed in close()
-        self._tar = tarfile.open(  # noqa: SIM115 - closed in close()
+        self._tar = tarfile.TarFile(  # (what tarfile.open(mode="w") constructs)
             fileobj=self._fh,
             mode="w",
             format=tarfile.USTAR_FORMAT,

@@ -80,10 +80,10 @@ def make_example_figure(out_png: str | Path, *, seed: int = 3, workdir: str | Pa
     col, row = ~otr * (np.nan_to_num(hits[:, 0]), np.nan_to_num(hits[:, 1]))
     grey = _bilinear(ortho, np.asarray(col) - 0.5, np.asarray(row) - 0.5)
     ny, nx = len(range(0, mc.height, stride)), len(range(0, mc.width, stride))
-    check = np.empty((ny * nx, 3), np.uint8)
-    check[ok] = np.clip(grey[ok, None] * np.array(TERRAIN_TINT) + 0.5, 0, 255).astype(np.uint8)
-    check[~ok] = SKY_RGB
-    check = check.reshape(ny, nx, 3)
+    rgb = np.empty((ny * nx, 3), np.uint8)
+    rgb[ok] = np.clip(grey[ok, None] * np.array(TERRAIN_TINT) + 0.5, 0, 255).astype(np.uint8)
+    rgb[~ok] = SKY_RGB
+    check = rgb.reshape(ny, nx, 3)
 
     cx, cy = (float(v) for v in mc.center_map[:2])
     dist = np.hypot(hits[ok, 0] - cx, hits[ok, 1] - cy)

@@ -309,6 +309,7 @@ def _survey_stop(rng: np.random.Generator, heading_deg: float, cams: list[Camera
 
     def point(j: int, index: int) -> tuple[CameraSpec, float, float, float]:
         if wide is not None and j == 0:
+            assert wide.hfov_choices is not None  # the wide camera has one fixed FOV
             az = heading_deg + float(rng.uniform(-90.0, 90.0))
             return wide, az % 360.0, float(rng.uniform(-25.0, -5.0)), wide.hfov_choices[0]
         cam_spec = cams[index % len(cams)]
@@ -415,8 +416,8 @@ def _window(
     nbi, nbj = -(-(i1 - i0 - 1) // BLOCK), -(-(j1 - j0 - 1) // BLOCK)
     z = np.ascontiguousarray(grid.z[i0:i1, j0:j1])
     sub = DemGrid(z, grid.transform * Affine.translation(j0, i0))
-    sub_blocks = tuple(np.ascontiguousarray(b[bi0 : bi0 + nbi, bj0 : bj0 + nbj]) for b in blocks)
-    return sub, sub_blocks, ortho[i0 * factor : i1 * factor, j0 * factor : j1 * factor]
+    lo, hi = (np.ascontiguousarray(b[bi0 : bi0 + nbi, bj0 : bj0 + nbj]) for b in blocks)
+    return sub, (lo, hi), ortho[i0 * factor : i1 * factor, j0 * factor : j1 * factor]
 
 
 def _traverse(rng: np.random.Generator, spec: MissionSpec, preset: SizeSpec, stops: int,

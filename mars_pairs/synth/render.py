@@ -67,7 +67,7 @@ def camera_params(mc: MapCamera) -> tuple[F64, F64]:
         p[_R : _R + 3] = cam.r
         p[_ISOR] = 1.0
     p[_INV2R] = 1.0 / (2.0 * MARS_RADIUS_M)
-    jinv = np.linalg.inv(mc.jacobian[:2, :2])
+    jinv = np.asarray(np.linalg.inv(mc.jacobian[:2, :2]), dtype=np.float64)
     return p, jinv
 
 

@@ -35,6 +35,7 @@ from __future__ import annotations
 import json
 import warnings
 from collections.abc import Callable, Sequence
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -305,7 +306,7 @@ class MarsPairsDataset(Dataset):
         key = self._index.meta_value(index, "key")
         ground = self._ground_member[index].as_py() if self._ground_member is not None else None
         wanted = (*self.fields, "meta") if self.localization else self.fields
-        out = {}
+        out: dict[str, bytes | bytearray] = {}
         for field in self._located:
             try:
                 shard, offset, size = self._index.location(index, field)
@@ -321,7 +322,7 @@ class MarsPairsDataset(Dataset):
             try:
                 data, problem = check_member(
                     spec,
-                    lambda o, n, s=shard: self._files.read(s, o, n),
+                    partial(self._files.read, shard),
                     self._files.size(shard),
                 )
             except DatasetError as exc:
@@ -331,6 +332,7 @@ class MarsPairsDataset(Dataset):
             if problem is not None:
                 raise DatasetError(join(self.root, shard), name, problem)
             if field in wanted:
+                assert data is not None  # check_member: the bytes when there is no problem
                 out[field] = data
         return out
 

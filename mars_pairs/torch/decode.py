@@ -63,7 +63,7 @@ def _image_u8(
         if im.mode != mode:
             im = im.convert(mode)
         if size is not None and (im.height, im.width) != tuple(size):
-            im = im.resize((size[1], size[0]), Image.BILINEAR)
+            im = im.resize((size[1], size[0]), Image.Resampling.BILINEAR)
         return _pil_array(im)
 
 

@@ -140,7 +140,7 @@ class MarsPairsLoader(DataLoader):
         """Whether this loader's workers recycle their batch slots."""
         return self.num_workers > 0 and self.collate_fn is collate_samples
 
-    def __iter__(self) -> LoaderIterator:  # type: ignore[override]
+    def __iter__(self) -> LoaderIterator:  # type: ignore[override]  # wraps torch's iterator
         """DataLoader's iterator, its workers collating into slots freed through flags of its
         own (two iterators alive at once never share a slot), each batch copied out."""
         if not self.recycles:

@@ -46,7 +46,9 @@ def stacked_base(tensors: Sequence[torch.Tensor]) -> torch.Tensor | None:
         ):
             return None
     start = first.storage_offset()
-    return torch.empty(0, dtype=first.dtype).set_(storage, start, (len(tensors), *first.shape))
+    size = (len(tensors), *first.shape)
+    # torch's stub wants a stride; set_ without one lays the tensor out contiguously (its doc)
+    return torch.empty(0, dtype=first.dtype).set_(storage, start, size)  # type: ignore[call-overload]  # stride optional
 
 
 class BatchSlots:
@@ -80,16 +82,17 @@ class BatchSlots:
         free = [s for s, b in enumerate(self._blocks) if b is None or self._flags[s] == FREE]
         if not free:
             return None
-        same = [s for s in free if self._blocks[s] is not None and self._blocks[s].fits(layout)]
+        same = [s for s in free if (b := self._blocks[s]) is not None and b.fits(layout)]
         unused = [s for s in free if self._blocks[s] is None]
         slot = (same or unused or free)[0]
-        if slot not in same:
-            self._blocks[slot] = SlotBlock.allocate(layout)
+        block = self._blocks[slot]
+        if slot not in same or block is None:  # (a slot in ``same`` has a block)
+            block = self._blocks[slot] = SlotBlock.allocate(layout)
             self.allocations += 1
         self._seq += 1
         self._lent_seq[slot] = self._seq
         self._flags[slot] = LENT
-        return slot, self._blocks[slot]  # type: ignore[return-value]
+        return slot, block
 
     def _reclaim(self) -> None:
         freed = [

@@ -165,7 +165,9 @@ def held_out_regions(info: dict[str, Any], box: Box) -> HeldOut:
     note = ""
     if cfg.get("style") == "cross-area":
         for name, boxes in (cfg.get("areas") or {}).items():
-            regions[str(name)] = [shapely.box(*map(float, b)) for b in boxes]
+            regions[str(name)] = [
+                shapely.box(float(b[0]), float(b[1]), float(b[2]), float(b[3])) for b in boxes
+            ]
     elif cfg.get("style") == "same-area" and cfg.get("block_m"):
         block = float(cfg["block_m"])
         rule = SplitRule(

@@ -81,7 +81,9 @@ def overview_figure(
     xs = np.array([r["easting"] for r in rows], dtype=np.float64)
     ys = np.array([r["northing"] for r in rows], dtype=np.float64)
     geoms = [shapely.from_wkb(r["footprint"]) if r["footprint"] is not None else None for r in rows]
-    points = list(shapely.points(xs, ys))
+    rovers = shapely.points(xs, ys)
+    assert isinstance(rovers, np.ndarray)  # arrays of x, y: an array of points
+    points = list(rovers)
     everything = shapely.total_bounds([g for g in geoms if g is not None] + points)
     full = square(tuple(everything), pad=0.06, min_side=50.0)
     near = square((xs.min(), ys.min(), xs.max(), ys.max()), pad=0.25, min_side=60.0)
@@ -92,7 +94,7 @@ def overview_figure(
     held_handles: list[Any] = []
     for ax, box in ((ax_full, full), (ax_near, near)):
         background = draw_background(ax, ortho, box, max_px)
-        order = sorted(range(len(rows)), key=lambda i: -(geoms[i].area if geoms[i] else 0.0))
+        order = sorted(range(len(rows)), key=lambda i: -(g.area if (g := geoms[i]) else 0.0))
         for i in order:
             if geoms[i] is None:
                 continue

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 import shapely
@@ -49,6 +49,7 @@ def map_figure(
     """Two map panels over the ortho (``rows``: manifest rows with easting, northing, sol,
     site, drive, split, footprint): every footprint, and a zoom on the traverse with the
     held-out areas and the buffer. Map CRS, ``unit`` per axis unit; PNG bytes."""
+    from matplotlib.artist import Artist
     from matplotlib.collections import PolyCollection
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
@@ -58,10 +59,12 @@ def map_figure(
     ys = np.array([r["northing"] for r in rows], dtype=np.float64)
     feet = [shapely.from_wkb(r["footprint"]) if r["footprint"] is not None else None for r in rows]
     colours = split_colours([str(r["split"]) for r in rows])
-    shapes = [g for g in feet if g is not None] + list(shapely.points(xs, ys))
+    rovers = shapely.points(xs, ys)
+    assert isinstance(rovers, np.ndarray)  # arrays of x, y: an array of points
+    shapes = [g for g in feet if g is not None] + list(rovers)
     full = square(tuple(shapely.total_bounds(shapes)), pad=0.06, min_side=50.0)
     held_full = held_out_regions(info, full)
-    near_parts = list(shapely.points(xs, ys))
+    near_parts = list(rovers)
     for cells in held_full.regions.values():
         union = shapely.union_all(cells)
         zone = shapely.buffer(union, held_full.zone) if held_full.zone else union
@@ -71,7 +74,7 @@ def map_figure(
     held_near = held_out_regions(info, near)
 
     fig, (ax_full, ax_near) = plt.subplots(1, 2, figsize=(16.0, 8.4), layout="constrained")
-    order = sorted(range(len(rows)), key=lambda i: -(feet[i].area if feet[i] else 0.0))
+    order = sorted(range(len(rows)), key=lambda i: -(g.area if (g := feet[i]) else 0.0))
     polys, faces = [], []
     for i in order:
         for ring in rings(feet[i]) if feet[i] is not None else []:
@@ -93,7 +96,7 @@ def map_figure(
         frame_panel(ax, box, unit, background)
     mark_zoom(ax_full, near, full)
     counts = {s: sum(1 for r in rows if str(r["split"]) == s) for s in colours}
-    legend = [Patch(facecolor=c, alpha=0.6, label=f"footprints: {s} ({counts[s]})")
+    legend: list[Artist] = [Patch(facecolor=c, alpha=0.6, label=f"footprints: {s} ({counts[s]})")
               for s, c in colours.items()]  # fmt: skip
     legend.append(
         Line2D([], [], color="white", marker="^", markerfacecolor="red", markeredgecolor="white",
@@ -160,7 +163,7 @@ def histograms_figure(rows: list[dict[str, Any]]) -> bytes:
     return png_bytes(fig)
 
 
-def _finite(x: Any) -> bool:
+def _finite(x: Any) -> TypeGuard[float]:
     return x is not None and math.isfinite(float(x))
 
 

@@ -151,7 +151,7 @@ class LocalPool:
         """Every label's result, in order; WorkerStartError (once) if a worker could not
         open the inputs, WorkerDiedError if one died."""
         todo = iter(labels)
-        flight: deque[tuple[str, Future]] = deque()
+        flight: deque[tuple[str, Future[tuple[str, Any]]]] = deque()
 
         def submit(count: int) -> None:
             for label in islice(todo, count):
@@ -179,7 +179,7 @@ class LocalPool:
         ``2 * workers`` chunks in flight; WorkerStartError if a worker could not open the
         inputs, WorkerDiedError if one died. ``config`` is the pool's."""
         todo = iter(chunks)
-        flight: deque[tuple[ChunkTask, Future]] = deque()
+        flight: deque[tuple[ChunkTask, Future[ChunkResult]]] = deque()
 
         def submit(count: int) -> None:
             for task in islice(todo, count):

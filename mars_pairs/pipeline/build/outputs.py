@@ -204,7 +204,8 @@ def without_paths(doc: Any) -> Any:
 def input_files(config: BuildConfig) -> dict[str, Any]:
     """``inputs_fingerprint`` without paths (``without_paths``): dataset.json's
     ``input_files``, which ``--append`` checks the DEM and ortho against."""
-    return without_paths(inputs_fingerprint(config))
+    files: dict[str, Any] = without_paths(inputs_fingerprint(config))
+    return files
 
 
 def input_change(before: Any, after: Any) -> str:
@@ -331,7 +332,7 @@ def stamp_chunks(stamp: Any) -> int | None:
     ints = all(isinstance(v, int) and not isinstance(v, bool) for v in (count, size))
     if not ints or count < 0 or size < 1:
         return None
-    n = -(-count // size)
+    n: int = -(-count // size)
     if isinstance(chunks, int) and not isinstance(chunks, bool) and chunks > n:
         return chunks  # an appended dataset's (or an append's): chunks beyond its count's
     return n
@@ -463,7 +464,7 @@ def _as_built(out: fs.Location, rel: str, vouched: int = 0) -> bool:
         except (OSError, tarfile.TarError):
             return False
     try:
-        return fs.parquet_schema(path).names == FAILURE_SCHEMA.names
+        return bool(fs.parquet_schema(path).names == FAILURE_SCHEMA.names)
     except (OSError, ValueError):
         return False
 

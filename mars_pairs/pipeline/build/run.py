@@ -23,6 +23,7 @@ import time
 from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
+from typing import NoReturn
 
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -131,7 +132,7 @@ def run_build(
 def _commit_all(
     config: BuildConfig,
     results: Iterator[ChunkResult],
-    bar: tqdm,
+    bar: tqdm[NoReturn],  # a bar updated by hand (no iterable)
     strict: bool,
     stage_seconds: Counter[str],
     seen: dict[str, str],

@@ -130,7 +130,8 @@ def chip_view(visible: np.ndarray, dem: np.ndarray, grid: ChipGrid, view: View) 
     rows, cols = np.nonzero(visible & np.isfinite(dem))
     out = np.zeros_like(visible, dtype=bool)
     if len(rows):
-        x, y = grid.transform * (cols + 0.5, rows + 0.5)
+        colrow = (cols + 0.5, rows + 0.5)
+        x, y = grid.transform * colrow  # type: ignore[operator]  # affine's hints: floats, not arrays
         points = np.column_stack([x, y, dem[rows, cols].astype(np.float64)])
         keep = in_view(points, view)
         out[rows[keep], cols[keep]] = True

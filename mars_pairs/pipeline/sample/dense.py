@@ -92,7 +92,10 @@ def dense_rays(view: View, stride: int, max_range_m: float) -> DenseRays:
 def _times_transposed(rows: np.ndarray, matrix: np.ndarray) -> np.ndarray:
     """``rows @ matrix.T`` for (N, 3) rows, column by column (numpy's matmul on (N, 3) rows
     is several times slower, and slower still with BLAS threads on a busy machine)."""
-    return rows[:, 0:1] * matrix[:, 0] + rows[:, 1:2] * matrix[:, 1] + rows[:, 2:3] * matrix[:, 2]
+    out: np.ndarray = (
+        rows[:, 0:1] * matrix[:, 0] + rows[:, 1:2] * matrix[:, 1] + rows[:, 2:3] * matrix[:, 2]
+    )
+    return out
 
 
 def map_from_rover(

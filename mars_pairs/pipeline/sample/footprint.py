@@ -31,6 +31,7 @@ def footprint_polygon(view: View) -> shapely.Polygon | None:
     points = shapely.multipoints(
         np.column_stack([np.append(x, centre[0]), np.append(y, centre[1])])
     )
+    assert isinstance(points, shapely.MultiPoint)  # (N, 2) coordinates: one geometry
     hull = shapely.convex_hull(points)
     return hull if isinstance(hull, shapely.Polygon) else hull.buffer(0.5)
 

@@ -110,7 +110,7 @@ def decoded_size(
                 im.verify()  # structure and checksums (PNG CRCs)
             with Image.open(io.BytesIO(data)) as im:
                 im.load()  # every pixel: a truncated or corrupted stream fails here
-                size = im.size
+                size: tuple[int, int] = im.size
                 if pixels is not None:
                     pixels.append(_as_pixels(im))
     except Exception as exc:  # Pillow raises OSError, SyntaxError, ValueError, ... on bad data
@@ -173,7 +173,7 @@ def read_product_pixels(obs: Observation) -> tuple[np.ndarray, dict[str, Any]]:
 
 def _image_key(data: Any, obs: Observation) -> str:
     """The product's image array: the array-typed object whose shape matches the label best."""
-    candidates = []
+    candidates: list[str] = []
     keys = data.keys()  # pdr.Data: the product's objects, data or not
     for key in keys:
         if key.lower() == "label":

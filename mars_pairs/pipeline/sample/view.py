@@ -266,7 +266,7 @@ def label_view(
 
 def mask_from_hits(hits: np.ndarray, window: DemWindow) -> np.ndarray:
     """The DEM cells that ray hits land in (uint8 on the window grid)."""
-    mask = np.zeros(window.data.shape, dtype=np.uint8)
+    mask = np.zeros(window.shape, dtype=np.uint8)
     ok = np.isfinite(hits[:, 0])
     col, row = window.xy_to_colrow(hits[ok, 0], hits[ok, 1])
     col, row = np.rint(col).astype(int), np.rint(row).astype(int)

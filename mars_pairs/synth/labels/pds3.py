@@ -141,8 +141,10 @@ def _pds3_camera(obs: Observation, group: str) -> list[str]:
     cam = obs.camera
     vectors = [cam.c, cam.a, cam.h, cam.v]
     if cam.model_type in ("CAHVOR", "CAHVORE"):
+        assert cam.o is not None and cam.r is not None
         vectors += [cam.o, cam.r]
     if cam.model_type == "CAHVORE":
+        assert cam.e is not None
         vectors.append(cam.e)
     letters = "CAHVORE"[: len(vectors)]
     out = [
@@ -201,13 +203,17 @@ def _pds3_request(obs: Observation) -> list[str]:
     ]
 
 
+_Item = tuple[str, str | float | None] | tuple[str, str | float | None, str]
+
+
 def _pds3_state_and_derived(obs: Observation, style: str) -> list[str]:
     """INSTRUMENT_STATE_PARMS (FOV) and the site-frame pointing: Mastcam's DERIVED_IMAGE_PARMS
     FIXED_INSTRUMENT_*, or MIPL's SITE_DERIVED_GEOMETRY_PARMS INSTRUMENT_* in <deg>."""
-    state = [("HORIZONTAL_FOV", obs.hfov_deg), ("VERTICAL_FOV", obs.vfov_deg)]
+    # (keyword, value, optional units); a None value leaves the keyword out
+    state: list[_Item] = [("HORIZONTAL_FOV", obs.hfov_deg), ("VERTICAL_FOV", obs.vfov_deg)]
     if style == "mastcam":
         derived_group = "DERIVED_IMAGE_PARMS"
-        derived = [
+        derived: list[_Item] = [
             ("MSL:COVER_STATE_FLAG", '"N/A"'),
             ("FIXED_INSTRUMENT_AZIMUTH", obs.azimuth_deg),
             ("FIXED_INSTRUMENT_ELEVATION", obs.elevation_deg),

@@ -30,7 +30,7 @@ def write_pds4_label(
     path = Path(path)
     if pixels is not None:
         pixels = _check_pixels(obs, pixels)
-    nsmap = {None: NS["pds"], **{k: v for k, v in NS.items() if k != "pds"}}
+    nsmap: dict[str | None, str] = {None: NS["pds"], **{k: v for k, v in NS.items() if k != "pds"}}
     root = etree.Element(q("pds", "Product_Observational"), nsmap=nsmap)
     _pds4_identification(root, obs)
     area = _el(root, "pds", "Observation_Area")
@@ -161,6 +161,7 @@ def _pds4_camera(lander: etree._Element, obs: Observation) -> None:
         for local, values in (("Radial_Terms", cam.r), ("Entrance_Terms", cam.e)):
             if local == "Entrance_Terms" and cam.model_type != "CAHVORE":
                 continue
+            assert values is not None
             terms = _el(model, "geom", local)
             for name, value in zip(("c0", "c1", "c2"), values, strict=True):
                 _el(terms, "geom", name, real_text(value))

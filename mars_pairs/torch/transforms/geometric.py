@@ -170,7 +170,7 @@ def ground_hw(sample: Sample, *needing: str) -> tuple[int, int]:
     """The ground image's (H, W); ArgumentError when a field that moves with it is there
     without the image (its size is unknown)."""
     if "ground" in sample:
-        return tuple(sample["ground"].shape[-2:])  # type: ignore[return-value]
+        return tuple(sample["ground"].shape[-2:])
     if any(k in sample for k in needing):
         raise ArgumentError(f"a ground transform needs the ground field to move {needing}")
     return (1, 1)
@@ -181,7 +181,7 @@ def chip_hw(sample: Sample, *needing: str) -> tuple[int, int]:
     any chip."""
     for name in CHIP_FIELDS + DENSE_CHIP_FIELDS:
         if name in sample:
-            return tuple(sample[name].shape[-2:])  # type: ignore[return-value]
+            return tuple(sample[name].shape[-2:])
     if any(k in sample for k in needing):
         raise ArgumentError(
             f"a chip transform needs a chip field ({CHIP_FIELDS}) to move {needing}"
