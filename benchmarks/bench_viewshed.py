@@ -37,13 +37,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from support.los_reference import exact_viewshed  # noqa: E402
-
 from mars_pairs.kernels import cast_rays, compute_viewshed  # noqa: E402
 from mars_pairs.kernels.raycast import max_pyramid  # noqa: E402
 from mars_pairs.raster.terrain import Terrain  # noqa: E402
 from mars_pairs.runtime import configure_process  # noqa: E402
 from mars_pairs.synth.terrain import spectral_noise  # noqa: E402
+from support.los_reference import exact_viewshed  # noqa: E402
 
 EQC = "+proj=eqc +lat_ts=0 +lon_0=0 +R=3396190 +units=m +no_defs"
 X0, Y0 = 8141036.0, -271512.0  # a Gale-like map corner (metres)

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 from hypothesis import settings
+
 from support.missions import MissionCache
 from support.real_samples import SAMPLES
 

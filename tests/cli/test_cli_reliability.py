@@ -15,10 +15,10 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from support.builds import build_small
-from support.members import manifest_keys
 
 from mars_pairs.cli.main import main
+from support.builds import build_small
+from support.members import manifest_keys
 
 
 @pytest.fixture(scope="module")

@@ -13,10 +13,10 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 import pytest
 import yaml
-from support.builds import cli_built_dataset
 
 from mars_pairs.cli.main import build_parser, main
 from mars_pairs.errors import ArgumentError, SampleKeyError
+from support.builds import cli_built_dataset
 
 
 @pytest.fixture(scope="module")

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from support.builds import cli_built_dataset
-from support.members import metas
 
 from mars_pairs.viz.common import SPLIT_COLOURS
+from support.builds import cli_built_dataset
+from support.members import metas
 
 pytest.importorskip("matplotlib")
 

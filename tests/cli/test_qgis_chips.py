@@ -13,10 +13,10 @@ import pytest
 import rasterio
 from PIL import Image
 from pyproj import CRS
-from support.builds import build_small
 
 from mars_pairs.cli import main
 from mars_pairs.store.shards import MemberLocation, read_member
+from support.builds import build_small
 
 
 def _member(root: Path, row: dict, name: str) -> bytes:

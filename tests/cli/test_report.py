@@ -29,12 +29,12 @@ import pyarrow.parquet as pq
 import pytest
 import yaml
 from PIL import Image
-from support.configs import config_file, mission_inputs
-from support.missions import MissionCache
 
 from mars_pairs.cli.main import main
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
+from support.configs import config_file, mission_inputs
+from support.missions import MissionCache
 
 pytest.importorskip("matplotlib")
 

@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 from PIL import Image
 from pyproj import CRS
-from support.builds import build
-from support.members import manifest_rows as rows_of
-from support.missions import MissionCache
 
 from mars_pairs.cli.main import main
 from mars_pairs.store.shards import MemberLocation, read_member
+from support.builds import build
+from support.members import manifest_rows as rows_of
+from support.missions import MissionCache
 
 pytest.importorskip("matplotlib")
 

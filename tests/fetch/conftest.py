@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+
 from support import fetch_archive
 from support.fetch_server import ArchiveServer
 

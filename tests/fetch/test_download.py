@@ -9,11 +9,11 @@ from pathlib import Path, PurePosixPath
 import numpy as np
 import pytest
 import requests
-from support import fetch_server
 
 from mars_pairs.errors import FetchError
 from mars_pairs.fetch.cache import Cache, archive_path
 from mars_pairs.fetch.download import Downloader, FetchPolicy, RemoteFile, Validator, sidecar
+from support import fetch_server
 
 served = fetch_server.served  # the loopback server fixture
 FAST = FetchPolicy(retries=2, backoff_s=0.01, connect_timeout_s=2.0, read_timeout_s=0.4, workers=2)

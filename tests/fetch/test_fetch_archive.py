@@ -8,15 +8,15 @@ import shutil
 import pyarrow.parquet as pq
 import pytest
 import yaml
-from support import fetch_archive
-from support.fetch_archive import write_config
-from support.fetch_server import ArchiveServer
 
 from mars_pairs.errors import ConfigError
 from mars_pairs.fetch.config import load_fetch_config
 from mars_pairs.fetch.products import ProductFilter
 from mars_pairs.fetch.run import FAILURES, fetch_products
 from mars_pairs.pds import read_observation
+from support import fetch_archive
+from support.fetch_archive import write_config
+from support.fetch_server import ArchiveServer
 
 
 def _gets(srv: ArchiveServer, suffix: str) -> list[str]:

@@ -11,13 +11,13 @@ import time
 from pathlib import Path
 
 import yaml
-from support import fetch_archive
-from support.fetch_archive import write_config
-from support.fetch_server import ArchiveServer
 
 from mars_pairs.cli.main import main
 from mars_pairs.fetch.config import load_fetch_config
 from mars_pairs.fetch.run import fetch_products
+from support import fetch_archive
+from support.fetch_archive import write_config
+from support.fetch_server import ArchiveServer
 
 REPO = Path(__file__).resolve().parents[2]
 

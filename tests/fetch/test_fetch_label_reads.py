@@ -16,8 +16,6 @@ from dataclasses import replace
 from pathlib import Path, PurePosixPath
 
 import pytest
-from support import fetch_archive, fetch_server
-from support.fetch_archive import write_config
 
 from mars_pairs.errors import FetchError
 from mars_pairs.fetch.cache import Cache
@@ -29,6 +27,8 @@ from mars_pairs.fetch.run import fetch_products
 from mars_pairs.fetch.validate import Extent, check_file
 from mars_pairs.pds import pds3
 from mars_pairs.pds import xml as pds_xml
+from support import fetch_archive, fetch_server
+from support.fetch_archive import write_config
 
 served = fetch_server.served  # the loopback server fixture
 FAST = FetchPolicy(retries=1, backoff_s=0.01, connect_timeout_s=2.0, read_timeout_s=2.0)

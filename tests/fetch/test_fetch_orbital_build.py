@@ -9,7 +9,6 @@ import rasterio
 import yaml
 from pyproj import Transformer
 from rasterio.windows import from_bounds
-from support.fetch_archive import write_config
 
 from mars_pairs.fetch.config import load_fetch_config
 from mars_pairs.fetch.orbital import cut_planned, rover_positions, source_info
@@ -18,6 +17,7 @@ from mars_pairs.fetch.windows import plan_windows
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.torch import MarsPairsDataset
+from support.fetch_archive import write_config
 
 
 def _orbital_config(tmp, url, mission, kind):

@@ -24,9 +24,6 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from lxml import etree
-from support import fetch_archive
-from support.fetch_archive import write_config
-from support.fetch_server import ArchiveServer
 
 from mars_pairs.errors import FetchError
 from mars_pairs.fetch.cache import Cache
@@ -34,6 +31,9 @@ from mars_pairs.fetch.config import load_fetch_config
 from mars_pairs.fetch.download import Downloader, FetchPolicy, RemoteFile, Validator, sidecar
 from mars_pairs.fetch.products import Product, with_label_facts
 from mars_pairs.fetch.run import FAILURES, fetch_places, fetch_products
+from support import fetch_archive
+from support.fetch_archive import write_config
+from support.fetch_server import ArchiveServer
 
 FAST = FetchPolicy(retries=1, backoff_s=0.01, connect_timeout_s=2.0, read_timeout_s=2.0, workers=2)
 REPO = Path(__file__).resolve().parents[2]

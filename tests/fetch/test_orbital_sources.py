@@ -16,7 +16,6 @@ import rasterio
 import yaml
 from affine import Affine
 from pyproj import CRS
-from support.fetch_server import ArchiveServer
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import FetchError
@@ -26,6 +25,7 @@ from mars_pairs.fetch.run import fetch_orbital, plan_orbital
 from mars_pairs.fetch.windows import plan_windows
 from mars_pairs.geometry.places import M2020_PLACES_CRS, MSL_PLACES_CRS
 from mars_pairs.raster.terrain import Terrain
+from support.fetch_server import ArchiveServer
 
 R = 3_396_190.0
 X0, Y0 = 4_354_000.0, 1_093_700.0  # upper left of the synthetic maps (Jezero, PLACES CRS)

@@ -19,11 +19,11 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import yaml
-from support import replica_archive as replica
-from support.fetch_server import ArchiveServer
 
 from mars_pairs.geometry.places import Places
 from mars_pairs.pds import read_observation
+from support import replica_archive as replica
+from support.fetch_server import ArchiveServer
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -14,7 +14,6 @@ import pytest
 import rasterio
 from PIL import Image
 from rasterio.transform import from_origin
-from support import fetch_archive
 
 from mars_pairs.fetch.validate import (
     KINDS,
@@ -23,6 +22,7 @@ from mars_pairs.fetch.validate import (
     check_file,
     kind_of,
 )
+from support import fetch_archive
 
 SHARED = Path(__file__).resolve().parents[3] / "shared"
 if not SHARED.is_dir():

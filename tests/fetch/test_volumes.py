@@ -9,9 +9,6 @@ from pathlib import Path, PurePosixPath
 import pyarrow.parquet as pq
 import pytest
 import yaml
-from support import fetch_archive
-from support.fetch_archive import write_config
-from support.fetch_server import ArchiveServer
 
 from mars_pairs.errors import ConfigError, FetchError
 from mars_pairs.fetch.config import load_fetch_config
@@ -27,6 +24,9 @@ from mars_pairs.fetch.volumes import (
     volumes_for_sols,
     write_volume_ranges,
 )
+from support import fetch_archive
+from support.fetch_archive import write_config
+from support.fetch_server import ArchiveServer
 
 REAL_TABLE = (
     Path(__file__).resolve().parents[3] / "shared/real-archive/mslmst_volume_sol_ranges.csv"

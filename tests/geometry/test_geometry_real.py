@@ -6,12 +6,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support.real_samples import sample_labels
 
 from mars_pairs.geometry.locate import model_pointing_deg
 from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.geometry.places import Places
 from mars_pairs.pds import read_observation
+from support.real_samples import sample_labels
 
 LABELS = sample_labels()
 needs_samples = pytest.mark.skipif(not LABELS, reason="../shared/pds-samples is absent")

@@ -24,11 +24,11 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from PIL import Image
+
+from mars_pairs.pipeline.build.run import run_build
 from support import independent_truth as truth
 from support.configs import build_config
 from support.missions import MissionCache
-
-from mars_pairs.pipeline.build.run import run_build
 
 STRIDE = 16
 RADIUS_M = 600.0

@@ -20,12 +20,12 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from support.configs import build_config
 
 from mars_pairs.geometry.attitude import image_centre_pointing_deg
 from mars_pairs.geometry.camera import CameraModel
 from mars_pairs.observation import Observation
 from mars_pairs.pds import read_observation
+from support.configs import build_config
 
 SENSOR = (1648, 1200)  # Mastcam-Z detector samples x lines
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from support.los_reference import exact_viewshed
-from support.terrain import X0, Y0, bilinear_np, centre_xy, fractal_dem, grid
 
 from mars_pairs.kernels import cast_rays, compute_viewshed
 from mars_pairs.kernels.raycast import max_pyramid
+from support.los_reference import exact_viewshed
+from support.terrain import X0, Y0, bilinear_np, centre_xy, fractal_dem, grid
 
 
 def _unit(v: np.ndarray) -> np.ndarray:

@@ -9,11 +9,11 @@ import math
 import numpy as np
 import pytest
 from affine import Affine
-from support.los_reference import exact_viewshed
-from support.terrain import X0, Y0, centre_xy, fractal_dem, grid
 
 from mars_pairs.kernels import compute_viewshed
 from mars_pairs.raster.terrain import DemWindow
+from support.los_reference import exact_viewshed
+from support.terrain import X0, Y0, centre_xy, fractal_dem, grid
 
 
 def cell_geometry(shape, ic, ir, eye, dem, th=0.0, inv2r=0.0):

@@ -9,11 +9,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support.los_reference import exact_viewshed, iou, segment_clear
-from support.terrain import centre_xy, fractal_dem, grid
 
 from mars_pairs.geometry.body import MARS_RADIUS_M
 from mars_pairs.kernels import compute_viewshed
+from support.los_reference import exact_viewshed, iou, segment_clear
+from support.terrain import centre_xy, fractal_dem, grid
 
 GALE = Path(__file__).resolve().parents[2].parent / "shared" / "real-gale"
 SOL_1051_XY = (8142579.427, -276693.318)  # site 48 drive 2470, README of real-gale

@@ -29,11 +29,10 @@ import numpy as np
 if __name__ == "__main__":  # run as a script: pytest's pythonpath (tests/) is not set
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from support.label_seeds import PDS3_SEED, PDS4_SEED
-
 from mars_pairs.errors import LabelError
 from mars_pairs.geometry.camera import CameraModel
 from mars_pairs.pds import read_observation
+from support.label_seeds import PDS3_SEED, PDS4_SEED
 
 TOKENS = [
     b"=", b"(", b")", b'"', b"/*", b"*/", b"END", b"END_GROUP", b"END_OBJECT", b"GROUP = X",

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 from fuzz_labels import run
-from support.label_seeds import PDS4_SEED
 
 from mars_pairs.errors import LabelError
 from mars_pairs.pds import read_observation
+from support.label_seeds import PDS4_SEED
 
 
 def test_first_mutation_cases_keep_the_contract(tmp_path: Path) -> None:

@@ -11,7 +11,6 @@ import warnings
 from pathlib import Path
 
 import pytest
-from support.label_shapes import SHAPES, densest_accepted, slowest_accepted
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import LabelError
@@ -19,6 +18,7 @@ from mars_pairs.pds import pds3 as pds3_module
 from mars_pairs.pds import read_observation, read_pds3, read_pds4
 from mars_pairs.pds.pds3 import check_structure, load_label
 from mars_pairs.pds.xml import MAX_XML_MARKUP
+from support.label_shapes import SHAPES, densest_accepted, slowest_accepted
 
 BUDGET_S = 5.0
 

@@ -12,13 +12,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support.observations import assert_same
 
 from mars_pairs.errors import LabelError
 from mars_pairs.geometry.camera import CameraModel
 from mars_pairs.observation import MotionCounter, Observation
 from mars_pairs.pds import read_observation, read_pds3, read_pds4, sniff_format
 from mars_pairs.synth.labels import write_pds3_img, write_pds3_label, write_pds4_label
+from support.observations import assert_same
 
 SAMPLES = Path(__file__).resolve().parents[2].parent / "shared" / "pds-samples"
 ZLF = "m2020/ZLF_0052_0671559321_081RAD_N0031950ZCAM05024_110085J01.xml"

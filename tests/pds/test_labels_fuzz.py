@@ -14,12 +14,12 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from lxml import etree
-from support.label_seeds import PDS3_SEED, PDS4_SEED
 
 from mars_pairs.errors import LabelError
 from mars_pairs.observation import Observation
 from mars_pairs.pds import read_observation, read_pds3, read_pds4
 from mars_pairs.pds.xml import NS
+from support.label_seeds import PDS3_SEED, PDS4_SEED
 
 FAST = settings(
     max_examples=120, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]

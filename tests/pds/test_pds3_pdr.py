@@ -7,12 +7,12 @@ import warnings
 from pathlib import Path
 
 import pytest
-from support.label_seeds import PDS3_SEED
-from support.observations import assert_same
 
 from mars_pairs.errors import LabelError
 from mars_pairs.pds import read_observation, read_pds3
 from mars_pairs.pds.pds3 import load_label, observation_from_label
+from support.label_seeds import PDS3_SEED
+from support.observations import assert_same
 
 SAMPLES = Path(__file__).resolve().parents[2].parent / "shared" / "pds-samples"
 

@@ -21,14 +21,14 @@ import shapely
 import shapely.geometry
 import yaml
 from pyproj import CRS
-from support.configs import config_file
-from support.members import manifest_rows, tar_members
-from support.missions import MissionCache
 
 from mars_pairs.cli.main import main
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.store.members import MEMBERS
+from support.configs import config_file
+from support.members import manifest_rows, tar_members
+from support.missions import MissionCache
 
 
 @pytest.fixture(scope="module")

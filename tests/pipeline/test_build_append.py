@@ -16,7 +16,6 @@ from typing import Any
 import pyarrow.parquet as pq
 import pytest
 import yaml
-from support.configs import config_file
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
@@ -24,6 +23,7 @@ from mars_pairs.pipeline.build.append import check_append_config, plan_append, s
 from mars_pairs.pipeline.build.outputs import stamp_path
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import BuildConfig, load_config
+from support.configs import config_file
 
 DRIVER = Path(__file__).with_name("append_crash_driver.py")
 #: manifest columns that name where a member lies: they differ between two layouts of chunks

@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
+
 from support.configs import config_file
 
 DRIVER = Path(__file__).with_name("crash_driver.py")

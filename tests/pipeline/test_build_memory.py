@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import rasterio
 from rasterio.windows import Window
+
 from support.configs import config_file
 from support.missions import MissionCache
 

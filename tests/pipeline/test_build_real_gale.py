@@ -20,13 +20,13 @@ import pytest
 import rasterio
 import yaml
 from PIL import Image
-from support.members import sample_members
-from support.real_gale import DRIVE, GALE, SHARED, SITE, gale_row, make_gale_labels, read_dem
 
 from mars_pairs.geometry.places import Places
 from mars_pairs.pds import read_observation
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
+from support.members import sample_members
+from support.real_gale import DRIVE, GALE, SHARED, SITE, gale_row, make_gale_labels, read_dem
 
 RADIUS_M = 90.0  # the rover stands 99 m from the DEM's southern edge
 

@@ -13,8 +13,6 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
-from support.configs import build_config, config_file
-from support.members import sample_members, tar_members
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError, StageError
@@ -25,6 +23,8 @@ from mars_pairs.pipeline.sample.build_sample import Sample
 from mars_pairs.store.atomic import atomic_write_bytes, write_parquet_atomic
 from mars_pairs.store.manifest import FAILURE_SCHEMA, rows_to_table
 from mars_pairs.store.shards import ShardWriter
+from support.configs import build_config, config_file
+from support.members import sample_members, tar_members
 
 
 @pytest.fixture(scope="module")

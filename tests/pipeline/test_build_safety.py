@@ -18,12 +18,12 @@ import time
 from pathlib import Path
 
 import pytest
-from support.configs import build_config, config_file
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
+from support.configs import build_config, config_file
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -12,13 +12,13 @@ import pyarrow.parquet as pq
 import pytest
 import rasterio
 from affine import Affine
-from support.configs import build_config
-from support.members import manifest_rows as rows_of
-from support.members import tar_members as members_of
 
 from mars_pairs.errors import ConfigError, TerrainError
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import parse_config
+from support.configs import build_config
+from support.members import manifest_rows as rows_of
+from support.members import tar_members as members_of
 
 SIZE_M, SIZE_PX = 64.0, 64  # the config builder's cheap chips
 

@@ -9,11 +9,11 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
+
+from mars_pairs.cli.main import main
 from support.configs import config_file
 from support.label_shapes import SHAPES
 from support.missions import MissionCache
-
-from mars_pairs.cli.main import main
 
 distributed = pytest.importorskip("distributed", reason="the dask extra is not installed")
 

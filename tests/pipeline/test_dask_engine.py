@@ -12,13 +12,13 @@ from pathlib import Path
 
 import pytest
 import yaml
-from support.configs import config_file
-from support.missions import MissionCache
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import WorkerStartError
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
+from support.configs import config_file
+from support.missions import MissionCache
 
 distributed = pytest.importorskip("distributed", reason="the dask extra is not installed")
 

@@ -16,12 +16,12 @@ import pytest
 import rasterio
 from affine import Affine
 from PIL import Image
-from support import independent_truth as truth
-from support.configs import build_config
-from support.members import rows_by_key, sample_members
 
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.store.manifest import MANIFEST_SCHEMA
+from support import independent_truth as truth
+from support.configs import build_config
+from support.members import rows_by_key, sample_members
 
 STRIDE = 8
 RADIUS_M = 300.0

@@ -9,12 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support import independent_truth as truth
-from support.members import rows_by_key, sample_members
-from support.real_gale import GALE, make_gale_labels
 
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import parse_config
+from support import independent_truth as truth
+from support.members import rows_by_key, sample_members
+from support.real_gale import GALE, make_gale_labels
 
 RADIUS_M = 90.0
 STRIDE = 16

@@ -18,7 +18,6 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from support.configs import build_config
 
 from mars_pairs.errors import MarsPairsError
 from mars_pairs.pipeline.build import run as build
@@ -29,6 +28,7 @@ from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.store.manifest import MANIFEST_SCHEMA
 from mars_pairs.store.shards import MemberLocation, ShardWriter, read_member
+from support.configs import build_config
 
 
 def _digests(out: Path) -> dict[str, str]:

@@ -17,9 +17,6 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from PIL import Image
-from support.configs import config_file
-from support.members import metas as read_metas
-from support.missions import MissionCache
 
 from mars_pairs.errors import ImageError
 from mars_pairs.geometry.camera import CameraModel
@@ -29,6 +26,9 @@ from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.pipeline.sample.ground import ground_image
 from mars_pairs.synth.labels import write_pds3_img, write_pds3_label, write_pds4_label
+from support.configs import config_file
+from support.members import metas as read_metas
+from support.missions import MissionCache
 
 
 @pytest.fixture(scope="module")

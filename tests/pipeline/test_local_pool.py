@@ -7,9 +7,8 @@ import multiprocessing as mp
 from collections.abc import Iterator
 from pathlib import Path
 
-from support.configs import build_config
-
 from mars_pairs.pipeline.build.local_pool import LocalPool, pool_processes, worker_context
+from support.configs import build_config
 
 
 def test_results_in_order_with_a_bounded_window(small_mission: Path, tmp_path: Path) -> None:

@@ -12,11 +12,11 @@ import time
 from pathlib import Path
 
 import pytest
-from support.configs import build_config
 
 from mars_pairs.errors import WorkerDiedError
 from mars_pairs.pipeline.build import local_pool
 from mars_pairs.pipeline.build.run import run_build
+from support.configs import build_config
 
 
 def _digest(root: Path) -> dict[str, str]:

@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from support.configs import config_file
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
@@ -25,6 +24,7 @@ from mars_pairs.pipeline.build.plan import plan_build
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.synth.label_tree import plan_config, write_label_tree
+from support.configs import config_file
 
 
 def _snapshot(folder: Path) -> dict[str, tuple[int, bytes]]:

@@ -21,10 +21,10 @@ import uuid
 from pathlib import Path
 
 import pytest
-from support.configs import config_file
 
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
+from support.configs import config_file
 
 ROOT = Path(__file__).resolve().parents[2]
 MARK = "MARS_PAIRS_TEST_BUILD"

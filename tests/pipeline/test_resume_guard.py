@@ -19,7 +19,6 @@ from pathlib import Path
 
 import pytest
 import yaml
-from support.configs import build_config, config_doc, config_file
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
@@ -27,6 +26,7 @@ from mars_pairs.pipeline.build import outputs
 from mars_pairs.pipeline.build.outputs import part_paths
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import BuildConfig, load_config
+from support.configs import build_config, config_doc, config_file
 
 
 def _files(root: Path) -> dict[str, str]:

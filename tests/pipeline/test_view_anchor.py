@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rasterio
-from support.configs import build_config
 
 from mars_pairs.errors import StageError, TerrainError
 from mars_pairs.geometry.mapcam import MapCamera
@@ -20,6 +19,7 @@ from mars_pairs.pipeline.sample.build_sample import build_sample, view_stages
 from mars_pairs.pipeline.sample.context import SampleContext
 from mars_pairs.pipeline.sample.stages import Stages
 from mars_pairs.pipeline.sample.view import View, label_view
+from support.configs import build_config
 
 RADIUS_M = 150.0
 

@@ -15,8 +15,6 @@ import pytest
 import rasterio
 from pyproj import Transformer
 from rasterio.warp import Resampling, calculate_default_transform, reproject
-from support.configs import build_config
-from support.missions import MissionCache
 
 from mars_pairs.errors import TerrainError
 from mars_pairs.geometry.mapcam import MapCamera
@@ -26,6 +24,8 @@ from mars_pairs.pipeline.sample.context import SampleContext
 from mars_pairs.pipeline.sample.stages import Stages
 from mars_pairs.pipeline.sample.view import View
 from mars_pairs.raster.terrain import Terrain
+from support.configs import build_config
+from support.missions import MissionCache
 
 SPHERE = "+R=3396190 +units=m +no_defs +type=crs"
 TARGETS = {

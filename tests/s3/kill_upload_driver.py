@@ -15,11 +15,10 @@ import signal
 import sys
 from pathlib import Path
 
-from support.builds import small_doc
-
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import parse_config
 from mars_pairs.store import fs
+from support.builds import small_doc
 
 
 def main(mission: Path, url: str, target: str) -> None:

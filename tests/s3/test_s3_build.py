@@ -16,7 +16,6 @@ from typing import Any
 import pytest
 import torch
 import yaml
-from support.builds import small_doc
 
 from mars_pairs.cli.main import main
 from mars_pairs.cli.summary import inspect_dataset
@@ -28,6 +27,7 @@ from mars_pairs.store import fs
 from mars_pairs.store.query import Manifest
 from mars_pairs.torch.datasets import MarsPairsDataset
 from mars_pairs.torch.streaming import MarsPairsIterableDataset
+from support.builds import small_doc
 
 #: The files whose bytes a build makes the same wherever it writes them (besides the shards;
 #: shardindex.json names the folder).

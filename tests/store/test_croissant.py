@@ -9,9 +9,9 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from support.builds import build_small
 
 from mars_pairs.store.croissant import croissant_type
+from support.builds import build_small
 
 
 @pytest.fixture(scope="module")

@@ -12,11 +12,11 @@ import pyarrow.parquet as pq
 import pytest
 import shapely
 from pyproj import CRS
-from support.builds import build_small
 
 from mars_pairs.cli import main
 from mars_pairs.geometry.body import M2020_PLACES_CRS, MSL_PLACES_CRS
 from mars_pairs.store.geoparquet import crs_name, named_crs
+from support.builds import build_small
 
 EVERYWHERE = ("--bbox", "-180", "-90", "180", "90")
 

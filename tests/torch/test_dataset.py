@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 import torch
 from PIL import Image
-from support.members import manifest_keys
 from torch.utils.data import DataLoader
 
 import mars_pairs.torch.datasets as mpd
@@ -24,6 +23,7 @@ import mars_pairs.torch.streaming as mps
 from mars_pairs import Manifest
 from mars_pairs.errors import ArgumentError
 from mars_pairs.torch import MarsPairsDataset, MarsPairsIterableDataset, collate_samples
+from support.members import manifest_keys
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 import torch
 from affine import Affine
-from support.configs import build_config
 
 from mars_pairs import Manifest
 from mars_pairs.errors import MarsPairsError
@@ -20,6 +19,7 @@ from mars_pairs.store.members import DENSE_FIELDS
 from mars_pairs.torch import MarsPairsDataset
 from mars_pairs.torch.files import ShardFiles
 from mars_pairs.torch.transforms import CarryToChip, CarryToImage, Compose, Flip, Rotate
+from support.configs import build_config
 
 STRIDE = 8
 

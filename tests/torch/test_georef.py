@@ -11,10 +11,10 @@ import pytest
 import rasterio
 import torch
 from pyproj import CRS
-from support.members import metas
 
 from mars_pairs import Manifest
 from mars_pairs.torch import ALL_FIELDS, MarsPairsDataset, collate_samples
+from support.members import metas
 
 
 @pytest.mark.parametrize("which", ["dataset_dir", "heading_up_dir"])

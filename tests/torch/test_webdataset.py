@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 import torch
-from support.members import SUFFIX, manifest_keys
 
 from mars_pairs.store.wids_index import WIDS_INDEX
 from mars_pairs.torch import ALL_FIELDS, MarsPairsDataset, decode_member
+from support.members import SUFFIX, manifest_keys
 
 
 def test_shards_read_with_webdataset(dataset_dir: Path, members: dict[str, bytes]) -> None:
