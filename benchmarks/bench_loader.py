@@ -157,7 +157,8 @@ def loader_loop(
         for b in loader:
             if on_batch is not None:
                 b = on_batch(b)
-            n += len(b[0]) if isinstance(b, (tuple, list)) else b["ground"].shape[0]
+            # a list of ground images where their sizes differ: len() counts either way
+            n += len(b[0]) if isinstance(b, (tuple, list)) else len(b["ground"])
         return n
 
     return run
@@ -165,7 +166,8 @@ def loader_loop(
 
 def webdataset_pipeline(root: Path, batch: int) -> Any:
     """WebDataset's own pipeline over the dataset's shards: decode as the anchor does, to
-    tuples, batched in the workers (numpy arrays stacked by WebDataset's collation)."""
+    tuples, batched in the workers: each field stacked into one array when its shapes agree,
+    else kept as a list (what ``collate_samples`` does with ground images of several sizes)."""
     import webdataset as wds
 
     def rgb(data: bytes) -> np.ndarray:
@@ -181,8 +183,15 @@ def webdataset_pipeline(root: Path, batch: int) -> Any:
         wds.WebDataset(urls, shardshuffle=False, empty_check=False)
         .decode(wds.handle_extension("jpg", rgb), wds.handle_extension("png", grey))
         .to_tuple("ground.jpg", "ortho.png", "dem.npy", "viewshed.png")
-        .batched(batch)
+        .batched(batch, collation_fn=_stack_or_list)
     )
+
+
+def _stack_or_list(rows: list[tuple[np.ndarray, ...]]) -> tuple[Any, ...]:
+    """A batch of tuples -> one value a field: a stacked array, or a list of arrays when their
+    shapes differ."""
+    columns = zip(*rows, strict=True)
+    return tuple(np.stack(c) if len({a.shape for a in c}) == 1 else list(c) for c in columns)
 
 
 def cpu_seconds() -> float:
@@ -241,9 +250,10 @@ def main() -> int:
         w, bs = args.workers, args.batch_size
         load0 = os.getloadavg()[0]
         to_float = ToFloat()
+        crop = int(ds[0]["ortho"].shape[-1]) * 3 // 4  # three quarters of the chip
         augment = Compose(
             [
-                RandomCrop(384, target="chip"),
+                RandomCrop(crop, target="chip"),
                 RandomFlip(target="ground"),
                 RandomRotate(target="chip", quarter_turns=True),
             ]
@@ -254,7 +264,7 @@ def main() -> int:
             "`MarsPairsDataset[i]` (1 process)": dataset_loop(ds),
             "DataLoader, 0 workers": loader_loop(ds, 0, bs, False, loader_class=DataLoader),
             ours: loader_loop(ds, w, bs, True, collate=None),
-            f"{ours}, transform (chip crop 384, ground flip, chip quarter turn)": loader_loop(
+            f"{ours}, transform (chip crop {crop}, ground flip, chip quarter turn)": loader_loop(
                 MarsPairsDataset(root, transform=augment), w, bs, True, collate=None
             ),
             f"{ours}, spawned workers": loader_loop(ds, w, bs, True, "spawn", collate=None),
