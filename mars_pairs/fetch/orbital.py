@@ -42,7 +42,7 @@ from rasterio.windows import Window
 
 from mars_pairs.errors import FetchError
 from mars_pairs.fetch.windows import PlannedWindow, RasterGrid
-from mars_pairs.raster.vsi import gdal_path, remote_env
+from mars_pairs.raster.vsi import gdal_path, open_raster, remote_env
 from mars_pairs.store.atomic import atomic_path, atomic_write_bytes, temporary_path
 
 Bounds = tuple[float, float, float, float]
@@ -198,7 +198,7 @@ def open_source(source: str) -> Iterator[tuple[str, rasterio.io.DatasetReader]]:
             try:
                 with warnings.catch_warnings():  # no georeferencing: the next candidate
                     warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
-                    ds = rasterio.open(gdal_path(path))
+                    ds = open_raster(gdal_path(path))
             except rasterio.errors.RasterioIOError as exc:
                 tried.append(f"{path}: {str(exc).splitlines()[0][:160]}")
                 continue

@@ -74,3 +74,23 @@ def test_a_raster_on_s3_reads_through_vsis3(
     with vsi.open_raster(gdal) as src:
         window = rasterio.windows.Window(300, 400, 50, 20)
         assert np.array_equal(src.read(1, window=window), data[0, 400:420, 300:350])
+
+
+def test_the_orbital_fetch_opens_an_s3_source(s3_prefix: str, tmp_path: Path) -> None:
+    """``fetch.orbital.open_source`` opens an ``s3://`` raster through ``/vsis3/`` with the
+    endpoint and credentials of the environment (as the build's readers do)."""
+    from mars_pairs.fetch.orbital import open_source
+
+    path = tmp_path / "dem.tif"
+    data = np.arange(64, dtype=np.float32).reshape(8, 8)
+    with rasterio.open(
+        path, "w", driver="GTiff", width=8, height=8, count=1, dtype="float32",
+        crs="EPSG:32633", transform=from_origin(500000.0, 4000008.0, 1.0, 1.0),
+    ) as dst:  # fmt: skip
+        dst.write(data, 1)
+    url = fs.join(s3_prefix, "dem.tif")
+    fs.put_bytes(url, path.read_bytes())
+    with open_source(url) as (opened, ds):
+        assert opened == url
+        assert ds.crs.to_epsg() == 32633
+        np.testing.assert_array_equal(ds.read(1), data)
