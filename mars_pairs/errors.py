@@ -81,6 +81,19 @@ class FetchError(MarsPairsError):
         super().__init__(f"{self.url}: {reason}")
 
 
+class StorageError(MarsPairsError):
+    """Object storage failed a request (unreachable, no credentials, no such bucket, refused):
+    the message names the URL and the file system's reason."""
+
+    def __init__(self, url: object, reason: str) -> None:
+        self.url = str(url)
+        self.reason = reason
+        super().__init__(f"{self.url}: {reason}")
+
+    def __reduce__(self) -> tuple[type, tuple[object, ...]]:  # pickles with its fields
+        return type(self), (self.url, self.reason)
+
+
 class MissingMemberError(DatasetError, KeyError):
     """A sample has no member of the requested field (also a KeyError, as before)."""
 

@@ -358,7 +358,7 @@ def build_parser() -> argparse.ArgumentParser:
         "place filter (--bbox, --bbox-map, --near, --polygon) and any of --split, --mission, "
         "--instrument, --sol. No filter: every row.",
     )
-    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("dataset", type=local_dataset, help="dataset folder")
     where = p.add_mutually_exclusive_group()
     where.add_argument(
         "--bbox",
@@ -395,25 +395,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_query)
 
     p = sub.add_parser("show", help="a figure of one sample (needs the viz extra)")
-    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("dataset", type=local_dataset, help="dataset folder")
     p.add_argument("key", help="sample key or product id (see mars-pairs query)")
     p.add_argument("--out", help="PNG path (default KEY.png in the current directory)")
     p.set_defaults(func=_cmd_show)
 
     p = sub.add_parser("overview", help="all footprints over the orthoimage (needs the viz extra)")
-    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("dataset", type=local_dataset, help="dataset folder")
     p.add_argument("--out", default="overview.png", help="PNG path")
     p.add_argument("--colour-by", choices=("sol", "split"), default="sol")
     p.set_defaults(func=_cmd_overview)
 
     p = sub.add_parser("report", help="one self-contained HTML page of a dataset (viz extra)")
-    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("dataset", type=local_dataset, help="dataset folder")
     p.add_argument("--out", help="HTML path (default DATASET/report.html)")
     p.add_argument("--samples", type=count(0), default=12, help="gallery samples (default 12)")
     p.set_defaults(func=_cmd_report)
 
     p = sub.add_parser("export-qgis", help="a GeoPackage of positions, footprints and wedges")
-    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("dataset", type=local_dataset, help="dataset folder")
     p.add_argument("out", help="output .gpkg")
     p.add_argument("--viewsheds", action="store_true", help="also write viewshed GeoTIFFs")
     p.add_argument(
@@ -436,6 +436,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", choices=("small", "default", "demo"), default="small")
     p.set_defaults(func=_cmd_synth)
     return parser
+
+
+def local_dataset(value: str) -> str:
+    """An argument naming a dataset folder on this machine: a URL is refused, naming the
+    commands that read object storage."""
+    from mars_pairs.store.fs import is_url
+
+    if is_url(value):
+        raise argparse.ArgumentTypeError(
+            f"{value}: this command reads a dataset folder on this machine; `inspect`, "
+            "`verify` and the Python datasets (MarsPairsDataset, Manifest) read object "
+            "storage: copy the dataset here first (e.g. `aws s3 sync`)"
+        )
+    return value
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -79,11 +79,42 @@ def filesystem(url: str) -> tuple[Any, Any]:
     return found
 
 
+@contextmanager
+def _remote(url: str, *, writing: bool = False) -> Iterator[None]:
+    """Re-raise what the file system raises for ``url`` as ``StorageError`` naming it (an
+    unreachable endpoint, missing credentials, a refused request): not as a missing file. A
+    FileNotFoundError stays one when reading (the file is absent); when writing it means
+    the bucket or container is missing."""
+    from mars_pairs.errors import MarsPairsError, StorageError
+
+    try:
+        yield
+    except FileNotFoundError as exc:
+        if writing:
+            raise StorageError(url, f"cannot write: {exc} (does the bucket exist?)") from exc
+        raise
+    except MarsPairsError:
+        raise
+    except Exception as exc:
+        hint = ""
+        if "Credentials" in type(exc).__name__:
+            hint = (
+                " (the process that reads or writes it needs AWS credentials in its"
+                " environment: on an external Dask cluster, the workers')"
+            )
+        raise StorageError(url, f"{type(exc).__name__}: {exc}{hint}") from exc
+
+
 def exists(path: Location) -> bool:
     """Whether the file ``path`` exists."""
     if is_url(path):
         fs, p = filesystem(path)
-        return bool(fs.exists(p))
+        with _remote(path):
+            try:
+                fs.info(p)
+            except FileNotFoundError:
+                return False
+        return True
     return Path(path).exists()
 
 
@@ -91,7 +122,12 @@ def is_file(path: Location) -> bool:
     """Whether ``path`` is a file (an object, for object storage)."""
     if is_url(path):
         fs, p = filesystem(path)
-        return bool(fs.isfile(p))
+        with _remote(path):
+            try:
+                info = fs.info(p)
+            except FileNotFoundError:
+                return False
+        return bool(info.get("type") == "file")
     return Path(path).is_file()
 
 
@@ -99,7 +135,8 @@ def size(path: Location) -> int:
     """The size of the file ``path`` in bytes (FileNotFoundError when absent)."""
     if is_url(path):
         fs, p = filesystem(path)
-        return int(fs.size(p))
+        with _remote(path):
+            return int(fs.size(p))
     return Path(path).stat().st_size
 
 
@@ -107,7 +144,8 @@ def read_bytes(path: Location) -> bytes:
     """The bytes of the file ``path`` (FileNotFoundError when absent)."""
     if is_url(path):
         fs, p = filesystem(path)
-        return bytes(fs.cat_file(p))
+        with _remote(path):
+            return bytes(fs.cat_file(p))
     return Path(path).read_bytes()
 
 
@@ -115,7 +153,8 @@ def read_range(path: Location, offset: int, length: int) -> bytes:
     """``length`` bytes of ``path`` at ``offset`` (fewer at its end): one range request."""
     if is_url(path):
         fs, p = filesystem(path)
-        return bytes(fs.cat_file(p, start=offset, end=offset + length))
+        with _remote(path):
+            return bytes(fs.cat_file(p, start=offset, end=offset + length))
     with open(Path(path), "rb") as fh:
         fh.seek(offset)
         return fh.read(length)
@@ -131,7 +170,9 @@ def read_ranges(requests: list[tuple[str, int, int]]) -> list[bytes]:
     paths = [filesystem(url)[1] for url, _, _ in requests]
     starts = [offset for _, offset, _ in requests]
     ends = [offset + length for _, offset, length in requests]
-    return [bytes(b) for b in filesystem_.cat_ranges(paths, starts, ends, on_error="raise")]
+    with _remote(requests[0][0]):
+        got = filesystem_.cat_ranges(paths, starts, ends, on_error="raise")
+    return [bytes(b) for b in got]
 
 
 def open_input(path: Location) -> Any:
@@ -148,7 +189,8 @@ def upload(local: Path, path: Location) -> None:
     ``path`` is a copy through a temporary name and a rename."""
     if is_url(path):
         fs, p = filesystem(path)
-        fs.put_file(str(local), p)
+        with _remote(path, writing=True):
+            fs.put_file(str(local), p)
         return
     from mars_pairs.store.atomic import atomic_path
 
@@ -162,7 +204,8 @@ def put_bytes(path: Location, data: bytes) -> None:
 
     if is_url(path):
         fs, p = filesystem(path)
-        fs.pipe_file(p, data)
+        with _remote(path, writing=True):
+            fs.pipe_file(p, data)
         return
     atomic_write_bytes(Path(path), data)
 
@@ -173,8 +216,9 @@ def replace(src: Location, dst: Location) -> None:
     if is_url(src):
         fs, s = filesystem(src)
         _, d = filesystem(str(dst))
-        fs.copy(s, d)
-        fs.rm_file(s)
+        with _remote(str(dst), writing=True):
+            fs.copy(s, d)
+            fs.rm_file(s)
         return
     os.replace(src, dst)
 
@@ -183,7 +227,7 @@ def remove(path: Location) -> None:
     """Remove the file ``path``, if there."""
     if is_url(path):
         fs, p = filesystem(path)
-        with suppress(FileNotFoundError):
+        with _remote(path), suppress(FileNotFoundError):
             fs.rm_file(p)
         return
     Path(path).unlink(missing_ok=True)
@@ -194,10 +238,11 @@ def list_files(root: Location) -> list[str]:
     if is_url(root):
         fs, p = filesystem(root)
         base = p.rstrip("/") + "/"
-        try:
-            found = fs.find(p)
-        except FileNotFoundError:
-            return []
+        with _remote(root):
+            try:
+                found = fs.find(p)
+            except FileNotFoundError:
+                return []
         return sorted(f[len(base) :] for f in found if f.startswith(base))
     folder = Path(root)
     if not folder.is_dir():
@@ -209,10 +254,11 @@ def total_size(root: Location) -> int:
     """The bytes of every file under ``root`` (one listing on object storage)."""
     if is_url(root):
         fs, p = filesystem(root)
-        try:
-            return int(fs.du(p, total=True))
-        except FileNotFoundError:
-            return 0
+        with _remote(root):
+            try:
+                return int(fs.du(p, total=True))
+            except FileNotFoundError:
+                return 0
     return sum(p.stat().st_size for p in Path(root).rglob("*") if p.is_file())
 
 

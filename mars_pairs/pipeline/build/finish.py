@@ -41,10 +41,14 @@ from mars_pairs.store.croissant import croissant_metadata, dataset_description, 
 from mars_pairs.store.geoparquet import crs_name, named_crs, table_geo_metadata
 from mars_pairs.store.manifest import FAILURE_SCHEMA, MANIFEST_SCHEMA
 
-#: What dataset.json says of its paths.
+#: What dataset.json says of its paths: a dataset on disk, one on object storage.
 PATHS_NOTE = (
     "config paths are relative to this dataset folder, as they were when it was built "
     "(inputs stay where they were; a moved folder still reads whole: it needs none of them)"
+)
+PATHS_NOTE_URL = (
+    "config paths are absolute (no relative path leads from object storage to the build's "
+    "inputs); output.dir is this dataset's own location"
 )
 
 
@@ -177,7 +181,7 @@ def write_dataset_json(
     root = labels_root(config.inputs.labels)
     doc: dict[str, Any] = {
         "config": relative_config(config),
-        "paths": PATHS_NOTE,
+        "paths": PATHS_NOTE if isinstance(out, Path) else PATHS_NOTE_URL,
         # the folder the manifest's label_path is relative to (relative to this folder)
         "labels_root": Path(
             os.path.relpath(root, out) if isinstance(out, Path) else root
