@@ -125,12 +125,18 @@ def check_file(
         raise ValueError(f"unknown file kind {kind!r}; expected one of {KINDS}")
     with open(path, "rb") as fh:
         head = fh.read(1024)
-    if kind != "html" and _HTML_HEAD.match(head):
-        raise ContentError(where, f"an HTML page, not {kind} (starts {_show(head)})")
+    _refuse_html(head, kind, where)
     if kind == "img":
         _img(path, label, where, extent)
     else:
         _CHECKS[kind](path, label, where)
+
+
+def _refuse_html(head: bytes, kind: str, where: object) -> None:
+    """``ContentError`` naming ``where`` when the file's first bytes ``head`` are an HTML page
+    (an error page served in place of the file) and ``kind`` is not html."""
+    if kind != "html" and _HTML_HEAD.match(head):
+        raise ContentError(where, f"an HTML page, not {kind} (starts {_show(head)})")
 
 
 def quick_check(
@@ -158,8 +164,7 @@ def quick_check(
         head = fh.read(1024)
         fh.seek(max(0, path.stat().st_size - 1024))
         tail = fh.read()
-    if kind != "html" and _HTML_HEAD.match(head):
-        raise ContentError(where, f"an HTML page, not {kind} (starts {_show(head)})")
+    _refuse_html(head, kind, where)
     if kind == "jpeg" and not tail.rstrip(b"\x00").endswith(b"\xff\xd9"):
         raise ContentError(where, "JPEG has no end marker (cut short?)")
     if kind == "png" and not tail.endswith(b"IEND\xaeB`\x82"):

@@ -9,8 +9,6 @@ download and of a cached image."""
 
 from __future__ import annotations
 
-import threading
-import time
 from collections import Counter
 from dataclasses import replace
 from pathlib import Path, PurePosixPath
@@ -29,6 +27,7 @@ from mars_pairs.pds import pds3
 from mars_pairs.pds import xml as pds_xml
 from support import fetch_archive, fetch_server
 from support.fetch_archive import write_config
+from support.threads import on_a_thread
 
 served = fetch_server.served  # the loopback server fixture
 FAST = FetchPolicy(retries=1, backoff_s=0.01, connect_timeout_s=2.0, read_timeout_s=2.0)
@@ -42,22 +41,9 @@ SURFACE = "DATA/RDR/SURFACE/1429/"
 
 
 def within_budget(fn, *args):
-    """``fn(*args)`` (its result or the exception it raised) run on a daemon worker thread;
-    fails the test when it has not returned within BUDGET_S (the thread is left to finish)."""
-    box: list[object] = []
-
-    def run() -> None:
-        try:
-            box.append(fn(*args))
-        except BaseException as exc:  # handed back to the test
-            box.append(exc)
-
-    thread = threading.Thread(target=run, daemon=True)
-    start = time.perf_counter()
-    thread.start()
-    thread.join(BUDGET_S)
-    assert not thread.is_alive(), f"still running after {time.perf_counter() - start:.1f} s"
-    return box[0]
+    """``fn(*args)``'s result (or the exception it raised) on a worker thread, within
+    BUDGET_S (``support.threads.on_a_thread``)."""
+    return on_a_thread(fn, *args, budget_s=BUDGET_S)[1]
 
 
 def _product_label(product_id: str) -> str:

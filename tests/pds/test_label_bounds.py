@@ -5,8 +5,6 @@ sit far above the real labels, and a label at every bound still parses quickly."
 from __future__ import annotations
 
 import re
-import threading
-import time
 import warnings
 from pathlib import Path
 
@@ -19,29 +17,17 @@ from mars_pairs.pds import read_observation, read_pds3, read_pds4
 from mars_pairs.pds.pds3 import check_structure, load_label
 from mars_pairs.pds.xml import MAX_XML_MARKUP
 from support.label_shapes import SHAPES, densest_accepted, slowest_accepted
+from support.threads import on_a_thread as run_on_a_thread
 
 BUDGET_S = 5.0
 
 
 def on_a_thread(fn, *args) -> tuple[float, object]:
-    """(seconds, result or exception) of ``fn(*args)`` run on a daemon worker thread; fails
-    the test when it has not returned within BUDGET_S (the thread is left to finish)."""
-    box: list[object] = []
-
-    def run() -> None:
-        try:
-            box.append(fn(*args))
-        except BaseException as exc:  # handed back to the test
-            box.append(exc)
-
-    thread = threading.Thread(target=run, daemon=True)
-    start = time.perf_counter()
-    thread.start()
-    thread.join(BUDGET_S)
-    elapsed = time.perf_counter() - start
-    assert not thread.is_alive(), f"still parsing after {elapsed:.1f} s on a worker thread"
-    assert elapsed < BUDGET_S, f"took {elapsed:.1f} s on a worker thread"  # one long C call
-    return elapsed, box[0]
+    """``support.threads.on_a_thread`` within BUDGET_S, and under it (one long C call that
+    holds the GIL would finish late but still finish)."""
+    elapsed, result = run_on_a_thread(fn, *args, budget_s=BUDGET_S)
+    assert elapsed < BUDGET_S, f"took {elapsed:.1f} s on a worker thread"
+    return elapsed, result
 
 
 @pytest.mark.parametrize("shape", list(SHAPES))

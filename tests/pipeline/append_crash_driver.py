@@ -28,26 +28,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from crash_driver import _in_child, _patch
+from crash_driver import _in_child, _patch, _snapshot
 
 from mars_pairs.pipeline.build.run import run_build
 from mars_pairs.pipeline.config import load_config
-
-
-def _snapshot(out: Path) -> dict[str, bytes]:
-    """Every file's bytes; dataset.json without its build time and the appends' times."""
-    files = {}
-    for p in sorted(out.rglob("*")):
-        if p.is_file():
-            data = p.read_bytes()
-            if p.name == "dataset.json":
-                doc = json.loads(data)
-                doc.pop("build_seconds", None)
-                for record in doc.get("appends", []):
-                    record.pop("when", None)
-                data = json.dumps(doc, sort_keys=True).encode()
-            files[str(p.relative_to(out))] = data
-    return files
 
 
 def _shard_stats(out: Path) -> dict[str, tuple[int, int]]:

@@ -82,6 +82,7 @@ def _in_child(fn: Any) -> int:
 
 
 def _snapshot(out: Path) -> dict[str, bytes]:
+    """Every file's bytes; dataset.json without its build time and its appends' times."""
     files = {}
     for p in sorted(out.rglob("*")):
         if p.is_file():
@@ -89,6 +90,8 @@ def _snapshot(out: Path) -> dict[str, bytes]:
             if p.name == "dataset.json":
                 doc = json.loads(data)
                 doc.pop("build_seconds", None)
+                for record in doc.get("appends", []):
+                    record.pop("when", None)
                 data = json.dumps(doc, sort_keys=True).encode()
             files[str(p.relative_to(out))] = data
     return files

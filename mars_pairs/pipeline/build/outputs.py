@@ -517,6 +517,21 @@ def built_keys(out: fs.Location, done: Iterable[int]) -> dict[str, str]:
     return seen
 
 
+#: What ``clear_outputs`` removes, in order (patterns relative to the output folder).
+_CLEARED = (
+    "manifest.parquet",
+    "dataset.json",
+    "README.md",
+    "croissant.json",
+    WIDS_INDEX,
+    "failures.parquet",
+    "parts/manifest-*.parquet",
+    "parts/*.parquet",
+    "parts/base-dataset.json",
+    "shards/*.tar",
+)
+
+
 def clear_outputs(out: fs.Location) -> None:
     """Remove what the earlier build(s) stamped in ``out`` wrote (``written_by``; the caller
     has checked that the folder holds nothing else: ``foreign_file``), crash-safely. The
@@ -538,18 +553,7 @@ def clear_outputs(out: fs.Location) -> None:
     elif finished_stamp(out) is not None and not (out / CLEARING).is_file():
         (out / "parts").mkdir(exist_ok=True)
         os.replace(finished, out / CLEARING)
-    for pattern in (
-        "manifest.parquet",
-        "dataset.json",
-        "README.md",
-        "croissant.json",
-        WIDS_INDEX,
-        "failures.parquet",
-        "parts/manifest-*.parquet",
-        "parts/*.parquet",
-        "parts/base-dataset.json",
-        "shards/*.tar",
-    ):
+    for pattern in _CLEARED:
         for stale in sorted(out.glob(pattern)):
             rel = stale.relative_to(out).as_posix()
             if written_by(chunks, rel) and stale.is_file() and not stale.is_symlink():
@@ -557,21 +561,6 @@ def clear_outputs(out: fs.Location) -> None:
     clearing = out / CLEARING
     if clearing.is_file():
         clearing.unlink()
-
-
-#: What ``clear_outputs`` removes, in order (patterns relative to the output folder).
-_CLEARED = (
-    "manifest.parquet",
-    "dataset.json",
-    "README.md",
-    "croissant.json",
-    WIDS_INDEX,
-    "failures.parquet",
-    "parts/manifest-*.parquet",
-    "parts/*.parquet",
-    "parts/base-dataset.json",
-    "shards/*.tar",
-)
 
 
 def _clear_objects(out: str) -> None:
