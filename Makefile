@@ -4,32 +4,40 @@
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
-STAMP := $(VENV)/.installed
-TORCH := torch==2.13.0
+# two stamps: the demo needs the viz extra only; the tests and the lint need the dev extras
+DEMO_STAMP := $(VENV)/.installed-demo
+DEV_STAMP := $(VENV)/.installed-dev
+# every pip call is constrained: torch stays the local CPU build (torch==2.13.0)
+PIP := $(PY) -m pip install -q -c constraints.txt
 
 .PHONY: demo test lint bench clean
 
-$(STAMP): pyproject.toml
+$(VENV)/bin/python:
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	# the local CPU build of torch first, so the project's range needs nothing more
-	$(PY) -m pip install -q $(TORCH)
-	$(PY) -m pip install -q -e '.[dev,viz,dask]'
-	touch $(STAMP)
 
-demo: $(STAMP)
+$(DEMO_STAMP): pyproject.toml constraints.txt | $(VENV)/bin/python
+	$(PIP) torch==2.13.0
+	$(PIP) -e '.[viz]'
+	touch $(DEMO_STAMP)
+
+$(DEV_STAMP): pyproject.toml constraints.txt $(DEMO_STAMP)
+	$(PIP) -e '.[dev,viz,dask]'
+	touch $(DEV_STAMP)
+
+demo: $(DEMO_STAMP)
 	$(VENV)/bin/mars-pairs build --config configs/demo.yaml --workers 2
 	$(VENV)/bin/mars-pairs inspect out/demo/dataset
 
-test: $(STAMP)
+test: $(DEV_STAMP)
 	$(PY) -m pytest -q
 
-lint: $(STAMP)
+lint: $(DEV_STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	$(VENV)/bin/mypy
 
-bench: $(STAMP)
+bench: $(DEV_STAMP)
 	$(PY) benchmarks/bench_viewshed.py
 	$(PY) benchmarks/bench_build.py
 	$(PY) benchmarks/bench_loader.py

@@ -33,7 +33,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import parse_config
 from mars_pairs.runtime import configure_process
 from mars_pairs.synth import generate_mission
@@ -107,7 +107,7 @@ def _time_the_ends() -> None:
     """Count the driver's CPU in the build's planning and finishing steps (once per build,
     whatever its size) in ``_ENDS_CPU``, to tell them from the CPU that grows with the
     samples (streaming the chunks and committing them)."""
-    from mars_pairs.pipeline.build import run as build
+    from mars_pairs.pipeline.builder import run as build
 
     for name in _ENDS:
         fn = getattr(build, name, None)
@@ -126,7 +126,7 @@ def _time_the_ends() -> None:
 
 class _ExternalCluster:
     """A Dask scheduler and ``workers`` single-threaded workers, each its own subprocess,
-    preloaded as a long-lived cluster's would be (``pipeline.build.dask_preload``)."""
+    preloaded as a long-lived cluster's would be (``pipeline.builder.dask_preload``)."""
 
     def __init__(self, root: Path, workers: int) -> None:
         dask = Path(sys.executable).with_name("dask")
@@ -142,7 +142,7 @@ class _ExternalCluster:
         self.procs.append(
             subprocess.Popen([str(dask), "worker", "--scheduler-file", str(file), "--nworkers",
                               str(workers), "--nthreads", "1", "--no-dashboard",
-                              "--preload", "mars_pairs.pipeline.build.dask_preload"], **quiet)
+                              "--preload", "mars_pairs.pipeline.builder.dask_preload"], **quiet)
         )  # fmt: skip
         from distributed import Client
 
@@ -193,7 +193,7 @@ def main() -> None:
         for name, workers in runs:
             cluster, engine = None, None
             if name == "dask":
-                from mars_pairs.pipeline.build.dask_engine import DaskEngine
+                from mars_pairs.pipeline.builder.dask_engine import DaskEngine
 
                 cluster = _ExternalCluster(root, workers)
                 engine = DaskEngine(scheduler=cluster.address, announce=False)

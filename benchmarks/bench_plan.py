@@ -46,7 +46,7 @@ def _vm_hwm_kib() -> int:
 
 def _glob_plan(config: Any) -> tuple[int, int, str]:
     """The planning before streaming (run_build up to the engine): every label at once."""
-    from mars_pairs.pipeline.build.plan import check_inputs
+    from mars_pairs.pipeline.builder.plan import check_inputs
 
     check_inputs(config)
     found = {
@@ -61,7 +61,7 @@ def _glob_plan(config: Any) -> tuple[int, int, str]:
 
 
 def _stream_plan(config: Any) -> tuple[int, int, str]:
-    from mars_pairs.pipeline.build.plan import plan_build
+    from mars_pairs.pipeline.builder.plan import plan_build
 
     plan = plan_build(config)
     return plan.labels, plan.chunks, plan.fingerprint["labels"]
@@ -69,7 +69,7 @@ def _stream_plan(config: Any) -> tuple[int, int, str]:
 
 def _child(method: str, root: Path, pattern: str, repeats: int) -> None:
     """One case in this fresh process; prints a JSON line."""
-    from mars_pairs.pipeline.build.plan import check_inputs
+    from mars_pairs.pipeline.builder.plan import check_inputs
     from mars_pairs.synth.label_tree import plan_config
 
     config = plan_config(root / "inputs", pattern, root / "dataset")

@@ -1,8 +1,8 @@
 """The package's import graph has no cycle, between modules or between packages.
 
 Every import counts: at module level, inside functions and under ``TYPE_CHECKING`` (a
-type-level cycle is still a cycle to a reader). A package is a module's parent (``pipeline.build``
-for ``pipeline.build.run``; a top-level module such as ``mars_pairs.errors`` is its own node).
+type-level cycle is still a cycle to a reader). A package is a module's parent (``pipeline.builder``
+for ``pipeline.builder.run``; a top-level module such as ``mars_pairs.errors`` is its own node).
 """
 
 from __future__ import annotations
@@ -125,7 +125,7 @@ def test_sample_never_imports_build() -> None:
         for m, targets in graph.items()
         if m.startswith("mars_pairs.pipeline.sample")
         for t in targets
-        if t.startswith("mars_pairs.pipeline.build")
+        if t.startswith("mars_pairs.pipeline.builder")
     )
     assert wrong == []
 

@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 _PROBE = """
 import json, os
 import mars_pairs.kernels.viewshed
-import mars_pairs.pipeline.build.worker
+import mars_pairs.pipeline.builder.worker
 from numba.np.ufunc import parallel
 seen = {"after_import": os.environ.get("OMP_WAIT_POLICY"),
         "openmp_loaded_on_import": parallel._is_initialized}

@@ -16,13 +16,13 @@ from mars_pairs.cli.arguments import VersionAction, bounded, count, finite
 from mars_pairs.cli.summary import split_warnings
 from mars_pairs.cli.viewshed import cmd_viewshed
 from mars_pairs.errors import MarsPairsError, UsageError
-from mars_pairs.pipeline.build.label_list import iter_matches
+from mars_pairs.pipeline.builder.label_list import iter_matches
 from mars_pairs.pipeline.config import MAX_RADIUS_M
 from mars_pairs.runtime import configure_process
 from mars_pairs.store.splits import EmptySplitWarning
 
 if TYPE_CHECKING:
-    from mars_pairs.pipeline.build.engine import Engine
+    from mars_pairs.pipeline.builder.engine import Engine
     from mars_pairs.pipeline.config import BuildConfig
 
 
@@ -69,7 +69,7 @@ def _cmd_build(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from mars_pairs.errors import BuildError
-    from mars_pairs.pipeline.build.run import run_build
+    from mars_pairs.pipeline.builder.run import run_build
     from mars_pairs.pipeline.config import load_config
     from mars_pairs.store.fs import dataset_root
 
@@ -79,12 +79,12 @@ def _cmd_build(args: argparse.Namespace) -> int:
         out = out.resolve() if isinstance(out, Path) else out
         config = replace(config, output=replace(config.output, dir=out))
     if args.dry_run and args.append:  # the new labels and chunks; writes nothing
-        from mars_pairs.pipeline.build.append import plan_append
+        from mars_pairs.pipeline.builder.append import plan_append
 
         print(plan_append(config).format())
         return 0
     if args.dry_run:  # lists, chunks and checks; writes nothing (nor a synthetic mission)
-        from mars_pairs.pipeline.build.plan import plan_build
+        from mars_pairs.pipeline.builder.plan import plan_build
 
         plan = plan_build(config, resume=args.resume, limit=args.limit, generate=True)
         print(plan.format())
@@ -119,7 +119,7 @@ def _engine(args: argparse.Namespace) -> Engine | None:
         if args.scheduler:
             raise UsageError("--scheduler needs --engine dask")
         return None
-    from mars_pairs.pipeline.build.dask_engine import DaskEngine
+    from mars_pairs.pipeline.builder.dask_engine import DaskEngine
 
     return DaskEngine(scheduler=args.scheduler, workers=args.workers)
 

@@ -4,6 +4,6 @@
   and checked before any work, and the split rule (a function of position and config).
 - ``pipeline.sample``: one observation -> one sample (label, image, pose, view, chips,
   dense members, manifest row), the stages in order; no knowledge of the build.
-- ``pipeline.build``: a build of many samples (plan and label listing, engines and workers,
+- ``pipeline.builder``: a build of many samples (plan and label listing, engines and workers,
   outputs and resume, finish); it calls ``pipeline.sample`` and nothing calls it back.
 """

@@ -31,7 +31,7 @@ import yaml
 from PIL import Image
 
 from mars_pairs.cli.main import main
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import load_config
 from support.configs import config_file, mission_inputs
 from support.missions import MissionCache

@@ -173,7 +173,7 @@ def test_bad_input_through_the_console_script(dataset: Path, tmp_path: Path) -> 
 
 def test_matplotlib_is_imported_only_by_the_picture_commands() -> None:
     code = (
-        "import mars_pairs.pipeline.build.run, mars_pairs.torch.datasets, mars_pairs.cli.main, "
+        "import mars_pairs.pipeline.builder.run, mars_pairs.torch.datasets, mars_pairs.cli.main, "
         "mars_pairs.cli.qgis; "
         "import sys; assert 'matplotlib' not in sys.modules, 'matplotlib imported'"
     )

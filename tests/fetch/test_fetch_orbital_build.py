@@ -14,7 +14,7 @@ from mars_pairs.fetch.config import load_fetch_config
 from mars_pairs.fetch.orbital import cut_planned, rover_positions, source_info
 from mars_pairs.fetch.run import fetch_orbital, fetch_places, fetch_products
 from mars_pairs.fetch.windows import plan_windows
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.torch import MarsPairsDataset
 from support.fetch_archive import write_config

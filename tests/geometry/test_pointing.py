@@ -135,7 +135,7 @@ def test_manifest_pointing_is_the_centre_ray_and_keeps_the_labels(
 ) -> None:
     """A label whose SITE_FRAME pointing is 20 degrees off its camera: the manifest's
     azimuth is still the image centre's (the mission's truth), the label's value beside it."""
-    from mars_pairs.pipeline.build.run import run_build
+    from mars_pairs.pipeline.builder.run import run_build
 
     labels = tmp_path / "labels"
     shutil.copytree(small_mission / "labels", labels)

@@ -30,7 +30,7 @@ from typing import Any
 
 from crash_driver import _in_child, _patch, _snapshot
 
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import load_config
 
 

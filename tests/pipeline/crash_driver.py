@@ -28,7 +28,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import load_config
 
 _OPS = ("replace", "rename", "unlink", "remove", "rmdir", "mkdir")

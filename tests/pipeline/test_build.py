@@ -23,7 +23,7 @@ import yaml
 from pyproj import CRS
 
 from mars_pairs.cli.main import main
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.store.members import MEMBERS
 from support.configs import config_file

@@ -19,9 +19,9 @@ import yaml
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline.build.append import check_append_config, plan_append, snapshot_base
-from mars_pairs.pipeline.build.outputs import stamp_path
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder.append import check_append_config, plan_append, snapshot_base
+from mars_pairs.pipeline.builder.layout import stamp_path
+from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import BuildConfig, load_config
 from support.configs import config_file
 
@@ -268,7 +268,7 @@ def test_an_append_on_dask_gives_the_in_process_bytes(
     """The append goes through the Engine contract: on a Dask cluster (its workers write the
     shards) the release-1 build and the append give the in-process files byte for byte."""
     distributed = pytest.importorskip("distributed", reason="the dask extra is not installed")
-    from mars_pairs.pipeline.build.dask_engine import DaskEngine
+    from mars_pairs.pipeline.builder.dask_engine import DaskEngine
 
     one, two, out = releases
     _build(one)

@@ -23,7 +23,7 @@ from PIL import Image
 
 from mars_pairs.geometry.places import Places
 from mars_pairs.pds import read_observation
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import load_config
 from support.members import sample_members
 from support.real_gale import DRIVE, GALE, SHARED, SITE, gale_row, make_gale_labels, read_dem

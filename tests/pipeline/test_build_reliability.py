@@ -16,8 +16,8 @@ import pytest
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError, StageError
-from mars_pairs.pipeline.build.run import run_build
-from mars_pairs.pipeline.build.worker import check_record
+from mars_pairs.pipeline.builder.run import run_build
+from mars_pairs.pipeline.builder.worker import check_record
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.pipeline.sample.build_sample import Sample
 from mars_pairs.store.atomic import atomic_write_bytes, write_parquet_atomic

@@ -21,7 +21,7 @@ import pytest
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import load_config
 from support.configs import build_config, config_file
 

@@ -1,4 +1,4 @@
-"""pipeline.build.commit.select_chunk: the pure rule of what a built chunk commits."""
+"""pipeline.builder.commit.select_chunk: the pure rule of what a built chunk commits."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ from typing import cast
 import pytest
 
 from mars_pairs.errors import BuildError
-from mars_pairs.pipeline.build.commit import select_chunk, write_chunk
-from mars_pairs.pipeline.build.engine import ChunkResult, Outcome
-from mars_pairs.pipeline.build.outputs import part_paths
+from mars_pairs.pipeline.builder.commit import select_chunk, write_chunk
+from mars_pairs.pipeline.builder.engine import ChunkResult, Outcome
+from mars_pairs.pipeline.builder.layout import part_paths
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.store.shards import MemberLocation
 

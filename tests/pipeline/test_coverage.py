@@ -14,7 +14,7 @@ import rasterio
 from affine import Affine
 
 from mars_pairs.errors import ConfigError, TerrainError
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import parse_config
 from support.configs import build_config
 from support.members import manifest_rows as rows_of

@@ -15,14 +15,14 @@ import yaml
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import WorkerStartError
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import load_config
 from support.configs import config_file
 from support.missions import MissionCache
 
 distributed = pytest.importorskip("distributed", reason="the dask extra is not installed")
 
-from mars_pairs.pipeline.build.dask_engine import DaskEngine  # noqa: E402
+from mars_pairs.pipeline.builder.dask_engine import DaskEngine  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""``dask worker --preload mars_pairs.pipeline.build.dask_preload``: a worker process starts
+"""``dask worker --preload mars_pairs.pipeline.builder.dask_preload``: a worker process starts
 with the process settings applied and the build's kernels loaded (issue 24: a long-lived
 cluster's first chunk finds a warm worker)."""
 
@@ -13,7 +13,7 @@ SCRIPT = """
 import json, os
 from mars_pairs.kernels import raycast, viewshed
 before = [len(viewshed._viewshed_kernel.signatures), len(raycast._cast_kernel.signatures)]
-from mars_pairs.pipeline.build.dask_preload import dask_setup
+from mars_pairs.pipeline.builder.dask_preload import dask_setup
 dask_setup(None)
 after = [len(viewshed._viewshed_kernel.signatures), len(raycast._cast_kernel.signatures)]
 print(json.dumps({"before": before, "after": after, "omp": os.environ.get("OMP_WAIT_POLICY")}))

@@ -17,7 +17,7 @@ import rasterio
 from affine import Affine
 from PIL import Image
 
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.store.manifest import MANIFEST_SCHEMA
 from support import independent_truth as truth
 from support.configs import build_config

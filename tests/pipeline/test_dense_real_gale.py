@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import parse_config
 from support import independent_truth as truth
 from support.members import rows_by_key, sample_members

@@ -22,7 +22,7 @@ from mars_pairs.errors import ImageError
 from mars_pairs.geometry.camera import CameraModel
 from mars_pairs.observation import Observation
 from mars_pairs.pds import read_observation
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.pipeline.sample.ground import ground_image
 from mars_pairs.synth.labels import write_pds3_img, write_pds3_label, write_pds4_label

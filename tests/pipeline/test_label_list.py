@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from mars_pairs.pipeline.build.label_list import iter_matches
+from mars_pairs.pipeline.builder.label_list import iter_matches
 
 # names whose order differs between strings and path components: "a-b/x" < "a/x" as strings
 # ('-' < '/'), but "a" < "a-b" as components, which is the order the build always used

@@ -7,7 +7,7 @@ import multiprocessing as mp
 from collections.abc import Iterator
 from pathlib import Path
 
-from mars_pairs.pipeline.build.local_pool import LocalPool, pool_processes, worker_context
+from mars_pairs.pipeline.builder.local_pool import LocalPool, pool_processes, worker_context
 from support.configs import build_config
 
 

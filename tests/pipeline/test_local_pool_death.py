@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 
 from mars_pairs.errors import WorkerDiedError
-from mars_pairs.pipeline.build import local_pool
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder import local_pool
+from mars_pairs.pipeline.builder.run import run_build
 from support.configs import build_config
 
 

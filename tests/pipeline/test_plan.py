@@ -15,13 +15,14 @@ import pytest
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline.build import run as build
-from mars_pairs.pipeline.build import worker
-from mars_pairs.pipeline.build.engine import ChunkResult, ChunkTask, Outcome
-from mars_pairs.pipeline.build.label_list import iter_matches
-from mars_pairs.pipeline.build.outputs import fingerprint, part_paths
-from mars_pairs.pipeline.build.plan import plan_build
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder import run as build
+from mars_pairs.pipeline.builder import worker
+from mars_pairs.pipeline.builder.engine import ChunkResult, ChunkTask, Outcome
+from mars_pairs.pipeline.builder.label_list import iter_matches
+from mars_pairs.pipeline.builder.layout import part_paths
+from mars_pairs.pipeline.builder.stamp import fingerprint
+from mars_pairs.pipeline.builder.plan import plan_build
+from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.synth.label_tree import plan_config, write_label_tree
 from support.configs import config_file

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import load_config
 from support.configs import config_file
 

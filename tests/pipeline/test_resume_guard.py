@@ -22,9 +22,10 @@ import yaml
 
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline.build import outputs
-from mars_pairs.pipeline.build.outputs import part_paths
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder import fingerprints
+from mars_pairs.pipeline.builder import stamp as stamps
+from mars_pairs.pipeline.builder.layout import part_paths
+from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import BuildConfig, load_config
 from support.configs import build_config, config_doc, config_file
 
@@ -106,7 +107,7 @@ def test_a_changed_vrt_source_tile_or_a_large_raster_is_noticed(
         '<SourceFilename relativeToVRT="0">/vsicurl/https://example.org/t.tif</SourceFilename>'
         "</SimpleSource></VRTRasterBand></VRTDataset>"
     )
-    first = outputs.file_fingerprint(vrt)
+    first = fingerprints.file_fingerprint(vrt)
     assert [s["path"] for s in first["sources"]] == [
         str(tiles / "dem-000.tif"),
         "/vsicurl/https://example.org/t.tif",
@@ -117,26 +118,26 @@ def test_a_changed_vrt_source_tile_or_a_large_raster_is_noticed(
         byte = fh.read(1)
         fh.seek(2000)
         fh.write(bytes([byte[0] ^ 1]))
-    second = outputs.file_fingerprint(vrt)
+    second = fingerprints.file_fingerprint(vrt)
     assert second != first and second["sha256"] == first["sha256"]
     stamp = {"config": {}, "labels": "", "count": 1}
     old = {**stamp, "inputs": {"places": {}, "dem": first, "ortho": {}}}
     new = {**stamp, "inputs": {"places": {}, "dem": second, "ortho": {}}}
-    why = outputs.stamp_difference(old, new)
+    why = stamps.stamp_difference(old, new)
     assert why is not None and why.startswith("inputs.dem changed since the interrupted build")
     assert f"source {tile}: content" in why
     # a file over the hashed size: its size and mtime, not its content
     monkeypatch.setattr(outputs, "HASHED_BYTES", 1000)
-    big = outputs.file_fingerprint(tile)
+    big = fingerprints.file_fingerprint(tile)
     assert "sha256" not in big and big["mtime_ns"] == tile.stat().st_mtime_ns
     os.utime(tile, ns=(big["mtime_ns"] + 10**9, big["mtime_ns"] + 10**9))
-    why = outputs.stamp_difference(
+    why = stamps.stamp_difference(
         {**stamp, "inputs": {"places": {}, "dem": big, "ortho": {}}},
-        {**stamp, "inputs": {"places": {}, "dem": outputs.file_fingerprint(tile), "ortho": {}}},
+        {**stamp, "inputs": {"places": {}, "dem": fingerprints.file_fingerprint(tile), "ortho": {}}},
     )
     assert why is not None and "mtime_ns" in why
     # a stamp of no input fingerprint (an older build) is not resumed
-    assert "no fingerprint of its inputs" in (outputs.stamp_difference(stamp, new) or "")
+    assert "no fingerprint of its inputs" in (stamps.stamp_difference(stamp, new) or "")
 
 
 def test_a_resume_refuses_a_strangers_files_and_keeps_its_own_leftovers(

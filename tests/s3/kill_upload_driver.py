@@ -15,7 +15,7 @@ import signal
 import sys
 from pathlib import Path
 
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import parse_config
 from mars_pairs.store import fs
 from support.builds import small_doc

@@ -21,7 +21,7 @@ from mars_pairs.cli.main import main
 from mars_pairs.cli.summary import inspect_dataset
 from mars_pairs.cli.verify import verify_dataset
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import BuildConfig, parse_config
 from mars_pairs.store import fs
 from mars_pairs.store.query import Manifest
@@ -89,7 +89,7 @@ def test_a_dask_build_to_s3_equals_the_local_build(
     """Dask workers (a LocalCluster of 2 processes, the environment's credentials inherited)
     upload the shards: the local build's bytes."""
     pytest.importorskip("distributed", reason="the dask extra is not installed")
-    from mars_pairs.pipeline.build.dask_engine import DaskEngine
+    from mars_pairs.pipeline.builder.dask_engine import DaskEngine
 
     engine = DaskEngine(workers=2, announce=False)
     summary = run_build(config_for(small_mission, s3_prefix), engine=engine, progress=False)

@@ -9,7 +9,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from mars_pairs.pipeline.build.outputs import is_temporary
+from mars_pairs.pipeline.builder.layout import is_temporary
 from mars_pairs.store.atomic import (
     atomic_path,
     atomic_write_bytes,

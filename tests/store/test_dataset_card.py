@@ -13,7 +13,7 @@ import pytest
 
 from mars_pairs.cli.verify import verify_dataset
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import parse_config
 from mars_pairs.store.manifest import MANIFEST_SCHEMA
 from support.builds import build_small, small_sections

@@ -11,7 +11,7 @@ from typing import Any
 import pyarrow.parquet as pq
 
 from mars_pairs.cli.main import main
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder.run import run_build
 from support.configs import build_config, config_doc, config_file
 
 # the small build of the store and CLI tests: 64 m chips of 32 px, 2 samples a shard

@@ -14,7 +14,7 @@ from affine import Affine
 
 from mars_pairs import Manifest
 from mars_pairs.errors import MarsPairsError
-from mars_pairs.pipeline.build.run import run_build
+from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.store.members import DENSE_FIELDS
 from mars_pairs.torch import MarsPairsDataset
 from mars_pairs.torch.files import ShardFiles

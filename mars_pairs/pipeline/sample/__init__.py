@@ -6,7 +6,7 @@ viewshed chips, coverage, correspondence), ``dense`` (the optional per-pixel mem
 ``footprint`` (the view's footprint and statistics), ``record`` (the manifest row and
 meta.json), ``encode`` (member bytes); ``context`` is what the samples of a worker share,
 ``stages`` the stage names and timings. Nothing here knows of the build that runs it
-(``pipeline.build``).
+(``pipeline.builder``).
 
 The public names below are resolved on first use, so importing one stage does not import
 every other.

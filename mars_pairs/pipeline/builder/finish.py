@@ -1,6 +1,6 @@
 """The end of a build: chunk parts merged into manifest.parquet and failures.parquet, then the
 files that explain the folder (dataset.json, README.md, croissant.json), then ``parts/`` goes
-(``outputs.remove_parts``).
+(``hygiene.remove_parts``).
 
 Every path written in the folder is relative to it: dataset.json's config names its inputs
 relative to the dataset folder as they were at build time, the manifest's ``label_path`` is
@@ -23,14 +23,11 @@ from typing import Any
 
 import pyarrow as pa
 
-from mars_pairs.pipeline.build.outputs import (
-    FINISHED_KEY,
-    input_files,
-    part_paths,
-    remove_empty_parts,
-    stamp_digest,
-)
-from mars_pairs.pipeline.build.plan import BuildPlan
+from mars_pairs.pipeline.builder.fingerprints import input_files
+from mars_pairs.pipeline.builder.hygiene import remove_empty_parts
+from mars_pairs.pipeline.builder.layout import part_paths
+from mars_pairs.pipeline.builder.stamp import FINISHED_KEY, stamp_digest
+from mars_pairs.pipeline.builder.plan import BuildPlan
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.sample.record import labels_root
 from mars_pairs.pipeline.splitting import splits_report
@@ -164,7 +161,7 @@ def write_dataset_json(
     the build's stamp, is given; ``extra``'s keys over the document's: an append's
     ``appends`` and ``build_stamp``); returns the document. ``input_files`` holds the
     fingerprints of the PLACES table, DEM and ortho without their paths
-    (``outputs.input_files``), which ``--append`` checks."""
+    (``fingerprints.input_files``), which ``--append`` checks."""
     import numba
     import numpy
     import pyarrow

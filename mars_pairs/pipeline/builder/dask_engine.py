@@ -38,7 +38,7 @@ from itertools import chain
 from typing import Any
 
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline.build.engine import ChunkResult, ChunkTask
+from mars_pairs.pipeline.builder.engine import ChunkResult, ChunkTask
 from mars_pairs.pipeline.config import BuildConfig
 
 _LOCK = threading.Lock()  # one chunk at a time per worker process (rasterio is not thread-safe)
@@ -51,8 +51,8 @@ def run_chunk(config: BuildConfig, task: ChunkTask | None) -> ChunkResult | None
     Runs in a Dask worker process; opens the worker's context for ``config`` unless it is
     already open for it (``task`` None: only that).
     """
-    from mars_pairs.pipeline.build import worker
-    from mars_pairs.pipeline.build.engine import build_chunk
+    from mars_pairs.pipeline.builder import worker
+    from mars_pairs.pipeline.builder.engine import build_chunk
 
     with _LOCK:
         if worker.current_config() != config:
@@ -62,7 +62,7 @@ def run_chunk(config: BuildConfig, task: ChunkTask | None) -> ChunkResult | None
 
 def close_context() -> None:
     """Close this process's build context, if open (the worker plugin's teardown)."""
-    from mars_pairs.pipeline.build import worker
+    from mars_pairs.pipeline.builder import worker
 
     with _LOCK:
         worker.close_context()
@@ -99,7 +99,7 @@ class DaskEngine:
     announce: bool = True  # print the dashboard address on stderr
 
     def run(self, config: BuildConfig, chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
-        """The :class:`~mars_pairs.pipeline.build.engine.Engine` contract: one task per chunk, whose
+        """The :class:`~mars_pairs.pipeline.builder.engine.Engine` contract: one task per chunk, whose
         worker writes the shard; results in chunk order.
 
         ``chunks`` may be a lazy iterator: it is pulled one chunk at a time as the window

@@ -1,18 +1,18 @@
 """The dataset build: labels -> samples -> shards + manifest, parallel, atomic and resumable.
 
-Labels are streamed in one total order (``pipeline.build.label_list``) and cut into chunks of
-``shard_size`` (``pipeline.build.plan``); chunk k becomes
+Labels are streamed in one total order (``pipeline.builder.label_list``) and cut into chunks of
+``shard_size`` (``pipeline.builder.plan``); chunk k becomes
 ``shards/shard-{k:06d}.tar`` plus ``parts/manifest-{k:06d}.parquet`` and
 ``parts/failures-{k:06d}.parquet``. The manifest part is renamed into place last and marks the
 chunk done, so a killed build rerun with ``resume`` redoes only unfinished chunks, and the
 output is the same whatever the worker count. A finished build writes the folder's card
-(``pipeline.build.finish``) and removes ``parts/`` last (``output.keep_parts`` keeps it); its stamp
+(``pipeline.builder.finish``) and removes ``parts/`` last (``output.keep_parts`` keeps it); its stamp
 lives on in dataset.json, so ``--resume`` over it does nothing. The labels are never held: a
 planning pass counts them and sums their fingerprint (the stamp), the build pass streams them
 again to the engine, chunk by chunk. The engine's workers write the shards and stage the parts
-(``pipeline.build.engine``); the driver receives rows only, and commits the chunks in order
-(``pipeline.build.commit``). ``append``: the labels a finished dataset does not hold yet become
-chunks after its own, the same way, then the union is merged (``pipeline.build.append``).
+(``pipeline.builder.engine``); the driver receives rows only, and commits the chunks in order
+(``pipeline.builder.commit``). ``append``: the labels a finished dataset does not hold yet become
+chunks after its own, the same way, then the union is merged (``pipeline.builder.append``).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ import pyarrow.parquet as pq
 from tqdm import tqdm
 
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline.build.append import (
+from mars_pairs.pipeline.builder.append import (
     BASE_FILES,
     AppendPlan,
     dataset_extra,
@@ -44,26 +44,20 @@ from mars_pairs.pipeline.build.append import (
     remove_base,
     snapshot_base,
 )
-from mars_pairs.pipeline.build.commit import select_chunk, write_chunk
-from mars_pairs.pipeline.build.engine import ChunkResult, ChunkTask, Engine, InProcess
-from mars_pairs.pipeline.build.finish import (
+from mars_pairs.pipeline.builder.commit import select_chunk, write_chunk
+from mars_pairs.pipeline.builder.engine import ChunkResult, ChunkTask, Engine, InProcess
+from mars_pairs.pipeline.builder.finish import (
     BuildSummary,
     finished_summary,
     merge_parts,
     write_card,
     write_dataset_json,
 )
-from mars_pairs.pipeline.build.local_pool import LocalPool
-from mars_pairs.pipeline.build.outputs import (
-    LabelDigest,
-    built_keys,
-    clear_outputs,
-    dropped_count,
-    remove_parts,
-    remove_temporaries,
-    stamp_path,
-)
-from mars_pairs.pipeline.build.plan import (
+from mars_pairs.pipeline.builder.local_pool import LocalPool
+from mars_pairs.pipeline.builder.fingerprints import LabelDigest
+from mars_pairs.pipeline.builder.hygiene import built_keys, clear_outputs, remove_parts, remove_temporaries
+from mars_pairs.pipeline.builder.layout import dropped_count, stamp_path
+from mars_pairs.pipeline.builder.plan import (
     check_clearable,
     chunks_of,
     done_chunks,
@@ -102,9 +96,9 @@ def run_build(
     """Build the dataset described by ``config`` into ``config.output.dir``.
 
     ``engine``: None for this machine's process pool of ``workers`` (this process when 1),
-    or another :class:`~mars_pairs.pipeline.build.engine.Engine` (``dask_engine.DaskEngine``).
+    or another :class:`~mars_pairs.pipeline.builder.engine.Engine` (``dask_engine.DaskEngine``).
     ``append``: add the labels the dataset in the folder does not hold yet as new chunks
-    (``pipeline.build.append``; an interrupted append of the same release is continued,
+    (``pipeline.builder.append``; an interrupted append of the same release is continued,
     with or without ``resume``).
     """
     start = time.perf_counter()
@@ -283,7 +277,7 @@ def _run_append(
     progress: bool,
     engine: Engine,
 ) -> BuildSummary:
-    """run_build's work for ``--append`` (``pipeline.build.append``), planned, its workers
+    """run_build's work for ``--append`` (``pipeline.builder.append``), planned, its workers
     starting: the base kept (``snapshot_base``) and the stamp written unless an interrupted
     append of this release is continued, the new chunks built and committed after the
     dataset's, then the union merged and described, and parts/ removed."""
@@ -336,5 +330,5 @@ def _run_append(
     doc = write_dataset_json(config, summary, manifest, dropped, extra=extra)
     write_wids_index(out, manifest)
     write_card(config, manifest, doc)
-    remove_append_parts(out, plan)  # the stamp before the base: see pipeline.build.append
+    remove_append_parts(out, plan)  # the stamp before the base: see pipeline.builder.append
     return summary

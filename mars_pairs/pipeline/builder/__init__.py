@@ -3,8 +3,9 @@
 ``label_list`` streams the labels in one total order; ``plan`` checks the inputs and cuts the
 labels into chunks, finding those a killed build finished; ``engine`` is the one contract the
 engines implement (``InProcess`` here, ``local_pool.LocalPool``, ``dask_engine.DaskEngine``),
-``worker`` what a worker process runs for one chunk; ``outputs`` what the output folder
-keeps (part paths, the stamp, clearing); ``commit`` what a built chunk commits (a pure
+``worker`` what a worker process runs for one chunk; what the output folder keeps is
+``layout`` (its file names), ``fingerprints`` (the inputs' identity), ``stamp`` (the build
+stamp a resume must match) and ``hygiene`` (what may be cleared or resumed); ``commit`` what a built chunk commits (a pure
 selection, then the writes); ``finish`` the merge into manifest.parquet and
 dataset.json; ``append`` what ``--append`` adds to a finished dataset (a new release's labels
 as new chunks, merged at the end); ``run`` the driver that ties them. The samples themselves are

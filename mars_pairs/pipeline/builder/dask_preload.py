@@ -1,5 +1,5 @@
 """A Dask worker preload for long-lived clusters: ``dask worker --preload
-mars_pairs.pipeline.build.dask_preload ...``.
+mars_pairs.pipeline.builder.dask_preload ...``.
 
 When the worker process starts (before any build reaches it) it applies the process settings
 (``mars_pairs.runtime.configure_process``), imports the build's modules and loads the compiled
@@ -19,6 +19,6 @@ def dask_setup(worker: Any) -> None:
 
     configure_process()
     from mars_pairs.kernels.warm import warm_kernels
-    from mars_pairs.pipeline.build import dask_engine, engine  # noqa: F401
+    from mars_pairs.pipeline.builder import dask_engine, engine  # noqa: F401
 
     warm_kernels()

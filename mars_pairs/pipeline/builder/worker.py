@@ -1,6 +1,6 @@
 """What a build worker process runs: its context, opened once, and one label -> one result.
 
-Shared by the local pool (``pipeline.build.local_pool``), the in-process build (one worker) and
+Shared by the local pool (``pipeline.builder.local_pool``), the in-process build (one worker) and
 the Dask engine. A result is ("ok", Sample), ("fail", failure row) or ("start", message)
 when the process could not open its context.
 """

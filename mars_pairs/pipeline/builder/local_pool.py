@@ -8,7 +8,7 @@
   server, never of the driver, whose numba OpenMP threads make forking unsafe. Where there is
   no fork server (Windows), workers are spawned. A worker takes the driver's build settings
   and the process defaults (:mod:`mars_pairs.runtime`) before it opens its context.
-- A build hands the pool whole chunks (``run``, the ``pipeline.build.engine.Engine`` contract): a
+- A build hands the pool whole chunks (``run``, the ``pipeline.builder.engine.Engine`` contract): a
   worker builds a chunk's samples and writes its shard itself, and returns only rows; at most
   2 chunks per worker are in flight, and results come back in chunk order. (``results``
   hands out single labels, at most ``window`` in flight, 4 per worker, results in order.)
@@ -41,11 +41,11 @@ from typing import Any
 
 from mars_pairs import runtime
 from mars_pairs.errors import WorkerDiedError, WorkerStartError
-from mars_pairs.pipeline.build import worker
-from mars_pairs.pipeline.build.engine import ChunkResult, ChunkTask, build_chunk
+from mars_pairs.pipeline.builder import worker
+from mars_pairs.pipeline.builder.engine import ChunkResult, ChunkTask, build_chunk
 from mars_pairs.pipeline.config import BuildConfig
 
-_PRELOAD = ["mars_pairs.pipeline.build.worker", "mars_pairs.pipeline.build.engine"]
+_PRELOAD = ["mars_pairs.pipeline.builder.worker", "mars_pairs.pipeline.builder.engine"]
 
 
 def worker_context() -> BaseContext:
@@ -174,7 +174,7 @@ class LocalPool:
             ) from None
 
     def run(self, config: BuildConfig, chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
-        """The :class:`~mars_pairs.pipeline.build.engine.Engine` contract: each chunk built and its
+        """The :class:`~mars_pairs.pipeline.builder.engine.Engine` contract: each chunk built and its
         shard written by one worker (``engine.build_chunk``), results in chunk order, at most
         ``2 * workers`` chunks in flight; WorkerStartError if a worker could not open the
         inputs, WorkerDiedError if one died. ``config`` is the pool's."""

@@ -1,6 +1,6 @@
 """Planning a build: check the inputs, list and chunk the labels, find the chunks done.
 
-The labels are streamed (``pipeline.build.label_list``), never held: the plan is one pass that
+The labels are streamed (``pipeline.builder.label_list``), never held: the plan is one pass that
 counts them and sums their fingerprint; chunk k is labels ``[k*S, (k+1)*S)`` of that order
 (S = ``output.shard_size``), so the chunk count and sizes follow from the count, and a chunk
 is done when its manifest part exists (and the build stamp matches, for ``--resume``: the
@@ -20,19 +20,10 @@ from pathlib import Path
 from typing import Any
 
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline.build.label_list import iter_matches
-from mars_pairs.pipeline.build.outputs import (
-    fingerprint,
-    finished_stamp,
-    foreign_file,
-    part_paths,
-    read_stamp,
-    stamp_difference,
-    stamp_digest,
-    stamp_path,
-    stamped_chunks,
-    written_by,
-)
+from mars_pairs.pipeline.builder.label_list import iter_matches
+from mars_pairs.pipeline.builder.hygiene import foreign_file
+from mars_pairs.pipeline.builder.layout import part_paths, stamp_path, written_by
+from mars_pairs.pipeline.builder.stamp import fingerprint, finished_stamp, read_stamp, stamp_difference, stamp_digest, stamped_chunks
 from mars_pairs.pipeline.config import BuildConfig, SyntheticSpec
 from mars_pairs.pipeline.splitting import split_rule
 from mars_pairs.raster.vsi import open_raster
@@ -62,7 +53,7 @@ def check_inputs(config: BuildConfig) -> None:
 def check_clearable(out: fs.Location, *, resume: bool = False) -> None:
     """ConfigError unless a build may clear (``resume``: resume in) ``out``: absent, empty, or
     holding only what an earlier mars-pairs build wrote there, as its stamp lists
-    (``outputs.foreign_file``). A folder holding anything else is refused whole: nothing in
+    (``hygiene.foreign_file``). A folder holding anything else is refused whole: nothing in
     it is removed or overwritten."""
     foreign = foreign_file(out)
     if foreign is not None:

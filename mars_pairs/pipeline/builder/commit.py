@@ -22,8 +22,8 @@ from pathlib import Path
 from typing import Any
 
 from mars_pairs.errors import BuildError, MarsPairsError
-from mars_pairs.pipeline.build.engine import ChunkResult, Outcome, duplicate_row, part_tables
-from mars_pairs.pipeline.build.outputs import part_paths
+from mars_pairs.pipeline.builder.engine import ChunkResult, Outcome, duplicate_row, part_tables
+from mars_pairs.pipeline.builder.layout import part_paths
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.store import fs
 from mars_pairs.store.atomic import rename_into_place

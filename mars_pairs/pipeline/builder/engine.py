@@ -1,7 +1,7 @@
 """The build engines' one contract: chunks of labels in, typed chunk results out, in order.
 
-An engine (:class:`Engine`: the in-process build, ``pipeline.build.local_pool.LocalPool``,
-``pipeline.build.dask_engine.DaskEngine``) runs :func:`build_chunk` once per chunk, wherever its
+An engine (:class:`Engine`: the in-process build, ``pipeline.builder.local_pool.LocalPool``,
+``pipeline.builder.dask_engine.DaskEngine``) runs :func:`build_chunk` once per chunk, wherever its
 workers are. A worker builds the chunk's samples one at a time and writes them straight
 into the chunk's shard in the output folder (``shards/shard-{k:06d}.tar``, through the
 temporary name ``.shard-{k:06d}.tar.tmp-<pid>`` and a rename: ``store.shards.ShardWriter``),
@@ -10,7 +10,7 @@ failure part and manifest part under their temporary names (``.NAME.tmp-<pid>``,
 renamed). What travels back to the driver is a :class:`ChunkResult`: one :class:`Outcome`
 per label (its manifest row with the member locations, or its failure row; a few KB a
 sample at most), the shard's name and size, the staged parts' names, and timings. The driver
-commits the chunks in order (``pipeline.build.commit``): it renames the failure part, then the
+commits the chunks in order (``pipeline.builder.commit``): it renames the failure part, then the
 manifest part (the chunk's commit marker) into place. A killed build leaves temporary names
 and shards of uncommitted chunks, which the next build removes or writes again.
 
@@ -18,7 +18,7 @@ Duplicate sample keys (two labels with one product id): the first label in label
 keeps the key, every later one becomes a ``record`` failure row (DuplicateKeyError naming
 the first). A worker resolves the duplicates inside its chunk: it writes the first and
 reports the later ones as ``duplicate`` outcomes. Duplicates of an earlier chunk's key are
-resolved by the driver at commit, which knows every earlier key (``pipeline.build.commit``):
+resolved by the driver at commit, which knows every earlier key (``pipeline.builder.commit``):
 it turns them into failure rows, writes the chunk's parts itself, and, when such a sample was
 written into the shard, rewrites the shard without it (a rare path, the only one where sample
 bytes pass through the driver).
@@ -48,8 +48,8 @@ from typing import Any, Literal, Protocol
 import pyarrow as pa
 
 from mars_pairs.errors import DuplicateKeyError, WorkerStartError
-from mars_pairs.pipeline.build import worker
-from mars_pairs.pipeline.build.outputs import DROPPED_KEY, part_paths
+from mars_pairs.pipeline.builder import worker
+from mars_pairs.pipeline.builder.layout import DROPPED_KEY, part_paths
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.sample.context import SampleContext
 from mars_pairs.store import fs

@@ -1,0 +1,100 @@
+"""The names of what a build writes in its output folder: chunk part paths, the stamp's path,
+which files a build of so many chunks writes (``written_by``) and the temporary names a killed
+build leaves (``is_temporary``).
+
+The output folder may be object storage (an fsspec URL: ``store.fs``): the same files under
+the same names, listed with one listing.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+from mars_pairs.store import fs
+from mars_pairs.store.atomic import temporary_target
+from mars_pairs.store.wids_index import WIDS_INDEX
+
+DROPPED_KEY = b"mars_pairs:dropped_in_buffer"
+
+
+#: The stamp of a build whose files are being cleared (the old stamp, renamed).
+CLEARING = "parts/clearing.json"
+
+
+#: The files of a build besides its chunks', relative to the output folder.
+BUILD_FILES = (
+    "parts/build.json",
+    CLEARING,
+    "manifest.parquet",
+    "failures.parquet",
+    "dataset.json",
+    WIDS_INDEX,
+    "README.md",
+    "croissant.json",
+    # an append's snapshot of the dataset it appends to (``pipeline.builder.append``)
+    "parts/base-manifest.parquet",
+    "parts/base-failures.parquet",
+    "parts/base-dataset.json",
+)
+
+
+CHUNK_FILE = re.compile(
+    r"(shards/shard-([0-9]{6,})\.tar|parts/(?:manifest|failures)-([0-9]{6,})\.parquet)"
+)
+
+
+def part_paths(out: fs.Location, k: int) -> tuple[str, Any, Any]:
+    """Chunk k's shard (relative to ``out``), manifest part and failure part (in ``out``: a
+    Path for a local folder, a URL for object storage)."""
+    return (
+        f"shards/shard-{k:06d}.tar",
+        fs.join(out, f"parts/manifest-{k:06d}.parquet"),
+        fs.join(out, f"parts/failures-{k:06d}.parquet"),
+    )
+
+
+def stamp_path(out: fs.Location) -> Any:
+    """The build stamp: the fingerprint of the build that wrote the parts."""
+    return fs.join(out, "parts/build.json")
+
+
+def dropped_count(out: fs.Location, n_chunks: int) -> int:
+    """Samples dropped in the split buffer, summed over the chunk parts."""
+    total = 0
+    for k in range(n_chunks):
+        meta = fs.parquet_schema(part_paths(out, k)[1]).metadata or {}
+        total += int(meta.get(DROPPED_KEY, b"0"))
+    return total
+
+
+def written_by(chunks: int | None, rel: str) -> bool:
+    """Whether a build of ``chunks`` chunks (None: no build) writes the file ``rel`` (a path
+    relative to the output folder, with ``/``)."""
+    if chunks is None:
+        return False
+    if rel in BUILD_FILES:
+        return True
+    k = chunk_of(rel)
+    return k is not None and k < chunks
+
+
+def chunk_of(rel: str) -> int | None:
+    """The chunk whose file ``rel`` is (a shard or a part, its number written as a build
+    writes it: six digits or more, no extra leading zero), else None."""
+    m = CHUNK_FILE.fullmatch(rel)
+    if m is None:
+        return None
+    digits = m[2] or m[3]
+    return int(digits) if f"{int(digits):06d}" == digits else None
+
+
+def is_temporary(rel: str) -> bool:
+    """Whether ``rel`` is the temporary name (``store.atomic``: ``.NAME.tmp-PID`` beside NAME,
+    left by a killed build) of a file some build writes, whatever its chunk count."""
+    folder, _, name = rel.rpartition("/")
+    target = temporary_target(name)
+    if target is None:
+        return False
+    rel = f"{folder}/{target}" if folder else target
+    return rel in BUILD_FILES or chunk_of(rel) is not None
