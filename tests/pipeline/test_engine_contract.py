@@ -22,8 +22,8 @@ import pytest
 from mars_pairs.errors import MarsPairsError
 from mars_pairs.pipeline.builder import run as build
 from mars_pairs.pipeline.builder.engine import ChunkResult, ChunkTask, InProcess
-from mars_pairs.pipeline.builder.local_pool import LocalPool
 from mars_pairs.pipeline.builder.layout import is_temporary
+from mars_pairs.pipeline.builder.local_pool import LocalPool
 from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.store.manifest import MANIFEST_SCHEMA

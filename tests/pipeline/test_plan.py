@@ -20,9 +20,9 @@ from mars_pairs.pipeline.builder import worker
 from mars_pairs.pipeline.builder.engine import ChunkResult, ChunkTask, Outcome
 from mars_pairs.pipeline.builder.label_list import iter_matches
 from mars_pairs.pipeline.builder.layout import part_paths
-from mars_pairs.pipeline.builder.stamp import fingerprint
 from mars_pairs.pipeline.builder.plan import plan_build
 from mars_pairs.pipeline.builder.run import run_build
+from mars_pairs.pipeline.builder.stamp import fingerprint
 from mars_pairs.pipeline.config import load_config
 from mars_pairs.synth.label_tree import plan_config, write_label_tree
 from support.configs import config_file

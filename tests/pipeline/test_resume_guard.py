@@ -127,13 +127,16 @@ def test_a_changed_vrt_source_tile_or_a_large_raster_is_noticed(
     assert why is not None and why.startswith("inputs.dem changed since the interrupted build")
     assert f"source {tile}: content" in why
     # a file over the hashed size: its size and mtime, not its content
-    monkeypatch.setattr(outputs, "HASHED_BYTES", 1000)
+    monkeypatch.setattr(fingerprints, "HASHED_BYTES", 1000)
     big = fingerprints.file_fingerprint(tile)
     assert "sha256" not in big and big["mtime_ns"] == tile.stat().st_mtime_ns
     os.utime(tile, ns=(big["mtime_ns"] + 10**9, big["mtime_ns"] + 10**9))
     why = stamps.stamp_difference(
         {**stamp, "inputs": {"places": {}, "dem": big, "ortho": {}}},
-        {**stamp, "inputs": {"places": {}, "dem": fingerprints.file_fingerprint(tile), "ortho": {}}},
+        {
+            **stamp,
+            "inputs": {"places": {}, "dem": fingerprints.file_fingerprint(tile), "ortho": {}},
+        },
     )
     assert why is not None and "mtime_ns" in why
     # a stamp of no input fingerprint (an older build) is not resumed

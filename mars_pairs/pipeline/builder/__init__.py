@@ -5,11 +5,11 @@ labels into chunks, finding those a killed build finished; ``engine`` is the one
 engines implement (``InProcess`` here, ``local_pool.LocalPool``, ``dask_engine.DaskEngine``),
 ``worker`` what a worker process runs for one chunk; what the output folder keeps is
 ``layout`` (its file names), ``fingerprints`` (the inputs' identity), ``stamp`` (the build
-stamp a resume must match) and ``hygiene`` (what may be cleared or resumed); ``commit`` what a built chunk commits (a pure
-selection, then the writes); ``finish`` the merge into manifest.parquet and
-dataset.json; ``append`` what ``--append`` adds to a finished dataset (a new release's labels
-as new chunks, merged at the end); ``run`` the driver that ties them. The samples themselves are
-``pipeline.sample``'s.
+stamp a resume must match) and ``hygiene`` (what may be cleared or resumed); ``commit``
+what a built chunk commits (a pure selection, then the writes); ``finish`` the merge into
+manifest.parquet and dataset.json; ``append`` what ``--append`` adds to a finished dataset (a
+new release's labels as new chunks, merged at the end); ``run`` the driver that ties them. The
+samples themselves are ``pipeline.sample``'s.
 
 The public names below are resolved on first use (the Dask engine needs the ``dask`` extra).
 """

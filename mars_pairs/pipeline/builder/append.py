@@ -51,13 +51,20 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline.builder.finish import relative_config, write_merged
-from mars_pairs.pipeline.builder.label_list import iter_matches
 from mars_pairs.pipeline.builder.fingerprints import LabelDigest, input_change, input_files
+from mars_pairs.pipeline.builder.finish import relative_config, write_merged
 from mars_pairs.pipeline.builder.hygiene import remove_empty_parts
+from mars_pairs.pipeline.builder.label_list import iter_matches
 from mars_pairs.pipeline.builder.layout import DROPPED_KEY, part_paths, stamp_path
-from mars_pairs.pipeline.builder.stamp import FINISHED_KEY, read_stamp, stamp_chunks, stamp_difference, stamp_digest, stamp_of
 from mars_pairs.pipeline.builder.plan import check_clearable, check_inputs, is_done
+from mars_pairs.pipeline.builder.stamp import (
+    FINISHED_KEY,
+    read_stamp,
+    stamp_chunks,
+    stamp_difference,
+    stamp_digest,
+    stamp_of,
+)
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.sample.record import labels_root
 from mars_pairs.store.atomic import atomic_path

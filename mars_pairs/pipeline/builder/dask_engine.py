@@ -99,7 +99,7 @@ class DaskEngine:
     announce: bool = True  # print the dashboard address on stderr
 
     def run(self, config: BuildConfig, chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
-        """The :class:`~mars_pairs.pipeline.builder.engine.Engine` contract: one task per chunk, whose
+        """The ``builder.engine.Engine`` contract: one task per chunk, whose
         worker writes the shard; results in chunk order.
 
         ``chunks`` may be a lazy iterator: it is pulled one chunk at a time as the window

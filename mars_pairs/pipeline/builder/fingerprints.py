@@ -16,6 +16,7 @@ from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.store import fs
 
+
 class LabelDigest:
     """The sha256 of the label names joined by newlines, and their count, fed one name at a
     time: the digest of ``"\n".join(names).encode()`` without holding the names."""

@@ -26,8 +26,8 @@ import pyarrow as pa
 from mars_pairs.pipeline.builder.fingerprints import input_files
 from mars_pairs.pipeline.builder.hygiene import remove_empty_parts
 from mars_pairs.pipeline.builder.layout import part_paths
-from mars_pairs.pipeline.builder.stamp import FINISHED_KEY, stamp_digest
 from mars_pairs.pipeline.builder.plan import BuildPlan
+from mars_pairs.pipeline.builder.stamp import FINISHED_KEY, stamp_digest
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.sample.record import labels_root
 from mars_pairs.pipeline.splitting import splits_report

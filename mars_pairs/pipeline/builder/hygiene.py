@@ -37,6 +37,7 @@ from mars_pairs.store import fs
 from mars_pairs.store.manifest import FAILURE_SCHEMA
 from mars_pairs.store.wids_index import WIDS_INDEX
 
+
 def foreign_file(out: fs.Location) -> str | None:
     """The first entry of ``out`` (sorted, relative, with ``/``) that the build that stamped
     it did not write: a file it does not list, a shard or failure part of an unfinished

@@ -174,7 +174,7 @@ class LocalPool:
             ) from None
 
     def run(self, config: BuildConfig, chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
-        """The :class:`~mars_pairs.pipeline.builder.engine.Engine` contract: each chunk built and its
+        """The ``builder.engine.Engine`` contract: each chunk built and its
         shard written by one worker (``engine.build_chunk``), results in chunk order, at most
         ``2 * workers`` chunks in flight; WorkerStartError if a worker could not open the
         inputs, WorkerDiedError if one died. ``config`` is the pool's."""

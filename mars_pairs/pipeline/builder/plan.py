@@ -20,10 +20,17 @@ from pathlib import Path
 from typing import Any
 
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline.builder.label_list import iter_matches
 from mars_pairs.pipeline.builder.hygiene import foreign_file
+from mars_pairs.pipeline.builder.label_list import iter_matches
 from mars_pairs.pipeline.builder.layout import part_paths, stamp_path, written_by
-from mars_pairs.pipeline.builder.stamp import fingerprint, finished_stamp, read_stamp, stamp_difference, stamp_digest, stamped_chunks
+from mars_pairs.pipeline.builder.stamp import (
+    fingerprint,
+    finished_stamp,
+    read_stamp,
+    stamp_difference,
+    stamp_digest,
+    stamped_chunks,
+)
 from mars_pairs.pipeline.config import BuildConfig, SyntheticSpec
 from mars_pairs.pipeline.splitting import split_rule
 from mars_pairs.raster.vsi import open_raster

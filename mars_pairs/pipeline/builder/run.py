@@ -6,8 +6,8 @@ Labels are streamed in one total order (``pipeline.builder.label_list``) and cut
 ``parts/failures-{k:06d}.parquet``. The manifest part is renamed into place last and marks the
 chunk done, so a killed build rerun with ``resume`` redoes only unfinished chunks, and the
 output is the same whatever the worker count. A finished build writes the folder's card
-(``pipeline.builder.finish``) and removes ``parts/`` last (``output.keep_parts`` keeps it); its stamp
-lives on in dataset.json, so ``--resume`` over it does nothing. The labels are never held: a
+(``pipeline.builder.finish``) and removes ``parts/`` last (``output.keep_parts`` keeps it); its
+stamp lives on in dataset.json, so ``--resume`` over it does nothing. The labels are never held: a
 planning pass counts them and sums their fingerprint (the stamp), the build pass streams them
 again to the engine, chunk by chunk. The engine's workers write the shards and stage the parts
 (``pipeline.builder.engine``); the driver receives rows only, and commits the chunks in order
@@ -46,6 +46,7 @@ from mars_pairs.pipeline.builder.append import (
 )
 from mars_pairs.pipeline.builder.commit import select_chunk, write_chunk
 from mars_pairs.pipeline.builder.engine import ChunkResult, ChunkTask, Engine, InProcess
+from mars_pairs.pipeline.builder.fingerprints import LabelDigest
 from mars_pairs.pipeline.builder.finish import (
     BuildSummary,
     finished_summary,
@@ -53,10 +54,14 @@ from mars_pairs.pipeline.builder.finish import (
     write_card,
     write_dataset_json,
 )
-from mars_pairs.pipeline.builder.local_pool import LocalPool
-from mars_pairs.pipeline.builder.fingerprints import LabelDigest
-from mars_pairs.pipeline.builder.hygiene import built_keys, clear_outputs, remove_parts, remove_temporaries
+from mars_pairs.pipeline.builder.hygiene import (
+    built_keys,
+    clear_outputs,
+    remove_parts,
+    remove_temporaries,
+)
 from mars_pairs.pipeline.builder.layout import dropped_count, stamp_path
+from mars_pairs.pipeline.builder.local_pool import LocalPool
 from mars_pairs.pipeline.builder.plan import (
     check_clearable,
     chunks_of,
