@@ -10,7 +10,7 @@ DEV_STAMP := $(VENV)/.installed-dev
 # every pip call is constrained: torch stays the local CPU build (torch==2.13.0)
 PIP := $(PY) -m pip install -q -c constraints.txt
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test test-fast lint docs bench clean
 
 $(VENV)/bin/python:
 	$(PYTHON) -m venv $(VENV)
@@ -32,6 +32,9 @@ demo: $(DEMO_STAMP)
 test: $(DEV_STAMP)
 	$(PY) -m pytest -q
 
+docs: $(DEV_STAMP)
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --quiet
+
 lint: $(DEV_STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
@@ -44,4 +47,4 @@ bench: $(DEV_STAMP)
 	$(PY) benchmarks/bench_plan.py
 
 clean:
-	rm -rf out .pytest_cache
+	rm -rf out site .pytest_cache
