@@ -103,7 +103,9 @@ def members() -> str:
 def failure_columns() -> str:
     from mars_pairs.store.manifest import FAILURE_SCHEMA
 
-    return _table(["column", "Arrow type"], [[f"`{f.name}`", f"`{f.type}`"] for f in FAILURE_SCHEMA])
+    return _table(
+        ["column", "Arrow type"], [[f"`{f.name}`", f"`{f.type}`"] for f in FAILURE_SCHEMA]
+    )
 
 
 GENERATORS = {
