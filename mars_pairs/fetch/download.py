@@ -22,25 +22,43 @@ Validators (ETag, Last-Modified) are kept beside the files as ``<name>.meta.json
   a cut label: what older releases could keep) is removed and fetched again.
 
 Retries: urllib3's ``Retry`` on the session retries connection errors, read timeouts before
-the headers and 429/5xx statuses with exponential backoff; failures inside the body (truncated
-bodies, stalls, wrong sizes, MD5 mismatches) are retried by this module's loop with the same
-backoff. After the last attempt a ``FetchError`` names the URL and the reason.
+the headers and 429/5xx statuses with exponential backoff (a ``Retry-After`` obeyed up to
+``FetchPolicy.retry_after_max_s``); failures inside the body (truncated bodies, stalls, wrong
+sizes, MD5 mismatches) are retried by this module's loop with the same backoff. After the last
+attempt a ``FetchError`` names the URL and the reason.
+
+Bounds: every file has a total deadline (``FetchPolicy.deadline_s``, all attempts and waits
+included: a socket timeout alone lets a server trickle headers or a body at 1 byte/s for ever),
+enforced by shutting the file's sockets down from a timer thread (``_Sockets``), which also
+cancels every download in flight at once when the run is interrupted (``Downloader.cancel``).
+No file grows past the size the archive gives it, else its answer's Content-Length, else its
+kind's limit (``MAX_BYTES``): a larger answer is stopped there and its part removed. An answer
+with a ``Content-Encoding`` other than ``identity`` (never asked for: the client sends
+``Accept-Encoding: identity``) is refused before its body is read, and malformed
+``Content-Length`` or ``Content-Range`` headers are a ``FetchError`` naming the URL, never a
+traceback.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
 import re
+import socket
 import threading
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
+from types import MappingProxyType
+from typing import Any
 
 import requests
 from requests.adapters import HTTPAdapter
+from urllib3.connection import HTTPConnection, HTTPSConnection
+from urllib3.connectionpool import HTTPConnectionPool, HTTPSConnectionPool
 from urllib3.util.retry import Retry
 
 from mars_pairs.errors import ContentError, FetchError
@@ -90,15 +108,43 @@ class RemoteFile:
         return self.kind if self.kind is not None else kind_of(self.rel)
 
 
+_MiB, _GiB = 1 << 20, 1 << 30
+#: The most bytes a file of each kind (``validate.KINDS``) may have when the archive does not
+#: give its size: PDS3 labels are bounded at 1 MiB of text by the reader and PDS4 labels run to
+#: a few hundred KB; the largest real tables (the Curiosity PLACES table, 77 MB; the Mastcam
+#: cumulative index, a few hundred MB) and images (Mastcam IMG, tens of MB) sit far below theirs.
+MAX_BYTES: Mapping[str, int] = MappingProxyType(
+    {
+        "pds3_label": 16 * _MiB,
+        "pds4_label": 16 * _MiB,
+        "html": 16 * _MiB,
+        "places": 2 * _GiB,
+        "inventory": 2 * _GiB,
+        "csv": 2 * _GiB,
+        "pds3_table": 8 * _GiB,
+        "jpeg": 512 * _MiB,
+        "png": 512 * _MiB,
+        "img": 4 * _GiB,
+        "geotiff": 8 * _GiB,
+        "data": 8 * _GiB,
+    }
+)
+
+
 @dataclass(frozen=True)
 class FetchPolicy:
-    """Retries, backoff (seconds, doubled per retry), timeouts (seconds) and parallelism."""
+    """Retries, backoff (seconds, doubled per retry), timeouts (seconds), the total deadline of
+    one file (seconds, every attempt and wait included), the longest ``Retry-After`` obeyed
+    (seconds), the size limit of each kind of file (bytes, ``MAX_BYTES``) and parallelism."""
 
     retries: int = 4
     backoff_s: float = 0.5
     backoff_max_s: float = 30.0
     connect_timeout_s: float = 10.0
     read_timeout_s: float = 60.0
+    deadline_s: float = 900.0
+    retry_after_max_s: float = 60.0
+    max_bytes: Mapping[str, int] = field(default_factory=lambda: MAX_BYTES)
     workers: int = 4
     chunk_bytes: int = 1 << 14  # what a killed download keeps is written in these steps
 
@@ -167,6 +213,116 @@ class Validator:
         return cls(url, fields[0], fields[1], size)
 
 
+class _Sockets:
+    """The sockets each thread's connections opened, so that another thread (a deadline's
+    timer, an interrupt) can shut them down: a blocked read then returns at once. A thread
+    marked expired has every socket it opens next shut down too, until ``renew``."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._open: dict[int, set[socket.socket]] = {}
+        self._expired: set[int] = set()
+        self.all_expired = False
+
+    def add(self, sock: socket.socket) -> None:
+        me = threading.get_ident()
+        with self._lock:
+            self._open.setdefault(me, set()).add(sock)
+            dead = self.all_expired or me in self._expired
+        if dead:
+            _shutdown(sock)
+
+    def expire(self, thread: int | None = None) -> None:
+        """Shut down the sockets of ``thread`` (None: of every thread, for good)."""
+        with self._lock:
+            if thread is None:
+                self.all_expired = True
+                socks = [s for group in self._open.values() for s in group]
+            else:
+                self._expired.add(thread)
+                socks = list(self._open.get(thread, ()))
+        for sock in socks:
+            _shutdown(sock)
+
+    def renew(self) -> None:
+        """This thread's next sockets are not shut down (a new file's deadline starts)."""
+        me = threading.get_ident()
+        with self._lock:
+            self._expired.discard(me)
+            self._open.pop(me, None)
+
+
+def _shutdown(sock: socket.socket) -> None:
+    with contextlib.suppress(OSError):  # already closed
+        sock.shutdown(socket.SHUT_RDWR)
+
+
+def _watched_pools(sockets: _Sockets) -> dict[str, type[HTTPConnectionPool]]:
+    """urllib3 pool classes whose connections register their socket with ``sockets``."""
+
+    class Watched(HTTPConnection):
+        def connect(self) -> None:
+            super().connect()
+            sockets.add(self.sock)
+
+    class WatchedTLS(HTTPSConnection):
+        def connect(self) -> None:
+            super().connect()
+            sockets.add(self.sock)
+
+    class Pool(HTTPConnectionPool):
+        ConnectionCls = Watched
+
+    class TLSPool(HTTPSConnectionPool):
+        ConnectionCls = WatchedTLS
+
+    return {"http": Pool, "https": TLSPool}
+
+
+class _WatchedAdapter(HTTPAdapter):
+    """requests' adapter over pools whose sockets a ``_Sockets`` knows."""
+
+    def __init__(self, sockets: _Sockets, **kwargs: Any) -> None:
+        self._sockets = sockets
+        super().__init__(**kwargs)
+
+    def init_poolmanager(self, *args: Any, **kwargs: Any) -> None:
+        super().init_poolmanager(*args, **kwargs)
+        self.poolmanager.pool_classes_by_scheme = _watched_pools(self._sockets)
+
+
+class _BoundedRetry(Retry):
+    """urllib3's ``Retry`` whose waits (backoff, ``Retry-After``) end early at the file's
+    deadline or on cancel, a ``Retry-After`` capped at ``retry_after_max_s``."""
+
+    downloader: Downloader | None = None
+    retry_after_max_s: float = 60.0
+
+    def new(self, **kw: Any) -> _BoundedRetry:
+        new = super().new(**kw)
+        assert isinstance(new, _BoundedRetry)
+        new.downloader, new.retry_after_max_s = self.downloader, self.retry_after_max_s
+        return new
+
+    def get_retry_after(self, response: Any) -> float | None:
+        try:
+            after = super().get_retry_after(response)
+        except Exception:  # a malformed Retry-After: fall back to the backoff
+            return None
+        return None if after is None else min(after, self.retry_after_max_s)
+
+    def sleep(self, response: Any = None) -> None:
+        wait = None
+        if self.respect_retry_after_header and response is not None:
+            wait = self.get_retry_after(response)
+        if wait is None:
+            wait = self.get_backoff_time()
+        if self.downloader is not None:
+            self.downloader.wait(wait)
+        elif wait > 0:
+            time.sleep(wait)
+
+
 def sidecar(path: Path) -> Path:
     """Where the validator of a cached file (or of a ``.part``) is kept: ``<name>.meta.json``."""
     return path.with_name(path.name + ".meta.json")
@@ -185,6 +341,39 @@ class Downloader:
         self.cache = cache
         self.policy = policy or FetchPolicy()
         self._local = threading.local()
+        self._sockets = _Sockets()
+        self._cancelled = threading.Event()
+
+    # -- bounds ----------------------------------------------------------------------------
+    def cancel(self) -> None:
+        """Stop every download in flight at once (their sockets shut down, their waits ended)
+        and refuse new ones: each ends in a ``FetchError`` saying it was cancelled."""
+        self._cancelled.set()
+        self._sockets.expire()
+
+    @property
+    def cancelled(self) -> bool:
+        return self._cancelled.is_set()
+
+    def _deadline(self) -> float:
+        return float(getattr(self._local, "deadline", float("inf")))
+
+    def wait(self, seconds: float) -> None:
+        """Sleep ``seconds``, ending early at this thread's deadline or on cancel."""
+        left = min(seconds, self._deadline() - time.monotonic())
+        if left > 0:
+            self._cancelled.wait(left)
+
+    def _check_bounds(self, url: str) -> None:
+        """FetchError when the run was cancelled or this thread's file is past its deadline."""
+        if self._cancelled.is_set():
+            raise FetchError(url, "cancelled (the fetch was interrupted)")
+        if time.monotonic() >= self._deadline():
+            raise FetchError(
+                url,
+                f"not finished within its deadline of {self.policy.deadline_s:g} s "
+                "(fetch.deadline_s)",
+            )
 
     # -- sessions --------------------------------------------------------------------------
     def session(self) -> requests.Session:
@@ -192,7 +381,7 @@ class Downloader:
         s = getattr(self._local, "session", None)
         if s is None:
             p = self.policy
-            retry = Retry(
+            retry = _BoundedRetry(
                 total=p.retries,
                 connect=p.retries,
                 read=p.retries,
@@ -204,8 +393,11 @@ class Downloader:
                 raise_on_status=False,
                 respect_retry_after_header=True,
             )
+            retry.downloader, retry.retry_after_max_s = self, p.retry_after_max_s
             s = requests.Session()
-            adapter = HTTPAdapter(max_retries=retry, pool_maxsize=max(4, p.workers))
+            adapter = _WatchedAdapter(
+                self._sockets, max_retries=retry, pool_maxsize=max(4, p.workers)
+            )
             s.mount("http://", adapter)
             s.mount("https://", adapter)
             s.headers["User-Agent"] = USER_AGENT
@@ -284,13 +476,39 @@ class Downloader:
         for path in (part, sidecar(part), meta):
             if path.is_symlink():
                 raise FetchError(remote.url, f"refused: {path} is a symlink")
+        self._check_bounds(remote.url)
+        self._sockets.renew()
+        self._local.deadline = time.monotonic() + self.policy.deadline_s
+        timer = threading.Timer(
+            self.policy.deadline_s, self._sockets.expire, args=(threading.get_ident(),)
+        )
+        timer.daemon = True
+        timer.start()
+        try:  # a part cut by the deadline or a cancel stays, within its size, for a resume
+            return self._fetch(remote, target, part, meta, known, on_bytes)
+        finally:
+            timer.cancel()
+            self._local.deadline = float("inf")
+
+    def _fetch(
+        self,
+        remote: RemoteFile,
+        target: Path,
+        part: Path,
+        meta: Path,
+        known: Validator | None,
+        on_bytes: Callable[[int], None] | None,
+    ) -> FetchResult:
+        """``fetch``'s attempts, within this thread's deadline."""
         received, resumed = 0, False
         last = "no attempt made"
         for attempt in range(self.policy.retries + 1):
+            self._check_bounds(remote.url)
             if attempt:
-                time.sleep(
+                self.wait(
                     min(self.policy.backoff_max_s, self.policy.backoff_s * 2 ** (attempt - 1))
                 )
+                self._check_bounds(remote.url)
             try:
                 got, appended = self._attempt(remote, part, on_bytes, known)
                 received += got
@@ -305,6 +523,9 @@ class Downloader:
             except requests.RequestException as exc:
                 last = f"{type(exc).__name__}: {_short(exc)}"
                 continue
+            except FetchError:
+                self._check_bounds(remote.url)  # a cut socket: say why it was cut
+                raise
             fresh = Validator.read(sidecar(part), remote.url)
             meta.unlink(missing_ok=True)  # never a validator beside a file it does not describe
             os.replace(part, target)
@@ -312,6 +533,7 @@ class Downloader:
                 atomic_write_bytes(meta, fresh.dump(target.stat().st_size))
             sidecar(part).unlink(missing_ok=True)
             return FetchResult(remote, target, "resumed" if resumed else "downloaded", received)
+        self._check_bounds(remote.url)
         raise FetchError(remote.url, f"failed after {self.policy.retries + 1} attempts: {last}")
 
     def _attempt(
@@ -378,6 +600,14 @@ class Downloader:
                 check_content_type(remote.file_kind, r.headers.get("Content-Type"), remote.url)
             except ContentError as exc:
                 raise _Retryable(exc.reason) from None
+            encoding = r.headers.get("Content-Encoding", "").strip().lower()
+            if encoding not in ("", "identity"):
+                _discard(part)
+                raise FetchError(
+                    remote.url,
+                    f"refused: the answer is encoded ({encoding}), never asked for "
+                    "(Accept-Encoding: identity)",
+                )
             if r.status_code == 200 or not offset:
                 offset, mode = 0, "wb"  # the server sent the whole file
                 answer = Validator.of(remote.url, r.headers)
@@ -386,7 +616,7 @@ class Downloader:
                 else:
                     sidecar(part).unlink(missing_ok=True)
             else:
-                start, total = _content_range(r.headers.get("Content-Range", ""))
+                start, total = _content_range(r.headers.get("Content-Range", ""), remote.url)
                 if start != offset:
                     _discard(part)
                     raise _Retryable(f"Content-Range starts at {start}, asked for {offset}")
@@ -395,26 +625,52 @@ class Downloader:
                     _discard(part)  # a server that ignored If-Range: never stitch two files
                     raise _Retryable(f"the resumed part has ETag {etag}, not {started.etag}")
                 mode = "ab"
-            length = r.headers.get("Content-Length")
-            total = offset + int(length) if length is not None else None
+            length = _length(r.headers, remote.url)
+            total = offset + length if length is not None else None
             if r.status_code == 206 and mode == "ab":
-                total = _content_range(r.headers["Content-Range"])[1] or total
+                total = _content_range(r.headers["Content-Range"], remote.url)[1] or total
             if remote.size is not None and total is not None and total != remote.size:
                 raise _Retryable(f"server sends {total} bytes, the archive says {remote.size}")
+            limit = self._limit(remote, total)
+            if total is not None and total > limit:
+                _discard(part)
+                raise FetchError(remote.url, f"refused: {total} bytes, over {self._why(remote)}")
             got = 0
             with open(part, mode) as fh:
                 for chunk in r.iter_content(self.policy.chunk_bytes):
+                    if offset + got + len(chunk) > limit:
+                        fh.close()
+                        _discard(part)
+                        raise FetchError(
+                            remote.url, f"stopped: the body runs past {self._why(remote)}"
+                        )
                     fh.write(chunk)
                     got += len(chunk)
                     if on_bytes is not None:
                         on_bytes(len(chunk))
+                    if self._cancelled.is_set() or time.monotonic() >= self._deadline():
+                        break  # the part so far is kept (within its size) for a resume
                 fh.flush()
                 os.fsync(fh.fileno())
+            self._check_bounds(remote.url)
         size = part.stat().st_size
         expected = remote.size if remote.size is not None else total
         if expected is not None and size != expected:
             raise _Retryable(f"received {size} bytes of {expected}")
         return got, mode == "ab"
+
+    def _limit(self, remote: RemoteFile, total: int | None) -> int:
+        """The most bytes the file may have: the archive's size, else the answer's length,
+        else its kind's limit (never more than the kind's limit)."""
+        cap = self.policy.max_bytes.get(remote.file_kind, MAX_BYTES["data"])
+        known = remote.size if remote.size is not None else total
+        return cap if known is None else min(known, cap)
+
+    def _why(self, remote: RemoteFile) -> str:
+        cap = self.policy.max_bytes.get(remote.file_kind, MAX_BYTES["data"])
+        if remote.size is not None and remote.size <= cap:
+            return f"the {remote.size} bytes the archive gives it"
+        return f"the {cap}-byte limit of a {remote.file_kind} file"
 
     def _verify_kind(self, remote: RemoteFile, part: Path) -> None:
         """Check the part is a file of its kind; a failure discards the part."""
@@ -439,17 +695,26 @@ class Downloader:
             raise _Retryable(f"MD5 {digest.hexdigest()} differs from the archive's {remote.md5}")
 
 
-def _length(headers: requests.structures.CaseInsensitiveDict) -> int | None:
-    """The Content-Length of an answer's headers (None when absent or not a number)."""
+def _length(headers: requests.structures.CaseInsensitiveDict, url: str | None = None) -> int | None:
+    """The Content-Length of an answer's headers (None when absent); a malformed one is a
+    FetchError naming ``url`` (None: read as absent)."""
     length = headers.get("Content-Length")
-    return int(length) if length is not None and length.isdigit() else None
+    if length is None:
+        return None
+    text = length.strip()
+    if text.isascii() and text.isdigit() and len(text) <= 20:
+        return int(text)
+    if url is None:
+        return None
+    raise FetchError(url, f"malformed Content-Length header {length[:40]!r}")
 
 
-def _content_range(header: str) -> tuple[int | None, int | None]:
-    """(first byte, total size) of a ``Content-Range: bytes a-b/n`` header."""
-    m = _CONTENT_RANGE.match(header.strip())
+def _content_range(header: str, url: str) -> tuple[int | None, int | None]:
+    """(first byte, total size) of a ``Content-Range: bytes a-b/n`` header; a malformed one is
+    a FetchError naming ``url``."""
+    m = _CONTENT_RANGE.fullmatch(header.strip())
     if not m:
-        return None, None
+        raise FetchError(url, f"malformed Content-Range header {header[:60]!r}")
     return int(m[1]), None if m[3] == "*" else int(m[3])
 
 

@@ -16,8 +16,9 @@ from __future__ import annotations
 
 import json
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path, PurePosixPath
 
@@ -218,7 +219,7 @@ def fetch_products(
     for failure in listing.failures:
         tqdm.write(f"mars-pairs fetch: {failure.url}: {failure.message}", file=sys.stderr)
     bar = tqdm(total=len(listed), unit="product", disable=not progress, file=sys.stderr)
-    with ThreadPoolExecutor(max_workers=cfg.policy.workers) as pool:
+    with _cancelled_on_interrupt(dl, ThreadPoolExecutor(max_workers=cfg.policy.workers)) as pool:
         futures = [pool.submit(_one, p, spec, dl, spec.filters, dry_run) for p in listed]
         for fut in as_completed(futures):
             out = fut.result()
@@ -273,6 +274,22 @@ def _write_rows(cache: Cache, name: str, rows: Sequence[object], cols: tuple[str
     target = cache.path(name)
     atomic_write_bytes(target, sink.getvalue().to_pybytes())
     return target
+
+
+@contextmanager
+def _cancelled_on_interrupt(
+    dl: Downloader, pool: ThreadPoolExecutor
+) -> Iterator[ThreadPoolExecutor]:
+    """``pool``, shut down on leaving; on an interrupt (Ctrl-C) or any error, the queued
+    downloads are cancelled and those in flight stopped at once (``Downloader.cancel``) before
+    the exception goes on, instead of the whole queue being downloaded first."""
+    try:
+        yield pool
+    except BaseException:
+        dl.cancel()
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
 
 
 # -- single files --------------------------------------------------------------------------
