@@ -40,7 +40,7 @@ def run(dl: Downloader, rf: RemoteFile) -> BaseException | object:
     def go() -> None:
         try:
             out.append(dl.fetch(rf))
-        except BaseException as exc:  # noqa: BLE001 (returned to the test)
+        except BaseException as exc:
             out.append(exc)
 
     t = threading.Thread(target=go, daemon=True)

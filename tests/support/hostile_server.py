@@ -18,6 +18,7 @@ A sending thread stops when the client goes away. ``requests`` counts the reques
 
 from __future__ import annotations
 
+import contextlib
 import gzip
 import socketserver
 import threading
@@ -45,10 +46,8 @@ class _Handler(socketserver.BaseRequestHandler):
         path = data.split(b" ", 2)[1].decode()
         with self.server.lock:
             self.server.requests[path] += 1
-        try:
+        with contextlib.suppress(OSError):  # the client went away
             self.serve(sock, path)
-        except OSError:
-            pass  # the client went away
 
     def serve(self, sock, path: str) -> None:
         stop = self.server.stop
