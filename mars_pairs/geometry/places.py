@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
+import bz2
+import gzip
+import io
+import lzma
 import math
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
 from mars_pairs.errors import PlacesError
@@ -109,19 +117,220 @@ def infer_places_crs(easting: float, longitude_deg: float) -> str:
     return M2020_PLACES_CRS.replace("+lat_ts=18.4663", f"+lat_ts={lat_ts:.4f}")
 
 
+#: The most bytes a compressed PLACES table may expand to (the largest real table, Curiosity's
+#: ``localized_interp.csv``, is 77 MB): a decompression bomb stops here, naming the file.
+MAX_PLACES_BYTES = 4 << 30
+#: Rows read at a time: the table is streamed, only the columns used are kept, as float64.
+_BLOCK_BYTES = 4 << 20
+_FRAME_OTHER, _FRAME_ROVER, _FRAME_SITE = 0, 1, 2
+
+
+class _Bounded(io.RawIOBase):
+    """A decompressing reader that refuses to expand past ``limit`` bytes."""
+
+    def __init__(self, raw: Any, path: Path, limit: int) -> None:
+        self._raw, self._path, self._limit, self._read = raw, path, limit, 0
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer: Any) -> int:
+        data = self._raw.read(len(buffer))
+        self._read += len(data)
+        if self._read > self._limit:
+            raise PlacesError(
+                f"{self._path}: cannot read PLACES table: it expands past {self._limit} bytes "
+                "(a decompression bomb?)"
+            )
+        buffer[: len(data)] = data
+        return len(data)
+
+
+@contextmanager
+def _source(path: Path, limit: int) -> Iterator[Any]:
+    """What the CSV reader reads: the file's path, or its decompressed bytes (gzip, bz2, xz),
+    bounded by ``limit``."""
+    openers: dict[str, Callable[..., Any]] = {".gz": gzip.open, ".bz2": bz2.open, ".xz": lzma.open}
+    opener = openers.get(path.suffix.lower())
+    if opener is None:
+        yield str(path)
+        return
+    with opener(path, "rb") as raw:
+        yield io.BufferedReader(_Bounded(raw, path, limit), 1 << 20)
+
+
+@dataclass
+class _Table:
+    """The PLACES columns a ``Places`` uses, as float64 arrays by lower-case name (NaN: empty or
+    not a number), the row frames (``_FRAME_*``), and the text of cells that are not numbers
+    (column, row) -> text, kept so that only a row in use is refused for them."""
+
+    columns: dict[str, np.ndarray]
+    frames: np.ndarray
+    text: dict[tuple[str, int], str]
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+
+def _numbers(
+    column: pa.ChunkedArray | pa.Array, name: str, first: int, text: dict[tuple[str, int], str]
+) -> np.ndarray:
+    """A string column as float64 (empty: NaN); cells that are not numbers become NaN, their
+    text recorded in ``text`` under (name, row) (rows counted from ``first``)."""
+    trimmed = pc.utf8_trim_whitespace(column)
+    try:
+        values = pc.cast(trimmed, pa.float64())
+    except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+        out = np.empty(len(trimmed), dtype=np.float64)
+        for i, cell in enumerate(trimmed.to_pylist()):
+            try:
+                out[i] = math.nan if cell in (None, "") else float(cell)
+            except ValueError:
+                out[i] = math.nan
+                text[(name, first + i)] = cell
+        return out
+    out = values.to_numpy(zero_copy_only=False)
+    return np.asarray(out, dtype=np.float64)
+
+
+def _frames(column: pa.ChunkedArray | pa.Array) -> np.ndarray:
+    kind = pc.utf8_upper(pc.utf8_trim_whitespace(column))
+    rover = pc.fill_null(pc.equal(kind, "ROVER"), False).to_numpy(zero_copy_only=False)
+    site = pc.fill_null(pc.equal(kind, "SITE"), False).to_numpy(zero_copy_only=False)
+    out = np.zeros(len(kind), dtype=np.int8)
+    out[rover] = _FRAME_ROVER
+    out[site] = _FRAME_SITE
+    return out
+
+
+def read_places_table(path: Path, limit: int = MAX_PLACES_BYTES) -> _Table:
+    """Stream the PLACES CSV at ``path`` (maybe gzip/bz2/xz compressed, expanding to at most
+    ``limit`` bytes): only the columns ``Places`` uses are kept, as float64 arrays, so memory
+    is ~8 bytes a used cell, whatever the table's width. Column names are matched
+    case-insensitively; PlacesError naming the file for a column given twice, a missing
+    column, text that is not UTF-8 or a file that is not CSV."""
+    used = set(REQUIRED_COLUMNS) | {"pose", *QUATERNION_COLUMNS, *RPY_COLUMNS}
+    try:
+        with _source(path, limit) as src:
+            header = pacsv.open_csv(src, read_options=pacsv.ReadOptions(block_size=1 << 16))
+            header = header.schema.names
+        names = [str(n).strip().lower() for n in header]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise PlacesError(f"{path}: column(s) {', '.join(twice)} appear twice (any case)")
+        missing = [c for c in REQUIRED_COLUMNS if c not in names]
+        if missing:
+            raise PlacesError(f"{path}: missing column(s) {', '.join(missing)}")
+        wanted = [h for h, n in zip(header, names, strict=True) if n in used]
+        parts: dict[str, list[np.ndarray]] = {}
+        frames: list[np.ndarray] = []
+        text: dict[tuple[str, int], str] = {}
+        with _source(path, limit) as src:
+            reader = pacsv.open_csv(
+                src,
+                read_options=pacsv.ReadOptions(block_size=_BLOCK_BYTES),
+                convert_options=pacsv.ConvertOptions(
+                    include_columns=wanted,
+                    column_types={h: pa.string() for h in wanted},  # checked UTF-8
+                    strings_can_be_null=False,
+                ),
+            )
+            keep = {str(h).strip().lower(): i for i, h in enumerate(reader.schema.names)}
+            parts = {n: [] for n in keep if n != "frame"}
+            rows = 0
+            for batch in reader:
+                for name, i in keep.items():
+                    col = batch.column(i)
+                    if name == "frame":
+                        frames.append(_frames(col))
+                    else:
+                        parts[name].append(_numbers(col, name, rows, text))
+                rows += batch.num_rows
+    except PlacesError:
+        raise
+    except (OSError, EOFError, pa.ArrowInvalid, pa.ArrowNotImplementedError, ValueError) as exc:
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if "UTF8" in why or "utf-8" in why.lower():
+            why = f"not UTF-8 text ({why})"
+        raise PlacesError(f"{path}: cannot read PLACES table: {why}") from None
+    empty = np.empty(0, dtype=np.float64)
+    columns = {n: (np.concatenate(v) if v else empty) for n, v in parts.items()}
+    frame = np.concatenate(frames) if frames else np.empty(0, dtype=np.int8)
+    return _Table(columns, frame, text)
+
+
+def _key(site: np.ndarray, drive: np.ndarray) -> np.ndarray:
+    """One int64 per (site, drive), both in [-1, 2**31): (site + 1) * 2**32 + drive + 1."""
+    return (site.astype(np.int64) + 1) * (1 << 32) + (drive.astype(np.int64) + 1)
+
+
 class Places:
     """A PLACES localization table: SITE origins and localized ROVER positions.
 
     Columns are read by name, case-insensitively (``REQUIRED_COLUMNS``, then the attitude: the
     quaternion columns, else roll/pitch/yaw). ROVER rows are keyed by (site, drive, pose); a
-    table without a pose column keys them by (site, drive).
+    table without a pose column keys them by (site, drive). The table is held as float64
+    arrays of the used columns and a sorted key index (no Python object per row), so a table
+    of 3 million rows fits in a few hundred MB.
 
     >>> places = Places.from_csv("best_interp.csv")
     >>> pose = places.locate(observation)
     """
 
-    def __init__(self, table: pa.Table, path: Path | None = None, crs: str | None = None) -> None:
+    def __init__(self, table: _Table, path: Path | None = None, crs: str | None = None) -> None:
         self.path = path
+        self._cols = table.columns
+        self._text = table.text
+        self._n = len(table)
+        self.attitude_columns = self._attitude_columns()
+        self.has_pose = "pose" in self._cols
+        frames = table.frames
+        keyed = np.flatnonzero(frames != _FRAME_OTHER)
+        rover_rows = keyed[frames[keyed] == _FRAME_ROVER]
+        for column in ("site", "drive", "pose") if self.has_pose else ("site", "drive"):
+            self._check_index(column, rover_rows if column == "pose" else keyed)
+        site_rows = np.flatnonzero(frames == _FRAME_SITE)
+        sites = self._cols["site"][site_rows].astype(np.int64)
+        #: site -> its SITE row (the last one of the site, as the table is read in order)
+        self._site: dict[int, int] = dict(zip(sites.tolist(), site_rows.tolist(), strict=True))
+        rover = np.flatnonzero(frames == _FRAME_ROVER)
+        key = _key(self._cols["site"][rover], self._cols["drive"][rover])
+        pose = (
+            self._cols["pose"][rover].astype(np.int64)
+            if self.has_pose
+            else np.full(len(rover), -1, dtype=np.int64)
+        )
+        order = np.lexsort((pose, key))  # stable: equal keys keep the table's order
+        #: ROVER rows sorted by (site, drive), then pose: their keys, poses and table rows
+        self._rkey, self._rpose, self._rrow = key[order], pose[order], rover[order]
+        self._conflicts: dict[tuple[int, int, int], str] = {}
+        same = np.flatnonzero(
+            (self._rkey[1:] == self._rkey[:-1]) & (self._rpose[1:] == self._rpose[:-1])
+        )
+        for k in same:  # row k + 1 repeats the (site, drive, pose) of row k: check with the first
+            first = int(k)
+            while (
+                first > 0
+                and self._rkey[first - 1] == self._rkey[k]
+                and (self._rpose[first - 1] == self._rpose[k])
+            ):
+                first -= 1
+            site, drive = divmod(int(self._rkey[k]), 1 << 32)
+            self._note_duplicate(
+                site - 1,
+                drive - 1,
+                int(self._rpose[k]),
+                int(self._rrow[first]),
+                int(self._rrow[k + 1]),
+            )
+        self.crs = crs or self._infer_crs()
+
+    @classmethod
+    def from_table(
+        cls, table: pa.Table, path: Path | None = None, crs: str | None = None
+    ) -> Places:
+        """A ``Places`` of an Arrow table (any column types; names case-insensitive)."""
         names = [str(n).strip().lower() for n in table.column_names]
         twice = sorted({n for n in names if names.count(n) > 1})
         if twice:
@@ -129,28 +338,16 @@ class Places:
         missing = [c for c in REQUIRED_COLUMNS if c not in names]
         if missing:
             raise PlacesError(f"{path}: missing column(s) {', '.join(missing)}")
-        self._cols = {n: table.column(i).to_pylist() for i, n in enumerate(names)}
-        self.attitude_columns = self._attitude_columns()
-        self.has_pose = "pose" in self._cols
-        frames = [str(f).strip().upper() for f in self._cols["frame"]]
-        #: (site, drive) -> {pose (-1 without a pose column): row}
-        self._rover: dict[tuple[int, int], dict[int, int]] = {}
-        self._site: dict[int, int] = {}
-        self._conflicts: dict[tuple[int, int, int], str] = {}
-        for i, kind in enumerate(frames):
-            if kind not in ("ROVER", "SITE"):
-                continue
-            site, drive = self._index(i, "site"), self._index(i, "drive")
-            if kind == "SITE":
-                self._site[site] = i
-                continue
-            pose = self._index(i, "pose") if self.has_pose else -1
-            rows = self._rover.setdefault((site, drive), {})
-            if pose in rows:
-                self._note_duplicate(site, drive, pose, rows[pose], i)
+        text: dict[tuple[str, int], str] = {}
+        columns = {}
+        frames = np.zeros(table.num_rows, dtype=np.int8)
+        for i, n in enumerate(names):
+            col = pc.cast(table.column(i), pa.string())
+            if n == "frame":
+                frames = _frames(col)
             else:
-                rows[pose] = i
-        self.crs = crs or self._infer_crs()
+                columns[n] = _numbers(col, n, 0, text)
+        return cls(_Table(columns, frames, text), path=path, crs=crs)
 
     def _attitude_columns(self) -> tuple[str, ...]:
         """The quaternion columns when the table has them all, else roll/pitch/yaw."""
@@ -167,16 +364,17 @@ class Places:
         # line numbers of the CSV file: the header is line 1
         return f"{self.path}: line {row + 2}: {column}"
 
-    def _index(self, row: int, column: str) -> int:
-        """A site, drive or pose number: an integer in [-1, 2**31); else PlacesError."""
-        v = self._cols[column][row]
-        try:
-            number = float(v)
-        except (TypeError, ValueError):
-            number = math.nan
-        if not (math.isfinite(number) and number == int(number) and -1 <= number < 2**31):
-            raise PlacesError(f"{self._where(row, column)}: expected an integer, got {v!r}")
-        return int(number)
+    def _check_index(self, column: str, rows: np.ndarray) -> None:
+        """Site, drive or pose numbers of ``rows``: integers in [-1, 2**31); else PlacesError
+        naming the first row (in the table's order) that is not."""
+        values = self._cols[column][rows]
+        with np.errstate(invalid="ignore"):
+            bad = ~(np.isfinite(values) & (values == np.round(values)) & (values >= -1))
+            bad |= ~(values < 2**31)
+        if bad.any():
+            row = int(rows[np.argmax(bad)])
+            shown = self._text.get((column, row), values[np.argmax(bad)])
+            raise PlacesError(f"{self._where(row, column)}: expected an integer, got {shown!r}")
 
     def _note_duplicate(self, site: int, drive: int, pose: int, first: int, again: int) -> None:
         """Two ROVER rows for one (site, drive, pose): kept if they agree within 1 cm, else the
@@ -199,18 +397,15 @@ class Places:
 
     @classmethod
     def from_csv(cls, path: str | Path, crs: str | None = None) -> Places:
-        """Read a PLACES CSV by header name; ``crs`` overrides the inferred table CRS."""
+        """Read a PLACES CSV (or a .gz/.bz2/.xz of one) by header name, streamed in bounded
+        memory (``read_places_table``); ``crs`` overrides the inferred table CRS."""
         path = Path(path)
         if not path.is_file():  # a FIFO or a device would block or never end
             raise PlacesError(f"{path}: cannot read PLACES table: not a regular file")
-        try:
-            table = pacsv.read_csv(path)
-        except (OSError, pa.ArrowInvalid) as exc:
-            raise PlacesError(f"{path}: cannot read PLACES table: {exc}") from None
-        return cls(table, path=path, crs=crs)
+        return cls(read_places_table(path), path=path, crs=crs)
 
     def __len__(self) -> int:
-        return len(self._cols["frame"])
+        return self._n
 
     def _infer_crs(self) -> str:
         for i in range(len(self)):
@@ -224,13 +419,10 @@ class Places:
 
     def _value(self, column: str, row: int) -> float:
         """A numeric cell: NaN when empty; PlacesError naming line and column for text."""
-        v = self._cols[column][row]
-        if v is None:
-            return math.nan
-        try:
-            return float(v)
-        except (TypeError, ValueError):
-            raise PlacesError(f"{self._where(row, column)}: expected a number, got {v!r}") from None
+        text = self._text.get((column, row))
+        if text is not None:
+            raise PlacesError(f"{self._where(row, column)}: expected a number, got {text!r}")
+        return float(self._cols[column][row])
 
     def _quaternion(self, row: int) -> np.ndarray | None:
         """The row's attitude (s, v1, v2, v3), ROVER_NAV_FRAME -> SITE_FRAME; None if unknown.
@@ -258,10 +450,18 @@ class Places:
         )
         return (lon, lat, elev) if _valid(lon, lat, elev) else None
 
+    def _rows(self, site: int, drive: int) -> slice:
+        """Where the ROVER rows of (site, drive) lie in the sorted index."""
+        if not (-1 <= site < 2**31 and -1 <= drive < 2**31):
+            return slice(0, 0)
+        key = (site + 1) * (1 << 32) + drive + 1
+        lo = int(np.searchsorted(self._rkey, key, side="left"))
+        return slice(lo, int(np.searchsorted(self._rkey, key, side="right")))
+
     def poses(self, site: int, drive: int) -> list[int]:
         """The pose numbers of the ROVER rows for (site, drive), ascending ([-1]: one row for
         every pose, or a table without a pose column; []: no row)."""
-        return sorted(self._rover.get((site, drive), {}))
+        return sorted(set(self._rpose[self._rows(site, drive)].tolist()))
 
     def _choose(self, site: int, drive: int, want: int | None) -> tuple[int, str] | None:
         """The pose row to use for an image taken at pose ``want`` (None: the label has none).
@@ -297,7 +497,9 @@ class Places:
         row_pose, match = chosen
         if (site, drive, row_pose) in self._conflicts:
             raise PlacesError(self._conflicts[(site, drive, row_pose)])
-        row = self._rover[(site, drive)][row_pose]
+        found = self._rows(site, drive)
+        at = found.start + int(np.flatnonzero(self._rpose[found] == row_pose)[0])
+        row = int(self._rrow[at])  # the first in the table's order (the sort is stable)
         e, n = self._value("easting", row), self._value("northing", row)
         lat, lon = self._value("planetocentric_latitude", row), self._value("longitude", row)
         elev = self._value("elevation", row)
