@@ -392,6 +392,8 @@ class SplitsConfig:
         if not isinstance(data, dict):
             return data
         style = data.get("style", "same-area")
+        if not isinstance(style, str):
+            return data  # refused as a choice
         unused = {"same-area": ("areas",), "cross-area": ("block_m", "ratios")}.get(style, ())
         for key in unused:
             if data.get(key) is not None:
