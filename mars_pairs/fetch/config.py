@@ -151,9 +151,16 @@ def _ordered(value: tuple[int, int]) -> tuple[int, int]:
 Root = Annotated[
     str, PlainValidator(_root), Expected("an http(s):// URL or a folder (relative: to the config)")
 ]
-Names = Annotated[tuple[Text, ...], BeforeValidator(_listed)]
-UpperNames = Annotated[tuple[Text, ...], BeforeValidator(_listed), AfterValidator(_upper)]
-Integers = Annotated[tuple[Integer, ...], BeforeValidator(_listed)]
+Names = Annotated[tuple[Text, ...], BeforeValidator(_listed), Expected("a name or a list of names")]
+UpperNames = Annotated[
+    tuple[Text, ...],
+    BeforeValidator(_listed),
+    AfterValidator(_upper),
+    Expected("a name or a list of names (any case)"),
+]
+Integers = Annotated[
+    tuple[Integer, ...], BeforeValidator(_listed), Expected("an integer or a list of integers")
+]
 Sols = Annotated[
     tuple[Integer, Integer],
     BeforeValidator(_sol_pair),

@@ -362,6 +362,7 @@ class SplitsConfig:
     ratios: Annotated[
         dict[Annotated[str, Field(strict=True)], Annotated[Number, Field(ge=0.0)]],
         AfterValidator(_ratios),
+        Expected("a mapping of split name to a fraction >= 0, the fractions summing to 1"),
     ] = field(default_factory=lambda: {"train": 0.8, "val": 0.1, "test": 0.1})
     """same-area: split name -> the fraction of blocks drawn into it (summing to 1)."""
     seed: Annotated[Integer, Field(ge=0, le=MAX_INT)] = 0

@@ -331,6 +331,8 @@ def expected(annotation: Any, metadata: Sequence[Any] = ()) -> str:
         return "true or false"
     if hint is int:
         lo, hi = _bounds(meta)
+        if lo is None and hi is None:
+            return "an integer"
         lo_text = "-inf" if lo is None else f"{lo[1]}"
         hi_text = "inf" if hi is None else f"{hi[1]}"
         if lo is not None and lo[0] == "gt":
@@ -345,12 +347,12 @@ def expected(annotation: Any, metadata: Sequence[Any] = ()) -> str:
         return "text" + (f" of at most {longest} characters" if longest else "")
     if origin in (tuple, list):
         args = [a for a in get_args(hint) if a is not Ellipsis]
-        return f"a list of {expected(args[0]) if args else 'values'}"
+        return f"a list, each {expected(args[0]) if args else 'a value'}"
     if origin is dict:
         key_type, value_type = get_args(hint)
         return f"a mapping of {expected(key_type)} to {expected(value_type)}"
     if isinstance(hint, type) and is_dataclass(hint):
-        return "a mapping"
+        return "a mapping (its keys below)"
     return getattr(hint, "__name__", str(hint))
 
 
@@ -460,11 +462,22 @@ def _default_text(f: Any) -> str:
         return "null"
     if isinstance(value, bool):
         return "true" if value else "false"
-    if isinstance(value, tuple):
-        value = list(value)
+    if isinstance(value, (tuple, list, dict)):
+        import yaml
+
+        flow = yaml.safe_dump(_plain(value), default_flow_style=True, sort_keys=False, width=10**6)
+        return f"`{flow.strip()}`"
     if isinstance(value, float):
         return f"`{_num(value)}`"
     return f"`{value}`"
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, (tuple, list)):
+        return [_plain(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    return value
 
 
 def _cell(text: str) -> str:

@@ -274,3 +274,22 @@ def test_null_is_the_default_and_a_required_null_is_missing(tmp_path: Path) -> N
     with pytest.raises(ConfigError, match=r"inputs\.places: required key is missing"):
         load_config(path)
     assert math.isfinite(config.chips.size_m)
+
+
+# --- the reference page -----------------------------------------------------------------------
+
+
+def test_the_committed_reference_page_is_the_generated_one() -> None:
+    from mars_pairs.config_reference import SECTIONS, reference_page
+
+    page = Path(__file__).resolve().parents[2] / "docs" / "reference" / "config.md"
+    assert page.read_text() == reference_page(), "run: python scripts/config_reference.py"
+    text = page.read_text()
+    for prefix, cls in SECTIONS:  # every key, with what it takes and its default
+        for key in section_fields(cls):
+            row = next(r for r in text.splitlines() if r.startswith(f"| `{prefix}.{key}` |"))
+            takes, default, meaning = (c.strip() for c in row.split(" | ")[1:4])
+            assert takes and default and meaning, row
+    assert "| `geometry.radius` | a number in (0, 200000] | `2000` |" in text
+    assert "| `geometry.viewshed` | one of ['wedge', 'raycast', 'both'] | `both` |" in text
+    assert "| `fetch.timeout_s` | a number in [0.001, 3600] | `60` |" in text

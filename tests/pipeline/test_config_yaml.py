@@ -14,8 +14,7 @@ import pytest
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
 from mars_pairs.fetch.config import load_fetch_config
-from mars_pairs.pipeline.config import load_config, read_yaml
-from mars_pairs.pipeline.config import ChipsConfig, GeometryConfig
+from mars_pairs.pipeline.config import ChipsConfig, GeometryConfig, load_config, read_yaml
 from mars_pairs.pipeline.config_schema import read_section
 
 BOMB = "a: &a [lol, lol, lol, lol, lol, lol, lol, lol, lol]\n" + "".join(
