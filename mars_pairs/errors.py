@@ -40,7 +40,21 @@ class CoverageError(TerrainError):
 
 
 class ConfigError(MarsPairsError):
-    """A build configuration is invalid; the message names the key and what was expected."""
+    """A build configuration is invalid; the message names the key and what was expected.
+
+    ``line``: (line, column), 1-based, of the key at fault in the config's YAML, when known
+    (``load_config`` puts it after the file's name: ``c.yaml:5:3: geometry.radius: ...``)."""
+
+    def __init__(self, message: str, *, line: tuple[int, int] | None = None) -> None:
+        super().__init__(message)
+        self.line = line
+
+    def __reduce__(self) -> tuple[object, ...]:  # pickles with its line
+        return (_config_error, (str(self), self.line))
+
+
+def _config_error(message: str, line: tuple[int, int] | None) -> ConfigError:
+    return ConfigError(message, line=line)
 
 
 class DatasetError(MarsPairsError):

@@ -33,56 +33,253 @@ fetch:
 Orbital windows are sized by what the build reads around each rover position: the DEM by
 ``geometry.radius`` (the view), the ortho by the chip (``0.71 x chips.size_m``, any heading),
 each plus ``margin_m``; positions far apart get separate windows (``fetch/windows.py``).
-Relative ``cache`` and local archive roots resolve against the config file's folder.
+Relative ``cache`` and local archive roots resolve against the config file's folder. Each
+key's type, bounds, default and meaning are written once, in the schema classes below
+(``pipeline.config_schema``; ``docs/reference/config.md`` is generated from them).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
+
+from pydantic import AfterValidator, BeforeValidator, Field, PlainValidator, ValidationInfo
+from pydantic import dataclasses as schema
+from pydantic.functional_validators import model_validator
 
 from mars_pairs.errors import ConfigError
 from mars_pairs.fetch.download import FetchPolicy
 from mars_pairs.fetch.products import ProductFilter
 from mars_pairs.fetch.windows import MAX_CELLS
-from mars_pairs.pipeline.config import read_yaml
+from mars_pairs.pipeline.config import ChipsConfig, GeometryConfig, in_file, read_yaml
+from mars_pairs.pipeline.config_schema import (
+    MAX_TEXT,
+    SCHEMA,
+    Expected,
+    Flag,
+    Integer,
+    KeyProblem,
+    Number,
+    Text,
+    base_of,
+    line_of,
+    read_section,
+    shown,
+    subset,
+)
 
 MISSIONS = ("msl", "m2020")
 INDEXES = ("RDRINDEX", "EDRINDEX")
+#: Bounds of the download policy: a retry count, a backoff and a read timeout (seconds) past
+#: these would leave a fetch waiting for hours on one file; a timeout under a millisecond
+#: fails every read.
+MAX_RETRIES = 100
+MAX_BACKOFF_S = 3600.0
+MIN_TIMEOUT_S = 0.001
+MAX_TIMEOUT_S = 3600.0
+MAX_WORKERS = 256
+MAX_MARGIN_M = 200_000.0  # as geometry.radius: ~3.4 degrees of Mars
+MAX_WINDOW_CELLS = 2**32  # 16 GiB of float32 in one window
+
+
+def _local(value: str, info: ValidationInfo) -> Path:
+    return ((base_of(info) or Path.cwd()) / Path(value).expanduser()).resolve()
+
+
+def _text(value: Any) -> str:
+    if not isinstance(value, str) or not value.strip() or len(value) > MAX_TEXT:
+        raise KeyProblem(f"expected a URL or a path, got {shown(value)}")
+    return value
+
+
+def _root(value: Any, info: ValidationInfo) -> str:
+    """An archive root: an http(s) URL (its trailing ``/`` removed), or a local folder as a
+    ``file://`` URL (relative: to the config's folder)."""
+    text = _text(value)
+    if text.startswith(("http://", "https://")):
+        return text.rstrip("/")
+    if text.startswith("file://"):  # a root read already
+        return text
+    return _local(text, info).as_uri()
+
+
+def _raster(value: Any, info: ValidationInfo) -> str:
+    """A raster to cut windows from: an http(s) URL, a GDAL ``/vsi`` path, or a local path."""
+    text = _text(value)
+    if text.startswith(("http://", "https://", "/vsi")):
+        return text
+    return str(_local(text, info))
+
+
+def _cache(value: Any, info: ValidationInfo) -> Path:
+    if isinstance(value, Path):
+        return value
+    if not isinstance(value, str) or not value.strip() or len(value) > MAX_TEXT:
+        raise KeyProblem(f"expected a folder, got {shown(value)}")
+    return _local(value, info)
+
+
+def _listed(value: Any) -> Any:
+    """One value given alone is a list of one."""
+    return [value] if isinstance(value, (str, int, float)) else value
+
+
+def _upper(value: tuple[str, ...]) -> tuple[str, ...]:
+    return tuple(v.upper() for v in value)
+
+
+def _upper_text(value: Any) -> Any:
+    return value.upper() if isinstance(value, str) else value
+
+
+def _sol_pair(value: Any) -> Any:
+    """``52`` or ``[52]`` is ``[52, 52]``."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        return [value, value]
+    if isinstance(value, list) and len(value) == 1:
+        return [value[0], value[0]]
+    return value
+
+
+def _ordered(value: tuple[int, int]) -> tuple[int, int]:
+    if value[0] > value[1]:
+        raise KeyProblem(f"expected [first, last] with first <= last, got {list(value)}")
+    return value
+
+
+Root = Annotated[
+    str, PlainValidator(_root), Expected("an http(s):// URL or a folder (relative: to the config)")
+]
+Names = Annotated[tuple[Text, ...], BeforeValidator(_listed), Expected("a name or a list of names")]
+UpperNames = Annotated[
+    tuple[Text, ...],
+    BeforeValidator(_listed),
+    AfterValidator(_upper),
+    Expected("a name or a list of names (any case)"),
+]
+Integers = Annotated[
+    tuple[Integer, ...], BeforeValidator(_listed), Expected("an integer or a list of integers")
+]
+Sols = Annotated[
+    tuple[Integer, Integer],
+    BeforeValidator(_sol_pair),
+    AfterValidator(_ordered),
+    Expected("a sol, or [first, last] (inclusive)"),
+]
+RasterSource = Annotated[
+    str, PlainValidator(_raster), Expected("an http(s):// URL, a GDAL /vsi path or a local path")
+]
+
+
+@schema.dataclass(frozen=True, config=SCHEMA)
+class ProductsSection:
+    """Where the products are listed (PDS3 volumes' index tables for msl, the PDS4 bundle's
+    inventory for m2020) and which to take; the filters left out take any product."""
+
+    mission: Literal["msl", "m2020"]
+    """msl (PDS3 volumes) or m2020 (a PDS4 bundle)."""
+    archive: Root
+    """The archive root URL (or a local folder) the volumes or the bundle are under."""
+    volumes: Names = ()
+    """msl: the PDS3 volumes whose ``INDEX/<index>.LBL/.TAB`` list products (e.g.
+    MSLMST_0014); none: every volume whose sol range meets ``sols`` (required without sols)."""
+    index: Annotated[Literal["RDRINDEX", "EDRINDEX"], BeforeValidator(_upper_text)] = "RDRINDEX"
+    """msl: which index table of each volume to read."""
+    bundle: Text | None = None
+    """m2020: the PDS4 bundle's folder under the archive (required for m2020)."""
+    collection: Text = "data/collection_data.xml"
+    """m2020: the collection label inside the bundle (its inventory lists the products)."""
+    label_path: Text = "data/sol/{sol:05d}/ids/rdr/zcam/{product_id}.xml"
+    """m2020: where a product's label is inside the bundle ({sol}, {product_id})."""
+    sols: Sols | None = None
+    """The sols to take, inclusive; null: any."""
+    instruments: UpperNames = ()
+    """Instrument ids to take (e.g. MAST_LEFT); none: any."""
+    product_types: UpperNames = ()
+    """Product types to take (e.g. DRCL, RAD); none: any."""
+    sites: Integers = ()
+    """Rover sites to take; none: any."""
+    drives: Integers = ()
+    """Rover drives to take; none: any."""
+    thumbnails: Flag = False
+    """Take thumbnail products (an id's thumbnail flag) too."""
+
+    @model_validator(mode="after")
+    def _mission_keys(self) -> ProductsSection:
+        if self.mission == "msl" and not self.volumes and self.sols is None:
+            raise KeyProblem(
+                "required for msl without sols (PDS3 volumes, e.g. MSLMST_0014; with sols "
+                "they come from the volume sol-range table)",
+                "volumes",
+            )
+        if self.mission == "m2020" and self.bundle is None:
+            raise KeyProblem("required for m2020 (the PDS4 bundle folder)", "bundle")
+        return self
 
 
 @dataclass(frozen=True)
 class ProductsSpec:
-    """Where the products are listed and which to take."""
+    """Where the products are listed and which to take (``ProductsSection``, read)."""
 
     mission: str
     archive: str
-    volumes: tuple[str, ...] = ()  # msl; () = the table's volumes for the filter's sols
-    index: str = "RDRINDEX"
-    bundle: str | None = None
-    collection: str = "data/collection_data.xml"
-    label_path: str = "data/sol/{sol:05d}/ids/rdr/zcam/{product_id}.xml"
+    volumes: tuple[str, ...]  # msl; () = the table's volumes for the filter's sols
+    index: str
+    bundle: str | None
+    collection: str
+    label_path: str
     filters: ProductFilter = field(default_factory=ProductFilter)
 
 
-@dataclass(frozen=True)
+@schema.dataclass(frozen=True, config=SCHEMA)
 class RemoteSpec:
-    """One file: archive root URL and the path inside it (mirrored in the cache)."""
+    """One file: an archive root and the path inside it (mirrored under the cache)."""
 
-    archive: str
-    path: str
+    archive: Root
+    """The archive root URL (or a local folder)."""
+    path: Text
+    """The file's path inside the archive."""
 
 
-@dataclass(frozen=True)
+@schema.dataclass(frozen=True, config=SCHEMA)
 class OrbitalSpec:
-    """Rasters to cut windows from; ``margin_m`` ground metres past the build's reach,
-    ``max_cells`` the largest window (cells) accepted."""
+    """Rasters to cut windows from (GeoTIFF, VICAR, PDS3/PDS4 with the label beside the .img):
+    the DEM's windows reach ``geometry.radius`` past each rover position, the ortho's the
+    chip's half-diagonal (0.71 x ``chips.size_m``), each plus ``margin_m``."""
 
-    dem: str | None = None
-    ortho: str | None = None
-    margin_m: float = 10.0
-    max_cells: int = MAX_CELLS
+    dem: RasterSource | None = None
+    """The DEM to cut windows from: a URL or a local path; null: none."""
+    ortho: RasterSource | None = None
+    """The orthoimage to cut windows from: a URL or a local path; null: none."""
+    margin_m: Annotated[Number, Field(ge=0.0, le=MAX_MARGIN_M)] = 10.0
+    """Ground metres past what the build reads."""
+    max_cells: Annotated[Integer, Field(ge=1, le=MAX_WINDOW_CELLS)] = MAX_CELLS
+    """The largest window (cells) accepted; a larger one is refused, naming this key."""
+
+
+@schema.dataclass(frozen=True, config=SCHEMA)
+class FetchSection:
+    """What ``mars-pairs fetch`` downloads, from where, into which cache, and how."""
+
+    cache: Annotated[Path, PlainValidator(_cache), Expected("a folder (relative: to the config)")]
+    """The cache root: the archive's paths are mirrored under it."""
+    retries: Annotated[Integer, Field(ge=0, le=MAX_RETRIES)] = FetchPolicy.retries
+    """Attempts after the first, per file."""
+    backoff_s: Annotated[Number, Field(ge=0.0, le=MAX_BACKOFF_S)] = FetchPolicy.backoff_s
+    """The wait before the first retry (seconds), doubled per retry."""
+    timeout_s: Annotated[Number, Field(ge=MIN_TIMEOUT_S, le=MAX_TIMEOUT_S)] = (
+        FetchPolicy.read_timeout_s
+    )
+    """The read timeout (seconds)."""
+    workers: Annotated[Integer, Field(ge=1, le=MAX_WORKERS)] = FetchPolicy.workers
+    """Parallel downloads."""
+    products: ProductsSection | None = None
+    """The labels and images to fetch; null: none."""
+    places: RemoteSpec | None = None
+    """The PLACES table to fetch; null: none."""
+    orbital: OrbitalSpec | None = None
+    """The orbital rasters to cut windows from; null: none."""
 
 
 @dataclass(frozen=True)
@@ -98,202 +295,79 @@ class FetchConfig:
     chip_size_m: float = 256.0  # chips.size_m of the build config (the ortho windows' reach)
 
 
-def _root(value: Any, key: str, base: Path) -> str:
-    if not isinstance(value, str) or not value:
-        raise ConfigError(f"{key}: expected a URL or folder, got {value!r}")
-    if value.startswith(("http://", "https://")):
-        return value.rstrip("/")
-    return (base / Path(value).expanduser()).resolve().as_uri()
-
-
-def _mapping(value: Any, key: str, known: set[str]) -> dict[str, Any]:
-    if value is None:
-        return {}
-    if not isinstance(value, dict):
-        raise ConfigError(f"{key}: expected a mapping, got {type(value).__name__}")
-    unknown = sorted(set(value) - known)
-    if unknown:
-        raise ConfigError(f"{key}.{unknown[0]}: unknown key (expected one of {sorted(known)})")
-    return value
-
-
-def _ints(value: Any, key: str) -> tuple[int, ...]:
-    if value is None:
-        return ()
-    if isinstance(value, int) and not isinstance(value, bool):
-        return (value,)
-    if not isinstance(value, list) or not all(
-        isinstance(v, int) and not isinstance(v, bool) for v in value
-    ):
-        raise ConfigError(f"{key}: expected an integer or a list of integers, got {value!r}")
-    return tuple(value)
-
-
-def _strs(value: Any, key: str) -> tuple[str, ...]:
-    if value is None:
-        return ()
-    if isinstance(value, str):
-        return (value,)
-    if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
-        raise ConfigError(f"{key}: expected a string or a list of strings, got {value!r}")
-    return tuple(value)
-
-
-def _bool(value: Any, key: str) -> bool:
-    if not isinstance(value, bool):
-        raise ConfigError(f"{key}: expected true or false, got {value!r}")
-    return value
-
-
-def _sols(value: Any, key: str) -> tuple[int, int] | None:
-    if value is None:
+def _products(p: ProductsSection | None) -> ProductsSpec | None:
+    if p is None:
         return None
-    sols = _ints(value, key)
-    if len(sols) == 1:
-        return (sols[0], sols[0])
-    if len(sols) != 2 or sols[0] > sols[1]:
-        raise ConfigError(f"{key}: expected [first, last] with first <= last, got {value!r}")
-    return (sols[0], sols[1])
-
-
-def _products(data: Any, base: Path) -> ProductsSpec | None:
-    key = "fetch.products"
-    known = {"mission", "archive", "volumes", "index", "bundle", "collection", "label_path",
-             "sols", "instruments", "product_types", "sites", "drives", "thumbnails"}  # fmt: skip
-    d = _mapping(data, key, known)
-    if not d:
-        return None
-    mission = d.get("mission")
-    if mission not in MISSIONS:
-        raise ConfigError(f"{key}.mission: expected one of {list(MISSIONS)}, got {mission!r}")
     filters = ProductFilter(
-        sols=_sols(d.get("sols"), f"{key}.sols"),
-        instruments=tuple(s.upper() for s in _strs(d.get("instruments"), f"{key}.instruments")),
-        product_types=tuple(
-            s.upper() for s in _strs(d.get("product_types"), f"{key}.product_types")
-        ),
-        sites=_ints(d.get("sites"), f"{key}.sites"),
-        drives=_ints(d.get("drives"), f"{key}.drives"),
-        thumbnails=_bool(d.get("thumbnails", False), f"{key}.thumbnails"),
+        sols=p.sols,
+        instruments=p.instruments,
+        product_types=p.product_types,
+        sites=p.sites,
+        drives=p.drives,
+        thumbnails=p.thumbnails,
     )
-    spec = ProductsSpec(
-        mission=mission,
-        archive=_root(d.get("archive"), f"{key}.archive", base),
-        volumes=_strs(d.get("volumes"), f"{key}.volumes"),
-        index=str(d.get("index", "RDRINDEX")).upper(),
-        bundle=d.get("bundle"),
-        collection=str(d.get("collection", ProductsSpec.collection)),
-        label_path=str(d.get("label_path", ProductsSpec.label_path)),
+    return ProductsSpec(
+        mission=p.mission,
+        archive=p.archive,
+        volumes=p.volumes,
+        index=p.index,
+        bundle=p.bundle,
+        collection=p.collection,
+        label_path=p.label_path,
         filters=filters,
     )
-    if mission == "msl" and not spec.volumes and filters.sols is None:
-        raise ConfigError(
-            f"{key}.volumes: required for msl without sols (PDS3 volumes, e.g. MSLMST_0014; "
-            "with sols they come from the volume sol-range table)"
-        )
-    if mission == "msl" and spec.index not in INDEXES:
-        raise ConfigError(f"{key}.index: expected one of {list(INDEXES)}, got {spec.index!r}")
-    if mission == "m2020" and not isinstance(spec.bundle, str):
-        raise ConfigError(f"{key}.bundle: required for m2020 (the PDS4 bundle folder)")
-    return spec
 
 
-def _number(d: dict[str, Any], name: str, key: str, default: float) -> float:
-    """A non-negative number; ``default`` when the key is absent or null."""
-    value = _optional_number(d, name, key)
-    return default if value is None else value
-
-
-def _optional_number(d: dict[str, Any], name: str, key: str) -> float | None:
-    """A non-negative number, None when the key is absent or null; else ConfigError."""
-    value = d.get(name)
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:
-        raise ConfigError(f"{key}.{name}: expected a non-negative number, got {value!r}")
-    return float(value)
-
-
-def _orbital(data: Any, base: Path) -> OrbitalSpec:
-    key = "fetch.orbital"
-    o = _mapping(data, key, {"dem", "ortho", "margin_m", "max_cells"})
-    rasters = {}
-    for name in ("dem", "ortho"):
-        value = o.get(name)
-        if value is not None and (not isinstance(value, str) or not value):
-            raise ConfigError(f"{key}.{name}: expected a URL or path, got {value!r}")
-        if isinstance(value, str) and not value.startswith(("http://", "https://", "/vsi")):
-            value = str((base / value).resolve())
-        rasters[name] = value
-    max_cells = o.get("max_cells", MAX_CELLS)
-    if isinstance(max_cells, bool) or not isinstance(max_cells, int) or max_cells < 1:
-        raise ConfigError(f"{key}.max_cells: expected a positive integer, got {max_cells!r}")
-    margin = _optional_number(o, "margin_m", key)
-    if margin is None:
-        margin = OrbitalSpec.margin_m
-    return OrbitalSpec(rasters["dem"], rasters["ortho"], margin, max_cells)
-
-
-def parse_fetch(data: Any, base: Path, radius_m: float, chip_size_m: float = 256.0) -> FetchConfig:
+def parse_fetch(
+    data: Any,
+    base: Path,
+    radius_m: float,
+    chip_size_m: float = 256.0,
+    *,
+    line: tuple[int, int] | None = None,
+) -> FetchConfig:
     """Validate a ``fetch:`` mapping (relative paths against ``base``)."""
-    known = {"cache", "retries", "backoff_s", "timeout_s", "workers", "products", "places",
-             "orbital"}  # fmt: skip
-    d = _mapping(data, "fetch", known)
-    if not d:
-        raise ConfigError("fetch: the config has no fetch section")
-    cache = d.get("cache")
-    if not isinstance(cache, str) or not cache:
-        raise ConfigError(f"fetch.cache: expected a folder, got {cache!r}")
-    retries = d.get("retries", 4)
-    workers = d.get("workers", 4)
-    for name, value in (("retries", retries), ("workers", workers)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < (name == "workers"):
-            raise ConfigError(f"fetch.{name}: expected a non-negative integer, got {value!r}")
-    policy = FetchPolicy(
-        retries=retries,
-        backoff_s=_number(d, "backoff_s", "fetch", 0.5),
-        read_timeout_s=_number(d, "timeout_s", "fetch", 60.0),
-        workers=workers,
-    )
-    places = None
-    if d.get("places") is not None:
-        p = _mapping(d["places"], "fetch.places", {"archive", "path"})
-        if not isinstance(p.get("path"), str):
-            raise ConfigError(f"fetch.places.path: expected a path, got {p.get('path')!r}")
-        places = RemoteSpec(_root(p.get("archive"), "fetch.places.archive", base), p["path"])
-    orbital = _orbital(d["orbital"], base) if d.get("orbital") is not None else None
+    if data is None or data == {}:
+        raise ConfigError("fetch: the config has no fetch section", line=line)
+    d = read_section(FetchSection, data, "fetch", base, line=line)
     return FetchConfig(
-        cache=(base / Path(cache).expanduser()).resolve(),
-        policy=policy,
-        products=_products(d.get("products"), base),
-        places=places,
-        orbital=orbital,
+        cache=d.cache,
+        policy=FetchPolicy(
+            retries=d.retries, backoff_s=d.backoff_s, read_timeout_s=d.timeout_s, workers=d.workers
+        ),
+        products=_products(d.products),
+        places=d.places,
+        orbital=d.orbital,
         radius_m=radius_m,
         chip_size_m=chip_size_m,
     )
 
 
 def load_fetch_config(path: str | Path) -> FetchConfig:
-    """Read the ``fetch:`` section of a YAML build config."""
+    """Read the ``fetch:`` section of a YAML build config, with the build's
+    ``geometry.radius`` and ``chips.size_m`` (the windows' reach, checked as the build does)."""
     path = Path(path)
     data = read_yaml(path)  # ConfigError naming the file: unreadable, bad YAML, duplicate keys
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a mapping at the top level")
     try:
-        radius = _section_number(data, "geometry", "radius", 2000.0)
-        chip = _section_number(data, "chips", "size_m", 256.0)
-        return parse_fetch(data.get("fetch"), path.resolve().parent, radius, chip)
+        geometry = _only(data, "geometry", "radius", GeometryConfig)
+        chips = _only(data, "chips", "size_m", ChipsConfig)
+        return parse_fetch(
+            data.get("fetch"),
+            path.resolve().parent,
+            geometry.radius,
+            chips.size_m,
+            line=line_of(data, "fetch"),
+        )
     except ConfigError as exc:
-        raise ConfigError(f"{path}: {exc}") from None
+        raise in_file(path, exc) from None
 
 
-def _section_number(data: dict[str, Any], section: str, key: str, default: float) -> float:
-    """``data[section][key]`` as a positive number (metres), ``default`` when absent;
-    ConfigError naming ``section.key`` otherwise (the build config checks it fully)."""
-    block = data.get(section) or {}
-    if not isinstance(block, dict):
-        raise ConfigError(f"{section}: expected a mapping, got {type(block).__name__}")
-    value = block.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
-        raise ConfigError(f"{section}.{key}: expected a positive number, got {value!r}")
-    return float(value)
+def _only(data: dict[Any, Any], section: str, key: str, cls: type[Any]) -> Any:
+    """The build section ``cls`` read from ``data[section]``'s ``key`` alone (the build reads
+    the whole section: its other keys are the build's to check)."""
+    block = data.get(section)
+    if isinstance(block, dict):
+        block = subset(block, (key,))
+    return read_section(cls, block, section, line=line_of(data, section))

@@ -1,7 +1,10 @@
-"""Build configuration: a YAML file validated into typed dataclasses before any work starts.
+"""Build configuration: a YAML file validated into typed sections before any work starts.
 
-Relative paths in a config are resolved against the config file's folder. Every error names
-the key (``geometry.radius``) and what was expected.
+Each section is a schema class (``config_schema``): every key's type, choices, bounds,
+default and documentation are written once, in its field; ``docs/reference/config.md`` is
+generated from them (``scripts/config_reference.py``). Relative paths in a config are
+resolved against the config file's folder. Every error is one line naming the key
+(``geometry.radius``), what was expected and, from ``load_config``, the file, line and column.
 """
 
 from __future__ import annotations
@@ -10,12 +13,28 @@ import os
 from collections.abc import Hashable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
 import yaml
+from pydantic import AfterValidator, BeforeValidator, Field, PlainValidator, ValidationInfo
+from pydantic import dataclasses as schema
+from pydantic.functional_validators import model_validator
 
 from mars_pairs.errors import ConfigError
-from mars_pairs.pipeline.config_section import Section, file_kind, shown
+from mars_pairs.pipeline.config_schema import (
+    MAX_TEXT,
+    SCHEMA,
+    Expected,
+    Flag,
+    Integer,
+    KeyProblem,
+    Number,
+    YamlMapping,
+    base_of,
+    read_section,
+    shown,
+)
+from mars_pairs.pipeline.config_section import file_kind, regular_problem
 from mars_pairs.store.members import DENSE_MEMBERS
 
 VIEWSHED_MODES = ("wedge", "raycast", "both")
@@ -36,99 +55,357 @@ MAX_OBSERVER_HEIGHT_M = 10_000.0
 MAX_CHIP_SIZE_M = 200_000.0
 MAX_CHIP_SIZE_PX = 8192  # 8192^2 float32 cells: 256 MB per chip
 MAX_BLOCK_M = 10_000_000.0  # ~ Mars' circumference / 2
+MAX_STRIDE_PX = 100_000
+MAX_INT = 2**31 - 1
 DEFAULT_MIN_COVERAGE = 0.5  # chips.min_coverage: a chip at least half on data
+#: A synthetic mission's stops and images per stop: each image is rendered in memory and
+#: written with its label, so these bound the generator's time and memory (the demo: 90 x 3).
+MAX_SYNTHETIC_STOPS = 10_000
+MAX_SYNTHETIC_IMAGES_PER_STOP = 64
+#: An SPDX licence id or expression ("CC-BY-4.0", "MIT OR Apache-2.0"), in characters.
+MAX_LICENSE_CHARS = 200
 
 
-@dataclass(frozen=True)
+# --- value types of paths and names (the rest are config_schema's) ------------------------------
+
+
+def _path(value: Any, info: ValidationInfo, *, folder: bool, exists: bool = False) -> Path:
+    """A local path, relative to the config's folder, resolved; refused if it names a FIFO, a
+    socket or a device (``regular_problem``) or, with ``exists``, nothing. A ``Path`` is
+    taken as resolved already."""
+    if isinstance(value, Path):
+        return value
+    if not isinstance(value, str) or not value.strip() or len(value) > MAX_TEXT:
+        raise KeyProblem(f"expected a path, got {shown(value)}")
+    base = base_of(info) or Path.cwd()
+    try:
+        resolved = (base / Path(value).expanduser()).resolve()
+    except (OSError, RuntimeError) as exc:  # a symlink loop (RuntimeError before 3.13)
+        raise KeyProblem(f"{value}: cannot resolve the path ({exc})") from None
+    problem = regular_problem(resolved, folder=folder)
+    if problem is not None:
+        raise KeyProblem(problem)
+    if exists and not resolved.exists():
+        raise KeyProblem(f"{resolved}: no such {'folder' if folder else 'file'}")
+    return resolved
+
+
+def _file(value: Any, info: ValidationInfo) -> Path:
+    return _path(value, info, folder=False)
+
+
+def _folder(value: Any, info: ValidationInfo) -> Path:
+    return _path(value, info, folder=True)
+
+
+def _existing_folder(value: Any, info: ValidationInfo) -> Path:
+    return _path(value, info, folder=True, exists=True)
+
+
+def _raster(value: Any, info: ValidationInfo) -> Path | str:
+    """A raster: a local path, or a URL read window by window (``/vsicurl/``, ``/vsis3/``)."""
+    from mars_pairs.raster.vsi import gdal_path, is_remote, use_remote_defaults
+
+    if isinstance(value, str) and is_remote(value):
+        use_remote_defaults()
+        return gdal_path(value)
+    return _path(value, info, folder=False)
+
+
+def _output_dir(value: Any, info: ValidationInfo) -> Path | str:
+    """An fsspec URL (``s3://bucket/prefix``, its trailing ``/`` removed) or a local folder."""
+    from mars_pairs.store.fs import dataset_root, is_url
+
+    if is_url(value):
+        root = dataset_root(value)
+        assert isinstance(root, str)
+        return root
+    return _path(value, info, folder=True)
+
+
+def _walks_everything(pattern: str) -> bool:
+    """True for a recursive glob (``**``) rooted at the file system's root (``/**/*.xml``):
+    listing it would walk every mounted file system."""
+    if "**" not in pattern:
+        return False
+    fixed = []
+    for part in Path(os.path.normpath(pattern)).parts:
+        if any(c in part for c in "*?["):
+            break
+        fixed.append(part)
+    return len(fixed) <= 1
+
+
+def _labels(value: Any, info: ValidationInfo) -> tuple[str, ...]:
+    """Glob patterns, absolute (relative ones against the config's folder)."""
+    items = [value] if isinstance(value, str) else value
+    ok = isinstance(items, (list, tuple)) and len(items) > 0
+    ok = ok and all(isinstance(p, str) and p.strip() and len(p) <= MAX_TEXT for p in items)
+    if not ok:
+        raise KeyProblem(f"expected a glob or a list of globs, got {shown(value)}")
+    base = base_of(info) or Path.cwd()
+    patterns = tuple(str(base / Path(p).expanduser()) for p in items)
+    for given, pattern in zip(items, patterns, strict=True):
+        if _walks_everything(pattern):
+            raise KeyProblem(
+                f"{given!r} would walk the whole file system (a '**' from {os.sep}); "
+                "start it at the labels' folder"
+            )
+    return patterns
+
+
+def _members(value: Any) -> tuple[str, ...]:
+    """``output.members``: a list of optional member names, or "all" (in the list or alone),
+    in ``DENSE_MEMBERS`` order."""
+    items = [value] if isinstance(value, str) else value
+    if not isinstance(items, (list, tuple)) or not all(isinstance(v, str) for v in items):
+        raise KeyProblem(f"expected a list of member names, got {shown(value)}")
+    unknown = [v for v in items if v != "all" and v not in DENSE_MEMBERS]
+    if unknown:
+        raise KeyProblem(
+            f"unknown member {shown(unknown[0])}; expected some of {list(DENSE_MEMBERS)} or 'all'"
+        )
+    if "all" in items:
+        return DENSE_MEMBERS
+    return tuple(m for m in DENSE_MEMBERS if m in items)
+
+
+LocalFile = Annotated[Path, PlainValidator(_file), Expected("a path (relative: to the config)")]
+LocalFolder = Annotated[
+    Path, PlainValidator(_folder), Expected("a folder (relative: to the config)")
+]
+Raster = Annotated[
+    Path | str,
+    PlainValidator(_raster),
+    Expected("a path (relative: to the config) or an http(s):// or s3:// URL"),
+]
+Fraction = Annotated[Number, Field(ge=0.0, le=1.0)]
+Box = tuple[Number, Number, Number, Number]
+
+
+# --- the sections -------------------------------------------------------------------------------
+
+
+@schema.dataclass(frozen=True, config=SCHEMA)
 class SyntheticSpec:
-    """Generate the synthetic mission into ``root`` when its files are absent (demo)."""
+    """Generate the synthetic mission into ``root`` when its files are absent (the demo)."""
 
-    root: Path
-    mission: str = "m2020"
-    seed: int = 0
-    stops: int = 6
-    images_per_stop: int = 4
-    size: str = "small"
+    root: Annotated[Path, PlainValidator(_folder), Expected("a folder (relative: to the config)")]
+    """The mission's folder: labels/, images/, places/ and orbital/ are written under it."""
+    mission: Literal["m2020", "msl"] = "m2020"
+    """Which rover's labels to write: m2020 (PDS4, Mastcam-Z/Navcam) or msl (PDS3, Mastcam)."""
+    seed: Annotated[Integer, Field(ge=0, le=MAX_INT)] = 0
+    """Random seed of the terrain, the traverse and the pointing."""
+    stops: Annotated[Integer, Field(ge=1, le=MAX_SYNTHETIC_STOPS)] = 6
+    """Rover stops along the traverse."""
+    images_per_stop: Annotated[Integer, Field(ge=1, le=MAX_SYNTHETIC_IMAGES_PER_STOP)] = 4
+    """Images taken at each stop."""
+    size: Literal["small", "default", "demo"] = "small"
+    """Raster and image sizes: small (tests), default, demo (a 3 km DEM, 0.5 m ortho)."""
 
 
-@dataclass(frozen=True)
+@schema.dataclass(frozen=True, config=SCHEMA)
 class InputsConfig:
     """Where the labels, images, PLACES table and orbital rasters are."""
 
-    labels: tuple[str, ...]  # glob patterns (absolute after loading)
-    places: Path
-    dem: Path | str  # a local path, or a GDAL path to a remote raster ("/vsicurl/https://...")
-    ortho: Path | str
-    images: Path | None = None  # a folder to look for images in, besides the label's folder
+    labels: Annotated[
+        tuple[str, ...], PlainValidator(_labels), Expected("a glob or a list of globs")
+    ]
+    """PDS3 (.LBL) or PDS4 (.xml) labels: glob patterns (``**`` recurses), relative to the
+    config's folder; a recursive glob from the file system's root is refused."""
+    places: LocalFile
+    """The PLACES localizations table (CSV; ``.csv.gz`` too) giving each site/drive's position."""
+    dem: Raster
+    """The orbital DEM (metres above the datum, a projected CRS): a local file or a URL."""
+    ortho: Raster
+    """The orbital orthoimage, in the DEM's CRS: a local file or a URL."""
+    images: (
+        Annotated[
+            Path,
+            PlainValidator(_existing_folder),
+            Expected("an existing folder (relative: to the config)"),
+        ]
+        | None
+    ) = None
+    """A folder to look for images in, besides each label's own folder (null: none)."""
     synthetic: SyntheticSpec | None = None
+    """Generate a synthetic mission before the build (the demo); null: none."""
 
 
-@dataclass(frozen=True)
+@schema.dataclass(frozen=True, config=SCHEMA)
 class GeometryConfig:
     """Observer, viewshed and ray casting parameters (metres, degrees)."""
 
-    observer_height: float | None = None  # above the terrain; None: the camera centre's height
-    radius: float = 2000.0  # metres
-    viewshed: str = "both"  # wedge | raycast | both
-    view_mask: str = "frustum"  # frustum (what the image saw) | band (the study's az/el band)
-    ray_stride: int = 8  # pixels
+    observer_height: Annotated[Number, Field(gt=0.0, le=MAX_OBSERVER_HEIGHT_M)] | None = None
+    """The observer's height above the terrain (metres); null: the camera centre's height
+    from the label."""
+    radius: Annotated[Number, Field(gt=0.0, le=MAX_RADIUS_M)] = 2000.0
+    """Viewshed radius around the rover (metres)."""
+    viewshed: Literal["wedge", "raycast", "both"] = "both"
+    """Which viewshed to compute: the terrain wedge, the image's rays, or both."""
+    view_mask: Literal["frustum", "band"] = "frustum"
+    """frustum: the cells visible from the camera centre whose terrain point projects inside
+    the image; band: the visible cells inside the image's azimuth/elevation band."""
+    ray_stride: Annotated[Integer, Field(ge=1, le=MAX_STRIDE_PX)] = 8
+    """Image pixels between cast rays (both axes)."""
 
 
-@dataclass(frozen=True)
+@schema.dataclass(frozen=True, config=SCHEMA)
 class ChipsConfig:
-    """Orbital chips: a square of ``size_m`` metres sampled at ``size_px`` pixels.
+    """Orbital chips: a square of ``size_m`` metres sampled at ``size_px`` pixels."""
 
-    ``min_coverage``: the least fraction (0..1) of an ortho or DEM chip's pixels with data;
-    a sample below it (or with none at all) is a failure row (CoverageError).
-    """
+    size_m: Annotated[Number, Field(gt=0.0, le=MAX_CHIP_SIZE_M)] = 256.0
+    """A chip's side on the ground (metres)."""
+    size_px: Annotated[Integer, Field(ge=8, le=MAX_CHIP_SIZE_PX)] = 512
+    """A chip's side in pixels."""
+    orientation: Literal["north-up", "heading-up"] = "north-up"
+    """north-up, or heading-up (the camera azimuth points up)."""
+    min_coverage: Fraction = DEFAULT_MIN_COVERAGE
+    """The least fraction of an ortho or DEM chip's pixels with data; a sample below it (or
+    with none at all) is a failure row (CoverageError)."""
+    offset_m: Annotated[Number, Field(ge=0.0, le=MAX_CHIP_SIZE_M)] | None = None
+    """The largest chip-centre shift from the rover, per axis (metres); null: none."""
 
-    size_m: float = 256.0
-    size_px: int = 512
-    orientation: str = "north-up"  # or heading-up (the camera azimuth points up)
-    min_coverage: float = DEFAULT_MIN_COVERAGE
-    offset_m: float | None = None  # largest chip-centre shift from the rover (per axis, metres)
 
-
-@dataclass(frozen=True)
+@schema.dataclass(frozen=True, config=SCHEMA)
 class OutputConfig:
-    """Dataset folder, samples per shard and the encoding of decoded (IMG) ground images.
+    """The dataset folder, samples per shard, and what the samples hold."""
 
-    ``license``: the SPDX id the dataset card and croissant.json give (None: CC0-1.0 for
-    NASA PDS data, public domain; the project's MIT for the synthetic mission).
-    ``keep_parts``: keep ``parts/`` (the chunk parts and build stamp) after a finished build,
-    so that deleting a chunk's part and resuming redoes that chunk alone."""
+    dir: Annotated[
+        Path | str,
+        PlainValidator(_output_dir),
+        Expected("a folder (relative: to the config) or an s3:// (fsspec) URL"),
+    ]
+    """The dataset folder: a local folder, or an fsspec URL (``s3://bucket/prefix``)."""
+    shard_size: Annotated[Integer, Field(ge=1, le=MAX_INT)] = 64
+    """Samples per tar shard."""
+    image_encoding: Literal["png", "jpg"] = "png"
+    """The encoding of decoded (IMG) ground images; JPEG/PNG images are kept as they are."""
+    license: (
+        Annotated[
+            str,
+            Field(min_length=1, max_length=MAX_LICENSE_CHARS, pattern=r"\S", strict=True),
+            Expected(f"an SPDX licence id of at most {MAX_LICENSE_CHARS} characters"),
+        ]
+        | None
+    ) = None
+    """The SPDX id the dataset card and croissant.json give; null: CC0-1.0 for NASA PDS data
+    (public domain), MIT (the project's) for the synthetic mission."""
+    keep_parts: Flag = False
+    """Keep ``parts/`` (the chunk parts and the build stamp) after a finished build, so that
+    deleting a chunk's part and resuming redoes that chunk alone."""
+    members: Annotated[
+        tuple[str, ...],
+        PlainValidator(_members),
+        Expected(f"a list of some of {list(DENSE_MEMBERS)}, or 'all'"),
+    ] = ()
+    """Optional dense members each sample also holds."""
+    dense_stride: Annotated[Integer, Field(ge=1, le=MAX_STRIDE_PX)] | None = None
+    """Image pixels between the dense members' grid points; null: ``geometry.ray_stride``."""
 
-    dir: Path | str  # a local folder, or an fsspec URL ("s3://bucket/prefix": store.fs)
-    shard_size: int = 64
-    image_encoding: str = "png"
-    license: str | None = None
-    keep_parts: bool = False
-    members: tuple[str, ...] = ()  # optional dense members (store.members.DENSE_MEMBERS)
-    dense_stride: int | None = None  # pixels of the dense grid (None: geometry.ray_stride)
+
+def _ratios(value: dict[str, float]) -> dict[str, float]:
+    if not value or abs(sum(value.values()) - 1.0) > 1e-6:
+        raise KeyProblem(
+            f"expected a mapping of split name to a fraction, summing to 1, got {shown(value)}"
+        )
+    if "buffer" in value:
+        raise KeyProblem("'buffer' is reserved for the samples in the buffer")
+    return value
 
 
-@dataclass(frozen=True)
+def _one_box(value: Any) -> Any:
+    """``{test: [x0, y0, x1, y1]}`` is ``{test: [[x0, y0, x1, y1]]}``."""
+    if isinstance(value, dict):
+        return {
+            k: [v] if isinstance(v, list) and v and not isinstance(v[0], list) else v
+            for k, v in value.items()
+        }
+    return value
+
+
+Areas = dict[str, tuple[Box, ...]]
+
+
+def _areas(value: Areas) -> Areas:
+    for name, boxes in value.items():
+        if name in ("train", "buffer"):
+            raise KeyProblem(f"expected a held-out split name (not {name!r})", name)
+        if not boxes or not all(b[0] < b[2] and b[1] < b[3] for b in boxes):
+            raise KeyProblem(
+                "expected a list of map boxes [xmin, ymin, xmax, ymax] with xmin < xmax and "
+                f"ymin < ymax, got {shown([list(b) for b in boxes])}",
+                name,
+            )
+    names = list(value)
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            for p in value[a]:
+                for q in value[b]:
+                    if p[0] < q[2] and q[0] < p[2] and p[1] < q[3] and q[1] < p[3]:
+                        raise KeyProblem(f"{a} box {list(p)} overlaps {b} {list(q)}")
+    return value
+
+
+@schema.dataclass(frozen=True, config=SCHEMA)
 class SplitsConfig:
     """Leak-free spatial splits (map units of the dataset CRS; see ``store/splits.py``).
 
-    ``style`` same-area: blocks of ``block_m`` go whole into a split drawn by ``ratios``;
-    cross-area: the ``areas`` (split -> map boxes xmin, ymin, xmax, ymax) are held out and
-    everything else is train. ``guard``: what must not intersect across splits, the chips
-    (``chip``) or the chips and footprints (``footprint``). ``buffer_m``: the gap kept
-    between held-out regions and other splits' extents (None: the guard's reach, at least the
-    chip size); samples in it become split ``buffer`` or are dropped (``buffer_policy``).
-    """
+    same-area: blocks of ``block_m`` go whole into a split drawn by ``ratios``; cross-area:
+    the ``areas`` are held out and everything else is train. Samples in the buffer between
+    held-out regions and the other splits become split ``buffer`` or are dropped."""
 
-    style: str = "same-area"
-    block_m: float = 10000.0
-    ratios: dict[str, float] = field(
-        default_factory=lambda: {"train": 0.8, "val": 0.1, "test": 0.1}
-    )
-    seed: int = 0
-    areas: dict[str, tuple[tuple[float, float, float, float], ...]] = field(default_factory=dict)
-    guard: str = "footprint"
-    buffer_m: float | None = None
-    buffer_policy: str = "split"
+    style: Literal["same-area", "cross-area"] = "same-area"
+    """same-area (blocks drawn by ratios) or cross-area (held-out areas)."""
+    block_m: Annotated[Number, Field(gt=0.0, le=MAX_BLOCK_M)] = 10000.0
+    """same-area: the side of the square blocks (map units)."""
+    ratios: Annotated[
+        dict[Annotated[str, Field(strict=True)], Annotated[Number, Field(ge=0.0)]],
+        AfterValidator(_ratios),
+        Expected("a mapping of split name to a fraction >= 0, the fractions summing to 1"),
+    ] = field(default_factory=lambda: {"train": 0.8, "val": 0.1, "test": 0.1})
+    """same-area: split name -> the fraction of blocks drawn into it (summing to 1)."""
+    seed: Annotated[Integer, Field(ge=0, le=MAX_INT)] = 0
+    """same-area: the seed of the blocks' draw."""
+    areas: Annotated[
+        dict[Annotated[str, Field(strict=True)], tuple[Box, ...]],
+        BeforeValidator(_one_box),
+        AfterValidator(_areas),
+        Expected(
+            "a mapping of held-out split name to a list of map boxes [xmin, ymin, xmax, ymax]"
+        ),
+    ] = field(default_factory=dict)
+    """cross-area: held-out split name -> map boxes [xmin, ymin, xmax, ymax] (dataset CRS);
+    the boxes of different splits may not overlap."""
+    guard: Literal["chip", "footprint"] = "footprint"
+    """What must not intersect across splits: the chips (chip), or the chips and the images'
+    footprints (footprint)."""
+    buffer_m: Annotated[Number, Field(ge=0.0, le=MAX_BLOCK_M)] | None = None
+    """The gap kept between held-out regions and the other splits (map units); null: the
+    guard's reach, at least the chip size."""
+    buffer_policy: Literal["split", "drop"] = "split"
+    """split: samples in the buffer get split ``buffer``; drop: they are left out."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _style_keys(cls, data: Any) -> Any:
+        """Keys of one style given with the other are refused; cross-area needs areas."""
+        if not isinstance(data, dict):
+            return data
+        style = data.get("style", "same-area")
+        if not isinstance(style, str):
+            return data  # refused as a choice
+        unused = {"same-area": ("areas",), "cross-area": ("block_m", "ratios")}.get(style, ())
+        for key in unused:
+            if data.get(key) is not None:
+                raise KeyProblem(f"not used with splits.style {style!r}", key)
+        if style == "cross-area" and not data.get("areas"):
+            raise KeyProblem(
+                "expected a mapping of held-out split name to a list of map boxes "
+                f"[xmin, ymin, xmax, ymax] (style cross-area), got {shown(data.get('areas'))}",
+                "areas",
+            )
+        return data
 
 
 @dataclass(frozen=True)
@@ -169,216 +446,38 @@ _OPT_IN_KEYS: tuple[tuple[str, str, object], ...] = (
     ("output", "dense_stride", None),
 )
 
-
-def _inputs(data: Any, base: Path) -> InputsConfig:
-    known = {"labels", "places", "dem", "ortho", "images", "synthetic"}
-    sec = Section(data, "inputs", known)
-    labels = sec.raw("labels")
-    if isinstance(labels, str):
-        labels = [labels]
-    if not isinstance(labels, list) or not labels or not all(isinstance(x, str) for x in labels):
-        raise ConfigError(f"inputs.labels: expected a glob or a list of globs, got {labels!r}")
-    synthetic = None
-    if sec.raw("synthetic", None) is not None:
-        syn = Section(
-            sec.raw("synthetic"),
-            "inputs.synthetic",
-            {"root", "mission", "seed", "stops", "images_per_stop", "size"},
-        )
-        synthetic = SyntheticSpec(
-            root=syn.path("root", base),
-            mission=syn.choice("mission", ("m2020", "msl"), "m2020"),
-            seed=syn.integer("seed", 0, minimum=0),
-            stops=syn.integer("stops", 6),
-            images_per_stop=syn.integer("images_per_stop", 4),
-            size=syn.choice("size", ("small", "default", "demo"), "small"),
-        )
-    return InputsConfig(
-        labels=tuple(str(base / Path(p).expanduser()) for p in labels),
-        places=sec.path("places", base, folder=False),
-        dem=sec.raster("dem", base),
-        ortho=sec.raster("ortho", base),
-        images=sec.path("images", base, None),
-        synthetic=synthetic,
-    )
-
-
-def _splits(data: Any) -> SplitsConfig:
-    known = {"style", "block_m", "ratios", "seed", "areas", "guard", "buffer_m", "buffer_policy"}
-    sec = Section(data, "splits", known)
-    style = sec.choice("style", SPLIT_STYLES, "same-area")
-    only = {"same-area": ("areas",), "cross-area": ("block_m", "ratios")}[style]
-    for key in only:
-        if sec.raw(key, None) is not None:
-            raise ConfigError(f"splits.{key}: not used with splits.style {style!r}")
-    ratios = sec.raw("ratios", {"train": 0.8, "val": 0.1, "test": 0.1})
-    ok = (
-        isinstance(ratios, dict)
-        and ratios
-        and all(
-            isinstance(k, str)
-            and isinstance(v, (int, float))
-            and not isinstance(v, bool)
-            and v >= 0
-            for k, v in ratios.items()
-        )
-    )
-    if not ok or abs(sum(ratios.values()) - 1.0) > 1e-6:
-        raise ConfigError(
-            f"splits.ratios: expected a mapping of split name to a fraction, summing to 1, "
-            f"got {ratios!r}"
-        )
-    areas = _areas(sec.raw("areas", None)) if style == "cross-area" else {}
-    for name in (*ratios, *areas):
-        if name == "buffer":
-            raise ConfigError("splits: 'buffer' is reserved for the samples in the buffer")
-    buffer_m = sec.number("buffer_m", None, positive=False)
-    if buffer_m is not None and buffer_m < 0:
-        raise ConfigError(f"splits.buffer_m: expected a distance >= 0, got {buffer_m!r}")
-    return SplitsConfig(
-        style=style,
-        block_m=sec.number("block_m", 10000.0, maximum=MAX_BLOCK_M),
-        ratios={str(k): float(v) for k, v in ratios.items()},
-        seed=sec.integer("seed", 0, minimum=0),
-        areas=areas,
-        guard=sec.choice("guard", SPLIT_GUARDS, "footprint"),
-        buffer_m=buffer_m,
-        buffer_policy=sec.choice("buffer_policy", BUFFER_POLICIES, "split"),
-    )
-
-
-def _members(value: Any) -> tuple[str, ...]:
-    """``output.members``: a list of optional member names, or "all" (in the list or alone)."""
-    items = [value] if isinstance(value, str) else value
-    if not isinstance(items, list) or not all(isinstance(v, str) for v in items):
-        raise ConfigError(f"output.members: expected a list of member names, got {shown(value)}")
-    unknown = [v for v in items if v != "all" and v not in DENSE_MEMBERS]
-    if unknown:
-        raise ConfigError(
-            f"output.members: unknown member {unknown[0]!r}; expected some of "
-            f"{list(DENSE_MEMBERS)} or 'all'"
-        )
-    if "all" in items:
-        return DENSE_MEMBERS
-    return tuple(m for m in DENSE_MEMBERS if m in items)
-
-
-def _output_dir(out: Section, base: Path) -> Path | str:
-    """``output.dir``: an fsspec URL (``s3://bucket/prefix``, its trailing ``/`` removed) or a
-    local folder relative to ``base``."""
-    from mars_pairs.store.fs import dataset_root, is_url
-
-    value = out.raw("dir")
-    if is_url(value):
-        return dataset_root(value)
-    return out.path("dir", base)
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
-def _areas(data: Any) -> dict[str, tuple[tuple[float, float, float, float], ...]]:
-    """Cross-area held-out areas: split name -> list of map boxes [xmin, ymin, xmax, ymax]."""
-    if not isinstance(data, dict) or not data:
-        raise ConfigError(
-            "splits.areas: expected a mapping of held-out split name to a list of map boxes "
-            f"[xmin, ymin, xmax, ymax] (style cross-area), got {data!r}"
-        )
-    areas: dict[str, tuple[tuple[float, float, float, float], ...]] = {}
-    for name, boxes in data.items():
-        key = f"splits.areas.{name}"
-        if not isinstance(name, str) or name == "train":
-            raise ConfigError(f"{key}: expected a held-out split name (not 'train')")
-        if isinstance(boxes, list) and boxes and not isinstance(boxes[0], list):
-            boxes = [boxes]
-        good = isinstance(boxes, list) and boxes
-        out: list[tuple[float, float, float, float]] = []
-        for box in boxes if good else []:
-            nums = isinstance(box, list) and len(box) == 4
-            nums = nums and all(_is_number(v) for v in box)
-            if not nums or not (box[0] < box[2] and box[1] < box[3]):
-                good = False
-                break
-            xmin, ymin, xmax, ymax = (float(v) for v in box)
-            out.append((xmin, ymin, xmax, ymax))
-        if not good:
-            raise ConfigError(
-                f"{key}: expected a list of map boxes [xmin, ymin, xmax, ymax] with xmin < xmax "
-                f"and ymin < ymax, got {boxes!r}"
-            )
-        areas[name] = tuple(out)
-    names = list(areas)
-    for i, a in enumerate(names):
-        for b in names[i + 1 :]:
-            for p in areas[a]:
-                for q in areas[b]:
-                    if p[0] < q[2] and q[0] < p[2] and p[1] < q[3] and q[1] < p[3]:
-                        raise ConfigError(f"splits.areas: {a} box {list(p)} overlaps {b} {list(q)}")
-    return areas
+#: The build config's sections, in order: (YAML key, schema class, required).
+SECTIONS: tuple[tuple[str, type, bool], ...] = (
+    ("inputs", InputsConfig, True),
+    ("geometry", GeometryConfig, False),
+    ("chips", ChipsConfig, False),
+    ("output", OutputConfig, True),
+    ("splits", SplitsConfig, False),
+)
+#: Top-level keys besides the build's sections: "fetch" is read by ``mars_pairs.fetch.config``.
+OTHER_TOP_KEYS = ("fetch",)
 
 
 def parse_config(data: Any, base: Path, source: Path | None = None) -> BuildConfig:
     """Validate a config mapping (relative paths against ``base``) into a BuildConfig."""
-    # "fetch" is read by mars_pairs.fetch.config (mars-pairs fetch), not by the build
-    top = Section(data, "", {"inputs", "geometry", "chips", "output", "splits", "fetch"})
-    geo = Section(
-        top.raw("geometry", {}),
-        "geometry",
-        {"observer_height", "radius", "viewshed", "view_mask", "ray_stride"},
-    )
-    chips = Section(
-        top.raw("chips", {}),
-        "chips",
-        {"size_m", "size_px", "orientation", "min_coverage", "offset_m"},
-    )
-    min_coverage = chips.number("min_coverage", DEFAULT_MIN_COVERAGE, positive=False, maximum=1.0)
-    if min_coverage < 0.0:
-        raise ConfigError(f"chips.min_coverage: expected a fraction in [0, 1], got {min_coverage}")
-    out = Section(
-        top.raw("output"),
-        "output",
-        {"dir", "shard_size", "image_encoding", "license", "keep_parts", "members", "dense_stride"},
-    )
-    license = out.raw("license", None)
-    if license is not None and (not isinstance(license, str) or not license.strip()):
-        raise ConfigError(f"output.license: expected an SPDX licence id, got {license!r}")
-    keep_parts = out.raw("keep_parts", False)
-    if not isinstance(keep_parts, bool):
-        raise ConfigError(f"output.keep_parts: expected true or false, got {keep_parts!r}")
-    offset_m = chips.number("offset_m", None, positive=False, maximum=MAX_CHIP_SIZE_M)
-    if offset_m is not None and offset_m < 0.0:
-        raise ConfigError(f"chips.offset_m: expected a distance >= 0 (metres), got {offset_m}")
-    return BuildConfig(
-        inputs=_inputs(top.raw("inputs"), base),
-        geometry=GeometryConfig(
-            observer_height=geo.number("observer_height", None, maximum=MAX_OBSERVER_HEIGHT_M),
-            radius=geo.number("radius", 2000.0, maximum=MAX_RADIUS_M),
-            viewshed=geo.choice("viewshed", VIEWSHED_MODES, "both"),
-            view_mask=geo.choice("view_mask", VIEW_MASKS, "frustum"),
-            ray_stride=geo.integer("ray_stride", 8, maximum=100_000),
-        ),
-        chips=ChipsConfig(
-            size_m=chips.number("size_m", 256.0, maximum=MAX_CHIP_SIZE_M),
-            size_px=chips.integer("size_px", 512, minimum=8, maximum=MAX_CHIP_SIZE_PX),
-            orientation=chips.choice("orientation", ORIENTATIONS, "north-up"),
-            min_coverage=min_coverage,
-            offset_m=offset_m,
-        ),
-        output=OutputConfig(
-            dir=_output_dir(out, base),
-            shard_size=out.integer("shard_size", 64),
-            image_encoding=out.choice("image_encoding", IMAGE_ENCODINGS, "png"),
-            license=license,
-            keep_parts=keep_parts,
-            members=_members(out.raw("members", [])),
-            dense_stride=None
-            if out.raw("dense_stride", None) is None
-            else out.integer("dense_stride", maximum=100_000),
-        ),
-        splits=_splits(top.raw("splits", {})),
-        source=source,
-    )
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"expected a mapping at the top level, got {type(data).__name__}")
+    known = [name for name, _, _ in SECTIONS] + list(OTHER_TOP_KEYS)
+    lines = data.lines if isinstance(data, YamlMapping) else {}
+    for key in data:
+        if key not in known:
+            name = key if isinstance(key, str) and len(key) <= 120 else shown(key)
+            raise ConfigError(
+                f"{name}: unknown key (expected one of {sorted(known)})", line=lines.get(key)
+            )
+    read: dict[str, Any] = {}
+    for name, cls, required in SECTIONS:
+        if required and data.get(name) is None:
+            raise ConfigError(f"{name}: required section is missing", line=lines.get(name))
+        read[name] = read_section(cls, data.get(name), name, base, line=lines.get(name))
+    return BuildConfig(**read, source=source)
 
 
 #: A config's YAML may use anchors and aliases, but the document they expand to is bounded:
@@ -415,6 +514,23 @@ class _ConfigLoader(yaml.SafeLoader):
                         "(a key may appear once in a mapping)"
                     )
         return super().construct_mapping(node, deep=deep)
+
+    def construct_marked_mapping(self, node: yaml.MappingNode) -> Any:
+        """A mapping as a ``YamlMapping``: its keys' lines and columns kept, for errors."""
+        data = YamlMapping()
+        data.start = (node.start_mark.line + 1, node.start_mark.column + 1)
+        yield data
+        data.update(self.construct_mapping(node))
+        for key_node, _ in node.value:  # flattened by now: merged keys point at their anchor
+            try:
+                key = self.construct_object(key_node)
+                data.lines.setdefault(key, (key_node.start_mark.line + 1,
+                                            key_node.start_mark.column + 1))  # fmt: skip
+            except TypeError:  # an unhashable key (SafeLoader refused it already)
+                continue
+
+
+_ConfigLoader.add_constructor("tag:yaml.org,2002:map", _ConfigLoader.construct_marked_mapping)
 
 
 def _check_expansion(root: yaml.Node) -> None:
@@ -504,6 +620,13 @@ def read_yaml(path: str | Path) -> Any:
         raise ConfigError(f"{path}: not valid YAML: nested too deeply") from None
 
 
+def in_file(path: Path, exc: ConfigError) -> ConfigError:
+    """``exc`` about the config file ``path``: ``path:LINE:COLUMN: message`` (``path:
+    message`` when the line is not known)."""
+    where = f"{path}:{exc.line[0]}:{exc.line[1]}" if exc.line else str(path)
+    return ConfigError(f"{where}: {exc}", line=exc.line)
+
+
 def load_config(path: str | Path) -> BuildConfig:
     """Read and validate a YAML build config (``read_yaml``)."""
     path = Path(path)
@@ -511,4 +634,4 @@ def load_config(path: str | Path) -> BuildConfig:
     try:
         return parse_config(data, path.resolve().parent, source=path.resolve())
     except ConfigError as exc:
-        raise ConfigError(f"{path}: {exc}") from None
+        raise in_file(path, exc) from None

@@ -44,7 +44,7 @@ def test_non_finite_numbers_are_refused(
 def test_yaml_nan_and_inf_are_refused(tmp_path: Path, text: str) -> None:
     path = tmp_path / "c.yaml"
     path.write_text(yaml.safe_dump(BASE) + f"geometry:\n  radius: {text}\n")
-    with pytest.raises(ConfigError, match=r"c\.yaml: geometry\.radius: expected a finite"):
+    with pytest.raises(ConfigError, match=r"c\.yaml:\d+:3: geometry\.radius: expected a finite"):
         load_config(path)
 
 
@@ -55,7 +55,7 @@ def test_exponent_without_a_dot_is_a_number(tmp_path: Path) -> None:
     config = load_config(path)
     assert (config.geometry.radius, config.chips.size_m) == (1000.0, 200.0)
     path.write_text(yaml.safe_dump(BASE) + "geometry:\n  radius: 1e12\n")
-    with pytest.raises(ConfigError, match=r"geometry\.radius: expected a number <= 200000"):
+    with pytest.raises(ConfigError, match=r"geometry\.radius: expected a number in \(0, 200000\]"):
         load_config(path)
 
 
@@ -63,8 +63,8 @@ def test_exponent_without_a_dot_is_a_number(tmp_path: Path) -> None:
     ("section", "key", "value", "needle"),
     [
         ("chips", "size_px", 100000, r"chips\.size_px: expected an integer in \[8, 8192\]"),
-        ("geometry", "observer_height", 1e9, r"geometry\.observer_height: expected a number <="),
-        ("chips", "size_m", 1e7, r"chips\.size_m: expected a number <="),
+        ("geometry", "observer_height", 1e9, r"geometry\.observer_height: expected a number in"),
+        ("chips", "size_m", 1e7, r"chips\.size_m: expected a number in \(0, 200000\]"),
         ("output", "shard_size", 2**40, r"output\.shard_size: expected an integer in"),
     ],
 )

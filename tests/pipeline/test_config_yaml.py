@@ -14,8 +14,8 @@ import pytest
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ConfigError
 from mars_pairs.fetch.config import load_fetch_config
-from mars_pairs.pipeline.config import load_config, read_yaml
-from mars_pairs.pipeline.config_section import Section
+from mars_pairs.pipeline.config import ChipsConfig, GeometryConfig, load_config, read_yaml
+from mars_pairs.pipeline.config_schema import read_section
 
 BOMB = "a: &a [lol, lol, lol, lol, lol, lol, lol, lol, lol]\n" + "".join(
     f"{n}: &{n} [{', '.join([f'*{p}'] * 9)}]\n" for p, n in zip("abcdefgh", "bcdefghi", strict=True)
@@ -90,10 +90,10 @@ def test_a_yaml_syntax_error_is_one_line_with_line_and_column(
 def test_long_values_are_elided_in_messages() -> None:
     long = [1.5] * 5000
     with pytest.raises(ConfigError) as caught:
-        Section({"radius": long}, "geometry", {"radius"}).number("radius")
+        read_section(GeometryConfig, {"radius": long}, "geometry")
     message = str(caught.value)
-    assert message.startswith("geometry.radius: expected a number, got [1.5, 1.5,")
+    assert message.startswith("geometry.radius: expected a number in (0, 200000], got [1.5, 1.5,")
     assert "..." in message and len(message) < 200
     with pytest.raises(ConfigError, match=r"unknown key") as caught:
-        Section({"x" * 10_000: 1}, "chips", {"size_m"})
+        read_section(ChipsConfig, {"x" * 10_000: 1}, "chips")
     assert len(str(caught.value)) < 300

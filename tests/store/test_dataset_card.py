@@ -93,7 +93,8 @@ def test_license_from_the_config(small_mission: Path, tmp_path: Path) -> None:
     assert "`CC-BY-4.0`" in (out / "README.md").read_text()
     assert json.loads((out / "croissant.json").read_text())["license"] == "CC-BY-4.0"
     with pytest.raises(ConfigError, match=r"output\.license"):
-        parse_config({"inputs": {}, "output": {"dir": "x", "license": 3}}, base=tmp_path)
+        inputs = {"labels": "*.xml", "places": "p.csv", "dem": "d.tif", "ortho": "o.tif"}
+        parse_config({"inputs": inputs, "output": {"dir": "x", "license": 3}}, base=tmp_path)
 
 
 def test_resume_and_rebuild_over_a_finished_build(small_mission: Path, tmp_path: Path) -> None:
