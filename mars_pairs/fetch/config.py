@@ -6,6 +6,7 @@ fetch:
   retries: 4                      # per file, exponential backoff from backoff_s
   backoff_s: 0.5
   timeout_s: 60                   # read timeout (seconds)
+  deadline_s: 900                 # the most one file may take, every attempt included
   workers: 4                      # parallel downloads
   products:
     mission: msl                  # msl (PDS3 volumes) | m2020 (PDS4 bundle)
@@ -272,6 +273,8 @@ class FetchSection:
         FetchPolicy.read_timeout_s
     )
     """The read timeout (seconds)."""
+    deadline_s: Annotated[Number, Field(ge=MIN_TIMEOUT_S, le=7 * 86400.0)] = FetchPolicy.deadline_s
+    """The total time one file may take (seconds), every attempt and wait included."""
     workers: Annotated[Integer, Field(ge=1, le=MAX_WORKERS)] = FetchPolicy.workers
     """Parallel downloads."""
     products: ProductsSection | None = None
@@ -333,7 +336,11 @@ def parse_fetch(
     return FetchConfig(
         cache=d.cache,
         policy=FetchPolicy(
-            retries=d.retries, backoff_s=d.backoff_s, read_timeout_s=d.timeout_s, workers=d.workers
+            retries=d.retries,
+            backoff_s=d.backoff_s,
+            read_timeout_s=d.timeout_s,
+            deadline_s=d.deadline_s,
+            workers=d.workers,
         ),
         products=_products(d.products),
         places=d.places,
