@@ -402,19 +402,21 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("overview", help="all footprints over the orthoimage (needs the viz extra)")
     p.add_argument("dataset", type=local_dataset, help="dataset folder")
-    p.add_argument("--out", default="overview.png", help="PNG path")
+    p.add_argument("--out", help="PNG path (default DATASET-overview.png beside the folder)")
     p.add_argument("--colour-by", choices=("sol", "split"), default="sol")
     p.set_defaults(func=_cmd_overview)
 
     p = sub.add_parser("report", help="one self-contained HTML page of a dataset (viz extra)")
     p.add_argument("dataset", type=local_dataset, help="dataset folder")
-    p.add_argument("--out", help="HTML path (default DATASET/report.html)")
+    p.add_argument("--out", help="HTML path (default DATASET-report.html beside the folder)")
     p.add_argument("--samples", type=count(0), default=12, help="gallery samples (default 12)")
     p.set_defaults(func=_cmd_report)
 
     p = sub.add_parser("export-qgis", help="a GeoPackage of positions, footprints and wedges")
     p.add_argument("dataset", type=local_dataset, help="dataset folder")
-    p.add_argument("out", help="output .gpkg")
+    p.add_argument(
+        "out", nargs="?", help="output .gpkg (default DATASET-qgis.gpkg beside the folder)"
+    )
     p.add_argument("--viewsheds", action="store_true", help="also write viewshed GeoTIFFs")
     p.add_argument(
         "--chips",

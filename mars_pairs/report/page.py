@@ -26,6 +26,7 @@ import pyarrow.parquet as pq
 from mars_pairs.errors import DatasetError, MarsPairsError, UsageError
 from mars_pairs.report.meta import camera_centres
 from mars_pairs.store.atomic import atomic_write_bytes
+from mars_pairs.store.beside import beside, outside
 from mars_pairs.store.dataset_info import build_input, dataset_json_path, read_dataset_doc
 from mars_pairs.store.geoparquet import describe_crs
 from mars_pairs.store.query import Manifest
@@ -39,6 +40,7 @@ COLUMNS = (
 )  # fmt: skip
 MAX_FAILURE_ROWS = 500  # failures listed on the page; the rest are counted
 DEFAULT_SAMPLES = 12
+REPORT_SUFFIX = "report.html"  # the default page: <dataset>-report.html beside the folder
 
 CSS = """
 body{font:14px/1.45 system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:0;
@@ -323,10 +325,11 @@ def report_html(root: str | Path, samples: int = DEFAULT_SAMPLES) -> str:
 def write_report(
     root: str | Path, out: str | Path | None = None, samples: int = DEFAULT_SAMPLES
 ) -> Path:
-    """Write the report page of dataset ``root`` to ``out`` (default ``root/report.html``),
-    atomically; returns its path."""
+    """Write the report page of dataset ``root`` to ``out`` (default ``<root>-report.html``
+    beside the folder: ``store.beside``; a path inside the folder is refused), atomically;
+    returns its path."""
     root = Path(root)
-    path = Path(out) if out is not None else root / "report.html"
+    path = outside(root, out, REPORT_SUFFIX) if out is not None else beside(root, REPORT_SUFFIX)
     page = report_html(root, samples)
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(path, page.encode("utf-8"))

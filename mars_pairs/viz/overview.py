@@ -10,6 +10,7 @@ import numpy as np
 import shapely
 
 from mars_pairs.errors import MarsPairsError
+from mars_pairs.store.beside import beside, outside
 from mars_pairs.store.dataset_info import build_input, read_dataset_doc
 from mars_pairs.store.geoparquet import describe_crs
 from mars_pairs.store.query import Manifest
@@ -33,20 +34,23 @@ from mars_pairs.viz.map import (
     traverse_stops,
 )
 
+OVERVIEW_SUFFIX = "overview.png"  # the default picture: <dataset>-overview.png beside the folder
+
 
 def overview(
     root: str | Path,
-    out: str | Path,
+    out: str | Path | None = None,
     ortho_path: str | Path | None = None,
     colour_by: str = "sol",
     max_px: int = 1400,
     dpi: int = DPI,
 ) -> Path:
     """All footprints over a downsampled ortho with the rover traverse and the held-out areas
-    (:func:`overview_figure`), written to ``out``: a PNG of ``OVERVIEW_SIZE`` inches at
-    ``dpi``."""
+    (:func:`overview_figure`), written to ``out`` (default ``<root>-overview.png`` beside the
+    dataset folder: ``store.beside``; a path inside the folder is refused): a PNG of
+    ``OVERVIEW_SIZE`` inches at ``dpi``."""
     plt = pyplot()
-    out = Path(out)
+    out = beside(root, OVERVIEW_SUFFIX) if out is None else outside(root, out, OVERVIEW_SUFFIX)
     fig = overview_figure(root, ortho_path, colour_by=colour_by, max_px=max_px)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
