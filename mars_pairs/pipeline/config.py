@@ -17,6 +17,7 @@ import yaml
 from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.config_section import Section, file_kind, shown
 from mars_pairs.store.members import DENSE_MEMBERS
+from mars_pairs.store.splits import SPLIT_NAME
 
 VIEWSHED_MODES = ("wedge", "raycast", "both")
 #: View masks: "frustum" (default) = cells visible from the camera centre whose terrain point
@@ -232,6 +233,11 @@ def _splits(data: Any) -> SplitsConfig:
     for name in (*ratios, *areas):
         if name == "buffer":
             raise ConfigError("splits: 'buffer' is reserved for the samples in the buffer")
+        if not SPLIT_NAME.fullmatch(str(name)):
+            raise ConfigError(
+                f"splits: split name {name!r}: expected lowercase letters, digits and '_', "
+                "starting with a letter (it names the split's shards)"
+            )
     buffer_m = sec.number("buffer_m", None, positive=False)
     if buffer_m is not None and buffer_m < 0:
         raise ConfigError(f"splits.buffer_m: expected a distance >= 0, got {buffer_m!r}")

@@ -126,7 +126,7 @@ def _failing(chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
         error = ValueError("not built")
         rows = [worker.failure_row(label, "label", error) for label in task.labels]
         fails = tuple(Outcome("fail", row["path"], row=row) for row in rows)
-        yield ChunkResult(task.index, fails, None, 0, 0.0, "test")
+        yield ChunkResult(task.index, fails, (), 0.0, "test")
 
 
 def test_engines_get_the_chunks_lazily(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
