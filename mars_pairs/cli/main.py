@@ -216,14 +216,14 @@ def _cmd_show(args: argparse.Namespace) -> int:
 def _cmd_overview(args: argparse.Namespace) -> int:
     from mars_pairs.viz import overview
 
-    print(overview(args.dataset, args.out, colour_by=args.colour_by))
+    print(overview(args.dataset, args.out, colour_by=args.colour_by, dpi=args.dpi))
     return 0
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
     from mars_pairs.report import write_report
 
-    print(write_report(args.dataset, args.out, samples=args.samples))
+    print(write_report(args.dataset, args.out, samples=args.samples, dpi=args.dpi))
     return 0
 
 
@@ -404,12 +404,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dataset", type=local_dataset, help="dataset folder")
     p.add_argument("--out", help="PNG path (default DATASET-overview.png beside the folder)")
     p.add_argument("--colour-by", choices=("sol", "split"), default="sol")
+    p.add_argument("--dpi", type=count(20), default=90, help="dots per inch (default 90)")
     p.set_defaults(func=_cmd_overview)
 
     p = sub.add_parser("report", help="one self-contained HTML page of a dataset (viz extra)")
     p.add_argument("dataset", type=local_dataset, help="dataset folder")
     p.add_argument("--out", help="HTML path (default DATASET-report.html beside the folder)")
     p.add_argument("--samples", type=count(0), default=12, help="gallery samples (default 12)")
+    p.add_argument("--dpi", type=count(20), default=90, help="figures' dots per inch (default 90)")
     p.set_defaults(func=_cmd_report)
 
     p = sub.add_parser("export-qgis", help="a GeoPackage of positions, footprints and wedges")
