@@ -174,9 +174,10 @@ def _ensure_synthetic(config: BuildConfig) -> None:
 
 
 def _cmd_inspect(args: argparse.Namespace) -> int:
-    from mars_pairs.cli.summary import inspect_dataset
+    from mars_pairs.cli.summary import format_facts, inspect_facts
 
-    print(inspect_dataset(args.dataset))
+    facts = inspect_facts(args.dataset)
+    print(json.dumps(facts, indent=2) if args.json else format_facts(facts))
     return 0
 
 
@@ -345,6 +346,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("inspect", help="counts, failures and size of a built dataset")
     p.add_argument("dataset", help="dataset folder, or its URL (s3://bucket/prefix)")
+    p.add_argument("--json", action="store_true", help="the facts as JSON")
     p.set_defaults(func=_cmd_inspect)
 
     p = sub.add_parser("verify", help="check every member's tar header, size and checksum")
