@@ -144,9 +144,15 @@ def _ensure_synthetic(config: BuildConfig) -> None:
     # numba compiles the build's kernels once (then loads them from its cache): in a process
     # of its own, on the other core, while the mission is generated; the workers then load it
     print("compiling the build's kernels in the background (first run: ~20 s of CPU) ...")
-    warm = subprocess.Popen(
-        [sys.executable, "-c", "from mars_pairs.kernels.warm import warm_kernels as w; w()"],
-        stdout=subprocess.DEVNULL,
+    warm = subprocess.Popen(  # it prints its own time (s): the compile's, not the mission's
+        [
+            sys.executable,
+            "-c",
+            "import time; t = time.perf_counter(); "
+            "from mars_pairs.kernels.warm import warm_kernels as w; w(); "
+            "print(round(time.perf_counter() - t))",
+        ],
+        stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
     )
@@ -166,11 +172,17 @@ def _ensure_synthetic(config: BuildConfig) -> None:
         warm.wait()
         raise
     print(f"mission generated ({time.perf_counter() - t0:.0f} s)", flush=True)
-    _, err = warm.communicate()
+    t1 = time.perf_counter()
+    own, err = warm.communicate()
+    waited = time.perf_counter() - t1
     if warm.returncode:  # the workers compile what is missing themselves
         print(f"compiling the kernels failed ({err.strip()[-300:]}); the workers will retry")
     else:
-        print(f"kernels compiled ({time.perf_counter() - t0:.0f} s); building ...", flush=True)
+        print(
+            f"kernels compiled ({own.strip() or '?'} s, beside the mission; {waited:.0f} s "
+            "waited after it); building ...",
+            flush=True,
+        )
 
 
 def _cmd_inspect(args: argparse.Namespace) -> int:
