@@ -503,9 +503,8 @@ def _generate_one(out: Path, rng: np.random.Generator, spec: MissionSpec, size: 
             for shot, rgb in zip(shots, images, strict=True):
                 _save_shot(shot, rgb)
                 if bar is None:
-                    say(
-                        f"{spec.name}: first image rendered ({time.perf_counter() - t_render:.1f} s)"
-                    )
+                    first = time.perf_counter() - t_render
+                    say(f"{spec.name}: first image rendered ({first:.1f} s)")
                     bar = render_bar(len(shots), spec.name, disable=log is None)
                 else:
                     bar.update()

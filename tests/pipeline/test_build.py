@@ -403,7 +403,9 @@ def test_inspect_sorts_sols_as_numbers_and_lists_them_as_runs() -> None:
     assert sol_ranges([100, 9, 10, 11, 99, 13, 9]) == [(9, 11), (13, 13), (99, 100)]
     facts = {
         "dataset": "d", "samples": 3, "by_mission": {"m2020": 3}, "by_instrument": {"X": 3},
-        "by_split": {"train": {"samples": 2, "share": 2 / 3}, "val": {"samples": 1, "share": 1 / 3}},
+        "by_split": {
+            "train": {"samples": 2, "share": 2 / 3}, "val": {"samples": 1, "share": 1 / 3},
+        },
         "sols": {"distinct": 3, "first": 9, "last": 100, "ranges": ["9-11", "100"]},
         "view_coverage": {"median": 0.05, "by_instrument": {"X": 0.05}, "missing_the_chip": 1},
         "warnings": [], "size_bytes": 10**6,
