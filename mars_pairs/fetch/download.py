@@ -38,9 +38,11 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
+from typing import Any
 
 import requests
 from requests.adapters import HTTPAdapter
+from urllib3.exceptions import MaxRetryError, NameResolutionError
 from urllib3.util.retry import Retry
 
 from mars_pairs.errors import ContentError, FetchError
@@ -192,7 +194,7 @@ class Downloader:
         s = getattr(self._local, "session", None)
         if s is None:
             p = self.policy
-            retry = Retry(
+            retry = _Retry(
                 total=p.retries,
                 connect=p.retries,
                 read=p.retries,
@@ -279,7 +281,6 @@ class Downloader:
                 known = Validator.read(meta, remote.url)
                 if known is not None and known.size != target.stat().st_size:
                     known = None  # the cached file is not the one the validator describes
-        target.parent.mkdir(parents=True, exist_ok=True)
         part = target.with_name(target.name + ".part")
         for path in (part, sidecar(part), meta):
             if path.is_symlink():
@@ -349,6 +350,10 @@ class Downloader:
         try:
             response = self.session().get(remote.url, headers=headers, stream=True, timeout=timeout)
         except requests.RequestException as exc:  # urllib3 has retried connecting and waiting
+            if _unresolved(exc):  # not retried: offline, or a wrong host name
+                raise FetchError(
+                    remote.url, f"host name not resolved (offline?): {_short(exc)}"
+                ) from None
             raise FetchError(
                 remote.url,
                 f"no answer after {self.policy.retries} retries: {type(exc).__name__}: "
@@ -378,6 +383,7 @@ class Downloader:
                 check_content_type(remote.file_kind, r.headers.get("Content-Type"), remote.url)
             except ContentError as exc:
                 raise _Retryable(exc.reason) from None
+            part.parent.mkdir(parents=True, exist_ok=True)  # when an answer came: none, none
             if r.status_code == 200 or not offset:
                 offset, mode = 0, "wb"  # the server sent the whole file
                 answer = Validator.of(remote.url, r.headers)
@@ -451,6 +457,41 @@ def _content_range(header: str) -> tuple[int | None, int | None]:
     if not m:
         return None, None
     return int(m[1]), None if m[3] == "*" else int(m[3])
+
+
+class _Retry(Retry):
+    """urllib3's Retry, except that a host name that does not resolve is not retried: the
+    answer does not change in the seconds of a backoff (offline, or a wrong host)."""
+
+    def increment(  # type: ignore[override]  # (urllib3's own signature, passed on whole)
+        self,
+        method: str | None = None,
+        url: str | None = None,
+        response: Any = None,
+        error: Exception | None = None,
+        _pool: Any = None,
+        _stacktrace: Any = None,
+    ) -> Retry:
+        if isinstance(error, NameResolutionError):
+            raise MaxRetryError(_pool, url or "", error) from error
+        return super().increment(method, url, response, error, _pool, _stacktrace)
+
+
+def _unresolved(exc: BaseException) -> bool:
+    """Whether a requests error is, at its root, a host name that did not resolve."""
+    seen: BaseException | None = exc
+    for _ in range(8):
+        if seen is None or isinstance(seen, NameResolutionError):
+            return seen is not None
+        nxt = getattr(seen, "reason", None)
+        if (
+            not isinstance(nxt, BaseException)
+            and seen.args
+            and isinstance(seen.args[0], BaseException)
+        ):
+            nxt = seen.args[0]
+        seen = nxt if isinstance(nxt, BaseException) and nxt is not seen else None
+    return False
 
 
 _OBJECT_REPR = re.compile(r"<[\w.]+ object at 0x[0-9a-f]+>: ")
