@@ -48,7 +48,10 @@ def wids_index(root: Path | str, manifest: pa.Table, split: str | None = None) -
     return {
         "__kind__": "wids-shard-index-v1",
         "wids_version": 1,
-        "name": Path(root).name if isinstance(root, Path) else root.rsplit("/", 1)[-1],
+        # a split's index is named by its split: the same bytes wherever the folder is
+        "name": split
+        if split is not None
+        else (Path(root).name if isinstance(root, Path) else root.rsplit("/", 1)[-1]),
         "shardlist": shardlist,
     }
 
