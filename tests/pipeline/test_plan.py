@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import glob
 import hashlib
+import shutil
 import tracemalloc
 from collections.abc import Iterable, Iterator
 from dataclasses import replace
@@ -177,3 +178,13 @@ def test_a_label_list_that_changes_during_the_build_is_refused(tmp_path: Path) -
         run_build(config, engine=Engine(), progress=False)
     with pytest.raises(ConfigError, match="cannot resume"):
         run_build(config, resume=True, progress=False)
+
+
+def test_a_real_config_without_its_files_points_at_fetch_all(tmp_path: Path) -> None:
+    repo = Path(__file__).resolve().parents[2]
+    work = tmp_path / "checkout"
+    shutil.copytree(repo / "configs", work / "configs")  # nothing fetched beside it
+    config = work / "configs" / "msl_gale.yaml"
+    with pytest.raises(ConfigError, match=r"no file matches .*mars-pairs fetch all --config "):
+        plan_build(load_config(config))
+    assert main(["build", "--config", str(config), "--dry-run"]) == 2
