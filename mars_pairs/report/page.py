@@ -126,6 +126,28 @@ def _failures(root: Path) -> pa.Table | None:
 # -- sections -----------------------------------------------------------------------------------
 
 
+def _for_people(key: str, value: Any) -> str:
+    """A value of dataset.json's split report as a person reads it: no Python or JSON
+    spelling (``True``, ``[]``, ``None``)."""
+    if key == "guaranteed" and isinstance(value, bool):
+        return (
+            "yes: buffer ≥ reach, no extents of two splits can meet"
+            if value
+            else "no: buffer < reach, extents of two splits may meet (see the leak check)"
+        )
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if value is None:
+        return "–"
+    if isinstance(value, dict):
+        return ", ".join(f"{k.replace('_', ' ')} {_for_people(k, v)}" for k, v in value.items())
+    if isinstance(value, (list, tuple)):
+        if key == "warnings" and not value:
+            return "none"
+        return "; ".join(_for_people(key, v) for v in value) if value else "none"
+    return str(value)
+
+
 def _split_section(rows: list[dict[str, Any]], info: dict[str, Any], n_failed: int) -> str:
     splits = [str(r["split"]) for r in rows]
     colours = split_colours(splits)
@@ -159,10 +181,8 @@ def _split_section(rows: list[dict[str, Any]], info: dict[str, Any], n_failed: i
     if rep:
         kv = []
         for key, value in rep.items():
-            if isinstance(value, dict):
-                value = ", ".join(f"{k} {v}" for k, v in value.items())
             name = f"{key[:-2]} (m)" if key.endswith("_m") else key
-            kv.append([_esc(name.replace("_", " ")), _esc("–" if value is None else value)])
+            kv.append([_esc(name.replace("_", " ")), _esc(_for_people(key, value))])
         parts.append(_table(["split rule and leak check (dataset.json)", "value"], kv))
     summary = f"{len(rows)} samples, {n_failed} failures"
     return (

@@ -439,3 +439,21 @@ def test_the_tools_outputs_never_block_the_next_build(
     assert sorted(p.relative_to(ds).as_posix() for p in ds.rglob("*")) == before
     # the same config builds again over its own folder (not --resume: a rebuild)
     assert main(["build", "--config", str(tmp_path / "c.yaml"), "--quiet"]) == 0
+
+
+def test_the_report_and_dataset_json_record_the_libraries_and_speak_plainly(
+    dataset: Path, tmp_path: Path
+) -> None:
+    versions = json.loads((dataset / "dataset.json").read_text())["versions"]
+    for name in ("gdal", "proj", "torch", "pillow", "imagecodecs", "rasterio", "numba"):
+        assert versions[name] not in ("", "-"), name
+    assert versions["torch"].startswith("2.")
+    out = tmp_path / "r.html"
+    assert main(["report", str(dataset), "--out", str(out), "--samples", "0"]) == 0
+    text = out.read_text()
+    for name in ("gdal", "proj", "imagecodecs", "pillow", "torch"):
+        assert f"<td>{name}</td>" in text, name
+    for raw in ("True", "False", "[]", "None", "{}"):
+        assert f"<td>{raw}</td>" not in text, raw
+    assert "<td>warnings</td><td>none</td>" in text
+    assert "<td>guaranteed</td><td>yes: buffer" in text or "<td>guaranteed</td><td>no: " in text
