@@ -22,11 +22,13 @@ def beside(root: str | Path, suffix: str) -> Path:
 
 def outside(root: str | Path, out: str | Path, what: str) -> Path:
     """``out`` unless it lies inside dataset folder ``root``: then MarsPairsError naming both
-    and the default (``what``: the output's suffix, e.g. ``report.html``)."""
+    and the default (``what``: the output's suffix, e.g. ``report.html``). A folder that is no
+    dataset (no manifest.parquet, no dataset.json) is left to the command to refuse."""
     out = Path(out)
     folder = Path(root).resolve()
     target = out.resolve()
-    if target == folder or folder in target.parents:
+    built = (folder / "manifest.parquet").exists() or (folder / "dataset.json").exists()
+    if built and (target == folder or folder in target.parents):
         raise MarsPairsError(
             f"{out}: inside the dataset folder {root}, whose next build would refuse a file it "
             f"did not write; write it beside the folder (the default: {beside(root, what)})"
