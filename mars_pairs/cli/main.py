@@ -144,9 +144,15 @@ def _ensure_synthetic(config: BuildConfig) -> None:
     # numba compiles the build's kernels once (then loads them from its cache): in a process
     # of its own, on the other core, while the mission is generated; the workers then load it
     print("compiling the build's kernels in the background (first run: ~20 s of CPU) ...")
-    warm = subprocess.Popen(
-        [sys.executable, "-c", "from mars_pairs.kernels.warm import warm_kernels as w; w()"],
-        stdout=subprocess.DEVNULL,
+    warm = subprocess.Popen(  # it prints its own time (s): the compile's, not the mission's
+        [
+            sys.executable,
+            "-c",
+            "import time; t = time.perf_counter(); "
+            "from mars_pairs.kernels.warm import warm_kernels as w; w(); "
+            "print(round(time.perf_counter() - t))",
+        ],
+        stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
     )
@@ -166,17 +172,24 @@ def _ensure_synthetic(config: BuildConfig) -> None:
         warm.wait()
         raise
     print(f"mission generated ({time.perf_counter() - t0:.0f} s)", flush=True)
-    _, err = warm.communicate()
+    t1 = time.perf_counter()
+    own, err = warm.communicate()
+    waited = time.perf_counter() - t1
     if warm.returncode:  # the workers compile what is missing themselves
         print(f"compiling the kernels failed ({err.strip()[-300:]}); the workers will retry")
     else:
-        print(f"kernels compiled ({time.perf_counter() - t0:.0f} s); building ...", flush=True)
+        print(
+            f"kernels compiled ({own.strip() or '?'} s, beside the mission; {waited:.0f} s "
+            "waited after it); building ...",
+            flush=True,
+        )
 
 
 def _cmd_inspect(args: argparse.Namespace) -> int:
-    from mars_pairs.cli.summary import inspect_dataset
+    from mars_pairs.cli.summary import format_facts, inspect_facts
 
-    print(inspect_dataset(args.dataset))
+    facts = inspect_facts(args.dataset)
+    print(json.dumps(facts, indent=2) if args.json else format_facts(facts))
     return 0
 
 
@@ -216,14 +229,14 @@ def _cmd_show(args: argparse.Namespace) -> int:
 def _cmd_overview(args: argparse.Namespace) -> int:
     from mars_pairs.viz import overview
 
-    print(overview(args.dataset, args.out, colour_by=args.colour_by))
+    print(overview(args.dataset, args.out, colour_by=args.colour_by, dpi=args.dpi))
     return 0
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
     from mars_pairs.report import write_report
 
-    print(write_report(args.dataset, args.out, samples=args.samples))
+    print(write_report(args.dataset, args.out, samples=args.samples, dpi=args.dpi))
     return 0
 
 
@@ -345,6 +358,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("inspect", help="counts, failures and size of a built dataset")
     p.add_argument("dataset", help="dataset folder, or its URL (s3://bucket/prefix)")
+    p.add_argument("--json", action="store_true", help="the facts as JSON")
     p.set_defaults(func=_cmd_inspect)
 
     p = sub.add_parser("verify", help="check every member's tar header, size and checksum")
@@ -402,19 +416,23 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("overview", help="all footprints over the orthoimage (needs the viz extra)")
     p.add_argument("dataset", type=local_dataset, help="dataset folder")
-    p.add_argument("--out", default="overview.png", help="PNG path")
+    p.add_argument("--out", help="PNG path (default DATASET-overview.png beside the folder)")
     p.add_argument("--colour-by", choices=("sol", "split"), default="sol")
+    p.add_argument("--dpi", type=count(20), default=90, help="dots per inch (default 90)")
     p.set_defaults(func=_cmd_overview)
 
     p = sub.add_parser("report", help="one self-contained HTML page of a dataset (viz extra)")
     p.add_argument("dataset", type=local_dataset, help="dataset folder")
-    p.add_argument("--out", help="HTML path (default DATASET/report.html)")
+    p.add_argument("--out", help="HTML path (default DATASET-report.html beside the folder)")
     p.add_argument("--samples", type=count(0), default=12, help="gallery samples (default 12)")
+    p.add_argument("--dpi", type=count(20), default=90, help="figures' dots per inch (default 90)")
     p.set_defaults(func=_cmd_report)
 
     p = sub.add_parser("export-qgis", help="a GeoPackage of positions, footprints and wedges")
     p.add_argument("dataset", type=local_dataset, help="dataset folder")
-    p.add_argument("out", help="output .gpkg")
+    p.add_argument(
+        "out", nargs="?", help="output .gpkg (default DATASET-qgis.gpkg beside the folder)"
+    )
     p.add_argument("--viewsheds", action="store_true", help="also write viewshed GeoTIFFs")
     p.add_argument(
         "--chips",

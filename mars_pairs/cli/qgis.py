@@ -15,12 +15,14 @@ from PIL import Image
 
 from mars_pairs.errors import MarsPairsError
 from mars_pairs.store.atomic import atomic_path
+from mars_pairs.store.beside import beside, outside
 from mars_pairs.store.dataset_info import dataset_crs
 from mars_pairs.store.manifest import SUMMARY_COLUMNS
 from mars_pairs.store.query import Manifest
 from mars_pairs.store.shards import MemberLocation, read_members
 
 ATTRIBUTES = SUMMARY_COLUMNS
+QGIS_SUFFIX = "qgis.gpkg"  # the default GeoPackage: <dataset>-qgis.gpkg beside the folder
 
 
 def camera_wedge(row: dict[str, Any], segments: int = 24) -> shapely.Polygon:
@@ -45,9 +47,14 @@ def _layer(rows: list[dict[str, Any]], geometries: list[Any]) -> pa.Table:
 
 
 def export_geopackage(
-    root: str | Path, out: str | Path, with_viewsheds: bool = False, with_chips: bool = False
+    root: str | Path,
+    out: str | Path | None = None,
+    with_viewsheds: bool = False,
+    with_chips: bool = False,
 ) -> Path:
-    """Write ``out`` (.gpkg) with layers rover_positions, footprints, camera_wedges.
+    """Write ``out`` (.gpkg; default ``<root>-qgis.gpkg`` beside the dataset folder:
+    ``store.beside``; a path inside the folder is refused) with layers rover_positions,
+    footprints, camera_wedges.
 
     Geometries are in the dataset CRS; attributes come from the manifest. With
     ``with_viewsheds``, each sample's viewshed chip is written as ``KEY_viewshed.tif`` in the
@@ -57,7 +64,8 @@ def export_geopackage(
     """
     from pyogrio.raw import write_arrow
 
-    root, out = Path(root), Path(out)
+    root = Path(root)
+    out = beside(root, QGIS_SUFFIX) if out is None else outside(root, out, QGIS_SUFFIX)
     if out.suffix.lower() != ".gpkg":
         raise MarsPairsError(f"{out}: the output must be a .gpkg file")
     if not root.is_dir():

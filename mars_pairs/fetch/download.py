@@ -59,6 +59,7 @@ import requests
 from requests.adapters import HTTPAdapter
 from urllib3.connection import HTTPConnection, HTTPSConnection
 from urllib3.connectionpool import HTTPConnectionPool, HTTPSConnectionPool
+from urllib3.exceptions import MaxRetryError, NameResolutionError
 from urllib3.util.retry import Retry
 
 from mars_pairs.errors import ContentError, FetchError
@@ -293,7 +294,9 @@ class _WatchedAdapter(HTTPAdapter):
 
 class _BoundedRetry(Retry):
     """urllib3's ``Retry`` whose waits (backoff, ``Retry-After``) end early at the file's
-    deadline or on cancel, a ``Retry-After`` capped at ``retry_after_max_s``."""
+    deadline or on cancel, a ``Retry-After`` capped at ``retry_after_max_s``; a host name that
+    does not resolve is not retried (the answer does not change in the seconds of a backoff:
+    offline, or a wrong host)."""
 
     downloader: Downloader | None = None
     retry_after_max_s: float = 60.0
@@ -303,6 +306,19 @@ class _BoundedRetry(Retry):
         assert isinstance(new, _BoundedRetry)
         new.downloader, new.retry_after_max_s = self.downloader, self.retry_after_max_s
         return new
+
+    def increment(  # type: ignore[override]  # (urllib3's own signature, passed on whole)
+        self,
+        method: str | None = None,
+        url: str | None = None,
+        response: Any = None,
+        error: Exception | None = None,
+        _pool: Any = None,
+        _stacktrace: Any = None,
+    ) -> Retry:
+        if isinstance(error, NameResolutionError):
+            raise MaxRetryError(_pool, url or "", error) from error
+        return super().increment(method, url, response, error, _pool, _stacktrace)
 
     def get_retry_after(self, response: Any) -> float | None:
         try:
@@ -471,7 +487,6 @@ class Downloader:
                 known = Validator.read(meta, remote.url)
                 if known is not None and known.size != target.stat().st_size:
                     known = None  # the cached file is not the one the validator describes
-        target.parent.mkdir(parents=True, exist_ok=True)
         part = target.with_name(target.name + ".part")
         for path in (part, sidecar(part), meta):
             if path.is_symlink():
@@ -571,6 +586,10 @@ class Downloader:
         try:
             response = self.session().get(remote.url, headers=headers, stream=True, timeout=timeout)
         except requests.RequestException as exc:  # urllib3 has retried connecting and waiting
+            if _unresolved(exc):  # not retried: offline, or a wrong host name
+                raise FetchError(
+                    remote.url, f"host name not resolved (offline?): {_short(exc)}"
+                ) from None
             raise FetchError(
                 remote.url,
                 f"no answer after {self.policy.retries} retries: {type(exc).__name__}: "
@@ -600,6 +619,7 @@ class Downloader:
                 check_content_type(remote.file_kind, r.headers.get("Content-Type"), remote.url)
             except ContentError as exc:
                 raise _Retryable(exc.reason) from None
+            part.parent.mkdir(parents=True, exist_ok=True)  # when an answer came: none, none
             encoding = r.headers.get("Content-Encoding", "").strip().lower()
             if encoding not in ("", "identity"):
                 _discard(part)
@@ -716,6 +736,23 @@ def _content_range(header: str, url: str) -> tuple[int | None, int | None]:
     if not m:
         raise FetchError(url, f"malformed Content-Range header {header[:60]!r}")
     return int(m[1]), None if m[3] == "*" else int(m[3])
+
+
+def _unresolved(exc: BaseException) -> bool:
+    """Whether a requests error is, at its root, a host name that did not resolve."""
+    seen: BaseException | None = exc
+    for _ in range(8):
+        if seen is None or isinstance(seen, NameResolutionError):
+            return seen is not None
+        nxt = getattr(seen, "reason", None)
+        if (
+            not isinstance(nxt, BaseException)
+            and seen.args
+            and isinstance(seen.args[0], BaseException)
+        ):
+            nxt = seen.args[0]
+        seen = nxt if isinstance(nxt, BaseException) and nxt is not seen else None
+    return False
 
 
 _OBJECT_REPR = re.compile(r"<[\w.]+ object at 0x[0-9a-f]+>: ")

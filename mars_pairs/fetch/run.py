@@ -125,7 +125,11 @@ def list_products(spec: ProductsSpec, dl: Downloader) -> Listing:
     else:
         bundle = archive_path(spec.bundle or "", where="fetch.products.bundle")
         coll = bundle / archive_path(spec.collection, where="fetch.products.collection")
-        dl.fetch(RemoteFile(coll, join_url(spec.archive, coll), mutable=True))
+        try:  # an unreachable collection is a failure row, as an msl volume's index is
+            dl.fetch(RemoteFile(coll, join_url(spec.archive, coll), mutable=True))
+        except FetchError as exc:
+            out.failures.append(Failure(str(bundle), exc.url, "index", "FetchError", exc.reason))
+            return out
         coll_path = dl.cache.path(coll)
         inv = inventory_of(coll_path, coll)
         delimiter = inventory_delimiter(coll_path)  # an unusable label: before the download
@@ -245,8 +249,9 @@ def fetch_products(
     report.products.sort(key=lambda p: str(p.label.rel))
     report.failures.sort(key=lambda f: (f.product_id, f.stage))
     report.skipped.sort(key=lambda s: (s.reason, s.product_id))
-    write_failures(cache, report.failures)
-    write_skipped(cache, report.skipped)
+    if not dry_run:  # a dry run writes no report files (they are printed)
+        write_failures(cache, report.failures)
+        write_skipped(cache, report.skipped)
     return report
 
 

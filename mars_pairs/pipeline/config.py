@@ -36,6 +36,7 @@ from mars_pairs.pipeline.config_schema import (
 )
 from mars_pairs.pipeline.config_section import file_kind, regular_problem
 from mars_pairs.store.members import DENSE_MEMBERS
+from mars_pairs.store.splits import SPLIT_NAME
 
 VIEWSHED_MODES = ("wedge", "raycast", "both")
 #: View masks: "frustum" (default) = cells visible from the camera centre whose terrain point
@@ -311,7 +312,19 @@ def _ratios(value: dict[str, float]) -> dict[str, float]:
         )
     if "buffer" in value:
         raise KeyProblem("'buffer' is reserved for the samples in the buffer")
+    _split_names(value)
     return value
+
+
+def _split_names(names: Any) -> None:
+    """Split names name the split's shards: lowercase letters, digits and '_'."""
+    for name in names:
+        if not SPLIT_NAME.fullmatch(str(name)):
+            raise KeyProblem(
+                f"split name {name!r}: expected lowercase letters, digits and '_', starting "
+                "with a letter (it names the split's shards)",
+                name,
+            )
 
 
 def _one_box(value: Any) -> Any:
@@ -328,6 +341,7 @@ Areas = dict[str, tuple[Box, ...]]
 
 
 def _areas(value: Areas) -> Areas:
+    _split_names(value)
     for name, boxes in value.items():
         if name in ("train", "buffer"):
             raise KeyProblem(f"expected a held-out split name (not {name!r})", name)

@@ -26,10 +26,11 @@ import pyarrow.parquet as pq
 from mars_pairs.errors import DatasetError, MarsPairsError, UsageError
 from mars_pairs.report.meta import camera_centres
 from mars_pairs.store.atomic import atomic_write_bytes
+from mars_pairs.store.beside import beside, outside
 from mars_pairs.store.dataset_info import build_input, dataset_json_path, read_dataset_doc
 from mars_pairs.store.geoparquet import describe_crs
 from mars_pairs.store.query import Manifest
-from mars_pairs.viz.common import split_colours
+from mars_pairs.viz.common import DPI, split_colours
 from mars_pairs.viz.report_figures import histograms_figure, map_figure, sample_card
 
 COLUMNS = (
@@ -39,6 +40,7 @@ COLUMNS = (
 )  # fmt: skip
 MAX_FAILURE_ROWS = 500  # failures listed on the page; the rest are counted
 DEFAULT_SAMPLES = 12
+REPORT_SUFFIX = "report.html"  # the default page: <dataset>-report.html beside the folder
 
 CSS = """
 body{font:14px/1.45 system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:0;
@@ -124,6 +126,28 @@ def _failures(root: Path) -> pa.Table | None:
 # -- sections -----------------------------------------------------------------------------------
 
 
+def _for_people(key: str, value: Any) -> str:
+    """A value of dataset.json's split report as a person reads it: no Python or JSON
+    spelling (``True``, ``[]``, ``None``)."""
+    if key == "guaranteed" and isinstance(value, bool):
+        return (
+            "yes: buffer ≥ reach, no extents of two splits can meet"
+            if value
+            else "no: buffer < reach, extents of two splits may meet (see the leak check)"
+        )
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if value is None:
+        return "–"
+    if isinstance(value, dict):
+        return ", ".join(f"{k.replace('_', ' ')} {_for_people(k, v)}" for k, v in value.items())
+    if isinstance(value, (list, tuple)):
+        if key == "warnings" and not value:
+            return "none"
+        return "; ".join(_for_people(key, v) for v in value) if value else "none"
+    return str(value)
+
+
 def _split_section(rows: list[dict[str, Any]], info: dict[str, Any], n_failed: int) -> str:
     splits = [str(r["split"]) for r in rows]
     colours = split_colours(splits)
@@ -157,10 +181,8 @@ def _split_section(rows: list[dict[str, Any]], info: dict[str, Any], n_failed: i
     if rep:
         kv = []
         for key, value in rep.items():
-            if isinstance(value, dict):
-                value = ", ".join(f"{k} {v}" for k, v in value.items())
             name = f"{key[:-2]} (m)" if key.endswith("_m") else key
-            kv.append([_esc(name.replace("_", " ")), _esc("–" if value is None else value)])
+            kv.append([_esc(name.replace("_", " ")), _esc(_for_people(key, value))])
         parts.append(_table(["split rule and leak check (dataset.json)", "value"], kv))
     summary = f"{len(rows)} samples, {n_failed} failures"
     return (
@@ -204,7 +226,7 @@ def _failures_section(failures: pa.Table | None) -> str:
     )
 
 
-def _gallery_section(root: Path, rows: list[dict[str, Any]], n: int) -> str:
+def _gallery_section(root: Path, rows: list[dict[str, Any]], n: int, dpi: int = DPI) -> str:
     from mars_pairs.torch import MarsPairsDataset
 
     head = '<section id="gallery"><h2>Samples</h2>'
@@ -220,7 +242,7 @@ def _gallery_section(root: Path, rows: list[dict[str, Any]], n: int) -> str:
         for i in sorted(picks, key=lambda i: order.index(i)):
             r = rows[i]
             centre = centres[str(r["key"])]
-            png = sample_card(ds[ds.index_of(str(r["key"]))], camera_center_map=centre)
+            png = sample_card(ds[ds.index_of(str(r["key"]))], camera_center_map=centre, dpi=dpi)
             caption = (
                 f"<b>{_esc(r['key'])}</b><br>{_esc(r['instrument'])}, sol {_esc(r['sol'])}, "
                 f"split <b>{_esc(r['split'])}</b><br>camera az {_fmt(r['azimuth_deg'], '.1f')}°, "
@@ -274,8 +296,9 @@ def _provenance_section(root: Path, info: dict[str, Any], crs_name: str) -> str:
 # -- the page -----------------------------------------------------------------------------------
 
 
-def report_html(root: str | Path, samples: int = DEFAULT_SAMPLES) -> str:
-    """The report page of the dataset folder ``root`` with ``samples`` gallery samples."""
+def report_html(root: str | Path, samples: int = DEFAULT_SAMPLES, dpi: int = DPI) -> str:
+    """The report page of the dataset folder ``root`` with ``samples`` gallery samples, its
+    figures drawn at ``dpi`` dots per inch."""
     if isinstance(samples, bool) or not isinstance(samples, int) or samples < 0:
         raise UsageError(f"samples: expected a whole number >= 0, got {samples!r}")
     root = Path(root)
@@ -297,8 +320,10 @@ def report_html(root: str | Path, samples: int = DEFAULT_SAMPLES) -> str:
         x for x in (f"{len(rows)} samples", f"{n_failed} failures", missions, sol_text) if x
     )
     if rows:
-        the_map = _img(map_figure(rows, info, ortho_path, crs_name, unit), "map of the footprints")
-        hists = _img(histograms_figure(rows), "histograms of the view statistics")
+        the_map = _img(
+            map_figure(rows, info, ortho_path, crs_name, unit, dpi=dpi), "map of the footprints"
+        )
+        hists = _img(histograms_figure(rows, dpi), "histograms of the view statistics")
     else:
         the_map = hists = '<p class="sub">no samples: nothing to draw</p>'
     body = [
@@ -308,7 +333,7 @@ def report_html(root: str | Path, samples: int = DEFAULT_SAMPLES) -> str:
         f"over the orthoimage; map coordinates of {_esc(crs_name)}</p>{the_map}</section>",
         _split_section(rows, info, n_failed),
         f'<section id="histograms"><h2>View statistics</h2>{hists}</section>',
-        _gallery_section(root, rows, samples),
+        _gallery_section(root, rows, samples, dpi),
         _failures_section(failures),
         _provenance_section(root, info, crs_name),
     ]
@@ -321,13 +346,17 @@ def report_html(root: str | Path, samples: int = DEFAULT_SAMPLES) -> str:
 
 
 def write_report(
-    root: str | Path, out: str | Path | None = None, samples: int = DEFAULT_SAMPLES
+    root: str | Path,
+    out: str | Path | None = None,
+    samples: int = DEFAULT_SAMPLES,
+    dpi: int = DPI,
 ) -> Path:
-    """Write the report page of dataset ``root`` to ``out`` (default ``root/report.html``),
-    atomically; returns its path."""
+    """Write the report page of dataset ``root`` to ``out`` (default ``<root>-report.html``
+    beside the folder: ``store.beside``; a path inside the folder is refused), atomically;
+    returns its path."""
     root = Path(root)
-    path = Path(out) if out is not None else root / "report.html"
-    page = report_html(root, samples)
+    path = outside(root, out, REPORT_SUFFIX) if out is not None else beside(root, REPORT_SUFFIX)
+    page = report_html(root, samples, dpi)
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(path, page.encode("utf-8"))
     return path

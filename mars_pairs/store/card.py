@@ -12,6 +12,9 @@ from typing import Any
 
 import pyarrow as pa
 
+from mars_pairs.store.splits import BUFFER, TRAIN
+from mars_pairs.store.wids_index import shard_list_name, split_index_name
+
 #: Licence of a dataset built from NASA PDS products (United States Government works).
 PUBLIC_DOMAIN = "CC0-1.0"
 #: Licence of a dataset built from the synthetic mission: the project's own.
@@ -155,6 +158,7 @@ def dataset_card(facts: CardFacts) -> str:
         "---",
         f"license: {facts.license.lower()}",
         "tags: [mars, geospatial, cross-view, webdataset, geoparquet]",
+        *_hf_configs(facts),
         "---",
         "",
         "# mars-pairs dataset",
@@ -175,7 +179,8 @@ def dataset_card(facts: CardFacts) -> str:
         f"- view radius {geometry.get('radius')} m, viewshed `{geometry.get('viewshed')}`, "
         f"ray stride {geometry.get('ray_stride')} px",
         f"- chips: {chips.get('size_m')} m at {chips.get('size_px')} px, "
-        f"`{chips.get('orientation')}`; {output.get('shard_size')} samples per shard",
+        f"`{chips.get('orientation')}`; {output.get('shard_size')} samples per chunk, a chunk's "
+        "samples of each split in a shard of their own",
         f"- CRS: {facts.crs_name} (WKT in `dataset.json`, PROJJSON in the manifest's GeoParquet "
         "metadata)",
         "",
@@ -216,7 +221,11 @@ def dataset_card(facts: CardFacts) -> str:
         "- `manifest.parquet`: one row per sample, GeoParquet 1.1 (geometry columns "
         "`footprint` (primary), `rover_point`, `chip_box`), Hilbert-ordered",
         "- `failures.parquet`: the observations that gave no sample and why",
-        f"- `shards/`: {len(facts.shards)} WebDataset tar shards (`<key>.<member>`)",
+        f"- `shards/`: {len(facts.shards)} WebDataset tar shards (`<key>.<member>`), each "
+        "of one split's samples (`shard-<chunk>-<split>.tar`)",
+        "- `shards-<split>.txt`: the shards of one split, one a line (WebDataset's shard list)",
+        "- `shardindex.json`, `shardindex-<split>.json`: wids indexes of all shards and of one "
+        "split's",
         "- `dataset.json`: config, versions, CRS, chip spec, counts, split report",
         "- `croissant.json`: Croissant 1.0 metadata (MLCommons)",
         "",
@@ -243,25 +252,32 @@ def dataset_card(facts: CardFacts) -> str:
     lines += ["", "## Members (shards/*.tar)", ""]
     lines += _table(["member", "format", "units"], [(f"`{n}`", f, u) for n, f, u in
                                                     MEMBER_DOCS.values()])  # fmt: skip
-    shard_glob = "shards/*.tar"
     lines += [
         "",
         "## Loading",
+        "",
+        "Run in this folder. Each split has shards of its own; `shards-train.txt` lists the "
+        "train split's.",
         "",
         "```python",
         "# mars-pairs (PyTorch): decoded, georeferenced tensors",
         "from mars_pairs.torch import MarsPairsDataset",
         'ds = MarsPairsDataset(".", fields=("ground", "ortho", "dem", "viewshed"), split="train")',
         "",
-        "# webdataset: the shards as they are",
+        "# webdataset: one split's shards as they are",
         "import webdataset as wds",
-        f'samples = wds.WebDataset(sorted(glob.glob("{shard_glob}")), shardshuffle=False)',
+        f'with open("{shard_list_name(TRAIN)}") as f:',
+        "    train_shards = f.read().split()",
+        "samples = wds.WebDataset(train_shards, shardshuffle=False)",
         "",
-        "# Hugging Face datasets (local files)",
-        "import glob",
+        "# wids (indexed, random access): one split",
+        "import wids",
+        f'train = wids.ShardListDataset("{split_index_name(TRAIN)}")',
+        "",
+        "# Hugging Face datasets: this folder, one split per split (the card's `configs`)",
+        "import os",
         "from datasets import load_dataset",
-        f'pairs = load_dataset("webdataset", data_files={{"train": sorted(glob.glob('
-        f'"{shard_glob}"))}}, split="train")',
+        'pairs = load_dataset(os.path.abspath("."))  # a DatasetDict: train, val, test, ...',
         'rows = load_dataset("parquet", data_files="manifest.parquet", split="train")',
         "",
         "# geopandas: the manifest with its CRS (footprints; rover_point and chip_box too)",
@@ -271,3 +287,20 @@ def dataset_card(facts: CardFacts) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+#: The order of the splits in the card's ``configs`` (others between test and the buffer).
+_SPLIT_ORDER = {TRAIN: 0, "val": 1, "test": 2, BUFFER: 4}
+
+
+def _hf_configs(facts: CardFacts) -> list[str]:
+    """The front matter's Hugging Face ``configs``: one ``data_files`` entry per split with
+    samples (its shards' glob), so ``datasets.load_dataset(folder)`` gives each split; the
+    buffer (when kept) is a split of its own."""
+    splits = sorted(facts.counts.get("by_split") or {}, key=lambda s: (_SPLIT_ORDER.get(s, 3), s))
+    if not splits:
+        return []
+    lines = ["configs:", "- config_name: default", "  data_files:"]
+    for split in splits:
+        lines += [f"  - split: {split}", f"    path: shards/shard-*-{split}.tar"]
+    return lines

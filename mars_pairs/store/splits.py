@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import re
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Any
@@ -37,6 +38,9 @@ from mars_pairs.errors import ConfigError
 
 BUFFER = "buffer"  # the split of samples in the buffer (when kept)
 TRAIN = "train"  # the one split that is not held out
+#: What a split may be named: it names the split's shards (``shard-000000-<split>.tar``), shard
+#: list and Hugging Face split.
+SPLIT_NAME = re.compile(r"[a-z][a-z0-9_]*", re.ASCII)
 MAX_BLOCKS = 250_000  # blocks a same-area sample may test (block_m >= zone / ~250)
 MAST_REACH_M = 3.0  # camera centre to rover origin: footprints include the camera centre
 

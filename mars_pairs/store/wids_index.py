@@ -1,9 +1,12 @@
-"""The shard index WebDataset's indexed reader opens (``wids.ShardListDataset``).
+"""The shard index WebDataset's indexed reader opens (``wids.ShardListDataset``), and the
+shard list of each split.
 
 The format is wids' own (``widsindex create`` writes the same): ``wids_version`` 1 and a
 ``shardlist`` of {url, nsamples, filesize}, the urls relative to the index's folder. The
 counts come from the manifest (every sample's members sit in one shard, in order), so
-writing the index reads no shard.
+writing the index reads no shard. A split's samples have shards of their own, so each split
+has its index (``shardindex-<split>.json``) and its shard list (``shards-<split>.txt``: the
+shards relative to the folder, one a line, the list ``webdataset.WebDataset`` takes).
 """
 
 from __future__ import annotations
@@ -14,15 +17,29 @@ from pathlib import Path
 from typing import Any
 
 import pyarrow as pa
+import pyarrow.compute as pc
 
 from mars_pairs.store import fs
 
 WIDS_INDEX = "shardindex.json"
 
 
-def wids_index(root: Path | str, manifest: pa.Table) -> dict[str, Any]:
-    """The index document of a dataset folder's shards (``manifest``: its rows)."""
+def shard_list_name(split: str) -> str:
+    """The shard list of ``split``, relative to the dataset folder."""
+    return f"shards-{split}.txt"
+
+
+def split_index_name(split: str) -> str:
+    """The wids index of ``split``'s shards, relative to the dataset folder."""
+    return f"shardindex-{split}.json"
+
+
+def wids_index(root: Path | str, manifest: pa.Table, split: str | None = None) -> dict[str, Any]:
+    """The index document of a dataset folder's shards (``manifest``: its rows), or of the
+    shards of ``split``'s samples."""
     root = fs.dataset_root(root)
+    if split is not None and manifest.num_rows:
+        manifest = manifest.filter(pc.equal(manifest.column("split"), split))
     counts = Counter(manifest.column("meta_shard").to_pylist()) if manifest.num_rows else {}
     shardlist = [
         {"url": shard, "nsamples": n, "filesize": fs.size(fs.join(root, shard))}
@@ -31,15 +48,25 @@ def wids_index(root: Path | str, manifest: pa.Table) -> dict[str, Any]:
     return {
         "__kind__": "wids-shard-index-v1",
         "wids_version": 1,
-        "name": Path(root).name if isinstance(root, Path) else root.rsplit("/", 1)[-1],
+        # a split's index is named by its split: the same bytes wherever the folder is
+        "name": split
+        if split is not None
+        else (Path(root).name if isinstance(root, Path) else root.rsplit("/", 1)[-1]),
         "shardlist": shardlist,
     }
 
 
 def write_wids_index(root: Path | str, manifest: pa.Table) -> Path | str:
-    """Write ``root/shardindex.json`` atomically (temp + rename; on object storage one
-    whole upload: ``store.fs``); returns its path."""
+    """Write ``root/shardindex.json``, and of each split of ``manifest`` its index and its
+    shard list, each atomically (temp + rename; on object storage one whole upload:
+    ``store.fs``); returns the path of the whole folder's index."""
     root = fs.dataset_root(root)
     path = fs.join(root, WIDS_INDEX)
     fs.put_bytes(path, json.dumps(wids_index(root, manifest), indent=1).encode())
+    splits = sorted(set(manifest.column("split").to_pylist())) if manifest.num_rows else []
+    for split in splits:
+        doc = wids_index(root, manifest, split)
+        fs.put_bytes(fs.join(root, split_index_name(split)), json.dumps(doc, indent=1).encode())
+        listing = "".join(f"{entry['url']}\n" for entry in doc["shardlist"])
+        fs.put_bytes(fs.join(root, shard_list_name(split)), listing.encode())
     return path

@@ -211,6 +211,12 @@ def _pose(state: RoverState, crs: str, site: SiteOrigin) -> Pose:
     )  # fmt: skip
 
 
+def render_bar(total: int, name: str, disable: bool) -> Any:
+    """The rendering progress bar, opened after the first of ``total`` images: it starts at 1,
+    and its rate (and ETA) counts the images after it only."""
+    return tqdm(total=total, initial=1, desc=f"{name}: rendering", unit="img", disable=disable)
+
+
 def _plan_shots(rng: np.random.Generator, spec: MissionSpec, size: str, trav: Traverse,
                 per_stop: int, label_dir: Path) -> list[Shot]:  # fmt: skip
     """Cameras, pointings and product names of every image (deterministic in ``rng``)."""
@@ -487,12 +493,24 @@ def _generate_one(out: Path, rng: np.random.Generator, spec: MissionSpec, size: 
                           preset.render_window_m)  # fmt: skip
         return render_view(mc, g, b, o, preset.ortho_factor)[0]
 
-    bar = tqdm(total=len(shots), desc=f"{spec.name}: rendering", unit="img", disable=log is None)
-    with bar, ThreadPoolExecutor(max_workers=RENDER_THREADS) as pool:
+    # the bar opens after the first image: that one's time is mostly the renderer's compile
+    # (numba, first run), and a rate measured on it gives an ETA of hours
+    t_render = time.perf_counter()
+    with ThreadPoolExecutor(max_workers=RENDER_THREADS) as pool:
         images = pool.map(render, cams)
-        for shot, rgb in zip(shots, images, strict=True):
-            _save_shot(shot, rgb)
-            bar.update()
+        bar = None
+        try:
+            for shot, rgb in zip(shots, images, strict=True):
+                _save_shot(shot, rgb)
+                if bar is None:
+                    first = time.perf_counter() - t_render
+                    say(f"{spec.name}: first image rendered ({first:.1f} s)")
+                    bar = render_bar(len(shots), spec.name, disable=log is None)
+                else:
+                    bar.update()
+        finally:
+            if bar is not None:
+                bar.close()
     truth_path = out / "truth.parquet"
     pq.write_table(_truth_table(shots, out, spec.crs), truth_path, compression="zstd")
     return {

@@ -96,8 +96,10 @@ def scale_bar(
     *,
     y_down: bool = False,
     unit: str = "m",
+    corner: str = "lower left",
 ) -> float:
-    """A black and white scale bar in the lower-left corner of a panel showing ``box``
+    """A black and white scale bar in the ``corner`` (``lower left``, ``lower right``,
+    ``upper left``, ``upper right``; default lower left) of a panel showing ``box``
     (x0, y0, x1, y1, axis data units; ``y_down``: an image panel whose y grows downwards),
     about a fifth of the panel wide, labelled in metres (``metres_per_unit`` metres per data
     unit; ``unit`` names the data unit when it is not metres, ``metres_per_unit`` then 1).
@@ -110,7 +112,13 @@ def scale_bar(
     span = length / metres_per_unit  # data units
     thick = 0.012 * height
     x0 = min(box[0], box[2]) + 0.05 * width
+    if corner.endswith("right"):
+        x0 = max(box[0], box[2]) - 0.05 * width - span
     bottom = max(box[1], box[3]) - 0.05 * height if y_down else min(box[1], box[3]) + 0.05 * height
+    if corner.startswith("upper"):
+        bottom = (
+            min(box[1], box[3]) + 0.1 * height if y_down else max(box[1], box[3]) - 0.1 * height
+        )
     up = -1.0 if y_down else 1.0  # towards the top of the panel
     for k in range(2):
         ax.add_patch(
@@ -128,10 +136,12 @@ def scale_bar(
     return length
 
 
-def map_axes(ax: Any, box: tuple[float, float, float, float], unit: str) -> None:
+def map_axes(
+    ax: Any, box: tuple[float, float, float, float], unit: str, corner: str = "lower left"
+) -> None:
     """A map panel showing ``box`` (xmin, ymin, xmax, ymax in the dataset CRS's map units,
     named ``unit``): its limits, equal aspect, plain tick labels, easting/northing axis labels
-    and a scale bar."""
+    and a scale bar (in ``corner``: :func:`scale_bar`)."""
     ax.set_xlim(box[0], box[2])
     ax.set_ylim(box[1], box[3])
     ax.set_aspect("equal")
@@ -139,4 +149,4 @@ def map_axes(ax: Any, box: tuple[float, float, float, float], unit: str) -> None
     ax.tick_params(labelsize=7)
     ax.set_xlabel(f"easting ({unit})", fontsize=9)
     ax.set_ylabel(f"northing ({unit})", fontsize=9)
-    scale_bar(ax, box, unit=unit)
+    scale_bar(ax, box, unit=unit, corner=corner)

@@ -71,20 +71,84 @@ def draw_background(ax: Any, ortho: Path | None, box: Box, max_px: int) -> bool:
     return image is not None
 
 
-def frame_panel(ax: Any, box: Box, unit: str, background: bool) -> None:
-    """The panel's limits, axes and scale bar (:func:`map_axes`), and a note when the ortho
-    (``background``) was not found."""
-    map_axes(ax, box, unit)
+def frame_panel(ax: Any, box: Box, unit: str, background: bool, corner: str = "lower left") -> None:
+    """The panel's limits, axes and scale bar (:func:`map_axes`; in ``corner``), and a note
+    when the ortho (``background``) was not found."""
+    map_axes(ax, box, unit, corner)
     if not background:
         ax.text(0.5, 0.02, "orthoimage not found: no background", transform=ax.transAxes,
                 ha="center", fontsize=9)  # fmt: skip
 
 
-def mark_zoom(ax: Any, near: Box, full: Box) -> None:
-    """The zoom panel's box ``near`` drawn (cyan, dashed) on the panel showing ``full``."""
+def mark_zoom(ax: Any, near: Box, full: Box) -> bool:
+    """The zoom panel's box ``near`` drawn (cyan, dashed) on the panel showing ``full``, when
+    it is smaller; whether it was drawn."""
     if near[2] - near[0] < full[2] - full[0]:
         x0, y0, x1, y1 = near
         ax.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], color="cyan", lw=1, ls="--")
+        return True
+    return False
+
+
+def quiet_corner(box: Box, busy: Any, size: float = 0.3) -> str:
+    """The corner (``lower left``, ``lower right``, ``upper left``, ``upper right``) of the
+    panel ``box`` (map units) whose square of ``size`` of the panel's side meets the least of
+    the geometry ``busy`` (map units: what a scale bar or a note should not cover)."""
+    x0, y0, x1, y1 = box
+    side = size * max(x1 - x0, y1 - y0)
+    corners = {
+        "lower left": shapely.box(x0, y0, x0 + side, y0 + side),
+        "lower right": shapely.box(x1 - side, y0, x1, y0 + side),
+        "upper left": shapely.box(x0, y1 - side, x0 + side, y1),
+        "upper right": shapely.box(x1 - side, y1 - side, x1, y1),
+    }
+    if busy is None or busy.is_empty:
+        return "lower left"
+    return min(corners, key=lambda c: shapely.intersection(corners[c], busy).area)
+
+
+def label_stops_apart(ax: Any, stops: list[tuple[float, float, Any]], pad_px: float = 3.0) -> int:
+    """ "sol N" beside stops of the traverse (map x, y), each label only where it overlaps no
+    label already placed (display pixels, ``pad_px`` apart) and lies inside the panel: the
+    first and last stop first, then the others in order. Draws the figure once to know where
+    the text lands (call it after everything else of the panel's layout); the labels take no
+    part in the layout. Returns the count placed."""
+    import matplotlib.patheffects as pe
+
+    if not stops or len(stops) > MAX_LABELLED_STOPS:
+        return 0
+    fig = ax.figure
+    fig.canvas.draw()  # the layout settled: display positions are final
+    renderer = fig.canvas.get_renderer()
+    frame = ax.get_window_extent(renderer)
+    order = [0, len(stops) - 1, *range(1, len(stops) - 1)] if len(stops) > 1 else [0]
+    taken = [t.get_window_extent(renderer) for t in ax.texts if t.get_visible()]  # names
+    placed: list[Any] = []
+    shown: set[Any] = set()
+    for i in order:
+        x, y, sol = stops[i]
+        if sol in shown:
+            continue
+        text = ax.annotate(
+            f"sol {sol}", (x, y), xytext=(6, 4), textcoords="offset points", fontsize=8,
+            color="white", zorder=6,
+            path_effects=[pe.withStroke(linewidth=2.5, foreground="black")],
+        )  # fmt: skip
+        text.set_in_layout(False)
+        bbox = text.get_window_extent(renderer).expanded(1.0, 1.0)
+        padded = bbox.padded(pad_px)
+        inside = (
+            bbox.x0 >= frame.x0
+            and bbox.x1 <= frame.x1
+            and bbox.y0 >= frame.y0
+            and bbox.y1 <= frame.y1
+        )
+        if not inside or any(padded.overlaps(other) for other in (*taken, *placed)):
+            text.remove()
+            continue
+        placed.append(bbox)
+        shown.add(sol)
+    return len(placed)
 
 
 # -- the traverse --------------------------------------------------------------------------------
@@ -112,28 +176,6 @@ def draw_traverse(ax: Any, stops: list[tuple[float, float, Any]], zorder: float 
     z = {} if zorder is None else {"zorder": zorder}
     ax.plot(px, py, "-", color="white", lw=1.8, path_effects=outline, **z)
     ax.plot(px, py, "^", color="red", markersize=7, markeredgecolor="white", ls="none", **z)
-
-
-def label_sols(ax: Any, stops: list[tuple[float, float, Any]], box: Box) -> None:
-    """Each sol written once left of its first stop, where labels do not crowd (3 % of the
-    panel ``box`` apart); nothing when there are more than ``MAX_LABELLED_STOPS`` stops."""
-    import matplotlib.patheffects as pe
-
-    if len(stops) > MAX_LABELLED_STOPS:
-        return
-    gap = 0.03 * max(box[2] - box[0], box[3] - box[1])
-    placed: list[tuple[float, float]] = []
-    shown: set[Any] = set()
-    for x, y, sol in stops:
-        if sol in shown or any(math.hypot(x - a, y - b) < gap for a, b in placed):
-            continue
-        placed.append((x, y))
-        shown.add(sol)
-        ax.annotate(
-            f"sol {sol}", (x, y), xytext=(-8, 0), textcoords="offset points", fontsize=8,
-            ha="right", va="center", color="white", zorder=6, clip_on=True,
-            path_effects=[pe.withStroke(linewidth=2.5, foreground="black")],
-        )  # fmt: skip
 
 
 # -- held-out areas ------------------------------------------------------------------------------
@@ -194,9 +236,12 @@ def rings(geom: Any) -> list[np.ndarray]:
     return [np.asarray(p.exterior.coords) for p in getattr(geom, "geoms", [geom]) if not p.is_empty]
 
 
-def draw_held_out(ax: Any, held: HeldOut, colours: dict[str, Any], label: bool) -> list[Any]:
+def draw_held_out(
+    ax: Any, held: HeldOut, colours: dict[str, Any], label: bool, box: Box | None = None
+) -> list[Any]:
     """Held-out regions (hatched, named when ``label``) and their buffer zones (dashed) in
-    the split ``colours``; the legend handles."""
+    the split ``colours``; the legend handles. ``box``: the panel (map units), which the names
+    are kept inside (a region or zone reaching past its edge is named within it)."""
     import matplotlib.patheffects as pe
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch, Polygon
@@ -217,7 +262,7 @@ def draw_held_out(ax: Any, held: HeldOut, colours: dict[str, Any], label: bool) 
                         path_effects=outline)  # fmt: skip
         if label:
             for cell in getattr(union, "geoms", [union]):
-                cx, cy = cell.centroid.x, cell.bounds[3]
+                cx, cy = _inside(box, cell.centroid.x, cell.bounds[3], 0.04)
                 ax.text(
                     cx, cy, f"{name} (held out)", ha="center", va="bottom", fontsize=8,
                     color="white", zorder=7, clip_on=True,
@@ -225,8 +270,9 @@ def draw_held_out(ax: Any, held: HeldOut, colours: dict[str, Any], label: bool) 
                 )  # fmt: skip
             if held.zone:
                 top = shapely.buffer(union, held.zone).bounds
+                zx, zy = _inside(box, (top[0] + top[2]) / 2, top[3], 0.01)
                 ax.text(
-                    (top[0] + top[2]) / 2, top[3], "buffer zone", ha="center", va="top",
+                    zx, zy, "buffer zone", ha="center", va="top",
                     fontsize=8, color="white", zorder=7, clip_on=True, path_effects=outline,
                 )  # fmt: skip
         handles.append(
@@ -241,6 +287,17 @@ def draw_held_out(ax: Any, held: HeldOut, colours: dict[str, Any], label: bool) 
             )
         )  # fmt: skip
     return handles
+
+
+def _inside(box: Box | None, x: float, y: float, margin: float) -> tuple[float, float]:
+    """Map point (x, y) moved inside the panel ``box``: ``margin`` of its side from the top
+    and bottom edges, 8 % from the sides (a label's anchor: its text stays in the panel); as it
+    is when ``box`` is None."""
+    if box is None:
+        return x, y
+    side = max(box[2] - box[0], box[3] - box[1])
+    x = min(max(x, box[0] + 0.08 * side), box[2] - 0.08 * side)  # half a label's width
+    return x, min(max(y, box[1] + margin * side), box[3] - margin * side)
 
 
 def held_out_legend(ax: Any, handles: list[Any]) -> None:

@@ -10,6 +10,7 @@ import numpy as np
 import shapely
 
 from mars_pairs.errors import MarsPairsError
+from mars_pairs.store.beside import beside, outside
 from mars_pairs.store.dataset_info import build_input, read_dataset_doc
 from mars_pairs.store.geoparquet import describe_crs
 from mars_pairs.store.query import Manifest
@@ -28,25 +29,30 @@ from mars_pairs.viz.map import (
     frame_panel,
     held_out_legend,
     held_out_regions,
+    label_stops_apart,
     mark_zoom,
+    quiet_corner,
     square,
     traverse_stops,
 )
 
+OVERVIEW_SUFFIX = "overview.png"  # the default picture: <dataset>-overview.png beside the folder
+
 
 def overview(
     root: str | Path,
-    out: str | Path,
+    out: str | Path | None = None,
     ortho_path: str | Path | None = None,
     colour_by: str = "sol",
     max_px: int = 1400,
     dpi: int = DPI,
 ) -> Path:
     """All footprints over a downsampled ortho with the rover traverse and the held-out areas
-    (:func:`overview_figure`), written to ``out``: a PNG of ``OVERVIEW_SIZE`` inches at
-    ``dpi``."""
+    (:func:`overview_figure`), written to ``out`` (default ``<root>-overview.png`` beside the
+    dataset folder: ``store.beside``; a path inside the folder is refused): a PNG of
+    ``OVERVIEW_SIZE`` inches at ``dpi``."""
     plt = pyplot()
-    out = Path(out)
+    out = beside(root, OVERVIEW_SUFFIX) if out is None else outside(root, out, OVERVIEW_SUFFIX)
     fig = overview_figure(root, ortho_path, colour_by=colour_by, max_px=max_px)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -92,6 +98,7 @@ def overview_figure(
     colour, legend = _colours(plt, rows, colour_by)
     fig, (ax_full, ax_near) = plt.subplots(1, 2, figsize=OVERVIEW_SIZE, layout="constrained")
     held_handles: list[Any] = []
+    drawn = [g for g in geoms if g is not None]
     for ax, box in ((ax_full, full), (ax_near, near)):
         background = draw_background(ax, ortho, box, max_px)
         order = sorted(range(len(rows)), key=lambda i: -(g.area if (g := geoms[i]) else 0.0))
@@ -103,29 +110,50 @@ def overview_figure(
                 ax.fill(gx, gy, color=colour[i], alpha=0.3, lw=0)
                 ax.plot(gx, gy, color=colour[i], lw=1.1)
         held = held_out_regions(info, box)
-        found = draw_held_out(ax, held, SPLIT_COLOURS, label=_few_regions(held.regions, box))
+        found = draw_held_out(
+            ax, held, SPLIT_COLOURS, label=_few_regions(held.regions, box), box=box
+        )
         held_handles = held_handles or found
         draw_traverse(ax, stops, zorder=None)
-        if ax is ax_near:
-            _label_every_stop(ax, stops)
-        frame_panel(ax, box, unit, background)
-    mark_zoom(ax_full, near, full)
+        # the scale bar in the corner the footprints, positions and held-out areas leave free
+        busy = shapely.union_all(
+            [*drawn, *(shapely.buffer(p, 0.02 * (box[2] - box[0])) for p in points),
+             *(c for cells in held.regions.values() for c in cells)]
+        )  # fmt: skip
+        frame_panel(ax, box, unit, background, corner=quiet_corner(box, busy))
+    zoomed = mark_zoom(ax_full, near, full)
+    # the keys below the panels, where they cover no part of the map
     legend(ax_full, ax_near)
     held_out_legend(ax_near, held_handles)
     for ax in (ax_full, ax_near):
-        if ax.get_legend() is not None:
-            ax.get_legend().set_zorder(10)  # above the held-out areas and their names
+        _below(ax)
     ax_full.set_title(
         f"{len(rows)} samples: footprints coloured by {colour_by}, rover traverse (white)",
         fontsize=10,
     )
     named = "held-out areas hatched, buffer zones dashed" if held_handles else "no held-out area"
+    where = ", cyan box on the left" if zoomed else ""
     ax_near.set_title(
-        f"the traverse ({len(set(zip(xs, ys, strict=True)))} rover positions, cyan box); {named}",
+        f"the traverse ({len(set(zip(xs, ys, strict=True)))} rover positions{where}); {named}",
         fontsize=10,
     )
     fig.suptitle(f"map CRS: {crs_name}", fontsize=10)
+    label_stops_apart(ax_near, stops)  # last: it needs the settled layout
     return fig
+
+
+def _below(ax: Any) -> None:
+    """The panel's legend moved below it (outside the map; the layout makes room)."""
+    old = ax.get_legend()
+    if old is None:
+        return
+    handles, title = old.legend_handles, old.get_title().get_text()
+    labels = [t.get_text() for t in old.get_texts()]
+    old.remove()
+    ax.legend(
+        handles, labels, title=title or None, loc="upper center", bbox_to_anchor=(0.5, -0.08),
+        ncols=min(len(labels), 4), fontsize=8, title_fontsize=8, frameon=False,
+    )  # fmt: skip
 
 
 MAX_NAMED_REGIONS = 12  # more held-out regions on a panel: named in the legend only
@@ -169,14 +197,3 @@ def _colours(plt: Any, rows: list[dict[str, Any]], colour_by: str) -> tuple[list
         ax.legend(loc="upper right", fontsize=8, title="split", title_fontsize=8)
 
     return [palette[v] for v in values], legend
-
-
-def _label_every_stop(ax: Any, stops: list[tuple[float, float, Any]]) -> None:
-    """ "sol N" beside every stop of the traverse (map x, y)."""
-    import matplotlib.patheffects as pe
-
-    for x, y, sol in stops:
-        ax.annotate(
-            f"sol {sol}", (x, y), xytext=(6, 4), textcoords="offset points", fontsize=8,
-            color="white", path_effects=[pe.withStroke(linewidth=2.5, foreground="black")],
-        )  # fmt: skip

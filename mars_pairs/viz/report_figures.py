@@ -13,7 +13,7 @@ from typing import Any, TypeGuard
 import numpy as np
 import shapely
 
-from mars_pairs.viz.common import png_bytes, pyplot, split_colours
+from mars_pairs.viz.common import DPI, png_bytes, pyplot, split_colours
 from mars_pairs.viz.map import (
     draw_background,
     draw_held_out,
@@ -21,7 +21,7 @@ from mars_pairs.viz.map import (
     frame_panel,
     held_out_legend,
     held_out_regions,
-    label_sols,
+    label_stops_apart,
     mark_zoom,
     rings,
     square,
@@ -45,6 +45,7 @@ def map_figure(
     crs_name: str,
     unit: str,
     max_px: int = 1400,
+    dpi: int = DPI,
 ) -> bytes:
     """Two map panels over the ortho (``rows``: manifest rows with easting, northing, sol,
     site, drive, split, footprint): every footprint, and a zoom on the traverse with the
@@ -87,12 +88,10 @@ def map_figure(
         if polys:
             ax.add_collection(PolyCollection(polys, facecolors=faces, alpha=0.22, lw=0))
             ax.add_collection(PolyCollection(polys, facecolors="none", edgecolors=faces, lw=1.2))
-        found = draw_held_out(ax, held, colours, label=ax is ax_near)
+        found = draw_held_out(ax, held, colours, label=ax is ax_near, box=box)
         if ax is ax_near:
             handles = found
         draw_traverse(ax, stops, zorder=5)
-        if ax is ax_near:
-            label_sols(ax, stops, box)
         frame_panel(ax, box, unit, background)
     mark_zoom(ax_full, near, full)
     counts = {s: sum(1 for r in rows if str(r["split"]) == s) for s in colours}
@@ -112,13 +111,14 @@ def map_figure(
     elif not held_near.regions:
         title = "the traverse (cyan box); no held-out area on this panel"
     ax_near.set_title(title, fontsize=10)
-    return png_bytes(fig)
+    label_stops_apart(ax_near, stops)  # last: it needs the settled layout
+    return png_bytes(fig, dpi)
 
 
 # -- histograms ---------------------------------------------------------------------------------
 
 
-def histograms_figure(rows: list[dict[str, Any]]) -> bytes:
+def histograms_figure(rows: list[dict[str, Any]], dpi: int = DPI) -> bytes:
     """Four histograms stacked by split: farthest visible range (m), footprint area (map
     units squared), visible area (true m2) and camera elevation angle (degrees); PNG."""
     from matplotlib.ticker import MaxNLocator
@@ -160,7 +160,7 @@ def histograms_figure(rows: list[dict[str, Any]]) -> bytes:
                      fontsize=9)  # fmt: skip
     if rows:
         axes[0].legend(fontsize=8, title="split", title_fontsize=8)
-    return png_bytes(fig)
+    return png_bytes(fig, dpi)
 
 
 def _finite(x: Any) -> TypeGuard[float]:
@@ -170,7 +170,9 @@ def _finite(x: Any) -> TypeGuard[float]:
 # -- a gallery card ------------------------------------------------------------------------------
 
 
-def sample_card(sample: dict[str, Any], camera_center_map: list[float] | None = None) -> bytes:
+def sample_card(
+    sample: dict[str, Any], camera_center_map: list[float] | None = None, dpi: int = DPI
+) -> bytes:
     """One sample (a :class:`MarsPairsDataset` item with ground, ortho, viewshed): its ground
     image beside its ortho chip with the viewshed (green), the camera wedge (from
     ``camera_center_map``, map x, y of the dataset CRS, when given, else the rover origin) and
@@ -202,4 +204,4 @@ def sample_card(sample: dict[str, Any], camera_center_map: list[float] | None = 
     for ax in (ax_g, ax_o):
         ax.set_xticks([])
         ax.set_yticks([])
-    return png_bytes(fig)
+    return png_bytes(fig, dpi)

@@ -3,6 +3,7 @@ the background, the mission's terrain, traverse and rendering, and when each is 
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -49,6 +50,12 @@ def test_first_build_prints_a_line_per_phase(
     ]
     at = [next((i for i, line in enumerate(out) if line.startswith(e)), -1) for e in expected]
     assert -1 not in at and at == sorted(at), out
+    # the kernels' line gives the compile's own time and the wait after the mission
+    (line,) = [ln for ln in out if ln.startswith("kernels compiled (")]
+    assert re.fullmatch(
+        r"kernels compiled \(\d+ s, beside the mission; \d+ s waited after it\); building \.\.\.",
+        line,
+    ), line
     assert (tmp_path / "mission" / "truth.parquet").is_file()
     # a second run finds the mission and says nothing
     _ensure_synthetic(config)

@@ -4,6 +4,7 @@ panels carry scale bars, the overview names its CRS and axes and draws the held-
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -124,3 +125,66 @@ def test_overview_labels_its_axes_crs_and_draws_the_held_out_area(dataset: Path)
         assert len(pink) >= 2 and all(p.get_alpha() >= 0.3 for p in pink)
     finally:
         pyplot().close(fig)
+
+
+def _extents(fig: Any, texts: list) -> list:
+    renderer = fig.canvas.get_renderer()
+    return [t.get_window_extent(renderer) for t in texts]
+
+
+def test_overview_labels_never_overlap_and_stay_in_their_panel(dataset: Path) -> None:
+    """Every text on the map panels (sol labels, held-out and buffer names, the scale bar's)
+    lies inside its panel and overlaps no other; the keys sit below the panels; the title
+    names a zoom box only when one is drawn."""
+    from mars_pairs.viz.common import pyplot
+    from mars_pairs.viz.overview import overview_figure
+
+    fig = overview_figure(dataset, colour_by="split")
+    try:
+        fig.canvas.draw()
+        full, near = fig.axes[:2]
+        assert any(t.get_text().startswith("sol ") for t in near.texts)
+        for ax in (full, near):
+            frame = ax.get_window_extent()
+            boxes = _extents(fig, [t for t in ax.texts if t.get_visible() and t.get_text()])
+            for i, a in enumerate(boxes):
+                assert frame.x0 <= a.x0 and a.x1 <= frame.x1, ax.texts[i].get_text()
+                assert frame.y0 <= a.y0 and a.y1 <= frame.y1, ax.texts[i].get_text()
+                for b in boxes[i + 1 :]:
+                    assert not a.overlaps(b), (a, b)
+            legend = ax.get_legend()
+            if legend is not None:  # below the panel, over none of the map
+                assert legend.get_window_extent().y1 <= frame.y0
+        cyan = [ln for ln in full.lines if ln.get_color() == "cyan"]
+        assert ("cyan" in near.get_title()) == bool(cyan)
+    finally:
+        pyplot().close(fig)
+
+
+def test_the_scale_bar_goes_to_a_corner_the_data_leave_free() -> None:
+    import shapely
+
+    from mars_pairs.viz.map import quiet_corner
+
+    box = (0.0, 0.0, 100.0, 100.0)
+    assert quiet_corner(box, shapely.box(0, 0, 20, 20)) != "lower left"
+    busy = shapely.union_all([shapely.box(0, 0, 20, 20), shapely.box(80, 0, 100, 20)])
+    assert quiet_corner(box, busy) in ("upper left", "upper right")
+    assert quiet_corner(box, shapely.Polygon()) == "lower left"
+
+
+def test_overview_and_report_take_a_dpi(dataset: Path, tmp_path: Path) -> None:
+    from PIL import Image
+
+    from mars_pairs.cli.main import main
+    from mars_pairs.viz.common import OVERVIEW_SIZE
+
+    out = tmp_path / "o.png"
+    assert main(["overview", str(dataset), "--out", str(out), "--dpi", "40"]) == 0
+    with Image.open(out) as im:
+        assert im.size == (round(OVERVIEW_SIZE[0] * 40), round(OVERVIEW_SIZE[1] * 40))
+    page = tmp_path / "r.html"
+    assert main(["report", str(dataset), "--out", str(page), "--samples", "0", "--dpi", "30"]) == 0
+    small = page.stat().st_size
+    assert main(["report", str(dataset), "--out", str(page), "--samples", "0", "--dpi", "90"]) == 0
+    assert page.stat().st_size > small

@@ -304,14 +304,15 @@ def test_report_renders_in_chromium(
 
 def test_report_is_one_file_with_inline_images(dataset: Path) -> None:
     assert main(["report", str(dataset), "--samples", "0"]) == 0
-    path = dataset / "report.html"
+    path = dataset.parent / "ds-report.html"  # beside the dataset folder, not in it
+    assert not (dataset / "report.html").exists()
     text = path.read_text()
     assert "<script" not in text and "http://" not in text and "https://" not in text
     assert text.count('src="data:image/png;base64,') == 2  # the map and the histograms
     for raw in text.split('src="data:image/png;base64,')[1:]:
         with Image.open(io.BytesIO(base64.b64decode(raw.split('"', 1)[0]))) as im:
             assert im.format == "PNG" and min(im.size) > 100
-    assert not [p.name for p in dataset.iterdir() if ".tmp" in p.name]  # written atomically
+    assert not [p.name for p in dataset.parent.iterdir() if ".tmp" in p.name]  # atomically
 
 
 def test_report_of_a_dataset_without_samples_lists_its_failures(
@@ -338,7 +339,7 @@ def test_report_without_the_orthoimage_still_draws_the_map(dataset: Path, tmp_pa
     info["config"]["inputs"]["ortho"] = str(tmp_path / "gone" / "ortho.tif")
     (moved / "dataset.json").write_text(json.dumps(info))
     assert main(["report", str(moved), "--samples", "1"]) == 0
-    assert (moved / "report.html").read_text().count('src="data:image/png;base64,') == 3
+    assert (tmp_path / "moved-report.html").read_text().count('src="data:image/png;base64,') == 3
 
 
 @pytest.mark.parametrize(
@@ -407,3 +408,52 @@ def test_gallery_wedges_start_at_the_camera_centre(
         meta = json.loads(read_member(dataset, loc, name=f"{r['key']}.meta.json"))
         centres.append(tuple(meta["camera_center_map"][:2]))
     assert apexes and all(a in centres for a in apexes)
+
+
+def test_the_tools_outputs_never_block_the_next_build(
+    dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """report, overview and export-qgis write beside the dataset folder by default and refuse
+    a path inside it; a rebuild of the same config then works."""
+    config = yaml.safe_load((dataset.parent / "c.yaml").read_text())
+    config["output"]["dir"] = str(tmp_path / "ds")
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(config))
+    assert main(["build", "--config", str(tmp_path / "c.yaml"), "--quiet"]) == 0
+    ds = tmp_path / "ds"
+    before = sorted(p.relative_to(ds).as_posix() for p in ds.rglob("*"))
+    assert main(["report", str(ds), "--samples", "1"]) == 0
+    assert main(["overview", str(ds)]) == 0
+    assert main(["export-qgis", str(ds)]) == 0
+    for name in ("ds-report.html", "ds-overview.png", "ds-qgis.gpkg"):
+        assert (tmp_path / name).is_file(), name
+    assert sorted(p.relative_to(ds).as_posix() for p in ds.rglob("*")) == before
+    capsys.readouterr()
+    for argv in (
+        ["report", str(ds), "--out", str(ds / "report.html")],
+        ["overview", str(ds), "--out", str(ds / "sub" / "o.png")],
+        ["export-qgis", str(ds), str(ds / "q.gpkg")],
+    ):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert "inside the dataset folder" in err and "beside the folder" in err, err
+    assert sorted(p.relative_to(ds).as_posix() for p in ds.rglob("*")) == before
+    # the same config builds again over its own folder (not --resume: a rebuild)
+    assert main(["build", "--config", str(tmp_path / "c.yaml"), "--quiet"]) == 0
+
+
+def test_the_report_and_dataset_json_record_the_libraries_and_speak_plainly(
+    dataset: Path, tmp_path: Path
+) -> None:
+    versions = json.loads((dataset / "dataset.json").read_text())["versions"]
+    for name in ("gdal", "proj", "torch", "pillow", "imagecodecs", "rasterio", "numba"):
+        assert versions[name] not in ("", "-"), name
+    assert versions["torch"].startswith("2.")
+    out = tmp_path / "r.html"
+    assert main(["report", str(dataset), "--out", str(out), "--samples", "0"]) == 0
+    text = out.read_text()
+    for name in ("gdal", "proj", "imagecodecs", "pillow", "torch"):
+        assert f"<td>{name}</td>" in text, name
+    for raw in ("True", "False", "[]", "None", "{}"):
+        assert f"<td>{raw}</td>" not in text, raw
+    assert "<td>warnings</td><td>none</td>" in text
+    assert "<td>guaranteed</td><td>yes: buffer" in text or "<td>guaranteed</td><td>no: " in text

@@ -132,3 +132,26 @@ def test_fetch_all_runs_the_sections_the_config_has(archive, tmp_path, capsys):
         assert main(["fetch", "all", "--config", str(config), "--quiet"]) == 0
     assert (tmp_path / "cache" / fetch_archive.M2020_PLACES).is_file()
     assert "4 products (4 listed)" in capsys.readouterr().out
+
+
+def test_an_offline_dry_run_fails_fast_writes_nothing_and_exits_alike(
+    tmp_path, capsys, monkeypatch
+):
+    """A host name that does not resolve (offline) is not retried; a dry run writes no file;
+    both missions' configs exit with the same status."""
+    import urllib3.util.retry
+
+    sleeps = []
+    monkeypatch.setattr(urllib3.util.retry.Retry, "sleep", lambda self, *a: sleeps.append(1))
+    statuses = {}
+    for mission in ("msl", "m2020"):
+        folder = tmp_path / mission
+        folder.mkdir()
+        config = write_config(folder, "https://no-such-host.invalid", mission)
+        before = sorted(folder.rglob("*"))
+        statuses[mission] = main(["fetch", "all", "--config", str(config), "--dry-run", "--quiet"])
+        err = capsys.readouterr().err
+        assert "host name not resolved (offline?)" in err and "retries" not in err, err
+        assert sorted(folder.rglob("*")) == before  # no failure file, no cache folder
+    assert statuses["msl"] == statuses["m2020"] != 0, statuses
+    assert sleeps == []  # no backoff: nothing was retried

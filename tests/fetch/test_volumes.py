@@ -6,7 +6,6 @@ from __future__ import annotations
 import shutil
 from pathlib import Path, PurePosixPath
 
-import pyarrow.parquet as pq
 import pytest
 import yaml
 
@@ -142,9 +141,8 @@ def test_msl_volumes_come_from_the_table_and_each_product_once(volumes_14_15, tm
     assert report.failures[0].message.startswith("row 4: refused path 'DATA\\\\RDR")
     assert "  skipped 2: same product in a newer volume" in report.format(True).splitlines()
     assert "  skipped 1: older version" in report.format(True).splitlines()
-    skipped = pq.read_table(cfg.cache / SKIPPED).to_pylist()
-    assert sorted(r["reason"] for r in skipped) == sorted(s.reason for s in report.skipped)
-    assert pq.read_table(cfg.cache / FAILURES).num_rows == 1
+    # a dry run prints its failures and skips and writes no report file
+    assert not (cfg.cache / SKIPPED).exists() and not (cfg.cache / FAILURES).exists()
 
 
 def test_filters_at_the_index_and_the_label_are_counted_by_reason(volumes_14_15, tmp_path):

@@ -395,3 +395,39 @@ def test_missing_inputs_exit_2_naming_the_key(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"inputs.{key}" in err[0]
     assert not (tmp_path / "ds").exists()  # nothing written
+
+
+def test_inspect_sorts_sols_as_numbers_and_lists_them_as_runs() -> None:
+    from mars_pairs.cli.summary import format_facts, sol_ranges
+
+    assert sol_ranges([100, 9, 10, 11, 99, 13, 9]) == [(9, 11), (13, 13), (99, 100)]
+    facts = {
+        "dataset": "d", "samples": 3, "by_mission": {"m2020": 3}, "by_instrument": {"X": 3},
+        "by_split": {
+            "train": {"samples": 2, "share": 2 / 3}, "val": {"samples": 1, "share": 1 / 3},
+        },
+        "sols": {"distinct": 3, "first": 9, "last": 100, "ranges": ["9-11", "100"]},
+        "view_coverage": {"median": 0.05, "by_instrument": {"X": 0.05}, "missing_the_chip": 1},
+        "warnings": [], "size_bytes": 10**6,
+    }  # fmt: skip
+    text = format_facts(facts)
+    assert "sols: 3 from 9 to 100, 2 runs of consecutive sols:\n  9-11, 100" in text
+    assert "train                           2   66.7 %" in text
+    assert "median 5.0 % (X 5.0 %); 1 views miss their chip" in text
+
+
+def test_inspect_json_holds_the_split_shares_and_view_coverage(
+    built: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["inspect", str(built), "--json"]) == 0
+    facts = json.loads(capsys.readouterr().out)
+    rows = manifest_rows(built)
+    assert facts["samples"] == len(rows)
+    assert sum(v["samples"] for v in facts["by_split"].values()) == len(rows)
+    assert abs(sum(v["share"] for v in facts["by_split"].values()) - 1) < 1e-3
+    sols = [int(k) for k in facts["sols"]["by_sol"]]
+    assert sols == sorted(sols) and sum(facts["sols"]["by_sol"].values()) == len(rows)
+    cover = facts["view_coverage"]
+    assert 0 < cover["median"] <= 1 and set(cover["by_instrument"]) == {
+        r["instrument"] for r in rows
+    }

@@ -45,7 +45,7 @@ def _someone_elses(out: Path) -> dict[str, str]:
     (out / "shards").mkdir(parents=True)
     (out / "parts").mkdir()
     (out / "shards" / "my-webdataset-000.tar").write_bytes(b"not ours " * 100)
-    (out / "shards" / "shard-000000.tar").write_bytes(b"named like ours, not ours")
+    (out / "shards" / "shard-000000-train.tar").write_bytes(b"named like ours, not ours")
     (out / "manifest.parquet").write_bytes(b"PAR1 someone else's manifest PAR1")
     (out / "parts" / "notes.parquet").write_bytes(b"PAR1 notes PAR1")
     (out / "README.txt").write_text("my dataset\n")
@@ -101,13 +101,14 @@ def test_a_rebuild_clears_its_own_dataset_and_its_killed_temporaries(
 ) -> None:
     out = tmp_path / "ds"
     run_build(build_config(small_mission, out, output={"shard_size": 1}), progress=False)
-    assert (out / "shards" / "shard-000003.tar").exists()
-    (out / "shards" / ".shard-000001.tar.tmp-4242").write_bytes(b"half a shard")
+    assert list((out / "shards").glob("shard-000003-*.tar"))
+    (out / "shards" / ".shard-000001-train.tar.tmp-4242").write_bytes(b"half a shard")
     (out / "parts").mkdir()  # a finished build left none
     (out / "parts" / ".build.json.tmp-4242").write_bytes(b"{")
     run_build(build_config(small_mission, out, output={"shard_size": 2}), progress=False)
     names = set(_files(out))
-    assert "shards/shard-000001.tar" in names and "shards/shard-000002.tar" not in names
+    assert any(n.startswith("shards/shard-000001-") for n in names)
+    assert not any(n.startswith("shards/shard-000002") for n in names)
     assert not any(".tmp-" in n for n in names)
     assert "parts/clearing.json" not in names
 

@@ -29,14 +29,16 @@ def _fail(label: str) -> Outcome:
 
 
 def _ok(label: str, key: str, seconds: dict[str, float]) -> Outcome:
-    loc = MemberLocation("shards/shard-000001.tar", 512, 3, 1)
+    loc = MemberLocation("shards/shard-000001-train.tar", 512, 3, 1)
     return Outcome("ok", label, key, {"key": key, "label_path": label}, {"meta.json": loc}, seconds)
 
 
 def _chunk(*outcomes: Outcome, staged: bool = True) -> ChunkResult:
-    shard = "shards/shard-000001.tar" if any(o.kind == "ok" for o in outcomes) else None
+    shards = (
+        (("shards/shard-000001-train.tar", 2048),) if any(o.kind == "ok" for o in outcomes) else ()
+    )
     names = ("parts/.failures-000001.parquet.tmp-1", "parts/.manifest-000001.parquet.tmp-1")
-    return ChunkResult(1, outcomes, shard, 2048, 0.5, "host:1", names if staged else None)
+    return ChunkResult(1, outcomes, shards, 0.5, "host:1", names if staged else None)
 
 
 def test_a_key_an_earlier_chunk_built_becomes_a_duplicate_failure_row() -> None:

@@ -9,6 +9,7 @@ import dataclasses
 import hashlib
 import os
 import pickle
+import re
 import shutil
 import tarfile
 from collections.abc import Iterable, Iterator
@@ -71,12 +72,14 @@ def test_a_pool_worker_writes_the_shard_and_sends_back_rows_only(
     assert binary and all(p[p.rindex("[") :] in wkb for p in binary), binary
     assert len(pickle.dumps(result)) < 4096 * len(labels)
     out = tmp_path / "ds"
-    shard = out / result.shard
-    assert shard.stat().st_size == result.shard_bytes  # in place under its final name
+    assert result.shards
+    for rel, size in result.shards:  # in place under their final names, one per split
+        assert (out / rel).stat().st_size == size
     assert all(is_temporary(rel) and (out / rel).is_file() for rel in result.staged)
     for o in result.outcomes:  # every location reads back, checksum verified
         for name, loc in o.members.items():
-            assert isinstance(loc, MemberLocation) and loc.shard == result.shard
+            assert isinstance(loc, MemberLocation)
+            assert loc.shard == f"shards/shard-000000-{o.row['split']}.tar"
             read_member(out, loc, name=f"{o.key}.{name}", verify=True)
             fld = name.split(".")[0]
             assert (o.row[f"{fld}_offset"], o.row[f"{fld}_size"]) == (loc.offset, loc.size)
@@ -128,20 +131,21 @@ def test_duplicates_in_and_across_chunks_give_the_same_bytes_on_any_worker_count
     # bytes a shard of L3 alone has; chunk 3 (its only sample a duplicate) has no shard
     manifest = pq.read_table(out / "manifest.parquet").to_pylist()
     row = next(r for r in manifest if Path(r["label_path"]).name == labels[3].name)
-    shard = out / "shards" / "shard-000002.tar"
+    shard = out / row["meta_shard"]
+    assert shard.name == f"shard-000002-{row['split']}.tar"
     with tarfile.open(shard) as tar:
         names = tar.getnames()
     assert names and all(n.startswith(row["key"] + ".") for n in names)
-    assert not (out / "shards" / "shard-000003.tar").exists()
+    assert not list((out / "shards").glob("shard-000003*"))
     members = {}
     for name in names:
         fld = name[len(row["key"]) + 1 :].split(".")[0]
         loc = MemberLocation(row[f"{fld}_shard"], row[f"{fld}_offset"], row[f"{fld}_size"],
                              row[f"{fld}_crc32c"])  # fmt: skip
         members[name[len(row["key"]) + 1 :]] = read_member(out, loc, name=name, verify=True)
-    with ShardWriter(tmp_path / "alone", "shards/shard-000002.tar") as alone:
+    with ShardWriter(tmp_path / "alone", row["meta_shard"]) as alone:
         alone.add(row["key"], members)
-    assert (tmp_path / "alone" / "shards" / "shard-000002.tar").read_bytes() == shard.read_bytes()
+    assert (tmp_path / "alone" / row["meta_shard"]).read_bytes() == shard.read_bytes()
     assert not any(is_temporary(p.relative_to(out).as_posix()) for p in out.rglob(".*"))
 
 
@@ -166,21 +170,21 @@ def test_a_dead_workers_temporary_shard_is_gone_when_the_build_ends(
     config = build_config(small_mission, tmp_path / "ds", output={"shard_size": 2})
     summary = run_build(config, engine=_Meddling(leave_a_temporary), progress=False)
     assert summary.samples == 4
-    assert sorted(p.name for p in (tmp_path / "ds" / "shards").iterdir()) == [
-        "shard-000000.tar",
-        "shard-000001.tar",
-    ]
+    names = sorted(p.name for p in (tmp_path / "ds" / "shards").iterdir())
+    assert all(re.fullmatch(r"shard-00000[01]-[a-z]+\.tar", n) for n in names), names
+    assert {n[:12] for n in names} == {"shard-000000", "shard-000001"}
 
 
 def test_a_shard_changed_after_its_worker_wrote_it_is_not_committed(
     small_mission: Path, tmp_path: Path
 ) -> None:
     def truncate(out: Path, result: ChunkResult) -> None:
-        with open(out / result.shard, "r+b") as fh:
-            fh.truncate(result.shard_bytes - 512)
+        rel, size = result.shards[0]
+        with open(out / rel, "r+b") as fh:
+            fh.truncate(size - 512)
 
     config = build_config(small_mission, tmp_path / "ds", output={"shard_size": 2})
-    with pytest.raises(MarsPairsError, match=r"shard-000000\.tar: .* bytes, but its worker"):
+    with pytest.raises(MarsPairsError, match=r"shard-000000-[a-z]+\.tar: .* bytes, but its worker"):
         run_build(config, engine=_Meddling(truncate), progress=False)
     assert not (tmp_path / "ds" / "parts" / "manifest-000000.parquet").exists()
 

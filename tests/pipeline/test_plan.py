@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import glob
 import hashlib
+import shutil
 import tracemalloc
 from collections.abc import Iterable, Iterator
 from dataclasses import replace
@@ -126,7 +127,7 @@ def _failing(chunks: Iterable[ChunkTask]) -> Iterator[ChunkResult]:
         error = ValueError("not built")
         rows = [worker.failure_row(label, "label", error) for label in task.labels]
         fails = tuple(Outcome("fail", row["path"], row=row) for row in rows)
-        yield ChunkResult(task.index, fails, None, 0, 0.0, "test")
+        yield ChunkResult(task.index, fails, (), 0.0, "test")
 
 
 def test_engines_get_the_chunks_lazily(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -177,3 +178,13 @@ def test_a_label_list_that_changes_during_the_build_is_refused(tmp_path: Path) -
         run_build(config, engine=Engine(), progress=False)
     with pytest.raises(ConfigError, match="cannot resume"):
         run_build(config, resume=True, progress=False)
+
+
+def test_a_real_config_without_its_files_points_at_fetch_all(tmp_path: Path) -> None:
+    repo = Path(__file__).resolve().parents[2]
+    work = tmp_path / "checkout"
+    shutil.copytree(repo / "configs", work / "configs")  # nothing fetched beside it
+    config = work / "configs" / "msl_gale.yaml"
+    with pytest.raises(ConfigError, match=r"no file matches .*mars-pairs fetch all --config "):
+        plan_build(load_config(config))
+    assert main(["build", "--config", str(config), "--dry-run"]) == 2

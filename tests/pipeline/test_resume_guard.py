@@ -150,10 +150,10 @@ def test_a_resume_refuses_a_strangers_files_and_keeps_its_own_leftovers(
     config, _ = _config(small_mission, tmp_path, out)
     run_build(config, progress=False)
     _killed_after(out, 1)  # chunks 1..3 unfinished, their shards left (a kill before the part)
-    assert (out / "shards" / "shard-000001.tar").is_file()
-    shard3 = out / "shards" / "shard-000003.tar"
+    assert list((out / "shards").glob("shard-000001-*.tar"))
+    (shard3,) = (out / "shards").glob("shard-000003-*.tar")  # one shard: one split
     theirs = {
-        "shards/shard-000003.tar": b"SOMEONE ELSES DATA",
+        shard3.relative_to(out).as_posix(): b"SOMEONE ELSES DATA",
         "parts/notes.parquet": b"PAR1 notes PAR1",
         "parts/failures-000002.parquet": b"not a parquet file",
     }
@@ -178,7 +178,7 @@ def test_a_resume_refuses_a_strangers_files_and_keeps_its_own_leftovers(
     summary = run_build(config, resume=True, progress=False)
     assert (summary.chunks_built, summary.chunks_resumed) == (3, 1)
     # over a finished build: a stranger's file at the top, or a shard beyond its chunks
-    for rel in ("notes.txt", "shards/shard-000007.tar"):
+    for rel in ("notes.txt", "shards/shard-000007-train.tar", "shards/shard-000007.tar"):
         (out / rel).write_bytes(b"mine\n")
         before = _files(out)
         with pytest.raises(ConfigError, match=rf"holds {rel}"):

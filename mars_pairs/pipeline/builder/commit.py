@@ -7,7 +7,7 @@ samples dropped in the split buffer are counted, the committed samples' stage ti
 and a strict build stops at the chunk's first failure row. :func:`write_chunk` then makes it
 so in the output folder: it renames the parts the worker staged into place (the failure part,
 then the manifest part: the chunk's commit marker) or, when duplicates changed the chunk,
-writes the shard again without them and writes the parts itself. On object storage
+writes the chunk's shards again without them and writes the parts itself. On object storage
 (``output.dir`` a URL: ``store.fs``) a rename is a server-side copy and a delete (the copy
 appears whole), and a shard rewritten is downloaded, written again locally and uploaded
 whole.
@@ -46,7 +46,7 @@ class ChunkSelection:
     (committed and dropped). ``stage_seconds``: the committed samples' stage times summed
     (stage -> seconds). ``stop``: for a strict build with a failure row, the first one
     (``path: stage: error_type: message``), else None. ``rewrite_shard``: a sample the worker
-    wrote into the shard is now a duplicate (the shard must be written again without it).
+    wrote into a shard is now a duplicate (the shards must be written again without it).
     ``parts_staged``: the parts the worker staged are the chunk's (else the driver writes
     them).
     """
@@ -89,24 +89,24 @@ def select_chunk(result: ChunkResult, seen: Mapping[str, str], strict: bool) -> 
         built={str(o.key): o.label for o in outcomes if o.kind in ("ok", "dropped")},
         stage_seconds=dict(seconds),
         stop=stop,
-        rewrite_shard=result.shard is not None and len(ok) != written,
+        rewrite_shard=bool(result.shards) and len(ok) != written,
         parts_staged=result.staged is not None and not any(earlier),
     )
 
 
 def write_chunk(config: BuildConfig, result: ChunkResult, selection: ChunkSelection) -> None:
     """Commit chunk ``result.index`` as ``selection`` says: its failure part, then its
-    manifest part (the commit marker). MarsPairsError when the shard is not the size its
+    manifest part (the commit marker). MarsPairsError when a shard is not the size its
     worker reported; BuildError (the staged parts removed, nothing committed) when the
     selection stops a strict build."""
     out = config.output.dir
     _, manifest_part, failures_part = part_paths(out, result.index)
-    if result.shard is not None:
-        size = fs.size(fs.join(out, result.shard))
-        if size != result.shard_bytes:
+    for shard, written in result.shards:
+        size = fs.size(fs.join(out, shard))
+        if size != written:
             raise MarsPairsError(
-                f"{fs.join(out, result.shard)}: {size} bytes, but its worker "
-                f"({result.worker}) wrote {result.shard_bytes}; rerun the build with --resume"
+                f"{fs.join(out, shard)}: {size} bytes, but its worker "
+                f"({result.worker}) wrote {written}; rerun the build with --resume"
             )
     if selection.parts_staged and selection.stop is None:
         assert result.staged is not None
@@ -135,47 +135,52 @@ def write_chunk(config: BuildConfig, result: ChunkResult, selection: ChunkSelect
 def _rewrite_shard(
     out: Path, result: ChunkResult, outcomes: tuple[Outcome, ...]
 ) -> tuple[Outcome, ...]:
-    """Write the shard of ``result`` again (atomically, over the worker's) with the ``ok``
-    samples of ``outcomes`` only, read back from the worker's shard (checksums verified),
-    and return ``outcomes`` with their new locations; the shard is removed when no sample
-    is left."""
-    assert result.shard is not None
-    kept: list[Outcome] = []
-    shard: ShardWriter | None = None
-    try:
-        for o in outcomes:
-            if o.kind != "ok":
-                kept.append(o)
-                continue
-            members = read_members(out, o.members, key=str(o.key), verify=True)
-            if shard is None:
-                shard = ShardWriter(out, result.shard)
-            locs = shard.add(str(o.key), members)
-            kept.append(replace(o, row=with_locations(o.row, locs), members=locs))
-    except BaseException:
-        if shard is not None:
-            shard.close(commit=False)
-        raise
-    if shard is None:
-        (out / result.shard).unlink()
-    else:
-        shard.close()
+    """Write the shards of ``result`` again (each atomically, over the worker's) with the
+    ``ok`` samples of ``outcomes`` only, read back from the worker's shards (checksums
+    verified), and return ``outcomes`` with their new locations; a shard is removed when no
+    sample is left in it."""
+    kept = list(outcomes)
+    for rel, _ in result.shards:
+        shard: ShardWriter | None = None
+        try:
+            for i, o in enumerate(kept):
+                if o.kind != "ok" or _shard_of(o) != rel:
+                    continue
+                members = read_members(out, o.members, key=str(o.key), verify=True)
+                if shard is None:
+                    shard = ShardWriter(out, rel)
+                locs = shard.add(str(o.key), members)
+                kept[i] = replace(o, row=with_locations(o.row, locs), members=locs)
+        except BaseException:
+            if shard is not None:
+                shard.close(commit=False)
+            raise
+        if shard is None:
+            (out / rel).unlink()
+        else:
+            shard.close()
     return tuple(kept)
+
+
+def _shard_of(outcome: Outcome) -> str:
+    """The shard holding the members of the written sample ``outcome`` (all in one)."""
+    return next(iter(outcome.members.values())).shard
 
 
 def _rewrite_remote_shard(
     out: str, result: ChunkResult, outcomes: tuple[Outcome, ...]
 ) -> tuple[Outcome, ...]:
-    """``_rewrite_shard`` of a shard on object storage under ``out``: downloaded into a local
+    """``_rewrite_shard`` of shards on object storage under ``out``: downloaded into a local
     temporary folder, written again there, then uploaded whole (or removed)."""
-    assert result.shard is not None
     with fs.local_staging() as staging:
-        local = staging / result.shard
-        local.parent.mkdir(parents=True, exist_ok=True)
-        local.write_bytes(fs.read_bytes(fs.join(out, result.shard)))
+        for rel, _ in result.shards:
+            local = staging / rel
+            local.parent.mkdir(parents=True, exist_ok=True)
+            local.write_bytes(fs.read_bytes(fs.join(out, rel)))
         kept = _rewrite_shard(staging, result, outcomes)
-        if local.exists():
-            fs.upload(local, fs.join(out, result.shard))
-        else:
-            fs.remove(fs.join(out, result.shard))
+        for rel, _ in result.shards:
+            if (staging / rel).exists():
+                fs.upload(staging / rel, fs.join(out, rel))
+            else:
+                fs.remove(fs.join(out, rel))
     return kept

@@ -3,13 +3,14 @@
 An engine (:class:`Engine`: the in-process build, ``pipeline.builder.local_pool.LocalPool``,
 ``pipeline.builder.dask_engine.DaskEngine``) runs :func:`build_chunk` once per chunk, wherever its
 workers are. A worker builds the chunk's samples one at a time and writes them straight
-into the chunk's shard in the output folder (``shards/shard-{k:06d}.tar``, through the
-temporary name ``.shard-{k:06d}.tar.tmp-<pid>`` and a rename: ``store.shards.ShardWriter``),
+into the chunk's shard of its split in the output folder (``shards/shard-{k:06d}-{split}.tar``,
+through the temporary name ``.shard-{k:06d}-{split}.tar.tmp-<pid>`` and a rename:
+``store.shards.ShardWriter``; a split's samples never share a shard with another split's),
 so a sample's bytes never leave the worker that built it; the worker also writes the chunk's
 failure part and manifest part under their temporary names (``.NAME.tmp-<pid>``, synced, not
 renamed). What travels back to the driver is a :class:`ChunkResult`: one :class:`Outcome`
 per label (its manifest row with the member locations, or its failure row; a few KB a
-sample at most), the shard's name and size, the staged parts' names, and timings. The driver
+sample at most), the shards' names and sizes, the staged parts' names, and timings. The driver
 commits the chunks in order (``pipeline.builder.commit``): it renames the failure part, then the
 manifest part (the chunk's commit marker) into place. A killed build leaves temporary names
 and shards of uncommitted chunks, which the next build removes or writes again.
@@ -20,7 +21,7 @@ the first). A worker resolves the duplicates inside its chunk: it writes the fir
 reports the later ones as ``duplicate`` outcomes. Duplicates of an earlier chunk's key are
 resolved by the driver at commit, which knows every earlier key (``pipeline.builder.commit``):
 it turns them into failure rows, writes the chunk's parts itself, and, when such a sample was
-written into the shard, rewrites the shard without it (a rare path, the only one where sample
+written into a shard, rewrites the chunk's shards without it (a rare path, the only one where sample
 bytes pass through the driver).
 The output is therefore byte-identical to a build that wrote every chunk in the driver, for
 any engine and worker count. Samples in the split buffer are dropped by the worker when the
@@ -49,7 +50,7 @@ import pyarrow as pa
 
 from mars_pairs.errors import DuplicateKeyError, WorkerStartError
 from mars_pairs.pipeline.builder import worker
-from mars_pairs.pipeline.builder.layout import DROPPED_KEY, part_paths
+from mars_pairs.pipeline.builder.layout import DROPPED_KEY, part_paths, shard_name
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.sample.context import SampleContext
 from mars_pairs.store import fs
@@ -96,10 +97,11 @@ class Outcome:
 
 @dataclass(frozen=True)
 class ChunkResult:
-    """A chunk built by a worker: its outcomes in label order, and the shard it wrote.
+    """A chunk built by a worker: its outcomes in label order, and the shards it wrote.
 
-    ``shard``: the shard's path relative to the output folder, None when no sample was
-    written (then there is no shard file); ``shard_bytes`` its final size. ``seconds``: the
+    ``shards``: (path relative to the output folder, final size in bytes) of each shard it
+    wrote (one per split among its samples, sorted by path; none when no sample was
+    written). ``seconds``: the
     worker's wall time for the chunk; ``worker``: ``host:pid`` of the process that built it.
     ``staged``: the temporary names (relative to the output folder) under which the worker
     wrote the chunk's failure part and manifest part as they are when no earlier chunk
@@ -109,8 +111,7 @@ class ChunkResult:
 
     index: int
     outcomes: tuple[Outcome, ...]
-    shard: str | None
-    shard_bytes: int
+    shards: tuple[tuple[str, int], ...]
     seconds: float
     worker: str
     staged: tuple[str, str] | None = None
@@ -166,7 +167,7 @@ def build_chunk(config: BuildConfig, task: ChunkTask) -> ChunkResult:
 def _upload(out: str, staging: Path, result: ChunkResult) -> ChunkResult:
     """Upload the files of ``result``, written under ``staging``, to the same names under the
     URL ``out``, each whole: the shard, then the staged failure part and manifest part."""
-    for rel in (*((result.shard,) if result.shard is not None else ()), *(result.staged or ())):
+    for rel in (*(rel for rel, _ in result.shards), *(result.staged or ())):
         fs.upload(staging / rel, fs.join(out, rel))
     return result
 
@@ -174,11 +175,10 @@ def _upload(out: str, staging: Path, result: ChunkResult) -> ChunkResult:
 def _build_chunk(config: BuildConfig, task: ChunkTask, out: Path) -> ChunkResult:
     """``build_chunk`` with the chunk's files written into the local folder ``out``."""
     start = time.perf_counter()
-    shard_rel = part_paths(out, task.index)[0]
     drop = config.splits.buffer_policy == "drop"
     outcomes: list[Outcome] = []
     first: dict[str, str] = {}
-    shard: ShardWriter | None = None
+    shards: dict[str, ShardWriter] = {}  # split -> its shard, opened at its first sample
     try:
         for label in task.labels:
             status, r = worker.work(label)
@@ -196,20 +196,26 @@ def _build_chunk(config: BuildConfig, task: ChunkTask, out: Path) -> ChunkResult
             if drop and r.row["split"] == BUFFER:
                 outcomes.append(Outcome("dropped", name, r.key))
                 continue
-            if shard is None:
-                shard = ShardWriter(out, shard_rel)
-            locs = shard.add(r.key, r.members)
+            split = str(r.row["split"])
+            if split not in shards:
+                shards[split] = ShardWriter(out, shard_name(task.index, split))
+            locs = shards[split].add(r.key, r.members)
             outcomes.append(
                 Outcome("ok", name, r.key, with_locations(r.row, locs), locs, r.seconds)
             )
     except BaseException:
-        if shard is not None:
+        for shard in shards.values():
             shard.close(commit=False)
         raise
-    size = 0
-    if shard is not None:
-        shard.close()
-        size = shard.path.stat().st_size
+    written = []
+    try:
+        for split in sorted(shards):
+            shard = shards.pop(split)
+            shard.close()
+            written.append((shard.relpath, shard.path.stat().st_size))
+    finally:  # a failed close: the rest are not committed (a shard of an uncommitted chunk)
+        for shard in shards.values():
+            shard.close(commit=False)
     _, manifest_part, failures_part = part_paths(out, task.index)
     failures, manifest = part_tables(config, outcomes)
     staged = (
@@ -219,8 +225,7 @@ def _build_chunk(config: BuildConfig, task: ChunkTask, out: Path) -> ChunkResult
     return ChunkResult(
         task.index,
         tuple(outcomes),
-        shard_rel if shard is not None else None,
-        size,
+        tuple(sorted(written)),
         time.perf_counter() - start,
         f"{socket.gethostname()}:{os.getpid()}",
         staged,

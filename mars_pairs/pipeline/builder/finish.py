@@ -149,6 +149,43 @@ def license_of(config: BuildConfig) -> str:
     return config.output.license or default_license(config.inputs.synthetic is not None)
 
 
+def library_versions() -> dict[str, str]:
+    """The versions of what a build's bytes depend on: mars-pairs, Python, the libraries that
+    read and write the data (numpy, rasterio with its GDAL and PROJ, pyproj's PROJ, pyarrow,
+    numba, Pillow, imagecodecs) and torch, which reads it (from the installed metadata: torch
+    is not imported); ``-`` for one not installed."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    import numba
+    import numpy
+    import pyarrow
+    import pyproj
+    import rasterio
+
+    from mars_pairs.version import __version__
+
+    def installed(name: str) -> str:
+        try:
+            return version(name)
+        except PackageNotFoundError:
+            return "-"
+
+    return {
+        "mars_pairs": __version__,
+        "python": platform.python_version(),
+        "numpy": numpy.__version__,
+        "rasterio": rasterio.__version__,
+        "gdal": str(rasterio.__gdal_version__),
+        "proj": str(pyproj.proj_version_str),
+        "pyproj": pyproj.__version__,
+        "pyarrow": pyarrow.__version__,
+        "numba": numba.__version__,
+        "pillow": installed("pillow"),
+        "imagecodecs": installed("imagecodecs"),
+        "torch": installed("torch"),
+    }
+
+
 def write_dataset_json(
     config: BuildConfig,
     summary: BuildSummary,
@@ -162,13 +199,6 @@ def write_dataset_json(
     ``appends`` and ``build_stamp``); returns the document. ``input_files`` holds the
     fingerprints of the PLACES table, DEM and ortho without their paths
     (``fingerprints.input_files``), which ``--append`` checks."""
-    import numba
-    import numpy
-    import pyarrow
-    import rasterio
-
-    from mars_pairs.version import __version__
-
     counts: dict[str, Any] = {"samples": summary.samples, "failures": summary.failures}
     if manifest.num_rows:
         counts["by_split"] = dict(Counter(manifest.column("split").to_pylist()))
@@ -184,14 +214,7 @@ def write_dataset_json(
             os.path.relpath(root, out) if isinstance(out, Path) else root
         ).as_posix(),
         "license": license_of(config),
-        "versions": {
-            "mars_pairs": __version__,
-            "numpy": numpy.__version__,
-            "rasterio": rasterio.__version__,
-            "pyarrow": pyarrow.__version__,
-            "numba": numba.__version__,
-            "python": platform.python_version(),
-        },
+        "versions": library_versions(),
         "crs": crs,
         "crs_name": crs_name(crs),
         "chip": {

@@ -175,6 +175,8 @@ _CLEARED = (
     "README.md",
     "croissant.json",
     WIDS_INDEX,
+    "shardindex-*.json",
+    "shards-*.txt",
     "failures.parquet",
     "parts/manifest-*.parquet",
     "parts/*.parquet",

@@ -2,6 +2,11 @@
 which files a build of so many chunks writes (``written_by``) and the temporary names a killed
 build leaves (``is_temporary``).
 
+Chunk k writes one shard per split among its samples (``shards/shard-{k:06d}-{split}.tar``:
+a split's samples never share a shard with another split's), and the finished build one
+shard list per split (``shards-{split}.txt``, the split's shards relative to the folder, one
+a line) and one wids index per split (``shardindex-{split}.json``) beside the whole folder's.
+
 The output folder may be object storage (an fsspec URL: ``store.fs``): the same files under
 the same names, listed with one listing.
 """
@@ -13,6 +18,7 @@ from typing import Any
 
 from mars_pairs.store import fs
 from mars_pairs.store.atomic import temporary_target
+from mars_pairs.store.splits import SPLIT_NAME
 from mars_pairs.store.wids_index import WIDS_INDEX
 
 DROPPED_KEY = b"mars_pairs:dropped_in_buffer"
@@ -39,19 +45,33 @@ BUILD_FILES = (
 )
 
 
+#: A chunk's shard or part. A shard without a split in its name is one of an earlier version's
+#: builds (one shard a chunk): still a chunk file, so a rebuild clears it.
 CHUNK_FILE = re.compile(
-    r"(shards/shard-([0-9]{6,})\.tar|parts/(?:manifest|failures)-([0-9]{6,})\.parquet)"
+    rf"(shards/shard-([0-9]{{6,}})(?:-{SPLIT_NAME.pattern})?\.tar"
+    r"|parts/(?:manifest|failures)-([0-9]{6,})\.parquet)"
 )
+
+#: The per-split files of a finished build: shard lists and wids indexes.
+SPLIT_FILE = re.compile(rf"shards-{SPLIT_NAME.pattern}\.txt|shardindex-{SPLIT_NAME.pattern}\.json")
 
 
 def part_paths(out: fs.Location, k: int) -> tuple[str, Any, Any]:
-    """Chunk k's shard (relative to ``out``), manifest part and failure part (in ``out``: a
-    Path for a local folder, a URL for object storage)."""
+    """Chunk k's shard name stem (relative to ``out``: ``shard_name`` adds the split),
+    manifest part and failure part (in ``out``: a Path for a local folder, a URL for object
+    storage)."""
     return (
-        f"shards/shard-{k:06d}.tar",
+        f"shards/shard-{k:06d}",
         fs.join(out, f"parts/manifest-{k:06d}.parquet"),
         fs.join(out, f"parts/failures-{k:06d}.parquet"),
     )
+
+
+def shard_name(k: int, split: str) -> str:
+    """The shard of chunk ``k``'s samples of ``split``, relative to the output folder."""
+    if not SPLIT_NAME.fullmatch(split):
+        raise ValueError(f"split name {split!r}: expected {SPLIT_NAME.pattern}")
+    return f"shards/shard-{k:06d}-{split}.tar"
 
 
 def stamp_path(out: fs.Location) -> Any:
@@ -73,7 +93,7 @@ def written_by(chunks: int | None, rel: str) -> bool:
     relative to the output folder, with ``/``)."""
     if chunks is None:
         return False
-    if rel in BUILD_FILES:
+    if rel in BUILD_FILES or SPLIT_FILE.fullmatch(rel):
         return True
     k = chunk_of(rel)
     return k is not None and k < chunks
@@ -97,4 +117,4 @@ def is_temporary(rel: str) -> bool:
     if target is None:
         return False
     rel = f"{folder}/{target}" if folder else target
-    return rel in BUILD_FILES or chunk_of(rel) is not None
+    return rel in BUILD_FILES or SPLIT_FILE.fullmatch(rel) is not None or chunk_of(rel) is not None

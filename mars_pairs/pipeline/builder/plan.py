@@ -37,14 +37,25 @@ from mars_pairs.raster.vsi import open_raster
 from mars_pairs.store import fs
 
 
+def fetch_hint(config: BuildConfig) -> str:
+    """What to run when the inputs of a real-data config are not there yet: its archive
+    files are fetched by ``mars-pairs fetch all`` with the same config."""
+    if config.inputs.synthetic is not None:
+        return ""
+    name = config.source if config.source is not None else "CONFIG"
+    return f" (not fetched yet? run: mars-pairs fetch all --config {name})"
+
+
 def check_inputs(config: BuildConfig) -> None:
     """Check that a label matches and every input opens; ConfigError names the key."""
     import rasterio
 
     if next(iter_matches(config.inputs.labels), None) is None:
-        raise ConfigError(f"inputs.labels: no file matches {list(config.inputs.labels)}")
+        raise ConfigError(
+            f"inputs.labels: no file matches {list(config.inputs.labels)}{fetch_hint(config)}"
+        )
     if not config.inputs.places.is_file():
-        raise ConfigError(f"inputs.places: no such file {config.inputs.places}")
+        raise ConfigError(f"inputs.places: no such file {config.inputs.places}{fetch_hint(config)}")
     for key in ("dem", "ortho"):
         path = getattr(config.inputs, key)
         try:
@@ -200,7 +211,9 @@ def plan_build(
         stamp = fingerprint(config, labels_of(config, limit))
         n = stamp["count"]
         if n == 0:  # the files went between the check and the listing
-            raise ConfigError(f"inputs.labels: no file matches {list(config.inputs.labels)}")
+            raise ConfigError(
+                f"inputs.labels: no file matches {list(config.inputs.labels)}{fetch_hint(config)}"
+            )
         if resume and previous is not None and "append" in previous:
             raise ConfigError(
                 f"{out}: cannot resume: the folder holds an interrupted --append; rerun it "
