@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from mars_pairs.cli.main import _ensure_synthetic
+from mars_pairs.cli.build import _ensure_synthetic
 from mars_pairs.pipeline.config import parse_config
 
 

@@ -287,7 +287,7 @@ def test_classes_move_between_image_and_chip(
 def test_verify_checks_the_dense_members(dense: Path, tmp_path: Path) -> None:
     import shutil
 
-    from mars_pairs.cli.verify import verify_dataset
+    from mars_pairs.store.verify import verify_dataset
 
     report = verify_dataset(dense)
     rows = pq.read_table(dense / "manifest.parquet").to_pylist()

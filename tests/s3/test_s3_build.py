@@ -18,13 +18,13 @@ import torch
 import yaml
 
 from mars_pairs.cli.main import main
-from mars_pairs.cli.summary import inspect_dataset
-from mars_pairs.cli.verify import verify_dataset
 from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import BuildConfig, parse_config
 from mars_pairs.store import fs
+from mars_pairs.store.inspect import inspect_dataset
 from mars_pairs.store.query import Manifest
+from mars_pairs.store.verify import verify_dataset
 from mars_pairs.torch.datasets import MarsPairsDataset
 from mars_pairs.torch.streaming import MarsPairsIterableDataset
 from support.builds import small_doc
