@@ -43,7 +43,7 @@ import requests
 from requests.adapters import HTTPAdapter
 from urllib3.util.retry import Retry
 
-from mars_pairs.errors import ContentError, FetchError
+from mars_pairs.errors import ArgumentError, ContentError, FetchError
 from mars_pairs.fetch.cache import Cache
 from mars_pairs.fetch.validate import (
     KINDS,
@@ -82,7 +82,7 @@ class RemoteFile:
 
     def __post_init__(self) -> None:
         if self.kind is not None and self.kind not in KINDS:
-            raise ValueError(f"{self.url}: unknown file kind {self.kind!r}; one of {KINDS}")
+            raise ArgumentError(f"{self.url}: unknown file kind {self.kind!r}; one of {KINDS}")
 
     @property
     def file_kind(self) -> str:

@@ -26,6 +26,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from mars_pairs.errors import ArgumentError
+
 
 @njit(cache=True)
 def _sample_points(src, u, v, nearest, fill):
@@ -91,7 +93,7 @@ def sample_at(
     """
     arr = np.asarray(raster)
     if arr.ndim not in (2, 3):
-        raise ValueError(f"raster must be (H, W) or (H, W, C), got shape {arr.shape}")
+        raise ArgumentError(f"raster must be (H, W) or (H, W, C), got shape {arr.shape}")
     if arr.dtype == np.bool_ or arr.dtype.kind not in "uif":
         arr = arr.astype(np.uint8 if arr.dtype == np.bool_ else np.float64)
     # the kernel reads the raster's own dtype (one compiled version per dtype): no float copy
@@ -99,7 +101,7 @@ def sample_at(
     uu = np.ascontiguousarray(np.asarray(u, dtype=np.float64).ravel())
     vv = np.ascontiguousarray(np.asarray(v, dtype=np.float64).ravel())
     if uu.shape != vv.shape:
-        raise ValueError(f"u {np.shape(u)} and v {np.shape(v)} differ in shape")
+        raise ArgumentError(f"u {np.shape(u)} and v {np.shape(v)} differ in shape")
     fill32 = np.float32(0.0 if (nearest and math.isnan(fill)) else fill)
     values, valid = _sample_points(src, uu, vv, nearest, fill32)
     shape = tuple(np.shape(u)) + (() if arr.ndim == 2 else (arr.shape[2],))

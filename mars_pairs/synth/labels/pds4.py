@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 from lxml import etree
 
+from mars_pairs.errors import ArgumentError
 from mars_pairs.observation import Observation
 from mars_pairs.pds.xml import NS, q
 from mars_pairs.synth.labels.format import iso_time, pointer_name, real_text, rover_angles
@@ -249,9 +250,11 @@ _HEADER_BYTES = 64
 def _check_pixels(obs: Observation, pixels: np.ndarray) -> np.ndarray:
     pixels = np.asarray(pixels)
     if pixels.dtype not in (np.uint8, np.uint16) or pixels.ndim not in (2, 3):
-        raise ValueError(f"pixels must be uint8/uint16 (H, W[, 3]), got {pixels.dtype}")
+        raise ArgumentError(f"pixels must be uint8/uint16 (H, W[, 3]), got {pixels.dtype}")
     if pixels.shape[:2] != (obs.height, obs.width):
-        raise ValueError(f"pixels are {pixels.shape[:2]}, the label says {(obs.height, obs.width)}")
+        raise ArgumentError(
+            f"pixels are {pixels.shape[:2]}, the label says {(obs.height, obs.width)}"
+        )
     return pixels
 
 
