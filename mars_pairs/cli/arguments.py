@@ -99,6 +99,14 @@ def out_path(args: argparse.Namespace) -> str | None:
     return str(given[0]) if given else None
 
 
+def required_out_path(args: argparse.Namespace) -> str:
+    """The output of a command whose output is required (:func:`out_path`)."""
+    out = out_path(args)
+    if out is None:
+        raise UsageError("the output is required: --out PATH")
+    return out
+
+
 #: The libraries ``mars-pairs --version`` names (distribution names), in the order shown.
 VERSIONED = ("numpy", "pyarrow", "rasterio", "shapely", "pyproj", "numba", "torch", "matplotlib")
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from mars_pairs.cli.arguments import add_out, local_dataset, out_path
+from mars_pairs.cli.arguments import add_out, local_dataset, required_out_path
 
 
 def register(sub: Any) -> None:
@@ -28,8 +28,7 @@ def run(args: argparse.Namespace) -> int:
     """Write the GeoPackage (and the GeoTIFFs asked for); print its path."""
     from mars_pairs.export import export_geopackage
 
-    out = out_path(args)
-    assert out is not None  # required
+    out = required_out_path(args)
     print(
         export_geopackage(args.dataset, out, with_viewsheds=args.viewsheds, with_chips=args.chips)
     )

@@ -7,7 +7,7 @@ import argparse
 import json
 from typing import Any
 
-from mars_pairs.cli.arguments import add_out, count, out_path
+from mars_pairs.cli.arguments import add_out, count, required_out_path
 
 
 def register(sub: Any) -> None:
@@ -27,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
     from mars_pairs.synth import generate_mission
 
     result = generate_mission(
-        out_path(args),
+        required_out_path(args),
         seed=args.seed,
         mission=args.mission,
         stops=args.stops,

@@ -142,7 +142,7 @@ class Validator:
         return self.last_modified
 
     @classmethod
-    def of(cls, url: str, headers: requests.structures.CaseInsensitiveDict) -> Validator:
+    def of(cls, url: str, headers: requests.structures.CaseInsensitiveDict[str]) -> Validator:
         return cls(url, headers.get("ETag"), headers.get("Last-Modified"))
 
     def dump(self, size: int | None) -> bytes:
@@ -439,7 +439,7 @@ class Downloader:
             raise _Retryable(f"MD5 {digest.hexdigest()} differs from the archive's {remote.md5}")
 
 
-def _length(headers: requests.structures.CaseInsensitiveDict) -> int | None:
+def _length(headers: requests.structures.CaseInsensitiveDict[str]) -> int | None:
     """The Content-Length of an answer's headers (None when absent or not a number)."""
     length = headers.get("Content-Length")
     return int(length) if length is not None and length.isdigit() else None

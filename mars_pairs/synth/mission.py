@@ -174,7 +174,9 @@ def _write_geotiff(path: Path, data: np.ndarray, transform: Affine, crs: str, no
         dst.write(data, 1)
 
 
-def _terrain(rng: np.random.Generator, spec: MissionSpec, size: SizeSpec):
+def _terrain(
+    rng: np.random.Generator, spec: MissionSpec, size: SizeSpec
+) -> tuple[np.ndarray, Affine, np.ndarray, Affine]:
     """DEM (float32 with NaN nodata), its transform, ortho (uint8) and ortho transform."""
     n = size.dem_cells
     z, boulders = make_dem(rng, n, DEM_RES_M, spec.base_elevation_m)

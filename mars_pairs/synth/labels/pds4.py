@@ -53,7 +53,9 @@ def write_pds4_label(
     return path
 
 
-def _el(parent: etree._Element, prefix: str, local: str, text: str | None = None, **attrib: str):
+def _el(
+    parent: etree._Element, prefix: str, local: str, text: str | None = None, **attrib: str
+) -> etree._Element:
     """Append a child element ``prefix:local`` with optional text and attributes."""
     child = etree.SubElement(parent, q(prefix, local), attrib)
     if text is not None:
@@ -111,7 +113,9 @@ def _instrument_name(instrument: str) -> str:
     return f"Mast Camera Zoom {side}"
 
 
-def _xyz(parent: etree._Element, local: str, values: np.ndarray, kind: str, unit: str | None):
+def _xyz(
+    parent: etree._Element, local: str, values: np.ndarray, kind: str, unit: str | None
+) -> etree._Element:
     """A geom vector element with x_<kind>, y_<kind>, z_<kind> children."""
     vec = _el(parent, "geom", local)
     for axis, value in zip("xyz", values, strict=True):
