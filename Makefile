@@ -10,7 +10,7 @@ DEV_STAMP := $(VENV)/.installed-dev
 # every pip call is constrained: torch stays the local CPU build (torch==2.13.0)
 PIP := $(PY) -m pip install -q -c constraints.txt
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test test-fast lint bench clean
 
 $(VENV)/bin/python:
 	$(PYTHON) -m venv $(VENV)
@@ -31,6 +31,10 @@ demo: $(DEMO_STAMP)
 
 test: $(DEV_STAMP)
 	$(PY) -m pytest -q
+
+# the development lane: every test but those marked slow (CI's `make test` runs them all)
+test-fast: $(DEV_STAMP)
+	$(PY) -m pytest -q -m "not slow"
 
 lint: $(DEV_STAMP)
 	$(VENV)/bin/ruff check .
