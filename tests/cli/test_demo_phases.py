@@ -10,6 +10,9 @@ import pytest
 from mars_pairs.cli.build import _ensure_synthetic
 from mars_pairs.pipeline.config import parse_config
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 
 def _config(root: Path):
     mission = root / "mission"

@@ -29,6 +29,9 @@ from mars_pairs.torch.datasets import MarsPairsDataset
 from mars_pairs.torch.streaming import MarsPairsIterableDataset
 from support.builds import small_doc
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 #: The files whose bytes a build makes the same wherever it writes them (besides the shards;
 #: shardindex.json names the folder).
 SAME_BYTES = ("manifest.parquet", "failures.parquet")

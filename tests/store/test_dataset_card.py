@@ -19,6 +19,9 @@ from mars_pairs.store.verify import verify_dataset
 from support.builds import build_small, small_sections
 from support.configs import build_config
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def built(small_mission: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:

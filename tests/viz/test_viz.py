@@ -19,6 +19,9 @@ from support.builds import build
 from support.members import manifest_rows as rows_of
 from support.missions import MissionCache
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 pytest.importorskip("matplotlib")
 
 
