@@ -32,6 +32,10 @@ demo: $(DEMO_STAMP)
 test: $(DEV_STAMP)
 	$(PY) -m pytest -q
 
+# the development lane: every test but those marked slow (CI's `make test` runs them all)
+test-fast: $(DEV_STAMP)
+	$(PY) -m pytest -q -m "not slow"
+
 docs: $(DEV_STAMP)
 	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --quiet
 

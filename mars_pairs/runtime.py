@@ -30,6 +30,8 @@ import os
 from collections.abc import Mapping, MutableMapping
 from types import MappingProxyType
 
+from mars_pairs.errors import ArgumentError
+
 #: Environment defaults of every mars-pairs process; a value already set wins.
 PROCESS_DEFAULTS: Mapping[str, str] = MappingProxyType({"OMP_WAIT_POLICY": "PASSIVE"})
 
@@ -100,7 +102,7 @@ def take_build_settings(
     target = os.environ if environ is None else environ
     for name in settings:
         if not is_build_setting(name):
-            raise ValueError(f"{name!r} is not a build setting (mars_pairs.runtime)")
+            raise ArgumentError(f"{name!r} is not a build setting (mars_pairs.runtime)")
     for name in [name for name in target if is_build_setting(name) and name not in settings]:
         del target[name]
     target.update(settings)

@@ -1,4 +1,5 @@
-"""argparse types and checks shared by the commands: finite, bounded numbers, counts, bands."""
+"""argparse types and checks shared by the commands: finite, bounded numbers, counts, bands,
+a local dataset folder, and the one output convention (``--out``)."""
 
 from __future__ import annotations
 
@@ -57,6 +58,53 @@ def band(low: float | None, high: float | None, names: str) -> tuple[float, floa
     if low is None or high is None:
         raise UsageError(f"{names}: give both bounds of the band, in degrees")
     return (low, high)
+
+
+def local_dataset(value: str) -> str:
+    """An argument naming a dataset folder on this machine: a URL is refused, naming the
+    commands that read object storage."""
+    from mars_pairs.store.fs import is_url
+
+    if is_url(value):
+        raise argparse.ArgumentTypeError(
+            f"{value}: this command reads a dataset folder on this machine; `inspect`, "
+            "`verify` and the Python datasets (MarsPairsDataset, Manifest) read object "
+            "storage: copy the dataset here first (e.g. `aws s3 sync`)"
+        )
+    return value
+
+
+def add_out(
+    p: argparse.ArgumentParser, help: str, *, required: bool = False, positional: bool = False
+) -> None:
+    """Every command's output argument: ``--out PATH`` (``args.out``). ``positional``: the
+    command's earlier spelling, a positional ``OUT`` (still accepted; :func:`out_path` reads
+    either). ``required``: one of the two must be given."""
+    if positional:
+        p.add_argument("out_positional", nargs="?", metavar="OUT", help=f"{help} (or --out)")
+        p.add_argument("--out", help=help)
+        p.set_defaults(out_required=required)
+    else:
+        p.add_argument("--out", required=required, help=help)
+
+
+def out_path(args: argparse.Namespace) -> str | None:
+    """The output a command was given (``--out``, or the positional ``OUT`` of
+    :func:`add_out`); UsageError if both are given, or none where one is required."""
+    given = [v for v in (args.out, getattr(args, "out_positional", None)) if v is not None]
+    if len(given) > 1:
+        raise UsageError("give the output once: OUT or --out")
+    if not given and getattr(args, "out_required", False):
+        raise UsageError("the output is required: --out PATH")
+    return str(given[0]) if given else None
+
+
+def required_out_path(args: argparse.Namespace) -> str:
+    """The output of a command whose output is required (:func:`out_path`)."""
+    out = out_path(args)
+    if out is None:
+        raise UsageError("the output is required: --out PATH")
+    return out
 
 
 #: The libraries ``mars-pairs --version`` names (distribution names), in the order shown.

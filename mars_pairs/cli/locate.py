@@ -1,68 +1,63 @@
-"""The ``locate`` command's output: a plain-value summary of an observation and its pose."""
+"""``mars-pairs locate LABEL...``: read labels and place each image on the map (one summary
+per label, :func:`~mars_pairs.store.describe.describe`)."""
 
 from __future__ import annotations
 
+import argparse
+import json
+import math
+import sys
 from typing import Any
 
-from mars_pairs.geometry.attitude import image_centre_pointing_deg
-from mars_pairs.geometry.locate import model_pointing_deg
-from mars_pairs.geometry.places import Pose
-from mars_pairs.observation import Observation
+from mars_pairs.errors import MarsPairsError
 
 
-def _round(value: float | None, digits: int) -> float | None:
-    return None if value is None else round(float(value), digits)
+def register(sub: Any) -> None:
+    """Add the ``locate`` subparser to the top-level subparsers ``sub``."""
+    p = sub.add_parser("locate", help="read labels and place each image on the map")
+    p.add_argument("labels", nargs="+", help="PDS3 .LBL or PDS4 .xml label(s)")
+    p.add_argument("--places", help="PLACES table (best_interp.csv / localized_interp.csv)")
+    p.add_argument("--json", action="store_true", help="one JSON object per line")
+    p.set_defaults(func=run)
 
 
-def describe(obs: Observation, pose: Pose | None = None) -> dict[str, Any]:
-    """A JSON-ready summary of an observation (and its pose, when located), with the manifest's
-    names: ``azimuth_deg``/``elevation_deg`` the ray through the image centre (SITE_FRAME,
-    degrees; attitude from the pose, else the label), ``label_azimuth_deg``/
-    ``label_elevation_deg`` the label's derived pointing, ``model_azimuth_deg``/
-    ``model_elevation_deg`` the model's ray for the label's convention (``model_pointing_deg``).
-    """
-    hfov, vfov = obs.camera.fov_deg(obs.width, obs.height)
-    q = pose.quaternion if pose is not None and pose.quaternion is not None else None
-    q = obs.rover_quaternion if q is None else q
-    pointing = model_pointing_deg(obs, q)
-    centre = None if q is None else image_centre_pointing_deg(obs.camera, obs.width, obs.height, q)
-    out: dict[str, Any] = {
-        "product_id": obs.product_id,
-        "mission": obs.mission,
-        "instrument": obs.instrument,
-        "sol": obs.sol,
-        "site": obs.rmc.site,
-        "drive": obs.rmc.drive,
-        "pose": obs.rmc.pose,
-        "time": obs.start_time.isoformat() if obs.start_time else None,
-        "azimuth_deg": _round(centre[0], 4) if centre else None,
-        "elevation_deg": _round(centre[1], 4) if centre else None,
-        "label_azimuth_deg": _round(obs.azimuth_deg, 4),
-        "label_elevation_deg": _round(obs.elevation_deg, 4),
-        "hfov_deg": _round(obs.hfov_deg if obs.hfov_deg is not None else hfov, 4),
-        "vfov_deg": _round(obs.vfov_deg if obs.vfov_deg is not None else vfov, 4),
-        "model_azimuth_deg": _round(pointing[0], 4) if pointing else None,
-        "model_elevation_deg": _round(pointing[1], 4) if pointing else None,
-        "model_hfov_deg": round(hfov, 4),
-        "model_vfov_deg": round(vfov, 4),
-        "width": obs.width,
-        "height": obs.height,
-        "camera_model_type": obs.camera.model_type,
-        "camera_height_m": round(-float(obs.camera.c[2]), 4),
-        "label_path": str(obs.label_path),
-        "image_path": str(obs.image_path) if obs.image_path else None,
-    }
-    if pose is not None:
-        out.update(
-            easting=round(pose.easting, 3),
-            northing=round(pose.northing, 3),
-            latitude=round(pose.latitude, 9),
-            longitude=round(pose.longitude, 9),
-            elevation_m=round(pose.elevation_m, 3),
-            localization=pose.source,
-            attitude_source=pose.attitude_source,
-            places_pose=pose.pose,
-            places_match=pose.match,
-            crs=pose.crs,
-        )
-    return out
+def run(args: argparse.Namespace) -> int:
+    """One summary per label (text, or ``--json`` lines); a bad label is one line on stderr
+    and the status 2, the other labels still printed."""
+    import numpy as np
+
+    from mars_pairs.geometry.places import Places
+    from mars_pairs.pds import read_observation
+    from mars_pairs.store.describe import describe
+
+    places = Places.from_csv(args.places) if args.places else None
+    status = 0
+    for label in args.labels:
+        try:
+            obs = read_observation(label)
+            pose = places.locate(obs) if places is not None else None
+        except MarsPairsError as exc:
+            print(f"mars-pairs locate: {exc}", file=sys.stderr)
+            status = 2
+            continue
+        try:
+            with np.errstate(all="raise", under="ignore"):  # a number flushed to 0 is harmless
+                summary = describe(obs, pose)
+            _require_finite(summary)
+        except (FloatingPointError, ValueError) as exc:
+            print(f"mars-pairs locate: {label}: {exc}", file=sys.stderr)
+            status = 2
+            continue
+        if args.json:
+            print(json.dumps(summary, allow_nan=False), flush=True)
+        else:
+            width = max(len(k) for k in summary)
+            print("\n".join(f"{k:<{width}}  {v}" for k, v in summary.items()), end="\n\n")
+    return status
+
+
+def _require_finite(summary: dict[str, object]) -> None:
+    """ValueError naming the first field of ``summary`` that is not a finite number."""
+    for key, value in summary.items():
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ValueError(f"{key}: not a finite number ({value}); check the camera model")

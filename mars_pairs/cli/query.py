@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from collections.abc import Sequence
@@ -227,3 +228,67 @@ def _table(table: pa.Table) -> str:
     lines += ["  ".join(c.ljust(w) for c, w in zip(cell, widths, strict=True)) for cell in cells]
     lines.append(f"({len(rows)} rows)")
     return "\n".join(lines)
+
+
+def register(sub: Any) -> None:
+    """Add the ``query`` subparser to the top-level subparsers ``sub``."""
+    from mars_pairs.cli.arguments import finite, local_dataset
+
+    p = sub.add_parser(
+        "query",
+        help="filter a dataset's manifest by place and attributes",
+        description="Rows of a dataset's manifest matching every filter given: at most one "
+        "place filter (--bbox, --bbox-map, --near, --polygon) and any of --split, --mission, "
+        "--instrument, --sol. No filter: every row.",
+    )
+    p.add_argument("dataset", type=local_dataset, help="dataset folder")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument(
+        "--bbox",
+        nargs=4,
+        type=finite,
+        metavar=("W", "S", "E", "N"),
+        help="longitude/latitude box, degrees",
+    )
+    where.add_argument(
+        "--bbox-map",
+        nargs=4,
+        type=finite,
+        metavar=("XMIN", "YMIN", "XMAX", "YMAX"),
+        help="box in the dataset CRS, map units",
+    )
+    where.add_argument(
+        "--near",
+        nargs=3,
+        type=finite,
+        metavar=("LAT", "LON", "RADIUS_M"),
+        help="within a great-circle radius (metres) of a point",
+    )
+    where.add_argument("--polygon", help="WKT polygon in the dataset CRS")
+    p.add_argument("--mission", action="append", help="m2020 or msl (repeat for several)")
+    p.add_argument(
+        "--instrument", action="append", help="e.g. MAST_LEFT, NAV_LEFT (repeat for several)"
+    )
+    p.add_argument(
+        "--split", action="append", help="train, val, test, buffer... (repeat for several)"
+    )
+    p.add_argument("--sol", nargs=2, type=int, metavar=("FIRST", "LAST"), help="inclusive")
+    p.add_argument("--format", choices=("table", "csv", "parquet", "geojson"), default="table")
+    p.add_argument("--out", help="output file (parquet needs one; others default to stdout)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Print (or write to ``--out``) the rows matching the options."""
+    filters = filter_arguments(
+        bbox=args.bbox,
+        bbox_map=args.bbox_map,
+        near=args.near,
+        polygon=args.polygon,
+        mission=args.mission,
+        instrument=args.instrument,
+        split=args.split,
+        sol=args.sol,
+    )
+    check_query_splits(args.dataset, filters.get("split"))
+    return run_query(args.dataset, filters, args.format, args.out)

@@ -4,15 +4,50 @@ viewshed, as a QGIS-ready GeoTIFF."""
 from __future__ import annotations
 
 import argparse
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from mars_pairs.cli.arguments import band
+from mars_pairs.cli.arguments import band, bounded, finite
 from mars_pairs.errors import UsageError
+from mars_pairs.pipeline.config import MAX_RADIUS_M
 
 if TYPE_CHECKING:
     from mars_pairs.raster.terrain import Terrain
+
+
+def register(sub: Any) -> None:
+    """Add the ``viewshed`` subparser to the top-level subparsers ``sub``."""
+    p = sub.add_parser("viewshed", help="one image's (or a raw observer's) viewshed GeoTIFF")
+    p.add_argument("--dem", required=True, help="DEM raster (any GDAL path, projected CRS)")
+    p.add_argument("--out", required=True, help="output GeoTIFF")
+    p.add_argument("--label", help="PDS label of the image (with --places)")
+    p.add_argument("--places", help="PLACES table")
+    p.add_argument(
+        "--radius",
+        type=bounded(0.0, MAX_RADIUS_M, open_low=True),
+        default=5000.0,
+        help="metres (default 5000)",
+    )
+    p.add_argument(
+        "--height",
+        type=finite,
+        help="observer height above the terrain, metres (label default: camera's)",
+    )
+    p.add_argument("--absolute", action="store_true", help="--height is an absolute elevation")
+    p.add_argument(
+        "--mask",
+        choices=("frustum", "band"),
+        default="frustum",
+        help="with --label: frustum = what the image saw (default); band = the study's az/el band",
+    )
+    p.add_argument("--x", type=finite, help="observer x, DEM CRS map units")
+    p.add_argument("--y", type=finite, help="observer y, DEM CRS map units")
+    for name in ("az-min", "az-max"):
+        p.add_argument(f"--{name}", type=finite, help="degrees clockwise from north")
+    for name in ("el-min", "el-max"):
+        p.add_argument(f"--{name}", type=bounded(-90, 90), help="degrees up from the horizon")
+    p.set_defaults(func=run)
 
 
 def label_viewshed(args: argparse.Namespace, terrain: Terrain) -> int:
@@ -43,7 +78,8 @@ def label_viewshed(args: argparse.Namespace, terrain: Terrain) -> int:
     return 0
 
 
-def cmd_viewshed(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
+    """Compute the viewshed asked for and write it as a GeoTIFF (``--out``)."""
     from mars_pairs.raster.terrain import Terrain
     from mars_pairs.raster.viewshed_tiff import (
         ViewshedRequest,

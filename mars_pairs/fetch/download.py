@@ -62,7 +62,7 @@ from urllib3.connectionpool import HTTPConnectionPool, HTTPSConnectionPool
 from urllib3.exceptions import MaxRetryError, NameResolutionError
 from urllib3.util.retry import Retry
 
-from mars_pairs.errors import ContentError, FetchError
+from mars_pairs.errors import ArgumentError, ContentError, FetchError
 from mars_pairs.fetch.cache import Cache
 from mars_pairs.fetch.validate import (
     KINDS,
@@ -101,7 +101,7 @@ class RemoteFile:
 
     def __post_init__(self) -> None:
         if self.kind is not None and self.kind not in KINDS:
-            raise ValueError(f"{self.url}: unknown file kind {self.kind!r}; one of {KINDS}")
+            raise ArgumentError(f"{self.url}: unknown file kind {self.kind!r}; one of {KINDS}")
 
     @property
     def file_kind(self) -> str:
@@ -189,7 +189,7 @@ class Validator:
         return self.last_modified
 
     @classmethod
-    def of(cls, url: str, headers: requests.structures.CaseInsensitiveDict) -> Validator:
+    def of(cls, url: str, headers: requests.structures.CaseInsensitiveDict[str]) -> Validator:
         return cls(url, headers.get("ETag"), headers.get("Last-Modified"))
 
     def dump(self, size: int | None) -> bytes:
@@ -715,7 +715,9 @@ class Downloader:
             raise _Retryable(f"MD5 {digest.hexdigest()} differs from the archive's {remote.md5}")
 
 
-def _length(headers: requests.structures.CaseInsensitiveDict, url: str | None = None) -> int | None:
+def _length(
+    headers: requests.structures.CaseInsensitiveDict[str], url: str | None = None
+) -> int | None:
     """The Content-Length of an answer's headers (None when absent); a malformed one is a
     FetchError naming ``url`` (None: read as absent)."""
     length = headers.get("Content-Length")

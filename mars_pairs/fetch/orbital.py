@@ -75,7 +75,7 @@ class WindowResult:
     kind: str = ""
 
 
-def _column(table: dict, name: str) -> list | None:
+def _column(table: dict[str, list[Any]], name: str) -> list[Any] | None:
     """A column by case-insensitive name (current PLACES tables are lower case, PDS3-era upper)."""
     for key, values in table.items():
         if key.strip().lower() == name:
@@ -301,7 +301,7 @@ def _write_window(
         stage.unlink(missing_ok=True)
 
 
-def _cached(out: Path, request: dict) -> WindowResult | None:
+def _cached(out: Path, request: dict[str, Any]) -> WindowResult | None:
     """The existing window at ``out`` if it was cut for the same request."""
     if not out.is_file():
         return None

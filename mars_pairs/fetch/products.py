@@ -419,7 +419,7 @@ class ProductFilter:
     def why_not(self, p: Product, *, unknown_ok: bool = True) -> tuple[str, str] | None:
         """None when ``p`` passes, else (reason, detail); a field the index does not give
         passes if ``unknown_ok``."""
-        checks: list[tuple[str, object, tuple]] = [
+        checks: list[tuple[str, object, tuple[object, ...]]] = [
             ("instrument", p.instrument, tuple(i.upper() for i in self.instruments)),
             ("product type", p.product_type, tuple(t.upper() for t in self.product_types)),
             ("site", p.site, self.sites),

@@ -41,7 +41,7 @@ from typing import Any
 
 from lxml import etree
 
-from mars_pairs.errors import ContentError, FetchError, ImageError, LabelError
+from mars_pairs.errors import ArgumentError, ContentError, FetchError, ImageError, LabelError
 
 KINDS = (
     "pds3_label",
@@ -122,7 +122,7 @@ def check_file(
     """
     where = path if where is None else where
     if kind not in KINDS:
-        raise ValueError(f"unknown file kind {kind!r}; expected one of {KINDS}")
+        raise ArgumentError(f"unknown file kind {kind!r}; expected one of {KINDS}")
     with open(path, "rb") as fh:
         head = fh.read(1024)
     _refuse_html(head, kind, where)

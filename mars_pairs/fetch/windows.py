@@ -31,6 +31,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from affine import Affine
@@ -181,7 +182,7 @@ def _snap(boxes: np.ndarray, grid: RasterGrid) -> np.ndarray:
 
 
 def _cells(b: np.ndarray) -> np.ndarray:
-    return (b[..., 2] - b[..., 0]) * (b[..., 3] - b[..., 1])
+    return np.asarray((b[..., 2] - b[..., 0]) * (b[..., 3] - b[..., 1]))
 
 
 def _union(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -192,7 +193,7 @@ def _union(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     w = np.minimum(a[..., 2], b[..., 2]) - np.maximum(a[..., 0], b[..., 0])
     h = np.minimum(a[..., 3], b[..., 3]) - np.maximum(a[..., 1], b[..., 1])
-    return np.maximum(w, 0) * np.maximum(h, 0)
+    return np.asarray(np.maximum(w, 0) * np.maximum(h, 0))
 
 
 def cluster_boxes(boxes: np.ndarray, max_cells: int) -> list[tuple[np.ndarray, int]]:
@@ -203,7 +204,7 @@ def cluster_boxes(boxes: np.ndarray, max_cells: int) -> list[tuple[np.ndarray, i
     merge when the bounding box of both is at most ``FILL`` times their joint need and at most
     ``max_cells``: first along the traverse, then pairwise, best fill first.
     """
-    runs: list[list] = []  # [box, need, count, last box]
+    runs: list[list[Any]] = []  # [box, need, count, last box]
     for b in boxes:
         if runs:
             cur, need, count, last = runs[-1]

@@ -33,6 +33,8 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
+from mars_pairs.errors import ArgumentError
+
 FloatArray = NDArray[np.float64]
 _ITERATIONS = 200
 _TOL = 1e-15
@@ -47,7 +49,7 @@ def linearity(mtype: int, mparm: float) -> float:
         return 0.0
     if mtype == 3:
         return float(mparm)
-    raise ValueError(f"CAHVORE model type must be 1, 2 or 3, got {mtype}")
+    raise ArgumentError(f"CAHVORE model type must be 1, 2 or 3, got {mtype}")
 
 
 def theta_limit(lin: float) -> float:

@@ -13,6 +13,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from mars_pairs.errors import ArgumentError
 from mars_pairs.geometry import cahvore
 
 FloatArray = NDArray[np.float64]
@@ -56,22 +57,22 @@ class CameraModel:
         kind = self.model_type.upper()
         object.__setattr__(self, "model_type", kind)
         if kind not in SUPPORTED_MODELS:
-            raise ValueError(f"unsupported camera model type {self.model_type!r}")
+            raise ArgumentError(f"unsupported camera model type {self.model_type!r}")
         if kind in ("CAHVOR", "CAHVORE") and (self.o is None or self.r is None):
-            raise ValueError(f"{kind} model needs O and R")
+            raise ArgumentError(f"{kind} model needs O and R")
         if kind == "CAHVORE":
             if self.e is None or self.mtype is None:
-                raise ValueError("CAHVORE model needs E and its model type")
+                raise ArgumentError("CAHVORE model needs E and its model type")
             mparm = 0.0 if self.mparm is None else float(self.mparm)
             cahvore.linearity(int(self.mtype), mparm)  # checks the type
             if not np.isfinite(mparm):
-                raise ValueError(f"CAHVORE model parameter must be finite, got {mparm}")
+                raise ArgumentError(f"CAHVORE model parameter must be finite, got {mparm}")
             object.__setattr__(self, "mtype", int(self.mtype))
             object.__setattr__(self, "mparm", mparm)
         for name in ("c", "a", "h", "v", "o", "r", "e"):
             value = getattr(self, name)
             if value is not None and not np.all(np.isfinite(value)):
-                raise ValueError(f"{name.upper()} has non-finite components")
+                raise ArgumentError(f"{name.upper()} has non-finite components")
 
     @property
     def linearity(self) -> float | None:

@@ -13,6 +13,8 @@ import numpy as np
 from affine import Affine
 from numba import njit
 
+from mars_pairs.errors import ArgumentError
+
 #: a raster's affine: an ``Affine`` or its coefficients (a, b, c, d, e, f[, 0, 0, 1])
 Transform = Affine | Sequence[float]
 
@@ -21,7 +23,7 @@ def as_grid(window: Any, transform: Transform | None = None) -> tuple[np.ndarray
     """(float32 C-contiguous DEM array, Affine) from a DemWindow, (array, transform) or array.
 
     ``transform`` may be a rasterio ``Affine`` or its six coefficients (a, b, c, d, e, f).
-    Raises ValueError for rotated/sheared transforms or a missing transform.
+    Raises ArgumentError (a ValueError) for rotated/sheared transforms or a missing transform.
     """
     if hasattr(window, "data") and hasattr(window, "transform"):
         data, tr = window.data, window.transform
@@ -30,15 +32,15 @@ def as_grid(window: Any, transform: Transform | None = None) -> tuple[np.ndarray
     else:
         data, tr = window, transform
     if tr is None:
-        raise ValueError("a DEM array needs its affine transform (transform=...)")
+        raise ArgumentError("a DEM array needs its affine transform (transform=...)")
     tr = _as_affine(tr)
     if tr.b != 0.0 or tr.d != 0.0:
-        raise ValueError(f"rotated or sheared transforms are not supported: {tuple(tr)[:6]}")
+        raise ArgumentError(f"rotated or sheared transforms are not supported: {tuple(tr)[:6]}")
     if tr.a == 0.0 or tr.e == 0.0:
-        raise ValueError(f"degenerate transform (zero pixel size): {tuple(tr)[:6]}")
+        raise ArgumentError(f"degenerate transform (zero pixel size): {tuple(tr)[:6]}")
     arr = np.ascontiguousarray(data, dtype=np.float32)
     if arr.ndim != 2:
-        raise ValueError(f"DEM window must be 2-D, got shape {arr.shape}")
+        raise ArgumentError(f"DEM window must be 2-D, got shape {arr.shape}")
     return arr, tr
 
 
@@ -48,7 +50,7 @@ def _as_affine(tr: Affine | Iterable[float]) -> Affine:
         return tr
     coeffs = [float(v) for v in tr]
     if len(coeffs) not in (6, 9):
-        raise ValueError(f"transform needs 6 coefficients (a, b, c, d, e, f), got {len(coeffs)}")
+        raise ArgumentError(f"transform needs 6 coefficients (a, b, c, d, e, f), got {len(coeffs)}")
     return Affine(*coeffs[:6])
 
 

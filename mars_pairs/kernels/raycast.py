@@ -25,6 +25,7 @@ import numpy as np
 from numba import njit, prange
 from numpy.typing import ArrayLike, NDArray
 
+from mars_pairs.errors import ArgumentError
 from mars_pairs.geometry.body import MARS_RADIUS_M
 from mars_pairs.kernels.grid import Transform, as_grid, bilinear
 
@@ -132,7 +133,7 @@ def max_pyramid(window: Any, transform: Transform | None = None) -> MaxPyramid:
     if isinstance(window, np.ndarray) and transform is None:
         dem = np.ascontiguousarray(window, dtype=np.float32)
         if dem.ndim != 2:
-            raise ValueError(f"DEM window must be 2-D, got shape {dem.shape}")
+            raise ArgumentError(f"DEM window must be 2-D, got shape {dem.shape}")
     else:
         dem, _ = as_grid(window, transform)
     h, w = dem.shape
@@ -329,12 +330,12 @@ def cast_rays(
     o = np.ascontiguousarray(np.asarray(origins, dtype=np.float64).reshape(-1, 3))
     d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
     if o.shape != d.shape:
-        raise ValueError(f"origins {o.shape} and directions {d.shape} differ in shape")
+        raise ArgumentError(f"origins {o.shape} and directions {d.shape} differ in shape")
     norm = np.linalg.norm(d, axis=1, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
         d = np.ascontiguousarray(d / norm)
     if not (max_range > 0):
-        raise ValueError(f"max_range must be positive, got {max_range}")
+        raise ArgumentError(f"max_range must be positive, got {max_range}")
     if observer_xy is None:
         observer_xy = (o[0, 0], o[0, 1]) if len(o) else (0.0, 0.0)
     inv2r = 0.0 if not planet_radius or not math.isfinite(planet_radius) else 0.5 / planet_radius
@@ -343,7 +344,7 @@ def cast_rays(
     if pyramid is None:
         pyramid = max_pyramid(dem)
     elif pyramid.dem.shape != dem.shape:
-        raise ValueError(f"pyramid built for a {pyramid.dem.shape} window, not {dem.shape}")
+        raise ArgumentError(f"pyramid built for a {pyramid.dem.shape} window, not {dem.shape}")
     return _cast_kernel(
         dem, pyramid.data, pyramid.offsets, pyramid.dims, o, d, float(max_range), float(tr.c),
         float(tr.a), float(tr.f), float(tr.e), float(observer_xy[0]), float(observer_xy[1]),

@@ -42,6 +42,7 @@ from affine import Affine
 from numba import njit, prange
 from numpy.typing import NDArray
 
+from mars_pairs.errors import ArgumentError
 from mars_pairs.geometry.body import MARS_RADIUS_M
 from mars_pairs.kernels.grid import Transform, as_grid, bilinear, xy_to_uv
 
@@ -569,7 +570,7 @@ def _az_params(az_band: Sequence[float] | None) -> tuple[bool, float, float]:
         return False, 0.0, 360.0
     az_min, az_max = (float(v) for v in az_band)
     if not (math.isfinite(az_min) and math.isfinite(az_max)):
-        raise ValueError(f"azimuth band must be finite, got {az_band}")
+        raise ArgumentError(f"azimuth band must be finite, got {az_band}")
     if az_max - az_min >= 360.0:
         return False, 0.0, 360.0
     return True, az_min % 360.0, (az_max - az_min) % 360.0
@@ -581,7 +582,7 @@ def _el_params(el_band: Sequence[float] | None) -> tuple[float, float, float, fl
         return -np.inf, np.inf, -90.0, 90.0
     lo, hi = (float(v) for v in el_band)
     if not (-90.0 <= lo <= hi <= 90.0):
-        raise ValueError(f"elevation band must satisfy -90 <= el_min <= el_max <= 90: {el_band}")
+        raise ArgumentError(f"elevation band must satisfy -90 <= el_min <= el_max <= 90: {el_band}")
     tlo = -np.inf if lo <= -90.0 else math.tan(math.radians(lo))
     thi = np.inf if hi >= 90.0 else math.tan(math.radians(hi))
     return tlo, thi, lo, hi
@@ -590,16 +591,17 @@ def _el_params(el_band: Sequence[float] | None) -> tuple[float, float, float, fl
 def observer_eye(
     dem: np.ndarray, tr: Affine, x: float, y: float, height: float, absolute: bool
 ) -> tuple[float, float, float]:
-    """(u0, v0, eye elevation in metres) of an observer at map (x, y); ValueError off-grid/NaN."""
+    """(u0, v0, eye elevation in metres) of an observer at map (x, y); ArgumentError off the
+    grid or over NaN."""
     u0, v0 = (float(t) for t in xy_to_uv(tr, x, y))
     h, w = dem.shape
     if not (-0.5 <= u0 < w - 0.5 and -0.5 <= v0 < h - 0.5):
-        raise ValueError(f"observer x={x}, y={y} lies outside the DEM window")
+        raise ArgumentError(f"observer x={x}, y={y} lies outside the DEM window")
     if absolute:
         return u0, v0, float(height)
     ground = bilinear(dem, min(max(u0, 0.0), w - 1.0), min(max(v0, 0.0), h - 1.0))
     if not math.isfinite(ground):
-        raise ValueError(f"no DEM data under the observer at x={x}, y={y}")
+        raise ArgumentError(f"no DEM data under the observer at x={x}, y={y}")
     return u0, v0, ground + float(height)
 
 
@@ -634,14 +636,14 @@ def compute_viewshed(
     """
     dem, tr = as_grid(window, transform)
     if not (radius > 0 and math.isfinite(radius)):
-        raise ValueError(f"radius must be positive and finite, got {radius}")
+        raise ArgumentError(f"radius must be positive and finite, got {radius}")
     u0, v0, eye = observer_eye(dem, tr, x, y, height, height_is_absolute)
     az_on, az_min, az_w = _az_params(az_band)
     tmin, tmax, el_lo, el_hi = _el_params(el_band)
     inv2r = 0.0 if not planet_radius or not math.isfinite(planet_radius) else 0.5 / planet_radius
     big_d = math.ceil(radius / min(abs(tr.a), abs(tr.e))) + 1
     if int(oversample) < 1:
-        raise ValueError(f"oversample must be >= 1, got {oversample}")
+        raise ArgumentError(f"oversample must be >= 1, got {oversample}")
     big_p = big_d * int(oversample)
     n_lev = 0
     if not az_on:  # full circle: a tree of rays, at least _TREE_MIN_RAYS per side at the root

@@ -245,7 +245,7 @@ class Terrain:
             out = out * np.float32(scale) + np.float32(offset)
         if np.issubdtype(arr.dtype, np.floating):
             out[~np.isfinite(out)] = np.nan
-        return out
+        return np.asarray(out)
 
     def _pixel_window(self, left: float, bottom: float, right: float, top: float) -> Window:
         """Integer pixel window covering the box, clipped to the DEM (may be empty)."""

@@ -21,14 +21,19 @@ moved raster and its validity mask (True where a value was carried).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from mars_pairs.errors import ArgumentError
+
 
 @njit(cache=True)
-def _sample_points(src, u, v, nearest, fill):
+def _sample_points(
+    src: NDArray[Any], u: NDArray[np.float64], v: NDArray[np.float64], nearest: bool, fill: float
+) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
     """Values of ``src`` (H, W, C, any numeric dtype) as float32 at grid points (u, v) (N,)
     = (col, row) with cell centres at integers; rows of ``fill`` and valid False where a
     point is NaN, off the grid or (bilinear) next to a NaN value. Serial: a sample's points
@@ -81,8 +86,8 @@ def _sample_points(src, u, v, nearest, fill):
 
 
 def sample_at(
-    raster: NDArray, u: NDArray, v: NDArray, *, nearest: bool, fill: float = math.nan
-) -> tuple[NDArray, NDArray[np.bool_]]:
+    raster: NDArray[Any], u: NDArray[Any], v: NDArray[Any], *, nearest: bool, fill: float = math.nan
+) -> tuple[NDArray[Any], NDArray[np.bool_]]:
     """``raster`` (H, W) or (H, W, C) at points (u, v) of any shape, in its grid coordinates
     (column, row; pixel centres at integers): (values of shape u.shape [+ (C,)], valid).
 
@@ -91,7 +96,7 @@ def sample_at(
     """
     arr = np.asarray(raster)
     if arr.ndim not in (2, 3):
-        raise ValueError(f"raster must be (H, W) or (H, W, C), got shape {arr.shape}")
+        raise ArgumentError(f"raster must be (H, W) or (H, W, C), got shape {arr.shape}")
     if arr.dtype == np.bool_ or arr.dtype.kind not in "uif":
         arr = arr.astype(np.uint8 if arr.dtype == np.bool_ else np.float64)
     # the kernel reads the raster's own dtype (one compiled version per dtype): no float copy
@@ -99,7 +104,7 @@ def sample_at(
     uu = np.ascontiguousarray(np.asarray(u, dtype=np.float64).ravel())
     vv = np.ascontiguousarray(np.asarray(v, dtype=np.float64).ravel())
     if uu.shape != vv.shape:
-        raise ValueError(f"u {np.shape(u)} and v {np.shape(v)} differ in shape")
+        raise ArgumentError(f"u {np.shape(u)} and v {np.shape(v)} differ in shape")
     fill32 = np.float32(0.0 if (nearest and math.isnan(fill)) else fill)
     values, valid = _sample_points(src, uu, vv, nearest, fill32)
     shape = tuple(np.shape(u)) + (() if arr.ndim == 2 else (arr.shape[2],))
@@ -113,13 +118,13 @@ def sample_at(
 
 
 def image_to_chip(
-    raster: NDArray,
-    ground_px: NDArray,
+    raster: NDArray[Any],
+    ground_px: NDArray[Any],
     *,
     nearest: bool,
     stride: int = 1,
     fill: float = math.nan,
-) -> tuple[NDArray, NDArray[np.bool_]]:
+) -> tuple[NDArray[Any], NDArray[np.bool_]]:
     """A ground-image raster (H, W[, C]) carried onto the chip grid through ``ground_px``
     (S, S, 2: image sample, line of each chip pixel, full-resolution pixel centres at
     integers; NaN = not visible). ``stride``: the raster holds every ``stride``-th image
@@ -131,8 +136,8 @@ def image_to_chip(
 
 
 def chip_to_image(
-    raster: NDArray, chip_px: NDArray, *, nearest: bool, fill: float = math.nan
-) -> tuple[NDArray, NDArray[np.bool_]]:
+    raster: NDArray[Any], chip_px: NDArray[Any], *, nearest: bool, fill: float = math.nan
+) -> tuple[NDArray[Any], NDArray[np.bool_]]:
     """A chip raster (S, S[, C]) carried into the image grid of ``chip_px`` (H', W', 2: chip
     column, row of each image pixel's first terrain hit, pixel-edge coordinates; NaN for no
     hit, so occluded terrain is never reached). Returns (H', W'[, C]) values and validity:

@@ -10,6 +10,7 @@ from typing import Any
 
 import pyarrow as pa
 
+from mars_pairs.errors import ArgumentError
 from mars_pairs.store.geoparquet import BBOX_TYPE
 from mars_pairs.store.members import DENSE_FIELDS, MEMBERS
 from mars_pairs.store.shards import MemberLocation
@@ -88,7 +89,7 @@ def manifest_schema(fields: Sequence[str] = ()) -> pa.Schema:
     (``MANIFEST_SCHEMA`` itself when none)."""
     unknown = [f for f in fields if f not in DENSE_FIELDS]
     if unknown:
-        raise ValueError(f"unknown optional member field(s) {unknown}")
+        raise ArgumentError(f"unknown optional member field(s) {unknown}")
     extra = [f for m in fields for f in _location_fields(m)]
     return pa.schema(_FIELDS + extra) if extra else MANIFEST_SCHEMA
 

@@ -13,7 +13,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import BinaryIO
 
-from mars_pairs.errors import DatasetError
+from mars_pairs.errors import ArgumentError, DatasetError
 from mars_pairs.store.atomic import naming, rename_into_place, temporary_path
 from mars_pairs.store.integrity import bounds_problem, bytes_problem, checksum, shard_path
 
@@ -59,7 +59,7 @@ class ShardWriter:
     def add(self, key: str, members: dict[str, bytes]) -> dict[str, MemberLocation]:
         """Append one sample's members (field -> bytes) in the given order."""
         if "." in key or "/" in key:
-            raise ValueError(f"sample key must not contain '.' or '/': {key!r}")
+            raise ArgumentError(f"sample key must not contain '.' or '/': {key!r}")
         out = {}
         for fld, data in members.items():
             info = tarfile.TarInfo(f"{key}.{fld}")

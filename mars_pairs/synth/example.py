@@ -15,6 +15,7 @@ import sys
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -36,7 +37,7 @@ def _bilinear(img: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
     j, i = col.astype(int), row.astype(int)
     tx, ty = col - j, row - i
     top = img[i, j] * (1 - tx) + img[i, j + 1] * tx
-    return top * (1 - ty) + (img[i + 1, j] * (1 - tx) + img[i + 1, j + 1] * tx) * ty
+    return np.asarray(top * (1 - ty) + (img[i + 1, j] * (1 - tx) + img[i + 1, j + 1] * tx) * ty)
 
 
 def make_example_figure(out_png: str | Path, *, seed: int = 3, workdir: str | Path | None = None,
@@ -62,7 +63,7 @@ def make_example_figure(out_png: str | Path, *, seed: int = 3, workdir: str | Pa
             otr = src.transform
         rows = pq.read_table(root / "truth.parquet").to_pylist()
 
-        def cast(t: dict, step: int) -> tuple:
+        def cast(t: dict[str, Any], step: int) -> tuple[Any, ...]:
             obs = read_observation(root / t["label_path"])
             mc = MapCamera.from_observation(obs, places.locate(obs), places.crs)
             pix = mc.pixel_grid(step)
@@ -92,7 +93,7 @@ def make_example_figure(out_png: str | Path, *, seed: int = 3, workdir: str | Pa
     def chip(x: float, y: float, h: float) -> np.ndarray:
         c0, r0 = ~otr * (x - h, y + h)
         c1, r1 = ~otr * (x + h, y - h)
-        return ortho[int(r0) : int(r1), int(c0) : int(c1)]
+        return np.asarray(ortho[int(r0) : int(r1), int(c0) : int(c1)])
 
     fig, ax = plt.subplots(
         1, 4, figsize=(16, 3.7), gridspec_kw={"width_ratios": [1.37, 1.37, 1, 1]}

@@ -33,6 +33,7 @@ from PIL import Image
 from rasterio.crs import CRS as RioCRS
 from tqdm import tqdm
 
+from mars_pairs.errors import ArgumentError
 from mars_pairs.geometry.frames import M2020_PLACES_CRS, MSL_PLACES_CRS, quaternion_to_matrix
 from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.geometry.places import Pose
@@ -140,14 +141,14 @@ def generate_mission(
     Returns {"out_dir", "missions": {name: {paths..., counts...}}, "images"}.
     """
     if mission not in (*MISSIONS, "both"):
-        raise ValueError(f"mission must be 'm2020', 'msl' or 'both', got {mission!r}")
+        raise ArgumentError(f"mission must be 'm2020', 'msl' or 'both', got {mission!r}")
     if size not in SIZES:
-        raise ValueError(f"size must be one of {', '.join(SIZES)}, got {size!r}")
+        raise ArgumentError(f"size must be one of {', '.join(SIZES)}, got {size!r}")
     preset = SIZES[size]
     k = preset.stops if stops is None else int(stops)
     m = preset.images_per_stop if images_per_stop is None else int(images_per_stop)
     if k < 1 or m < 1:
-        raise ValueError("stops and images_per_stop must be >= 1")
+        raise ArgumentError("stops and images_per_stop must be >= 1")
     out = Path(out_dir)
     names = MISSIONS if mission == "both" else (mission,)
     result: dict[str, Any] = {"out_dir": str(out), "missions": {}}
@@ -173,7 +174,9 @@ def _write_geotiff(path: Path, data: np.ndarray, transform: Affine, crs: str, no
         dst.write(data, 1)
 
 
-def _terrain(rng: np.random.Generator, spec: MissionSpec, size: SizeSpec):
+def _terrain(
+    rng: np.random.Generator, spec: MissionSpec, size: SizeSpec
+) -> tuple[np.ndarray, Affine, np.ndarray, Affine]:
     """DEM (float32 with NaN nodata), its transform, ortho (uint8) and ortho transform."""
     n = size.dem_cells
     z, boulders = make_dem(rng, n, DEM_RES_M, spec.base_elevation_m)

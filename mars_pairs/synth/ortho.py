@@ -201,4 +201,4 @@ def make_ortho(
     bad = ~np.isfinite(dem)
     if bad.any():
         out[np.repeat(np.repeat(bad, factor, 0), factor, 1)] = 0
-    return out
+    return np.asarray(out)

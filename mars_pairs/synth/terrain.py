@@ -43,7 +43,7 @@ def spectral_noise(rng: np.random.Generator, n: int, beta: float, cutoff_px: flo
     spec = (rng.standard_normal(amp.shape) + 1j * rng.standard_normal(amp.shape)) * amp
     field = np.fft.irfft2(spec, s=(n, n))
     field -= field.mean()
-    return field / field.std()
+    return np.asarray(field / field.std())
 
 
 def _add_craters(rng: np.random.Generator, z: F64, res_m: float, count: int) -> None:

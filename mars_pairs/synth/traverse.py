@@ -98,7 +98,7 @@ class DemSampler:
         d = self.dem
         top = d[i, j] * (1 - tx) + d[i, j + 1] * tx
         bot = d[i + 1, j] * (1 - tx) + d[i + 1, j + 1] * tx
-        return top * (1 - ty) + bot * ty
+        return np.asarray(top * (1 - ty) + bot * ty)
 
 
 def smooth_path(

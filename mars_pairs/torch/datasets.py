@@ -134,7 +134,7 @@ def _refuse_duplicate_keys(root: Location, table: pa.Table) -> None:
         )
 
 
-class MarsPairsDataset(Dataset):
+class MarsPairsDataset(Dataset[dict[str, Any]]):
     """Map-style dataset: ``ds[i]`` reads sample i's members with one seek each.
 
     Filter arguments are those of :meth:`mars_pairs.Manifest.filter`. ``ground_size`` (int or

@@ -78,9 +78,9 @@ def _pil_array(im: Image.Image) -> np.ndarray:
             im.load()
             arr = pa.array(im)
             if im.mode == "L":
-                return arr.to_numpy(zero_copy_only=True).reshape(im.height, im.width)
+                return np.asarray(arr.to_numpy(zero_copy_only=True).reshape(im.height, im.width))
             pixels = arr.values.to_numpy(zero_copy_only=True)  # RGBX, 4 bytes a pixel
-            return pixels.reshape(im.height, im.width, 4)[..., :3]
+            return np.asarray(pixels.reshape(im.height, im.width, 4)[..., :3])
         except (ValueError, TypeError, pa.ArrowException):
             pass
     return np.asarray(im)
@@ -90,7 +90,7 @@ def _decode_npy(data: bytes | bytearray) -> np.ndarray:
     """A .npy array; zero-copy (and writable) over a ``bytearray``."""
     head = bytes(data[:12])
     if head[:6] != b"\x93NUMPY" or head[6] not in (1, 2):
-        return np.load(io.BytesIO(data), allow_pickle=False)  # numpy names the fault
+        return np.asarray(np.load(io.BytesIO(data), allow_pickle=False))  # numpy names the fault
     if head[6] == 1:
         end = 10 + int.from_bytes(head[8:10], "little")
     else:

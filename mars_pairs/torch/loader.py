@@ -92,7 +92,7 @@ def _slot_count(prefetch_factor: int | None) -> int:
     return 2 * (prefetch_factor or 2) + 2
 
 
-class MarsPairsLoader(DataLoader):
+class MarsPairsLoader(DataLoader[dict[str, Any]]):
     """A ``torch.utils.data.DataLoader`` over a mars-pairs dataset whose workers reuse their
     shared-memory batch buffers.
 

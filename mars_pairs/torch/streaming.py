@@ -20,7 +20,7 @@ def _world() -> tuple[int, int]:
     return 0, 1
 
 
-class MarsPairsIterableDataset(IterableDataset):
+class MarsPairsIterableDataset(IterableDataset[dict[str, Any]]):
     """Streams samples shard by shard through a shuffle buffer.
 
     Shards are split across distributed ranks and DataLoader workers (every shard goes to

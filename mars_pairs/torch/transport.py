@@ -28,7 +28,8 @@ Layout = Mapping[str, tuple[tuple[int, ...], torch.dtype]]
 
 def shared_empty(shape: tuple[int, ...], dtype: torch.dtype) -> torch.Tensor:
     """A tensor in shared memory (sent from a DataLoader worker without a copy)."""
-    return torch.empty(shape, dtype=dtype).share_memory_()
+    out: torch.Tensor = torch.empty(shape, dtype=dtype).share_memory_()
+    return out
 
 
 def stacked_base(tensors: Sequence[torch.Tensor]) -> torch.Tensor | None:
@@ -48,7 +49,8 @@ def stacked_base(tensors: Sequence[torch.Tensor]) -> torch.Tensor | None:
     start = first.storage_offset()
     size = (len(tensors), *first.shape)
     # torch's stub wants a stride; set_ without one lays the tensor out contiguously (its doc)
-    return torch.empty(0, dtype=first.dtype).set_(storage, start, size)  # type: ignore[call-overload]  # stride optional
+    out: torch.Tensor = torch.empty(0, dtype=first.dtype).set_(storage, start, size)  # type: ignore[call-overload]  # stride optional
+    return out
 
 
 class BatchSlots:

@@ -65,7 +65,8 @@ def split_colours(splits: Sequence[str]) -> dict[str, str]:
 def manifest_rows(root: Path) -> list[dict[str, Any]]:
     if not root.is_dir():
         raise MarsPairsError(f"{root}: no such dataset folder")
-    return Manifest.open(root).require().to_table().to_pylist()
+    rows: list[dict[str, Any]] = Manifest.open(root).require().to_table().to_pylist()
+    return rows
 
 
 def hillshade(

@@ -265,7 +265,7 @@ def display_arrays(sample: dict[str, Any]) -> dict[str, Any]:
     def uint8(a: np.ndarray | None) -> np.ndarray | None:
         if a is None or a.dtype == np.uint8:
             return a
-        return (np.clip(np.nan_to_num(a), 0, 1) * 255 + 0.5).astype(np.uint8)
+        return np.asarray((np.clip(np.nan_to_num(a), 0, 1) * 255 + 0.5).astype(np.uint8))
 
     ground, ortho, vis, dem = arr("ground"), arr("ortho"), arr("viewshed"), arr("dem")
     return {

@@ -20,6 +20,9 @@ from mars_pairs.cli.main import main
 from support.builds import build_small
 from support.members import manifest_keys
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def built(small_mission: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:

@@ -8,8 +8,11 @@ from pathlib import Path
 
 import pytest
 
-from mars_pairs.cli.main import _ensure_synthetic
+from mars_pairs.cli.build import _ensure_synthetic
 from mars_pairs.pipeline.config import parse_config
+
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
 
 
 def _config(root: Path):

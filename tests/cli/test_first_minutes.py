@@ -18,6 +18,9 @@ from mars_pairs.cli.main import build_parser, main
 from mars_pairs.errors import ArgumentError, SampleKeyError
 from support.builds import cli_built_dataset
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory: pytest.TempPathFactory, small_mission: Path) -> Path:

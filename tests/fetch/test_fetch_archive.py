@@ -18,6 +18,8 @@ from support import fetch_archive
 from support.fetch_archive import write_config
 from support.fetch_server import ArchiveServer
 
+pytestmark = pytest.mark.slow  # its tests share a fixture of > 3 s
+
 
 def _gets(srv: ArchiveServer, suffix: str) -> list[str]:
     return [e.path for e in srv.log if e.method == "GET" and e.path.endswith(suffix)]

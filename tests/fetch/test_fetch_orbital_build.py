@@ -19,6 +19,9 @@ from mars_pairs.pipeline.config import load_config
 from mars_pairs.torch import MarsPairsDataset
 from support.fetch_archive import write_config
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 
 def _orbital_config(tmp, url, mission, kind):
     path = write_config(tmp, url, mission)

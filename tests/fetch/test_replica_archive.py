@@ -25,6 +25,9 @@ from mars_pairs.pds import read_observation
 from support import replica_archive as replica
 from support.fetch_server import ArchiveServer
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 REPO = Path(__file__).resolve().parents[2]
 
 

@@ -30,6 +30,8 @@ from support import independent_truth as truth
 from support.configs import build_config
 from support.missions import MissionCache
 
+pytestmark = pytest.mark.slow  # its tests share a fixture of > 3 s
+
 STRIDE = 16
 RADIUS_M = 600.0
 

@@ -27,6 +27,8 @@ from mars_pairs.observation import Observation
 from mars_pairs.pds import read_observation
 from support.configs import build_config
 
+pytestmark = pytest.mark.slow  # its tests share a fixture of > 3 s
+
 SENSOR = (1648, 1200)  # Mastcam-Z detector samples x lines
 
 

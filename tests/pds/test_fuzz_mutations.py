@@ -17,6 +17,7 @@ from mars_pairs.pds import read_observation
 from support.label_seeds import PDS4_SEED
 
 
+@pytest.mark.slow
 def test_first_mutation_cases_keep_the_contract(tmp_path: Path) -> None:
     report = run(cases=800, seed=0, workdir=tmp_path, max_seconds=2.0)
     assert report.breaches == []

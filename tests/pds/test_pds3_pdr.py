@@ -33,6 +33,7 @@ def _real_pds3() -> list[Path]:
     return labels
 
 
+@pytest.mark.slow
 def test_every_field_we_use_equals_what_pvl_reads_on_every_real_label() -> None:
     """The Observation built from pdr's parse equals the one built from pvl.loads."""
     for path in _real_pds3():

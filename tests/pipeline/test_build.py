@@ -30,6 +30,9 @@ from support.configs import config_file
 from support.members import manifest_rows, tar_members
 from support.missions import MissionCache
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def mission(missions: MissionCache) -> Path:

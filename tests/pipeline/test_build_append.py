@@ -25,6 +25,9 @@ from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import BuildConfig, load_config
 from support.configs import config_file
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 DRIVER = Path(__file__).with_name("append_crash_driver.py")
 #: manifest columns that name where a member lies: they differ between two layouts of chunks
 LOCATION_SUFFIXES = ("_shard", "_offset")

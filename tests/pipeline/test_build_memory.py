@@ -14,6 +14,9 @@ from rasterio.windows import Window
 from support.configs import config_file
 from support.missions import MissionCache
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 BIG = 8192
 
 

@@ -28,6 +28,9 @@ from mars_pairs.pipeline.config import load_config
 from support.members import sample_members
 from support.real_gale import DRIVE, GALE, SHARED, SITE, gale_row, make_gale_labels, read_dem
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 RADIUS_M = 90.0  # the rover stands 99 m from the DEM's southern edge
 
 

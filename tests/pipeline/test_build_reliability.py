@@ -26,6 +26,9 @@ from mars_pairs.store.shards import ShardWriter
 from support.configs import build_config, config_file
 from support.members import sample_members, tar_members
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def mission(small_mission: Path) -> Path:

@@ -25,6 +25,9 @@ from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import load_config
 from support.configs import build_config, config_file
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[2]
 
 

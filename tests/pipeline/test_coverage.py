@@ -20,6 +20,9 @@ from support.configs import build_config
 from support.members import manifest_rows as rows_of
 from support.members import tar_members as members_of
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 SIZE_M, SIZE_PX = 64.0, 64  # the config builder's cheap chips
 
 

@@ -15,6 +15,9 @@ from support.configs import config_file
 from support.label_shapes import SHAPES
 from support.missions import MissionCache
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 distributed = pytest.importorskip("distributed", reason="the dask extra is not installed")
 
 

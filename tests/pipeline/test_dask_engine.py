@@ -24,6 +24,9 @@ distributed = pytest.importorskip("distributed", reason="the dask extra is not i
 
 from mars_pairs.pipeline.builder.dask_engine import DaskEngine  # noqa: E402
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def mission(missions: MissionCache) -> Path:

@@ -23,6 +23,9 @@ from support import independent_truth as truth
 from support.configs import build_config
 from support.members import rows_by_key, sample_members
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 STRIDE = 8
 RADIUS_M = 300.0
 CHIP = {"size_m": 128, "size_px": 512}  # 0.25 m: the ortho's own resolution
@@ -287,7 +290,7 @@ def test_classes_move_between_image_and_chip(
 def test_verify_checks_the_dense_members(dense: Path, tmp_path: Path) -> None:
     import shutil
 
-    from mars_pairs.cli.verify import verify_dataset
+    from mars_pairs.store.verify import verify_dataset
 
     report = verify_dataset(dense)
     rows = pq.read_table(dense / "manifest.parquet").to_pylist()

@@ -16,6 +16,9 @@ from support import independent_truth as truth
 from support.members import rows_by_key, sample_members
 from support.real_gale import GALE, make_gale_labels
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 RADIUS_M = 90.0
 STRIDE = 16
 

@@ -31,6 +31,9 @@ from mars_pairs.store.manifest import MANIFEST_SCHEMA
 from mars_pairs.store.shards import MemberLocation, ShardWriter, read_member
 from support.configs import build_config
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 
 def _digests(out: Path) -> dict[str, str]:
     return {

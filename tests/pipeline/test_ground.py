@@ -30,6 +30,8 @@ from support.configs import config_file
 from support.members import metas as read_metas
 from support.missions import MissionCache
 
+pytestmark = pytest.mark.slow  # its tests share a fixture of > 3 s
+
 
 @pytest.fixture(scope="module")
 def mission(missions: MissionCache) -> Path:

@@ -7,10 +7,13 @@ import multiprocessing as mp
 from collections.abc import Iterator
 from pathlib import Path
 
+import pytest
+
 from mars_pairs.pipeline.builder.local_pool import LocalPool, pool_processes, worker_context
 from support.configs import build_config
 
 
+@pytest.mark.slow
 def test_results_in_order_with_a_bounded_window(small_mission: Path, tmp_path: Path) -> None:
     pulled: list[str] = []
 
@@ -65,6 +68,7 @@ def test_workers_take_the_builds_settings_not_the_fork_servers_nor_the_rest(
     }
 
 
+@pytest.mark.slow
 def test_pool_processes_are_the_pools_live_workers() -> None:
     """The one standard-library private attribute the pool reads (``pool_processes``): a
     started pool lists its worker processes, alive, with their pids; a Python that renames

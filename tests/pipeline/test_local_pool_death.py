@@ -18,6 +18,9 @@ from mars_pairs.pipeline.builder import local_pool
 from mars_pairs.pipeline.builder.run import run_build
 from support.configs import build_config
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 
 def _digest(root: Path) -> dict[str, str]:
     return {

@@ -28,6 +28,9 @@ from mars_pairs.pipeline.config import load_config
 from mars_pairs.synth.label_tree import plan_config, write_label_tree
 from support.configs import config_file
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 
 def _snapshot(folder: Path) -> dict[str, tuple[int, bytes]]:
     """Every file under ``folder``: modification time (ns) and bytes."""

@@ -33,9 +33,12 @@ MARK = "MARS_PAIRS_TEST_BUILD"
 #: a process that outlives its build never ends, so a generous grace tests the same property.
 GRACE_S = 20.0
 
-pytestmark = pytest.mark.skipif(
-    not sys.platform.startswith("linux"), reason="scans /proc for the build's processes"
-)
+pytestmark = [
+    pytest.mark.skipif(
+        not sys.platform.startswith("linux"), reason="scans /proc for the build's processes"
+    ),
+    pytest.mark.slow,  # kills builds: more than ~3 s a test (`make test-fast` skips them)
+]
 
 
 def _config(path: Path, mission: Path, out: Path) -> Path:

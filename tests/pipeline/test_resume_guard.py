@@ -29,6 +29,9 @@ from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import BuildConfig, load_config
 from support.configs import build_config, config_doc, config_file
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 
 def _files(root: Path) -> dict[str, str]:
     return {

@@ -27,6 +27,8 @@ from mars_pairs.raster.terrain import Terrain
 from support.configs import build_config
 from support.missions import MissionCache
 
+pytestmark = pytest.mark.slow  # its tests share a fixture of > 3 s
+
 SPHERE = "+R=3396190 +units=m +no_defs +type=crs"
 TARGETS = {
     "eqc lat_ts=0": f"+proj=eqc +lat_ts=0 +lon_0=0 {SPHERE}",

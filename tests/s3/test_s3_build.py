@@ -18,16 +18,19 @@ import torch
 import yaml
 
 from mars_pairs.cli.main import main
-from mars_pairs.cli.summary import inspect_dataset
-from mars_pairs.cli.verify import verify_dataset
 from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import BuildConfig, parse_config
 from mars_pairs.store import fs
+from mars_pairs.store.inspect import inspect_dataset
 from mars_pairs.store.query import Manifest
+from mars_pairs.store.verify import verify_dataset
 from mars_pairs.torch.datasets import MarsPairsDataset
 from mars_pairs.torch.streaming import MarsPairsIterableDataset
 from support.builds import small_doc
+
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
 
 #: The files whose bytes a build makes the same wherever it writes them (besides the shards;
 #: shardindex.json names the folder).

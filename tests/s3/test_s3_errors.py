@@ -15,6 +15,9 @@ from mars_pairs.errors import StorageError
 from mars_pairs.store import fs
 from mars_pairs.store.query import Manifest
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 
 def _closed_port() -> int:
     with socket.socket() as s:

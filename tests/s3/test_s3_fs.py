@@ -14,6 +14,9 @@ from mars_pairs.errors import ConfigError
 from mars_pairs.raster import vsi
 from mars_pairs.store import fs
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 
 def test_dataset_root_keeps_urls_and_makes_paths() -> None:
     assert fs.dataset_root("s3://bucket/prefix/") == "s3://bucket/prefix"

@@ -13,6 +13,9 @@ import pytest
 from mars_pairs.store.croissant import croissant_type
 from support.builds import build_small
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def built(small_mission: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:

@@ -11,13 +11,16 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 
-from mars_pairs.cli.verify import verify_dataset
 from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import parse_config
 from mars_pairs.store.manifest import MANIFEST_SCHEMA
+from mars_pairs.store.verify import verify_dataset
 from support.builds import build_small, small_sections
 from support.configs import build_config
+
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")

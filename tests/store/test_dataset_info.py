@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from mars_pairs.cli.summary import split_warnings
 from mars_pairs.errors import DatasetError
 from mars_pairs.store.dataset_info import dataset_crs, read_dataset_doc
+from mars_pairs.store.inspect import split_warnings
 
 
 def test_the_document_absent_damaged_or_not_an_object(tmp_path: Path) -> None:

@@ -18,6 +18,9 @@ from mars_pairs.geometry.body import M2020_PLACES_CRS, MSL_PLACES_CRS
 from mars_pairs.store.geoparquet import crs_name, named_crs
 from support.builds import build_small
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 EVERYWHERE = ("--bbox", "-180", "-90", "180", "90")
 
 

@@ -38,6 +38,9 @@ from mars_pairs.synth.mission import (
 from mars_pairs.synth.render import DemGrid, block_ranges
 from mars_pairs.synth.traverse import directed_path
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 DEMO_YAML = Path(__file__).resolve().parents[2] / "configs" / "demo.yaml"
 
 

@@ -28,6 +28,8 @@ from mars_pairs.pds import read_observation
 from mars_pairs.synth import generate_mission
 from mars_pairs.synth.render import SKY_RGB, camera_params
 
+pytestmark = pytest.mark.slow  # its tests share a fixture of > 3 s
+
 RUN = {"seed": 7, "stops": 2, "images_per_stop": 3, "size": "small"}
 EXTENTS = {  # real map extents (DESIGN.md) the synthetic DEMs must lie in
     "m2020": (4351200, 1091760, 4355690, 1095210),

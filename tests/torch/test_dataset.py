@@ -25,6 +25,8 @@ from mars_pairs.errors import ArgumentError
 from mars_pairs.torch import MarsPairsDataset, MarsPairsIterableDataset, collate_samples
 from support.members import manifest_keys
 
+pytestmark = pytest.mark.slow  # its tests share a fixture of > 3 s
+
 ROOT = Path(__file__).resolve().parents[2]
 
 

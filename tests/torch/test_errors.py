@@ -188,7 +188,7 @@ def test_datasets_are_context_managers(dataset_dir: Path) -> None:
 
 
 def test_build_stage_usage_and_chip_errors_are_mars_pairs_errors(tmp_path: Path) -> None:
-    from mars_pairs.cli.main import UsageError as CliUsageError
+    from mars_pairs.cli.build import UsageError as CliUsageError
     from mars_pairs.errors import BuildError, StageError
     from mars_pairs.raster.chips import ChipReader
 

@@ -71,6 +71,7 @@ def test_epoch_cut_short_reclaims_slots(dataset_dir: Path) -> None:
     assert sum(loader.allocations.values()) <= 12
 
 
+@pytest.mark.slow
 def test_spawned_workers(dataset_dir: Path) -> None:
     with MarsPairsDataset(dataset_dir, ground_size=(96, 128)) as ds:
         loader = MarsPairsLoader(ds, batch_size=4, num_workers=1, multiprocessing_context="spawn")

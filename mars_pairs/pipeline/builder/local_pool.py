@@ -39,7 +39,7 @@ from multiprocessing.context import BaseContext
 from multiprocessing.process import BaseProcess
 from typing import Any
 
-from mars_pairs import runtime
+import mars_pairs.runtime as runtime
 from mars_pairs.errors import WorkerDiedError, WorkerStartError
 from mars_pairs.pipeline.builder import worker
 from mars_pairs.pipeline.builder.engine import ChunkResult, ChunkTask, build_chunk

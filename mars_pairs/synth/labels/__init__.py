@@ -10,8 +10,8 @@ array axes. PDS3 labels come in two styles: Mastcam RDR ("mastcam") and MIPL ("m
 GEOMETRIC_CAMERA_MODEL, ROVER_COORDINATE_SYSTEM, SITE_DERIVED_GEOMETRY_PARMS), detached or
 attached to an IMG (``write_pds3_img``); PDS4 labels can write their IMG beside them. Camera
 models: CAHV, CAHVOR and CAHVORE. Values that the Observation does not carry (request window,
-RSM head frame) are marked as synthetic in the label. Writers raise ValueError for values no
-label can hold.
+RSM head frame) are marked as synthetic in the label. Writers raise ArgumentError (a
+ValueError) for values no label can hold.
 """
 
 from mars_pairs.synth.labels.pds3 import write_pds3_img, write_pds3_label

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mars_pairs.errors import ArgumentError
 from mars_pairs.observation import Observation
 
 
@@ -15,7 +16,7 @@ def real_text(x: float) -> str:
     """A finite float as exact (round-trip) text with a decimal point (PDS3 and XML)."""
     x = float(x)
     if not math.isfinite(x):
-        raise ValueError(f"cannot write non-finite value {x}")
+        raise ArgumentError(f"cannot write non-finite value {x}")
     text = repr(x)
     mantissa, _, exponent = text.partition("e")
     if "." not in mantissa:

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mars_pairs.errors import ArgumentError
 from mars_pairs.observation import Observation
 from mars_pairs.synth.labels.format import iso_time, pointer_name, real_text
 
@@ -28,7 +29,7 @@ def _pds3_text(value: str) -> str:
     if _SYMBOL_RE.fullmatch(value):
         return value
     if '"' in value or "\n" in value:
-        raise ValueError(f"cannot write {value!r} as a PDS3 string")
+        raise ArgumentError(f"cannot write {value!r} as a PDS3 string")
     return f'"{value}"'
 
 
@@ -58,12 +59,14 @@ def write_pds3_img(
     path = Path(path)
     pixels = np.asarray(pixels)
     if pixels.dtype not in (np.uint8, np.uint16) or pixels.ndim not in (2, 3):
-        raise ValueError(
+        raise ArgumentError(
             f"pixels must be uint8/uint16 (H, W[, 3]), got {pixels.dtype} {pixels.shape}"
         )
     bands = 1 if pixels.ndim == 2 else pixels.shape[2]
     if pixels.shape[:2] != (obs.height, obs.width):
-        raise ValueError(f"pixels are {pixels.shape[:2]}, the label says {(obs.height, obs.width)}")
+        raise ArgumentError(
+            f"pixels are {pixels.shape[:2]}, the label says {(obs.height, obs.width)}"
+        )
     bits = 8 * pixels.itemsize
     record = obs.width * pixels.itemsize
     data = np.moveaxis(pixels.reshape(obs.height, obs.width, bands), -1, 0)
@@ -87,7 +90,7 @@ def write_pds3_img(
 def _label_text(obs: Observation, style: str, records: str, pointer: str, image: list[str]) -> str:
     """The whole label text (LF line ends)."""
     if style not in STYLES:
-        raise ValueError(f"unknown PDS3 label style {style!r} (one of {STYLES})")
+        raise ArgumentError(f"unknown PDS3 label style {style!r} (one of {STYLES})")
     lines = [
         "PDS_VERSION_ID                    = PDS3",
         "",

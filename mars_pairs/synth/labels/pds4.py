@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 from lxml import etree
 
+from mars_pairs.errors import ArgumentError
 from mars_pairs.observation import Observation
 from mars_pairs.pds.xml import NS, q
 from mars_pairs.synth.labels.format import iso_time, pointer_name, real_text, rover_angles
@@ -52,7 +53,9 @@ def write_pds4_label(
     return path
 
 
-def _el(parent: etree._Element, prefix: str, local: str, text: str | None = None, **attrib: str):
+def _el(
+    parent: etree._Element, prefix: str, local: str, text: str | None = None, **attrib: str
+) -> etree._Element:
     """Append a child element ``prefix:local`` with optional text and attributes."""
     child = etree.SubElement(parent, q(prefix, local), attrib)
     if text is not None:
@@ -110,7 +113,9 @@ def _instrument_name(instrument: str) -> str:
     return f"Mast Camera Zoom {side}"
 
 
-def _xyz(parent: etree._Element, local: str, values: np.ndarray, kind: str, unit: str | None):
+def _xyz(
+    parent: etree._Element, local: str, values: np.ndarray, kind: str, unit: str | None
+) -> etree._Element:
     """A geom vector element with x_<kind>, y_<kind>, z_<kind> children."""
     vec = _el(parent, "geom", local)
     for axis, value in zip("xyz", values, strict=True):
@@ -249,9 +254,11 @@ _HEADER_BYTES = 64
 def _check_pixels(obs: Observation, pixels: np.ndarray) -> np.ndarray:
     pixels = np.asarray(pixels)
     if pixels.dtype not in (np.uint8, np.uint16) or pixels.ndim not in (2, 3):
-        raise ValueError(f"pixels must be uint8/uint16 (H, W[, 3]), got {pixels.dtype}")
+        raise ArgumentError(f"pixels must be uint8/uint16 (H, W[, 3]), got {pixels.dtype}")
     if pixels.shape[:2] != (obs.height, obs.width):
-        raise ValueError(f"pixels are {pixels.shape[:2]}, the label says {(obs.height, obs.width)}")
+        raise ArgumentError(
+            f"pixels are {pixels.shape[:2]}, the label says {(obs.height, obs.width)}"
+        )
     return pixels
 
 

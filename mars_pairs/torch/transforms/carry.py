@@ -20,7 +20,7 @@ def _need(sample: Sample, *names: str) -> None:
 
 
 def _hwc(t: torch.Tensor) -> np.ndarray:
-    return t.numpy().transpose(1, 2, 0)
+    return np.asarray(t.numpy().transpose(1, 2, 0))
 
 
 def _chw(a: np.ndarray) -> torch.Tensor:

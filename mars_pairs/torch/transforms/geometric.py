@@ -327,7 +327,9 @@ class Rotate(_Geometric):
 
     _ground_map = _chip_map = _map
 
-    def _turn(self, image: torch.Tensor, m: np.ndarray, hw: tuple[int, int], **kw: Any) -> Any:
+    def _turn(
+        self, image: torch.Tensor, m: np.ndarray, hw: tuple[int, int], **kw: Any
+    ) -> torch.Tensor:
         k = self._quarter_turns()
         if k is not None:
             return torch.rot90(image, k, dims=(-2, -1)).clone()

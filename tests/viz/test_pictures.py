@@ -14,6 +14,9 @@ from mars_pairs.viz.common import SPLIT_COLOURS
 from support.builds import cli_built_dataset
 from support.members import metas
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 pytest.importorskip("matplotlib")
 
 

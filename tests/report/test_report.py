@@ -36,6 +36,9 @@ from mars_pairs.pipeline.config import load_config
 from support.configs import config_file, mission_inputs
 from support.missions import MissionCache
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 pytest.importorskip("matplotlib")
 
 BROKEN = ("ZZ_truncated.xml", "ZZ_random.xml")

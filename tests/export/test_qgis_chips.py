@@ -18,6 +18,9 @@ from mars_pairs.cli import main
 from mars_pairs.store.shards import MemberLocation, read_member
 from support.builds import build_small
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 
 def _member(root: Path, row: dict, name: str) -> bytes:
     loc = MemberLocation(row[f"{name}_shard"], row[f"{name}_offset"], row[f"{name}_size"])

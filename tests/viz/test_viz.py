@@ -19,6 +19,9 @@ from support.builds import build
 from support.members import manifest_rows as rows_of
 from support.missions import MissionCache
 
+#: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
+pytestmark = pytest.mark.slow
+
 pytest.importorskip("matplotlib")
 
 
@@ -102,7 +105,7 @@ def test_export_qgis_viewsheds_are_geotiffs_in_the_dataset_crs(
 ) -> None:
     import rasterio
 
-    from mars_pairs.cli.qgis import viewsheds_folder
+    from mars_pairs.export.qgis import viewsheds_folder
 
     out = tmp_path / "q.gpkg"
     assert main(["export-qgis", str(dataset), str(out), "--viewsheds"]) == 0
@@ -174,7 +177,7 @@ def test_bad_input_through_the_console_script(dataset: Path, tmp_path: Path) -> 
 def test_matplotlib_is_imported_only_by_the_picture_commands() -> None:
     code = (
         "import mars_pairs.pipeline.builder.run, mars_pairs.torch.datasets, mars_pairs.cli.main, "
-        "mars_pairs.cli.qgis; "
+        "mars_pairs.export.qgis; "
         "import sys; assert 'matplotlib' not in sys.modules, 'matplotlib imported'"
     )
     done = subprocess.run(

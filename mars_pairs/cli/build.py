@@ -1,0 +1,181 @@
+"""``mars-pairs build --config CONFIG``: build a dataset (:func:`~mars_pairs.pipeline.builder.
+run.run_build`), generating the config's synthetic mission first when its files are absent."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from typing import TYPE_CHECKING, Any
+
+from mars_pairs.cli.arguments import count
+from mars_pairs.errors import UsageError
+
+if TYPE_CHECKING:
+    from mars_pairs.pipeline.builder.engine import Engine
+    from mars_pairs.pipeline.config import BuildConfig
+
+
+def register(sub: Any) -> None:
+    """Add the ``build`` subparser to the top-level subparsers ``sub``."""
+    p = sub.add_parser("build", help="build a dataset from a config")
+    p.add_argument("--config", required=True, help="build configuration (YAML)")
+    p.add_argument("--out", help="dataset folder or URL (s3://bucket/prefix; overrides output.dir)")
+    p.add_argument("--workers", type=count(1), default=1, help="worker processes (default 1)")
+    p.add_argument("--resume", action="store_true", help="keep finished shards of a killed build")
+    p.add_argument(
+        "--append",
+        action="store_true",
+        help="add the labels the finished dataset in the folder does not hold yet (a new "
+        "release) as new shards; existing shards are kept; a killed append reruns with "
+        "--append",
+    )
+    p.add_argument("--limit", type=count(1), help="build at most N observations")
+    p.add_argument("--strict", action="store_true", help="stop at the first failure")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="check the config and inputs, list and chunk the labels, print the plan (labels, "
+        "chunks, chunks done with --resume, samples to build); write nothing",
+    )
+    p.add_argument(
+        "--engine",
+        choices=("local", "dask"),
+        default="local",
+        help="local: this machine's process pool; dask: a Dask cluster (default local)",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        help="with --engine dask: a running cluster's scheduler (default: a local cluster "
+        "of --workers processes); its workers write the shards into --out, which they must "
+        "reach at the same path",
+    )
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Build (or with ``--dry-run`` plan) the dataset; print the summary and split warnings."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    from mars_pairs.errors import BuildError
+    from mars_pairs.pipeline.builder.run import run_build
+    from mars_pairs.pipeline.config import load_config
+    from mars_pairs.store.fs import dataset_root
+    from mars_pairs.store.inspect import split_warnings
+    from mars_pairs.store.splits import EmptySplitWarning
+
+    config = load_config(args.config)
+    if args.out:
+        out = dataset_root(args.out)
+        out = out.resolve() if isinstance(out, Path) else out
+        config = replace(config, output=replace(config.output, dir=out))
+    if args.dry_run and args.append:  # the new labels and chunks; writes nothing
+        from mars_pairs.pipeline.builder.append import plan_append
+
+        print(plan_append(config).format())
+        return 0
+    if args.dry_run:  # lists, chunks and checks; writes nothing (nor a synthetic mission)
+        from mars_pairs.pipeline.builder.plan import plan_build
+
+        plan = plan_build(config, resume=args.resume, limit=args.limit, generate=True)
+        print(plan.format())
+        return 0
+    _ensure_synthetic(config)
+    engine = _engine(args)
+    try:
+        with warnings.catch_warnings():  # printed below, from dataset.json, with the summary
+            warnings.simplefilter("ignore", EmptySplitWarning)
+            summary = run_build(
+                config,
+                engine=engine,
+                workers=args.workers,
+                resume=args.resume,
+                limit=args.limit,
+                strict=args.strict,
+                progress=not args.quiet,
+                append=args.append,
+            )
+    except BuildError as exc:
+        print(f"mars-pairs build: --strict: {exc}", file=sys.stderr)
+        return 2
+    print(summary.format())
+    for text in split_warnings(summary.out_dir):
+        print(f"warning: {text}")
+    return 0
+
+
+def _engine(args: argparse.Namespace) -> Engine | None:
+    """The build engine the options name: None (the local pool) or a DaskEngine."""
+    if args.engine == "local":
+        if args.scheduler:
+            raise UsageError("--scheduler needs --engine dask")
+        return None
+    from mars_pairs.pipeline.builder.dask_engine import DaskEngine
+
+    return DaskEngine(scheduler=args.scheduler, workers=args.workers)
+
+
+def _ensure_synthetic(config: BuildConfig) -> None:
+    """Generate the config's synthetic mission when its files are absent (the demo)."""
+    from mars_pairs.pipeline.builder.label_list import iter_matches
+
+    spec = config.inputs.synthetic
+    inputs = config.inputs
+    if spec is None:
+        return
+    from pathlib import Path
+
+    dem_there = not isinstance(inputs.dem, Path) or inputs.dem.exists()  # (a str: remote)
+    if dem_there and inputs.places.exists() and next(iter_matches(inputs.labels), None):
+        return
+    import subprocess
+    import time
+
+    from mars_pairs.synth import generate_mission
+
+    t0 = time.perf_counter()
+    # numba compiles the build's kernels once (then loads them from its cache): in a process
+    # of its own, on the other core, while the mission is generated; the workers then load it
+    print("compiling the build's kernels in the background (first run: ~20 s of CPU) ...")
+    warm = subprocess.Popen(  # it prints its own time (s): the compile's, not the mission's
+        [
+            sys.executable,
+            "-c",
+            "import time; t = time.perf_counter(); "
+            "from mars_pairs.kernels.warm import warm_kernels as w; w(); "
+            "print(round(time.perf_counter() - t))",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    print(f"generating the synthetic {spec.mission} mission in {spec.root} ...", flush=True)
+    try:
+        generate_mission(
+            spec.root,
+            seed=spec.seed,
+            mission=spec.mission,
+            stops=spec.stops,
+            images_per_stop=spec.images_per_stop,
+            size=spec.size,
+            log=lambda line: print(f"  {line}", flush=True),
+        )
+    except BaseException:
+        warm.kill()
+        warm.wait()
+        raise
+    print(f"mission generated ({time.perf_counter() - t0:.0f} s)", flush=True)
+    t1 = time.perf_counter()
+    own, err = warm.communicate()
+    waited = time.perf_counter() - t1
+    if warm.returncode:  # the workers compile what is missing themselves
+        print(f"compiling the kernels failed ({err.strip()[-300:]}); the workers will retry")
+    else:
+        print(
+            f"kernels compiled ({own.strip() or '?'} s, beside the mission; {waited:.0f} s "
+            "waited after it); building ...",
+            flush=True,
+        )
