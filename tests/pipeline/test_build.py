@@ -401,7 +401,7 @@ def test_missing_inputs_exit_2_naming_the_key(
 
 
 def test_inspect_sorts_sols_as_numbers_and_lists_them_as_runs() -> None:
-    from mars_pairs.cli.summary import format_facts, sol_ranges
+    from mars_pairs.store.inspect import format_facts, sol_ranges
 
     assert sol_ranges([100, 9, 10, 11, 99, 13, 9]) == [(9, 11), (13, 13), (99, 100)]
     facts = {
