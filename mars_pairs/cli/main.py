@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from mars_pairs.cli import query
 from mars_pairs.cli.arguments import VersionAction, bounded, count, finite
 from mars_pairs.cli.summary import split_warnings
 from mars_pairs.cli.viewshed import cmd_viewshed
@@ -238,23 +239,6 @@ def _cmd_export_qgis(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_query(args: argparse.Namespace) -> int:
-    from mars_pairs.cli.query import check_query_splits, filter_arguments, run_query
-
-    filters = filter_arguments(
-        bbox=args.bbox,
-        bbox_map=args.bbox_map,
-        near=args.near,
-        polygon=args.polygon,
-        mission=args.mission,
-        instrument=args.instrument,
-        split=args.split,
-        sol=args.sol,
-    )
-    check_query_splits(args.dataset, filters.get("split"))
-    return run_query(args.dataset, filters, args.format, args.out)
-
-
 def _add_build_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", required=True, help="build configuration (YAML)")
     p.add_argument("--out", help="dataset folder or URL (s3://bucket/prefix; overrides output.dir)")
@@ -351,48 +335,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dataset", help="dataset folder, or its URL (s3://bucket/prefix)")
     p.set_defaults(func=_cmd_verify)
 
-    p = sub.add_parser(
-        "query",
-        help="filter a dataset's manifest by place and attributes",
-        description="Rows of a dataset's manifest matching every filter given: at most one "
-        "place filter (--bbox, --bbox-map, --near, --polygon) and any of --split, --mission, "
-        "--instrument, --sol. No filter: every row.",
-    )
-    p.add_argument("dataset", type=local_dataset, help="dataset folder")
-    where = p.add_mutually_exclusive_group()
-    where.add_argument(
-        "--bbox",
-        nargs=4,
-        type=finite,
-        metavar=("W", "S", "E", "N"),
-        help="longitude/latitude box, degrees",
-    )
-    where.add_argument(
-        "--bbox-map",
-        nargs=4,
-        type=finite,
-        metavar=("XMIN", "YMIN", "XMAX", "YMAX"),
-        help="box in the dataset CRS, map units",
-    )
-    where.add_argument(
-        "--near",
-        nargs=3,
-        type=finite,
-        metavar=("LAT", "LON", "RADIUS_M"),
-        help="within a great-circle radius (metres) of a point",
-    )
-    where.add_argument("--polygon", help="WKT polygon in the dataset CRS")
-    p.add_argument("--mission", action="append", help="m2020 or msl (repeat for several)")
-    p.add_argument(
-        "--instrument", action="append", help="e.g. MAST_LEFT, NAV_LEFT (repeat for several)"
-    )
-    p.add_argument(
-        "--split", action="append", help="train, val, test, buffer... (repeat for several)"
-    )
-    p.add_argument("--sol", nargs=2, type=int, metavar=("FIRST", "LAST"), help="inclusive")
-    p.add_argument("--format", choices=("table", "csv", "parquet", "geojson"), default="table")
-    p.add_argument("--out", help="output file (parquet needs one; others default to stdout)")
-    p.set_defaults(func=_cmd_query)
+    query.register(sub)
 
     p = sub.add_parser("show", help="a figure of one sample (needs the viz extra)")
     p.add_argument("dataset", type=local_dataset, help="dataset folder")

@@ -51,7 +51,7 @@ from mars_pairs.errors import (
     SampleIndexError,
 )
 from mars_pairs.store.dataset_info import read_dataset_info
-from mars_pairs.store.filter_args import check_split_names, configured_splits, sample_index
+from mars_pairs.store.filter_args import sample_index
 from mars_pairs.store.fs import Location, dataset_root, join
 from mars_pairs.store.integrity import MemberSpec, check_member, repeated_keys
 from mars_pairs.store.manifest import SUMMARY_COLUMNS
@@ -72,18 +72,6 @@ from mars_pairs.torch.files import ShardFiles
 from mars_pairs.torch.georef import GEO_COLUMNS, chip_transform, corr_ground_grid
 
 META_COLUMNS = SUMMARY_COLUMNS
-
-
-FILTER_KEYS = (
-    "bbox_lonlat",
-    "bbox_map",
-    "near",
-    "polygon",
-    "mission",
-    "instrument",
-    "sol",
-    "split",
-)
 
 
 def _dense_stride(doc: dict[str, Any], ray_stride: int) -> int:
@@ -162,9 +150,6 @@ class MarsPairsDataset(Dataset):
         localization: bool = False,
         **filters: Any,
     ) -> None:
-        unknown = set(filters) - set(FILTER_KEYS)
-        if unknown:
-            raise ArgumentError(f"unknown filter argument(s) {sorted(unknown)}")
         if transform is not None and not callable(transform):
             raise ArgumentError(f"transform: expected a callable, got {transform!r}")
         self.root = dataset_root(root)
@@ -174,9 +159,8 @@ class MarsPairsDataset(Dataset):
         self.normalize_dem = bool(normalize_dem)
         self._dtypes = {f: out_dtype(f, image_dtype) for f in self.fields}
         self.image_dtype = image_dtype
-        manifest = Manifest.open(self.root).filter(**filters)
+        manifest = Manifest.open(self.root).filter(**filters)  # ManifestFilter's arguments
         info = read_dataset_info(self.root)
-        check_split_names(filters.get("split"), configured_splits(info.doc), str(self.root))
         self.crs: str = info.crs or manifest.crs or ""
         self.chip_px = info.chip_px
         self.ray_stride = info.ray_stride

@@ -207,7 +207,7 @@ def test_filters_match_the_manifest(dataset_dir: Path) -> None:
         seen.add(len(keys))
     # the cases are not all trivial: some subset strictly between nothing and everything
     assert 0 in seen and len(everything) in seen and any(0 < n < len(everything) for n in seen)
-    assert 0 < len(filtered_keys(dataset_dir, near=(float(lat[0]), float(lon[0]), 1.0))) < 9
+    assert 0 < len(filtered_keys(dataset_dir, near=(float(lon[0]), float(lat[0]), 1.0))) < 9
     # a split name the dataset does not know is refused, the known ones listed
     with pytest.raises(ArgumentError, match=r"'none-such'; its splits are .*train"):
         MarsPairsDataset(dataset_dir, split="none-such")
