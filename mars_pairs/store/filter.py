@@ -11,10 +11,11 @@ polygon intersects the place) or ``chip`` (the orbital chip's square intersects 
 The filter's own values are checked when it is made (a bad box, a negative radius, a sol
 range backwards: :class:`~mars_pairs.errors.ArgumentError` with one line naming the
 argument). :func:`checked` then holds it against what a dataset holds
-(:class:`DatasetValues`): a mission, instrument or split the dataset does not have, or a sol
-range outside its sols, is an ArgumentError listing the valid values; a place filter that
-misses the dataset's extent is a :class:`FilterWarning` printing the extent in lon/lat and in
-map metres (the query is valid, its answer empty); a ``near`` point given in the old
+(:class:`DatasetValues`): a mission, instrument or split the dataset does not have is an
+ArgumentError listing the valid values (names are a closed set: an unknown one is a typo);
+a sol range outside its sols, or a place filter that misses the dataset's extent, is a
+:class:`FilterWarning` giving the dataset's sols or its extent in lon/lat and map metres (a
+range may rightly be empty: the query is valid, its answer 0 rows); a ``near`` point given in the old
 latitude-first order is read swapped, with a FilterWarning, when only the swapped point lies
 in the dataset's extent.
 """
@@ -307,8 +308,8 @@ class DatasetValues:
 
 def checked(spec: ManifestFilter, values: DatasetValues) -> ManifestFilter:
     """``spec`` held against what the dataset holds: ArgumentError for a mission,
-    instrument or split it lacks (listing its values) or a sol range outside its sols;
-    FilterWarning for a place filter missing its extent. Returns ``spec``."""
+    instrument or split it lacks (listing its values); FilterWarning for a sol range
+    outside its sols or a place filter missing its extent. Returns ``spec``."""
     for name in NAME_KEYS:
         asked = getattr(spec, name)
         if asked is None:
@@ -327,8 +328,11 @@ def checked(spec: ManifestFilter, values: DatasetValues) -> ManifestFilter:
         first, last = spec.sol
         if held is None or last < held[0] or first > held[1]:
             span = "none" if held is None else f"{held[0]}..{held[1]}"
-            raise ArgumentError(
-                f"sol: {first}..{last} holds none of {values.where}'s sols (they are {span})"
+            warnings.warn(
+                f"sol: {first}..{last} holds none of {values.where}'s sols (they are {span}): "
+                "0 rows",
+                FilterWarning,
+                stacklevel=3,
             )
     for name in spec.places:
         if _misses(spec, name, values):

@@ -106,9 +106,9 @@ class Manifest:
         ``polygon_map`` (``polygon``: the map one), ``mission``, ``instrument``, ``split``,
         ``sol`` (first, last) and ``by`` (``rover``, ``footprint`` or ``chip``: what a place
         filter tests). A bad value is an ArgumentError naming the argument; a mission,
-        instrument or split the dataset lacks, or a sol range outside its sols, an
-        ArgumentError listing its values; a place filter missing the dataset's extent a
-        FilterWarning giving the extent; a column a predicate needs that the manifest lacks,
+        instrument or split the dataset lacks an ArgumentError listing its values; a sol range
+        outside its sols or a place filter missing the dataset's extent a FilterWarning
+        giving its sols or its extent (0 rows); a column a predicate needs that the manifest lacks,
         DatasetError naming the column.
         """
         if spec is None:

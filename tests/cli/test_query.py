@@ -40,7 +40,6 @@ def _rows(out: str) -> int:
         (["--instrument", "MAST_LEFT"], "--instrument: "),
         (["--split", "training"], "its splits are test, train, val"),
         (["--mission", "msl"], "its missions are m2020"),
-        (["--sol", "300", "400"], "(they are 52..140)"),
         (
             [
                 "--polygon",
@@ -91,6 +90,14 @@ def test_a_missed_place_warns_with_the_extent_in_both_units(
     assert code == 0 and _rows(out) <= 0
     assert "warning: --bbox: (0, 0, 1, 1) misses the dataset (by=rover, 0 rows)" in err
     assert "lon 77.4" in err and "map x 435" in err
+
+
+def test_a_sol_range_outside_warns_with_the_sols(
+    placed: tuple[Path, pa.Table], capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, out, err = _query(placed[0], capsys, "--sol", "300", "400")
+    assert code == 0 and _rows(out) <= 0
+    assert "warning: --sol: 300..400 holds none of" in err and "(they are 52..140)" in err
 
 
 def test_polygon_in_degrees_and_polygon_map_agree(

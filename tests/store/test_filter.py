@@ -99,8 +99,6 @@ def test_one_filter_object_or_keywords(placed: tuple[Path, pa.Table]) -> None:
         ({"instrument": "NAVCAM"}, "its instruments are MCZ_LEFT, MCZ_RIGHT, NAVCAM_LEFT"),
         ({"instrument": ["MCZ_LEFT", "MAST_LEFT"]}, "has no instrument 'MAST_LEFT'"),
         ({"mission": "msl"}, "has no mission 'msl'; its missions are m2020"),
-        ({"sol": (200, 300)}, r"sol: 200..300 holds none of .*sols \(they are 52..140\)"),
-        ({"sol": (0, 51)}, r"\(they are 52..140\)"),
     ],
 )
 def test_values_the_dataset_lacks_are_errors_naming_the_valid_ones(
@@ -150,6 +148,15 @@ def test_a_place_missing_the_dataset_warns_with_its_extent_in_both_units(
     text = str(caught[0].message)
     assert "lon 77.4" in text and "lat 18.4" in text and "map x 435" in text and " m" in text
     assert len(got) == 0
+
+
+@pytest.mark.parametrize("sol", [(200, 300), (0, 51)])
+def test_a_sol_range_outside_the_dataset_warns_with_its_sols(
+    placed: tuple[Path, pa.Table], sol: tuple[int, int]
+) -> None:
+    with pytest.warns(FilterWarning, match=r"holds none of .*sols \(they are 52..140\): 0 rows"):
+        assert len(Manifest.open(placed[0]).filter(sol=sol)) == 0
+    assert len(_quiet(Manifest.open(placed[0]), sol=(0, 52))) > 0  # one sol in: quiet
 
 
 def test_the_old_latitude_first_near_is_read_swapped_with_a_warning(
