@@ -15,9 +15,9 @@ argument). :func:`checked` then holds it against what a dataset holds
 ArgumentError listing the valid values (names are a closed set: an unknown one is a typo);
 a sol range outside its sols, or a place filter that misses the dataset's extent, is a
 :class:`FilterWarning` giving the dataset's sols or its extent in lon/lat and map metres (a
-range may rightly be empty: the query is valid, its answer 0 rows); a ``near`` point given in the old
-latitude-first order is read swapped, with a FilterWarning, when only the swapped point lies
-in the dataset's extent.
+range may rightly be empty: the query is valid, its answer 0 rows); a ``near`` point given
+in the old latitude-first order is read swapped, with a FilterWarning, when only the swapped
+point lies in the dataset's extent.
 """
 
 from __future__ import annotations

@@ -19,7 +19,6 @@ from mars_pairs.store.filter import (
     near_in_order,
     predicates,
 )
-from mars_pairs.store.filter_args import configured_splits
 from mars_pairs.store.manifest import CORE_COLUMNS
 
 
@@ -144,10 +143,10 @@ class Manifest:
                 return rename_to(table, columns)
 
             def configured() -> set[str]:
-                from mars_pairs.store.dataset_info import read_dataset_doc
+                from mars_pairs.store.dataset_info import read_dataset_info
 
                 try:
-                    return configured_splits(read_dataset_doc(root)) or set()
+                    return read_dataset_info(root, required=False).configured_splits() or set()
                 except DatasetError:
                     return set()  # a damaged dataset.json: the names on the rows
 

@@ -74,14 +74,6 @@ from mars_pairs.torch.georef import GEO_COLUMNS, chip_transform, corr_ground_gri
 META_COLUMNS = SUMMARY_COLUMNS
 
 
-def _dense_stride(doc: dict[str, Any], ray_stride: int) -> int:
-    """The dense members' stride from dataset.json (``output.dense_stride``; default the ray
-    stride)."""
-    output = doc.get("config", {}).get("output", {}) if isinstance(doc, dict) else {}
-    value = output.get("dense_stride") if isinstance(output, dict) else None
-    return value if isinstance(value, int) and value >= 1 else ray_stride
-
-
 def _ground_size(value: int | Sequence[int] | None) -> tuple[int, int] | None:
     if value is None:
         return None
@@ -166,7 +158,7 @@ class MarsPairsDataset(Dataset):
         self.ray_stride = info.ray_stride
         self.verify = bool(verify)
         self.localization = bool(localization)
-        self.dense_stride = _dense_stride(info.doc, self.ray_stride)
+        self.dense_stride = info.dense_stride
         # verify=True checks every member of a sample read, like `mars-pairs verify`
         located = (*MEMBERS, *self.fields) if self.verify else self.fields
         if self.localization:
