@@ -183,8 +183,8 @@ def test_filters_match_the_manifest(dataset_dir: Path) -> None:
     cases: list[dict[str, Any]] = [{"split": s} for s in sorted(splits)]
     cases += [
         {"sol": (99_999, 99_999)},  # nothing
-        {"near": (float(lat[0]), float(lon[0]), 1.0)},  # the first stop only
-        {"near": (float(lat[0]), float(lon[0]), 1e6)},  # everything
+        {"near": (float(lon[0]), float(lat[0]), 1.0)},  # the first stop only
+        {"near": (float(lon[0]), float(lat[0]), 1e6)},  # everything
         {
             "bbox_lonlat": (
                 float(lon.min()) - 1e-6,
@@ -193,7 +193,7 @@ def test_filters_match_the_manifest(dataset_dir: Path) -> None:
                 float(np.median(lat)),
             )
         },
-        {"split": sorted(splits)[0], "near": (float(lat[-1]), float(lon[-1]), 50.0)},
+        {"split": sorted(splits)[0], "near": (float(lon[-1]), float(lat[-1]), 50.0)},
     ]
     seen = set()
     for filters in cases:
