@@ -1,10 +1,11 @@
-"""``mars-pairs query``: filter a manifest by place and print or save the rows."""
+"""``mars-pairs query``: filter a manifest (:class:`~mars_pairs.store.filter.ManifestFilter`)
+and print or save the rows."""
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -14,10 +15,11 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import shapely
 
-from mars_pairs.errors import DatasetError, MarsPairsError
+from mars_pairs.errors import ArgumentError, MarsPairsError
 from mars_pairs.geometry.body import MARS_LONLAT_AUTHORITY
 from mars_pairs.geometry.frames import map_to_lonlat
 from mars_pairs.store.atomic import write_parquet_atomic
+from mars_pairs.store.filter import PLACE_KEYS, FilterWarning
 from mars_pairs.store.geoparquet import GEOMETRY_COLUMNS, table_geo_metadata
 from mars_pairs.store.query import Manifest
 
@@ -39,100 +41,166 @@ SHOWN = (
 )
 
 
+#: each filter argument's option (ArgumentErrors name the argument first)
+OPTIONS = {
+    "bbox_lonlat": "--bbox",
+    "bbox_map": "--bbox-map",
+    "near": "--near",
+    "polygon_lonlat": "--polygon",
+    "polygon_map": "--polygon-map",
+    "mission": "--mission",
+    "instrument": "--instrument",
+    "split": "--split",
+    "sol": "--sol",
+    "by": "--by",
+}
+
+DESCRIPTION = (
+    "Rows of a dataset's manifest matching every filter given: at most one place filter "
+    "(--bbox, --bbox-map, --near, --polygon, --polygon-map) and any of --split, --mission, "
+    "--instrument, --sol. No filter: every row. Coordinates are longitude first (lon/lat in "
+    "degrees east/north on the Mars sphere; map units are the dataset CRS's metres). A place "
+    "filter tests the rover position (where the image was taken) unless --by footprint (the "
+    "viewshed footprint meets the place) or --by chip (the orbital chip meets it). A value "
+    "the dataset does not hold is an error listing its values; a place that misses the "
+    "dataset prints a warning with its extent in both units."
+)
+
+
+def register(sub: Any) -> None:
+    """Add the ``query`` sub-command to ``sub`` (an argparse sub-parsers action)."""
+    from mars_pairs.cli.arguments import finite, local_dataset
+    from mars_pairs.store.filter import BY
+
+    p = sub.add_parser(
+        "query", help="filter a dataset's manifest by place and attributes", description=DESCRIPTION
+    )
+    p.add_argument("dataset", type=local_dataset, help="dataset folder")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument(
+        "--bbox",
+        nargs=4,
+        type=finite,
+        metavar=("W", "S", "E", "N"),
+        help="longitude/latitude box, degrees east/north (W > E crosses the 180th meridian)",
+    )
+    where.add_argument(
+        "--bbox-map",
+        nargs=4,
+        type=finite,
+        metavar=("XMIN", "YMIN", "XMAX", "YMAX"),
+        help="box in the dataset CRS, map units (metres)",
+    )
+    where.add_argument(
+        "--near",
+        nargs=3,
+        type=finite,
+        metavar=("LON", "LAT", "RADIUS_M"),
+        help="within a great-circle radius (metres) of a point, longitude first (LAT LON, the "
+        "old order, is read swapped with a warning when only that way the point is in the "
+        "dataset)",
+    )
+    where.add_argument("--polygon", metavar="WKT", help="WKT polygon in lon/lat degrees")
+    where.add_argument("--polygon-map", metavar="WKT", help="WKT polygon in the dataset CRS")
+    p.add_argument(
+        "--by",
+        choices=BY,
+        default=BY[0],
+        help="what a place filter tests: rover = the rover position (default), footprint = "
+        "the viewshed footprint polygon meets the place, chip = the orbital chip's square "
+        "meets it",
+    )
+    p.add_argument("--mission", action="append", help="e.g. m2020 or msl (repeat for several)")
+    p.add_argument(
+        "--instrument",
+        action="append",
+        help="e.g. MCZ_LEFT, NAVCAM_LEFT (m2020), MAST_LEFT (msl) (repeat for several)",
+    )
+    p.add_argument(
+        "--split", action="append", help="train, val, test, buffer... (repeat for several)"
+    )
+    p.add_argument("--sol", nargs=2, type=int, metavar=("FIRST", "LAST"), help="inclusive")
+    p.add_argument("--format", choices=("table", "csv", "parquet", "geojson"), default="table")
+    p.add_argument("--out", help="output file (parquet needs one; others default to stdout)")
+    p.set_defaults(func=run)
+
+
+def run(args: Any) -> int:
+    """``mars-pairs query``: the rows matching the options, printed or written."""
+    filters = filter_arguments(
+        bbox=args.bbox,
+        bbox_map=args.bbox_map,
+        near=args.near,
+        polygon=args.polygon,
+        polygon_map=args.polygon_map,
+        mission=args.mission,
+        instrument=args.instrument,
+        split=args.split,
+        sol=args.sol,
+        by=args.by,
+    )
+    return run_query(args.dataset, filters, args.format, args.out)
+
+
 def filter_arguments(
     *,
     bbox: Sequence[float] | None = None,
     bbox_map: Sequence[float] | None = None,
     near: Sequence[float] | None = None,
     polygon: str | None = None,
+    polygon_map: str | None = None,
     mission: str | Sequence[str] | None = None,
     instrument: str | Sequence[str] | None = None,
     split: str | Sequence[str] | None = None,
     sol: Sequence[int] | None = None,
+    by: str = "rover",
 ) -> dict[str, Any]:
-    """Manifest.filter keyword arguments from the query's options (unset ones left out).
-
-    ``bbox`` is (west, south, east, north) degrees, ``bbox_map`` (xmin, ymin, xmax, ymax) in
-    the dataset CRS, ``near`` (lat, lon, radius_m), ``polygon`` WKT in the dataset CRS;
-    ``mission``, ``instrument``, ``split``: a value or a list of values (any of them). Any
-    subset may be given, none for every row.
-    """
-    out: dict[str, Any] = {}
-    if bbox is not None:
-        w, s, e, n = _finite("--bbox", bbox, 4)
-        for name, lat in (("S", s), ("N", n)):
-            if not -90.0 <= lat <= 90.0:
-                raise MarsPairsError(f"--bbox: {name}: latitude {lat:g} is outside [-90, 90]")
-        if s > n:
-            raise MarsPairsError(f"--bbox: S ({s:g}) is north of N ({n:g})")
-        out["bbox_lonlat"] = (w, s, e, n)
-    if bbox_map is not None:
-        x0, y0, x1, y1 = _finite("--bbox-map", bbox_map, 4)
-        if x0 > x1 or y0 > y1:
-            raise MarsPairsError("--bbox-map: expected XMIN <= XMAX and YMIN <= YMAX")
-        out["bbox_map"] = (x0, y0, x1, y1)
-    if near is not None:
-        lat, lon, radius = _finite("--near", near, 3)
-        if not -90.0 <= lat <= 90.0:
-            raise MarsPairsError(f"--near: LAT: latitude {lat:g} is outside [-90, 90]")
-        if not radius > 0.0:
-            raise MarsPairsError(f"--near: RADIUS_M: expected a positive radius, got {radius:g}")
-        out["near"] = (lat, lon, radius)
-    if polygon is not None:
-        out["polygon"] = _polygon(polygon)
-    for name, value in (("mission", mission), ("instrument", instrument), ("split", split)):
-        if value:
-            out[name] = [value] if isinstance(value, str) else list(value)
-    if sol:
-        first, last = (int(v) for v in sol)
-        if first > last:
-            raise MarsPairsError(f"--sol: FIRST ({first}) is after LAST ({last})")
-        out["sol"] = (first, last)
+    """Manifest.filter keyword arguments (:class:`~mars_pairs.store.filter.ManifestFilter`'s)
+    from the query's options (unset ones left out): ``bbox`` (W, S, E, N) degrees,
+    ``bbox_map`` (xmin, ymin, xmax, ymax) map units, ``near`` (lon, lat, radius_m),
+    ``polygon`` lon/lat WKT, ``polygon_map`` WKT in the dataset CRS; the names a value or a
+    list; ``by`` what a place filter tests. Checked when the manifest filters them."""
+    given = {
+        "bbox_lonlat": bbox,
+        "bbox_map": bbox_map,
+        "near": near,
+        "polygon_lonlat": polygon,
+        "polygon_map": polygon_map,
+        "mission": mission or None,
+        "instrument": instrument or None,
+        "split": split or None,
+        "sol": sol or None,
+    }
+    out = {k: (tuple(v) if isinstance(v, list) else v) for k, v in given.items() if v is not None}
+    if any(k in out for k in OPTIONS if k in PLACE_KEYS) or by != "rover":
+        out["by"] = by
     return out
 
 
-def check_query_splits(dataset: str | Path, split: Any) -> None:
-    """ArgumentError when a requested split (a name or a list) is none the dataset knows:
-    those its dataset.json configures (``filter_args.configured_splits``) or its rows hold.
-    The known names are listed; a known split with no rows is not an error (0 rows)."""
-    if not split:
-        return
-    import pyarrow.compute as pc
-
-    from mars_pairs.store.dataset_info import read_dataset_doc
-    from mars_pairs.store.filter_args import check_split_names, configured_splits
-
-    root = Path(dataset)
-    rows = Manifest.open(root).require(["split"]).to_table(["split"])["split"]
-    known = {str(v) for v in pc.unique(rows).to_pylist() if v is not None}
-    try:
-        doc = read_dataset_doc(root)
-    except DatasetError:
-        doc = {}  # a damaged dataset.json: the names on the rows
-    check_split_names(split, known | (configured_splits(doc) or set()), str(root))
-
-
-def _finite(option: str, values: Sequence[float], n: int) -> tuple[float, ...]:
-    """``n`` finite numbers, or MarsPairsError naming the option."""
-    numbers = tuple(float(v) for v in values)
-    if len(numbers) != n or not all(np.isfinite(numbers)):
-        raise MarsPairsError(f"{option}: expected {n} finite numbers, got {list(values)}")
-    return numbers
+def filtered(dataset: str | Path, filters: dict[str, Any]) -> Manifest:
+    """The dataset's manifest filtered by ``filters``; an ArgumentError names the option
+    (``--bbox``, ...), a FilterWarning is printed as ``warning: ...`` on stderr."""
+    manifest = Manifest.open(dataset).require()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", FilterWarning)
+        try:
+            result = manifest.filter(**filters)
+        except ArgumentError as exc:
+            raise ArgumentError(_optioned(str(exc))) from None
+    for warning in caught:
+        if issubclass(warning.category, FilterWarning):
+            print(f"mars-pairs query: warning: {_optioned(str(warning.message))}", file=sys.stderr)
+        else:
+            warnings.warn_explicit(
+                warning.message, warning.category, warning.filename, warning.lineno
+            )
+    return result
 
 
-def _polygon(wkt: str) -> Any:
-    """A non-empty polygon with finite coordinates from WKT (dataset CRS)."""
-    try:
-        geom = shapely.from_wkt(wkt)
-    except shapely.errors.GEOSException as exc:
-        raise MarsPairsError(f"--polygon: not valid WKT: {exc}") from None
-    if geom is None or geom.is_empty:
-        raise MarsPairsError(f"--polygon: an empty geometry ({wkt!r}) selects nothing")
-    if geom.geom_type not in ("Polygon", "MultiPolygon"):
-        raise MarsPairsError(f"--polygon: expected a Polygon or MultiPolygon, got {geom.geom_type}")
-    if not np.isfinite(shapely.get_coordinates(geom)).all():
-        raise MarsPairsError("--polygon: coordinates must be finite numbers")
-    return geom
+def _optioned(message: str) -> str:
+    """``message`` with its leading filter argument name as the command's option."""
+    name, sep, rest = message.partition(":")
+    return f"{OPTIONS[name]}{sep}{rest}" if name in OPTIONS and sep else message
 
 
 #: GeoJSON's CRS member for the Mars sphere, planetocentric, east longitude (R = 3396190 m).
@@ -179,7 +247,7 @@ def run_query(
     Parquet is GeoParquet 1.1 (``store.geoparquet``: the manifest's geometry columns in the
     dataset CRS, named); GeoJSON is longitude/latitude on the Mars sphere (IAU_2015:49900)."""
     manifest = Manifest.open(dataset).require()
-    table = manifest.filter(**filters).to_table()
+    table = filtered(dataset, filters).to_table()
     if fmt == "parquet":
         if not out:
             raise MarsPairsError("--format parquet needs --out FILE")
@@ -228,67 +296,3 @@ def _table(table: pa.Table) -> str:
     lines += ["  ".join(c.ljust(w) for c, w in zip(cell, widths, strict=True)) for cell in cells]
     lines.append(f"({len(rows)} rows)")
     return "\n".join(lines)
-
-
-def register(sub: Any) -> None:
-    """Add the ``query`` subparser to the top-level subparsers ``sub``."""
-    from mars_pairs.cli.arguments import finite, local_dataset
-
-    p = sub.add_parser(
-        "query",
-        help="filter a dataset's manifest by place and attributes",
-        description="Rows of a dataset's manifest matching every filter given: at most one "
-        "place filter (--bbox, --bbox-map, --near, --polygon) and any of --split, --mission, "
-        "--instrument, --sol. No filter: every row.",
-    )
-    p.add_argument("dataset", type=local_dataset, help="dataset folder")
-    where = p.add_mutually_exclusive_group()
-    where.add_argument(
-        "--bbox",
-        nargs=4,
-        type=finite,
-        metavar=("W", "S", "E", "N"),
-        help="longitude/latitude box, degrees",
-    )
-    where.add_argument(
-        "--bbox-map",
-        nargs=4,
-        type=finite,
-        metavar=("XMIN", "YMIN", "XMAX", "YMAX"),
-        help="box in the dataset CRS, map units",
-    )
-    where.add_argument(
-        "--near",
-        nargs=3,
-        type=finite,
-        metavar=("LAT", "LON", "RADIUS_M"),
-        help="within a great-circle radius (metres) of a point",
-    )
-    where.add_argument("--polygon", help="WKT polygon in the dataset CRS")
-    p.add_argument("--mission", action="append", help="m2020 or msl (repeat for several)")
-    p.add_argument(
-        "--instrument", action="append", help="e.g. MAST_LEFT, NAV_LEFT (repeat for several)"
-    )
-    p.add_argument(
-        "--split", action="append", help="train, val, test, buffer... (repeat for several)"
-    )
-    p.add_argument("--sol", nargs=2, type=int, metavar=("FIRST", "LAST"), help="inclusive")
-    p.add_argument("--format", choices=("table", "csv", "parquet", "geojson"), default="table")
-    p.add_argument("--out", help="output file (parquet needs one; others default to stdout)")
-    p.set_defaults(func=run)
-
-
-def run(args: argparse.Namespace) -> int:
-    """Print (or write to ``--out``) the rows matching the options."""
-    filters = filter_arguments(
-        bbox=args.bbox,
-        bbox_map=args.bbox_map,
-        near=args.near,
-        polygon=args.polygon,
-        mission=args.mission,
-        instrument=args.instrument,
-        split=args.split,
-        sol=args.sol,
-    )
-    check_query_splits(args.dataset, filters.get("split"))
-    return run_query(args.dataset, filters, args.format, args.out)

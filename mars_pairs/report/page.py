@@ -27,7 +27,11 @@ from mars_pairs.errors import DatasetError, MarsPairsError, UsageError
 from mars_pairs.report.meta import camera_centres
 from mars_pairs.store.atomic import atomic_write_bytes
 from mars_pairs.store.beside import beside, outside
-from mars_pairs.store.dataset_info import build_input, dataset_json_path, read_dataset_doc
+from mars_pairs.store.dataset_info import (
+    DatasetInfo,
+    dataset_json_path,
+    read_dataset_info,
+)
 from mars_pairs.store.geoparquet import describe_crs
 from mars_pairs.store.query import Manifest
 from mars_pairs.viz.common import DPI, split_colours
@@ -148,7 +152,7 @@ def _for_people(key: str, value: Any) -> str:
     return str(value)
 
 
-def _split_section(rows: list[dict[str, Any]], info: dict[str, Any], n_failed: int) -> str:
+def _split_section(rows: list[dict[str, Any]], info: DatasetInfo, n_failed: int) -> str:
     splits = [str(r["split"]) for r in rows]
     colours = split_colours(splits)
     counts = Counter(splits)
@@ -177,7 +181,7 @@ def _split_section(rows: list[dict[str, Any]], info: dict[str, Any], n_failed: i
             numeric={1, 2, 3},
         )
     ]
-    rep = info.get("splits") or {}
+    rep = info.splits
     if rep:
         kv = []
         for key, value in rep.items():
@@ -261,31 +265,31 @@ def _gallery_section(root: Path, rows: list[dict[str, Any]], n: int, dpi: int = 
     )
 
 
-def _provenance_section(root: Path, info: dict[str, Any], crs_name: str) -> str:
+def _provenance_section(root: Path, info: DatasetInfo, crs_name: str) -> str:
     from mars_pairs.version import __version__
 
     head = '<section id="provenance"><h2>Provenance</h2>'
-    if not info:
+    if not info.exists:
         return head + '<p class="sub">no dataset.json in the dataset folder</p></section>'
     written = datetime.fromtimestamp(dataset_json_path(root).stat().st_mtime, tz=timezone.utc)
-    seconds = info.get("build_seconds")
+    seconds = info.build_seconds
     facts = [
         ["dataset", _esc(root.resolve())],
         ["built (dataset.json written)", _esc(written.strftime("%Y-%m-%d %H:%M:%S UTC"))],
         ["build time", _esc(f"{seconds:.1f} s" if isinstance(seconds, (int, float)) else "–")],
         ["CRS", _esc(crs_name)],
-        ["chip", _esc(", ".join(f"{k} {v}" for k, v in (info.get("chip") or {}).items()))],
+        ["chip", _esc(", ".join(f"{k} {v}" for k, v in info.chip.items()))],
     ]
-    for key, value in (info.get("counts") or {}).items():
+    for key, value in info.counts.items():
         if isinstance(value, dict):
             value = ", ".join(f"{k} {v}" for k, v in value.items())
         facts.append([_esc(f"count: {key.replace('_', ' ')}"), _esc(value)])
-    for key, value in (info.get("failures_by_reason") or {}).items():
+    for key, value in info.failures_by_reason.items():
         facts.append([_esc(f"failures: {key}"), _esc(value)])
-    versions = [[_esc(k), _esc(v)] for k, v in (info.get("versions") or {}).items()]
+    versions = [[_esc(k), _esc(v)] for k, v in info.versions.items()]
     generated = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
     versions.append(["report written by", _esc(f"mars_pairs {__version__}, {generated}")])
-    config = json.dumps(info.get("config", {}), indent=2)
+    config = json.dumps(info.config, indent=2)
     return (
         f'{head}<div class="row">{_table(["build", ""], facts)}'
         f"{_table(['versions', ''], versions)}</div>"
@@ -306,11 +310,11 @@ def report_html(root: str | Path, samples: int = DEFAULT_SAMPLES, dpi: int = DPI
         raise MarsPairsError(f"{root}: no such dataset folder")
     manifest = Manifest.open(root).require(COLUMNS)
     rows = manifest.to_table(columns=list(COLUMNS)).to_pylist()
-    info = read_dataset_doc(root)
+    info = read_dataset_info(root, required=False)
     failures = _failures(root)
     n_failed = failures.num_rows if failures is not None else 0
-    crs_name, unit = describe_crs(info.get("crs") or manifest.crs)
-    ortho_path = build_input(root, info, "ortho")
+    crs_name, unit = describe_crs(info.crs or manifest.crs)
+    ortho_path = info.build_input(root, "ortho")
 
     title = f"mars-pairs dataset {root}"
     missions = ", ".join(sorted({str(r["mission"]) for r in rows}))

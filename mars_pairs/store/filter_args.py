@@ -1,11 +1,10 @@
 """Manifest filter arguments as users pass them: Python, numpy and pandas scalars, tuples,
-arrays and Series; a wrong type, size or a NaN raises ArgumentError naming the argument. Split
-names are checked against those a dataset knows; a sample is named by its key or product id."""
+arrays and Series; a wrong type, size or a NaN raises ArgumentError naming the argument; a
+sample is named by its key or product id. (What a filter is: ``store.filter``.)"""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
 from typing import Any
 
 from mars_pairs.errors import ArgumentError, SampleKeyError
@@ -77,43 +76,6 @@ def geometry(polygon: Any) -> Any:
     if not isinstance(geom, shapely.Geometry) or geom.is_empty:
         raise ArgumentError(f"polygon: expected a shapely geometry or WKT, got {polygon!r}")
     return geom
-
-
-def configured_splits(doc: dict[str, Any]) -> set[str] | None:
-    """The split names a build's ``dataset.json`` (``doc``) configures: ``train`` and
-    ``buffer`` always, the ``splits.ratios`` names of a same-area rule, the ``splits.areas``
-    names of a cross-area one, and those its ``counts.by_split`` holds; None (unknown) when
-    it records neither its split config nor its counts."""
-    from mars_pairs.store.splits import BUFFER, TRAIN
-
-    names = {TRAIN, BUFFER}
-    recorded = False
-    config = doc.get("config") if isinstance(doc, dict) else None
-    splits = config.get("splits") if isinstance(config, dict) else None
-    if isinstance(splits, dict):
-        recorded = True
-        for part in ("ratios", "areas"):
-            if isinstance(splits.get(part), dict):
-                names.update(str(n) for n in splits[part])
-    counts = doc.get("counts") if isinstance(doc, dict) else None
-    if isinstance(counts, dict) and isinstance(counts.get("by_split"), dict):
-        recorded = True
-        names.update(str(n) for n in counts["by_split"])
-    return names if recorded else None
-
-
-def check_split_names(value: Any, known: Iterable[str] | None, where: str) -> None:
-    """ArgumentError naming the first requested split (``value``: a name or a list) that is
-    not in ``known``, and listing the known ones; ``where`` names the dataset. No check
-    when ``known`` is None (a dataset that does not record its splits)."""
-    if value is None or known is None:
-        return
-    known = sorted(set(known))
-    for name in strings(value, "split"):
-        if name not in known:
-            raise ArgumentError(
-                f"split: {where} has no split {name!r}; its splits are {', '.join(known)}"
-            )
 
 
 def sample_index(name: Any, keys: Any, product_ids: Any, where: str) -> int:

@@ -13,7 +13,7 @@ import pyarrow as pa
 
 from mars_pairs.errors import DatasetError
 from mars_pairs.store import fs
-from mars_pairs.store.dataset_info import read_dataset_doc
+from mars_pairs.store.dataset_info import read_dataset_info
 from mars_pairs.store.query import Manifest
 
 
@@ -26,12 +26,9 @@ def split_warnings(dataset: str | Path) -> list[str]:
     configured split left empty); none for a dataset built before they were recorded or
     without a readable dataset.json."""
     try:
-        doc = read_dataset_doc(dataset)
+        return read_dataset_info(dataset, required=False).split_warnings
     except DatasetError:
         return []
-    splits = doc.get("splits")
-    found = splits.get("warnings") if isinstance(splits, dict) else None
-    return [str(w) for w in found] if isinstance(found, list) else []
 
 
 #: Sol ranges listed in full on one line of the text report; more are summarised.

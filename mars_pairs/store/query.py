@@ -3,29 +3,34 @@
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import pyarrow as pa
 
-from mars_pairs.errors import DatasetError
-from mars_pairs.geometry.body import MARS_RADIUS_M, great_circle_m
+from mars_pairs.errors import ArgumentError, DatasetError
 from mars_pairs.store import fs
 from mars_pairs.store.columns import RENAMED, canonical_names, rename_to, stored_name, warn_renamed
-from mars_pairs.store.filter_args import geometry, integers, numbers, shapely_module, strings
+from mars_pairs.store.filter import (
+    DatasetValues,
+    ManifestFilter,
+    checked,
+    near_in_order,
+    predicates,
+)
 from mars_pairs.store.manifest import CORE_COLUMNS
 
 
 class Manifest:
     """A dataset's manifest, filtered lazily: predicates are pushed down into pyarrow.
 
-    Location filters test the rover position of each sample (where the image was taken).
-    ``filter`` returns a new Manifest; nothing is read until ``to_table``/``len``.
+    Place filters test the rover position of each sample (where the image was taken) unless
+    ``by="footprint"`` or ``by="chip"``; coordinates are longitude first. ``filter`` returns
+    a new Manifest; nothing is read until ``to_table``/``len`` (the dataset's values, which
+    filters are checked against, once, when a filter first needs them).
 
-    >>> m = Manifest.open("out/demo/dataset").filter(near=(18.44, 77.45, 500.0), split="train")
+    >>> m = Manifest.open("out/demo/dataset").filter(near=(77.45, 18.44, 500.0), split="train")
     >>> len(m), m.to_pandas()
 
     ``root``: a local folder or an fsspec URL (``s3://bucket/prefix``: ``store.fs``).
@@ -37,6 +42,7 @@ class Manifest:
         expression: Any = None,
         exact: tuple[Any, ...] = (),
         dataset: Any = None,
+        values: DatasetValues | None = None,
     ) -> None:
         import pyarrow.dataset as ds
 
@@ -47,6 +53,7 @@ class Manifest:
         self._dataset = dataset
         self._expression = expression
         self._exact = exact  # callables table -> boolean mask, applied after the scan
+        self._values = values
 
     @classmethod
     def open(cls, root: str | Path) -> Manifest:
@@ -89,96 +96,62 @@ class Manifest:
         crs = geo.get("columns", {}).get("footprint", {}).get("crs")
         return json.dumps(crs) if crs is not None else None
 
-    def filter(
-        self,
-        *,
-        bbox_lonlat: tuple[float, float, float, float] | None = None,
-        bbox_map: tuple[float, float, float, float] | None = None,
-        near: tuple[float, float, float] | None = None,
-        polygon: Any = None,
-        mission: str | list[str] | None = None,
-        instrument: str | list[str] | None = None,
-        sol: tuple[int, int] | None = None,
-        split: str | list[str] | None = None,
-    ) -> Manifest:
+    def filter(self, spec: ManifestFilter | None = None, /, **arguments: Any) -> Manifest:
         """A new Manifest keeping rows that satisfy every given predicate.
 
-        ``bbox_lonlat``: (west, south, east, north) degrees east/north, west > east crossing
-        the 180th meridian (longitudes match modulo 360, so -180..180 and 0..360 data alike);
-        ``bbox_map``: (xmin, ymin, xmax, ymax) in the dataset CRS; ``near``: (lat, lon,
-        radius_m), great circle on the Mars sphere; ``polygon``: shapely geometry or WKT in
-        the dataset CRS; ``sol``: inclusive (first, last); ``mission``/``instrument``/``split``:
-        a value or a list of values. Numbers may be Python, numpy or pandas scalars (and the
-        tuples numpy arrays or pandas Series); a wrong type, size, a NaN or an empty list
-        raises ArgumentError naming the argument; a column a predicate needs that the
-        manifest lacks, DatasetError naming the column.
+        The arguments are :class:`~mars_pairs.store.filter.ManifestFilter`'s (or one
+        ManifestFilter): ``bbox_lonlat`` (W, S, E, N) degrees, ``bbox_map`` (xmin, ymin,
+        xmax, ymax) map units, ``near`` (lon, lat, radius_m), ``polygon_lonlat`` /
+        ``polygon_map`` (``polygon``: the map one), ``mission``, ``instrument``, ``split``,
+        ``sol`` (first, last) and ``by`` (``rover``, ``footprint`` or ``chip``: what a place
+        filter tests). A bad value is an ArgumentError naming the argument; a mission,
+        instrument or split the dataset lacks an ArgumentError listing its values; a sol range
+        outside its sols or a place filter missing the dataset's extent a FilterWarning
+        giving its sols or its extent (0 rows); a column a predicate needs that the manifest lacks,
+        DatasetError naming the column.
         """
-        import pyarrow.dataset as ds
-
-        f = ds.field
-        terms = []
-        exact = list(self._exact)
-        uses = [
-            column
-            for value, columns in (
-                (bbox_lonlat, ("latitude", "longitude")),
-                (bbox_map, ("easting", "northing")),
-                (near, ("latitude", "longitude")),
-                (polygon, ("easting", "northing")),
-                (mission, ("mission",)),
-                (instrument, ("instrument",)),
-                (sol, ("sol",)),
-                (split, ("split",)),
-            )
-            if value is not None
-            for column in columns
-        ]
-        if bbox_lonlat is not None:
-            w, s, e, n = numbers(bbox_lonlat, 4, "bbox_lonlat")
-            terms.append((f("latitude") >= s) & (f("latitude") <= n))
-            lon_term = _longitude_range(f("longitude"), w, e)
-            if lon_term is not None:
-                terms.append(lon_term)
-        if bbox_map is not None:
-            x0, y0, x1, y1 = numbers(bbox_map, 4, "bbox_map")
-            terms.append(
-                (f("easting") >= x0)
-                & (f("easting") <= x1)
-                & (f("northing") >= y0)
-                & (f("northing") <= y1)
-            )
-        if near is not None:
-            lat, lon, radius = numbers(near, 3, "near")
-            dlat = math.degrees(radius / MARS_RADIUS_M)
-            coslat = max(math.cos(math.radians(min(abs(lat) + dlat, 90.0))), 1e-9)
-            dlon = dlat / coslat
-            terms.append((f("latitude") >= lat - dlat) & (f("latitude") <= lat + dlat))
-            if dlon < 180.0:
-                lon_term = _longitude_range(f("longitude"), lon - dlon, lon + dlon)
-                if lon_term is not None:
-                    terms.append(lon_term)
-            exact.append(_NearPredicate(lat, lon, radius))
-        if polygon is not None:
-            geom = geometry(polygon)
-            x0, y0, x1, y1 = geom.bounds
-            terms.append(
-                (f("easting") >= x0)
-                & (f("easting") <= x1)
-                & (f("northing") >= y0)
-                & (f("northing") <= y1)
-            )
-            exact.append(_PolygonPredicate(shapely_module().to_wkb(geom)))
-        for name, value in (("mission", mission), ("instrument", instrument), ("split", split)):
-            if value is not None:
-                terms.append(f(name).isin(strings(value, name)))
-        if sol is not None:
-            first, last = integers(sol, 2, "sol")
-            terms.append((f("sol") >= first) & (f("sol") <= last))
-        self.require(uses)  # after the arguments: a bad argument is the caller's error
+        if spec is None:
+            if "near" in arguments:
+                arguments = {**arguments, "near": near_in_order(arguments["near"], self.values)}
+            spec = ManifestFilter.of(arguments)
+        elif arguments or not isinstance(spec, ManifestFilter):
+            raise ArgumentError("filter: pass one ManifestFilter or keyword arguments, not both")
+        found = predicates(spec, self.crs)
+        self.require(list(found.uses))  # after the arguments: a bad argument is the caller's
+        checked(spec, self.values)
         expression = self._expression
-        for term in terms:
+        for term in found.terms:
             expression = term if expression is None else expression & term
-        return Manifest(self.root, expression, tuple(exact), self._dataset)
+        exact = (*self._exact, *found.exact)
+        return Manifest(self.root, expression, exact, self._dataset, self._values)
+
+    @property
+    def values(self) -> DatasetValues:
+        """What the whole dataset holds (its missions, instruments, splits, sols, extents),
+        which filters are checked against; read lazily, shared by filtered Manifests."""
+        if self._values is None:
+            dataset, root = self._dataset, self.root
+
+            def scan(columns: list[str]) -> pa.Table:
+                stored = dataset.schema.names
+                self.require(columns)
+                names = [stored_name(c, stored) for c in columns]
+                try:
+                    table = dataset.to_table(columns=names)
+                except (pa.ArrowException, OSError) as exc:
+                    raise DatasetError(fs.join(root, "manifest.parquet"), None, str(exc)) from None
+                return rename_to(table, columns)
+
+            def configured() -> set[str]:
+                from mars_pairs.store.dataset_info import read_dataset_info
+
+                try:
+                    return read_dataset_info(root, required=False).configured_splits() or set()
+                except DatasetError:
+                    return set()  # a damaged dataset.json: the names on the rows
+
+            self._values = DatasetValues(scan, self.crs, str(root), configured)
+        return self._values
 
     @property
     def column_names(self) -> list[str]:
@@ -196,8 +169,8 @@ class Manifest:
             for name in columns:
                 if name in RENAMED:
                     warn_renamed(name)
-            extra = {"latitude", "longitude", "easting", "northing"} if self._exact else set()
-            needed = list(dict.fromkeys([*columns, *sorted(extra)]))
+            extra = [c for p in self._exact for c in p.columns]
+            needed = list(dict.fromkeys([*columns, *extra]))
             needed = list(dict.fromkeys(stored_name(c, stored) for c in needed))
             self.require(needed)
         try:
@@ -214,6 +187,48 @@ class Manifest:
         """The filtered rows as a pandas DataFrame."""
         return self.to_table().to_pandas()
 
+    def to_geopandas(self, geometry: str = "footprint") -> Any:
+        """The filtered rows as a geopandas GeoDataFrame: every geometry column the manifest
+        holds (``footprint``, ``rover_point``, ``chip_box``: WKB in the dataset CRS) decoded,
+        ``geometry`` the active one, the CRS from the GeoParquet metadata. Needs geopandas."""
+        import importlib
+
+        try:
+            geopandas = importlib.import_module("geopandas")  # optional, and without stubs
+        except ImportError:
+            raise ArgumentError("to_geopandas needs geopandas (pip install geopandas)") from None
+        from mars_pairs.store.geoparquet import GEOMETRY_COLUMNS
+
+        frame = self.to_pandas()
+        present = [c for c in GEOMETRY_COLUMNS if c in frame.columns]
+        if geometry not in present:
+            raise ArgumentError(f"geometry: expected one of {present}, got {geometry!r}")
+        crs = self.crs
+        for column in present:
+            frame[column] = geopandas.GeoSeries.from_wkb(frame[column], crs=crs)
+        return geopandas.GeoDataFrame(frame, geometry=geometry, crs=crs)
+
+    def __repr__(self) -> str:
+        """Path, rows, rows per split and a columns summary."""
+        import pyarrow.compute as pc
+
+        names = self.column_names
+        try:
+            table = self.to_table(columns=["split"] if "split" in names else ["key"])
+        except DatasetError as exc:
+            return f"Manifest({str(self.root)!r}: unreadable: {exc})"
+        splits = ""
+        if "split" in table.column_names:
+            counts = pc.value_counts(table["split"]).to_pylist()
+            by = sorted((str(c["values"]), int(c["counts"])) for c in counts)
+            splits = ", splits: " + ", ".join(f"{k} {v}" for k, v in by)
+        shown = ", ".join(names[:8]) + (f", ... ({len(names) - 8} more)" if len(names) > 8 else "")
+        filtered = ", filtered" if self._expression is not None or self._exact else ""
+        return (
+            f"Manifest({str(self.root)!r}: {table.num_rows} rows{filtered}{splits}; "
+            f"{len(names)} columns: {shown})"
+        )
+
     def __len__(self) -> int:
         if not self._exact:
             try:
@@ -222,48 +237,3 @@ class Manifest:
                 where = fs.join(self.root, "manifest.parquet")
                 raise DatasetError(where, None, str(exc)) from None
         return int(self.to_table(columns=["key"]).num_rows)
-
-
-def _longitude_range(field: Any, west: float, east: float) -> Any:
-    """Longitudes from ``west`` eastward to ``east`` (degrees east), modulo 360: ``west >
-    east`` crosses the 180th meridian (or 0 for 0..360 data). An expression of plain ranges
-    (row-group statistics still prune), matching values stored as -180..180 or 0..360;
-    None when the range covers every longitude."""
-    span = east - west if east >= west else east - west + 360.0
-    if span >= 360.0:
-        return None
-    west -= 360.0 * math.floor((west + 180.0) / 360.0)  # into [-180, 180); exact if there
-    # the range's copies that can meet stored values in [-180, 360)
-    shifts = [0.0] + [-360.0] * (west + span >= 180.0) + [360.0] * (west < 0.0)
-    expression = None
-    for k in shifts:
-        term = (field >= west + k) & (field <= west + span + k)
-        expression = term if expression is None else expression | term
-    return expression
-
-
-@dataclass(frozen=True)
-class _NearPredicate:
-    lat: float
-    lon: float
-    radius_m: float
-
-    def __call__(self, table: pa.Table) -> pa.Array:
-        d = great_circle_m(
-            self.lat, self.lon, table["latitude"].to_numpy(), table["longitude"].to_numpy()
-        )
-        return pa.array(d <= self.radius_m)
-
-
-@dataclass(frozen=True)
-class _PolygonPredicate:
-    wkb: bytes
-
-    def __call__(self, table: pa.Table) -> pa.Array:
-        import shapely
-
-        geom = shapely.from_wkb(self.wkb)
-        inside = shapely.intersects_xy(
-            geom, table["easting"].to_numpy(), table["northing"].to_numpy()
-        )
-        return pa.array(inside)

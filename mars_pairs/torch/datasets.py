@@ -51,7 +51,7 @@ from mars_pairs.errors import (
     SampleIndexError,
 )
 from mars_pairs.store.dataset_info import read_dataset_info
-from mars_pairs.store.filter_args import check_split_names, configured_splits, sample_index
+from mars_pairs.store.filter_args import sample_index
 from mars_pairs.store.fs import Location, dataset_root, join
 from mars_pairs.store.integrity import MemberSpec, check_member, repeated_keys
 from mars_pairs.store.manifest import SUMMARY_COLUMNS
@@ -72,26 +72,6 @@ from mars_pairs.torch.files import ShardFiles
 from mars_pairs.torch.georef import GEO_COLUMNS, chip_transform, corr_ground_grid
 
 META_COLUMNS = SUMMARY_COLUMNS
-
-
-FILTER_KEYS = (
-    "bbox_lonlat",
-    "bbox_map",
-    "near",
-    "polygon",
-    "mission",
-    "instrument",
-    "sol",
-    "split",
-)
-
-
-def _dense_stride(doc: dict[str, Any], ray_stride: int) -> int:
-    """The dense members' stride from dataset.json (``output.dense_stride``; default the ray
-    stride)."""
-    output = doc.get("config", {}).get("output", {}) if isinstance(doc, dict) else {}
-    value = output.get("dense_stride") if isinstance(output, dict) else None
-    return value if isinstance(value, int) and value >= 1 else ray_stride
 
 
 def _ground_size(value: int | Sequence[int] | None) -> tuple[int, int] | None:
@@ -162,9 +142,6 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
         localization: bool = False,
         **filters: Any,
     ) -> None:
-        unknown = set(filters) - set(FILTER_KEYS)
-        if unknown:
-            raise ArgumentError(f"unknown filter argument(s) {sorted(unknown)}")
         if transform is not None and not callable(transform):
             raise ArgumentError(f"transform: expected a callable, got {transform!r}")
         self.root = dataset_root(root)
@@ -174,15 +151,14 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
         self.normalize_dem = bool(normalize_dem)
         self._dtypes = {f: out_dtype(f, image_dtype) for f in self.fields}
         self.image_dtype = image_dtype
-        manifest = Manifest.open(self.root).filter(**filters)
+        manifest = Manifest.open(self.root).filter(**filters)  # ManifestFilter's arguments
         info = read_dataset_info(self.root)
-        check_split_names(filters.get("split"), configured_splits(info.doc), str(self.root))
         self.crs: str = info.crs or manifest.crs or ""
         self.chip_px = info.chip_px
         self.ray_stride = info.ray_stride
         self.verify = bool(verify)
         self.localization = bool(localization)
-        self.dense_stride = _dense_stride(info.doc, self.ray_stride)
+        self.dense_stride = info.dense_stride
         # verify=True checks every member of a sample read, like `mars-pairs verify`
         located = (*MEMBERS, *self.fields) if self.verify else self.fields
         if self.localization:

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 import shapely
 
+from mars_pairs.store.dataset_info import DatasetInfo
 from mars_pairs.store.splits import TRAIN, SplitRule
 from mars_pairs.viz.common import SPLIT_COLOURS, map_axes
 
@@ -196,11 +197,12 @@ class HeldOut:
     note: str = ""
 
 
-def held_out_regions(info: dict[str, Any], box: Box) -> HeldOut:
-    """The held-out regions of a build (``dataset.json`` ``info``) meeting the map ``box``
-    (xmin, ymin, xmax, ymax, map units): cross-area areas, or same-area held-out blocks."""
-    cfg = info.get("config", {}).get("splits", {}) or {}
-    rep = info.get("splits", {}) or {}
+def held_out_regions(info: DatasetInfo, box: Box) -> HeldOut:
+    """The held-out regions of a build (its ``dataset.json``, ``info``) meeting the map
+    ``box`` (xmin, ymin, xmax, ymax, map units): cross-area areas, or same-area held-out
+    blocks."""
+    cfg = info.split_config
+    rep = info.splits
     reach, buffer_m = rep.get("reach_m"), rep.get("buffer_m")
     zone = float(reach) + float(buffer_m) if reach is not None and buffer_m is not None else None
     regions: dict[str, list[shapely.Polygon]] = {}

@@ -11,7 +11,7 @@ import shapely
 
 from mars_pairs.errors import MarsPairsError
 from mars_pairs.store.beside import beside, outside
-from mars_pairs.store.dataset_info import build_input, read_dataset_doc
+from mars_pairs.store.dataset_info import read_dataset_info
 from mars_pairs.store.geoparquet import describe_crs
 from mars_pairs.store.query import Manifest
 from mars_pairs.viz.common import (
@@ -81,9 +81,9 @@ def overview_figure(
     rows = manifest_rows(root)
     if not rows:
         raise MarsPairsError(f"{root}: the dataset has no samples")
-    info = read_dataset_doc(root)
-    crs_name, unit = describe_crs(info.get("crs") or Manifest.open(root).crs)
-    ortho = Path(ortho_path) if ortho_path is not None else build_input(root, info, "ortho")
+    info = read_dataset_info(root, required=False)
+    crs_name, unit = describe_crs(info.crs or Manifest.open(root).crs)
+    ortho = Path(ortho_path) if ortho_path is not None else info.build_input(root, "ortho")
     xs = np.array([r["easting"] for r in rows], dtype=np.float64)
     ys = np.array([r["northing"] for r in rows], dtype=np.float64)
     geoms = [shapely.from_wkb(r["footprint"]) if r["footprint"] is not None else None for r in rows]

@@ -13,6 +13,7 @@ from typing import Any, TypeGuard
 import numpy as np
 import shapely
 
+from mars_pairs.store.dataset_info import DatasetInfo
 from mars_pairs.viz.common import DPI, png_bytes, pyplot, split_colours
 from mars_pairs.viz.map import (
     draw_background,
@@ -40,7 +41,7 @@ from mars_pairs.viz.sample import (
 
 def map_figure(
     rows: list[dict[str, Any]],
-    info: dict[str, Any],
+    info: DatasetInfo,
     ortho: Path | None,
     crs_name: str,
     unit: str,

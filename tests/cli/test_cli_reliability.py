@@ -163,7 +163,7 @@ def test_a_manifest_missing_one_column_is_named(
     [
         ["--bbox", "nan", "0", "180", "80"],
         ["--bbox", "0", "inf", "180", "80"],
-        ["--near", "18.44", "nan", "100"],
+        ["--near", "77.44", "nan", "100"],
         ["--bbox-map", "0", "0", "nan", "1"],
     ],
 )
@@ -180,7 +180,7 @@ def test_query_refuses_non_finite_numbers(
     ("where", "needle"),
     [
         (["--bbox", "0", "0", "180", "95"], "--bbox: N: latitude 95 is outside [-90, 90]"),
-        (["--near", "95", "77.4", "100"], "--near: LAT: latitude 95"),
+        (["--near", "77.4", "95", "100"], "--near: LAT: latitude 95"),
         (["--near", "18.4", "77.4", "-5"], "--near: RADIUS_M: expected a positive radius"),
         (["--bbox", "0", "30", "180", "10"], "--bbox: S (30) is north of N (10)"),
         (["--polygon", ""], "--polygon"),

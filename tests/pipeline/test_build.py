@@ -307,7 +307,7 @@ def test_query_cli_formats(built: Path, tmp_path: Path, capsys: pytest.CaptureFi
     rows = manifest_rows(built)
     lat = sum(r["latitude"] for r in rows) / len(rows)
     lon = sum(r["longitude"] for r in rows) / len(rows)
-    assert main(["query", str(built), "--near", str(lat), str(lon), "5000", "--format", "csv"]) == 0
+    assert main(["query", str(built), "--near", str(lon), str(lat), "5000", "--format", "csv"]) == 0
     csv_lines = capsys.readouterr().out.strip().splitlines()
     assert len(csv_lines) == len(rows) + 1 and csv_lines[0].startswith('"key"')
     assert main(["query", str(built), "--bbox", "0", "0", "1", "1"]) == 0

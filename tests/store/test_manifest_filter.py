@@ -84,7 +84,7 @@ def test_near_great_circle(
     lat, lon = LAT0 + c, LON0 + a
     dist = great_circle_m(lat, lon, table["latitude"].to_numpy(), table["longitude"].to_numpy())
     keep = dist <= radius
-    assert _keys(Manifest.open(root).filter(near=(lat, lon, radius))) == _brute(table, keep)
+    assert _keys(Manifest.open(root).filter(near=(lon, lat, radius))) == _brute(table, keep)
 
 
 @settings(max_examples=40, deadline=None)
@@ -200,13 +200,13 @@ def test_near_across_the_180th_meridian(
     root, table = antimeridian
     lats, lons = table["latitude"].to_numpy(), table["longitude"].to_numpy()
     keep = great_circle_m(0.0, lon, lats, lons) <= radius
-    assert _keys(Manifest.open(root).filter(near=(0.0, lon, radius))) == _brute(table, keep)
+    assert _keys(Manifest.open(root).filter(near=(lon, 0.0, radius))) == _brute(table, keep)
 
 
 def test_queries_at_180_reach_both_sides(antimeridian: tuple[Path, pa.Table]) -> None:
     root, _ = antimeridian
     for m in (
-        Manifest.open(root).filter(near=(0.0, 180.0, 2000.0)),
+        Manifest.open(root).filter(near=(180.0, 0.0, 2000.0)),
         Manifest.open(root).filter(bbox_lonlat=(179.98, -1.0, -179.98, 1.0)),
         Manifest.open(root).filter(bbox_lonlat=(179.98, -1.0, 180.02, 1.0)),  # 0..360 style
     ):
@@ -242,7 +242,7 @@ def test_every_filter_takes_numpy_and_pandas_scalars(
     cases = {
         "bbox_lonlat": box,
         "bbox_map": (float(x[0]), float(y[0]), float(x[1]), float(y[1])),
-        "near": (LAT0, LON0, 900.0),
+        "near": (LON0, LAT0, 900.0),
         "sol": (100, 250),
     }
     m = Manifest.open(root)
@@ -276,8 +276,8 @@ def test_every_filter_takes_numpy_and_pandas_scalars(
         ({"sol": (True, 3)}, "sol: expected a number"),
         ({"mission": 3}, "mission: expected a string"),
         ({"split": ["train", 1]}, "split: expected strings"),
-        ({"polygon": "POLYGON ((0 0, 1"}, "polygon: not WKT"),
-        ({"polygon": 12}, "polygon: expected a shapely geometry"),
+        ({"polygon": "POLYGON ((0 0, 1"}, "polygon_map: not WKT"),
+        ({"polygon": 12}, "polygon_map: expected a shapely geometry"),
     ],
 )
 def test_bad_filter_arguments_name_the_argument(

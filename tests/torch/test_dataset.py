@@ -185,8 +185,8 @@ def test_filters_match_the_manifest(dataset_dir: Path) -> None:
     cases: list[dict[str, Any]] = [{"split": s} for s in sorted(splits)]
     cases += [
         {"sol": (99_999, 99_999)},  # nothing
-        {"near": (float(lat[0]), float(lon[0]), 1.0)},  # the first stop only
-        {"near": (float(lat[0]), float(lon[0]), 1e6)},  # everything
+        {"near": (float(lon[0]), float(lat[0]), 1.0)},  # the first stop only
+        {"near": (float(lon[0]), float(lat[0]), 1e6)},  # everything
         {
             "bbox_lonlat": (
                 float(lon.min()) - 1e-6,
@@ -195,7 +195,7 @@ def test_filters_match_the_manifest(dataset_dir: Path) -> None:
                 float(np.median(lat)),
             )
         },
-        {"split": sorted(splits)[0], "near": (float(lat[-1]), float(lon[-1]), 50.0)},
+        {"split": sorted(splits)[0], "near": (float(lon[-1]), float(lat[-1]), 50.0)},
     ]
     seen = set()
     for filters in cases:
@@ -209,7 +209,7 @@ def test_filters_match_the_manifest(dataset_dir: Path) -> None:
         seen.add(len(keys))
     # the cases are not all trivial: some subset strictly between nothing and everything
     assert 0 in seen and len(everything) in seen and any(0 < n < len(everything) for n in seen)
-    assert 0 < len(filtered_keys(dataset_dir, near=(float(lat[0]), float(lon[0]), 1.0))) < 9
+    assert 0 < len(filtered_keys(dataset_dir, near=(float(lon[0]), float(lat[0]), 1.0))) < 9
     # a split name the dataset does not know is refused, the known ones listed
     with pytest.raises(ArgumentError, match=r"'none-such'; its splits are .*train"):
         MarsPairsDataset(dataset_dir, split="none-such")

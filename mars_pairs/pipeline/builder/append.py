@@ -68,6 +68,7 @@ from mars_pairs.pipeline.builder.stamp import (
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.sample.record import labels_root
 from mars_pairs.store.atomic import atomic_path
+from mars_pairs.store.dataset_info import DATASET_JSON, DatasetInfo
 
 #: dataset.json's list of the appends made to the dataset (``append_record``).
 APPENDS_KEY = "appends"
@@ -152,6 +153,11 @@ def config_difference(old: Any, new: Any, prefix: str = "") -> str | None:
     return None if old == new else prefix
 
 
+def _info(base: dict[str, Any]) -> DatasetInfo:
+    """The typed view of the base's dataset.json document ``base``."""
+    return DatasetInfo.from_doc(base, DATASET_JSON, required=False)
+
+
 def _lookup(doc: Any, dotted: str) -> Any:
     for part in dotted.split("."):
         doc = doc.get(part) if isinstance(doc, dict) else None
@@ -178,8 +184,8 @@ def check_append_config(config: BuildConfig, base: dict[str, Any]) -> None:
     refused by ``plan_append``)."""
     out = local_dir(config)
     why = f"{out}: cannot --append"
-    old = base.get("config")
-    if not isinstance(old, dict):
+    old = _info(base).config
+    if not old:
         raise ConfigError(f"{why}: its dataset.json holds no config")
     new = _plain(relative_config(config))
     key = config_difference(old, new)
@@ -375,7 +381,7 @@ def merge_append(config: BuildConfig, plan: AppendPlan) -> tuple[pa.Table, pa.Ta
     out = local_dir(config)
     parts = [pq.read_table(out / BASE_FILES["manifest.parquet"])]
     fails = [pq.read_table(out / BASE_FILES["failures.parquet"])]
-    dropped = int((plan.base.get("splits") or {}).get("dropped_in_buffer") or 0)
+    dropped = int(_info(plan.base).splits.get("dropped_in_buffer") or 0)
     for k in new_chunks(plan):
         _, manifest_part, failures_part = part_paths(out, k)
         part = pq.read_table(manifest_part)
@@ -394,7 +400,7 @@ def append_record(
     it, the counts of labels matched, skipped (already in the dataset) and new, of the
     samples and failure rows it added, and its chunks ``[first, end)``."""
     inputs = relative_config(config)["inputs"]
-    before = (plan.base.get("config") or {}).get("inputs") or {}
+    before = _info(plan.base).config.get("inputs") or {}
     return {
         "when": plan.started,
         "labels": inputs["labels"],

@@ -35,6 +35,7 @@ from mars_pairs.raster.vsi import open_raster
 from mars_pairs.store import fs
 from mars_pairs.store.card import CardFacts, dataset_card, default_license
 from mars_pairs.store.croissant import croissant_metadata, dataset_description, sha256_of
+from mars_pairs.store.dataset_info import DatasetInfo, dataset_document
 from mars_pairs.store.geoparquet import crs_name, named_crs, table_geo_metadata
 from mars_pairs.store.manifest import FAILURE_SCHEMA, MANIFEST_SCHEMA
 
@@ -231,6 +232,7 @@ def write_dataset_json(
     if fingerprint is not None:
         doc[FINISHED_KEY] = stamp_digest(fingerprint)
     doc.update(extra or {})
+    doc = dataset_document(doc, fs.join(out, "dataset.json"))  # format_version first, checked
     fs.put_bytes(fs.join(out, "dataset.json"), json.dumps(doc, indent=2).encode())
     return doc
 
@@ -248,28 +250,29 @@ def write_card(config: BuildConfig, manifest: pa.Table, doc: dict[str, Any]) -> 
         for name in fs.list_files(fs.join(out, "shards"))
         if "/" not in name and fnmatch.fnmatchcase(name, "shard-*.tar")
     )
+    info = DatasetInfo.from_doc(doc, fs.join(out, "dataset.json"))
     facts = CardFacts(
         version=__version__,
-        config=doc["config"],
-        counts=doc["counts"],
-        splits=doc.get("splits") or {},
-        crs_name=doc["crs_name"],
-        license=doc["license"],
+        config=info.config,
+        counts=info.counts,
+        splits=info.splits,
+        crs_name=str(info.crs_name),
+        license=str(info.license),
         synthetic=synthetic,
         schema=schema,
         shards=shards,
-        failures_by_reason=doc.get("failures_by_reason") or {},
+        failures_by_reason=info.failures_by_reason,
     )
     fs.put_bytes(fs.join(out, "README.md"), dataset_card(facts).encode())
     meta = croissant_metadata(
         name="mars-pairs-dataset",
-        description=dataset_description(doc["counts"], synthetic),
+        description=dataset_description(info.counts, synthetic),
         version=__version__,
-        license=doc["license"],
+        license=str(info.license),
         synthetic=synthetic,
         schema=schema,
         manifest_sha256=sha256_of(fs.join(out, "manifest.parquet")),
-        missions=list(doc["counts"].get("by_mission") or {}),
+        missions=list(info.counts.get("by_mission") or {}),
     )
     fs.put_bytes(fs.join(out, "croissant.json"), json.dumps(meta, indent=2).encode())
 
