@@ -5,11 +5,13 @@ from mars_pairs.torch.collate import collate_samples
 from mars_pairs.torch.datasets import MarsPairsDataset
 from mars_pairs.torch.decode import ALL_FIELDS, DEFAULT_FIELDS, decode_member
 from mars_pairs.torch.loader import MarsPairsLoader
+from mars_pairs.torch.options import DatasetOptions
 from mars_pairs.torch.streaming import MarsPairsIterableDataset
 
 __all__ = [
     "ALL_FIELDS",
     "DEFAULT_FIELDS",
+    "DatasetOptions",
     "MarsPairsDataset",
     "MarsPairsIterableDataset",
     "MarsPairsLoader",

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import json
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -60,8 +60,6 @@ from mars_pairs.store.members import DENSE_GROUND_FIELDS, MEMBERS
 from mars_pairs.store.query import Manifest
 from mars_pairs.torch.decode import (
     ALL_FIELDS,  # noqa: F401  (re-exported)
-    DEFAULT_FIELDS,
-    KNOWN_FIELDS,
     MEMBER_SUFFIXES,
     chw_shape,
     decode_raw,
@@ -70,6 +68,7 @@ from mars_pairs.torch.decode import (
 )
 from mars_pairs.torch.files import ShardFiles
 from mars_pairs.torch.georef import GEO_COLUMNS, chip_transform, corr_ground_grid
+from mars_pairs.torch.options import DatasetOptions
 
 META_COLUMNS = SUMMARY_COLUMNS
 
@@ -94,33 +93,6 @@ def _dense_stride(doc: dict[str, Any], ray_stride: int) -> int:
     return value if isinstance(value, int) and value >= 1 else ray_stride
 
 
-def _ground_size(value: int | Sequence[int] | None) -> tuple[int, int] | None:
-    if value is None:
-        return None
-    try:
-        if isinstance(value, (int, np.integer)):
-            size = (int(value), int(value))
-        else:
-            h, w = value
-            size = (int(h), int(w))
-    except (TypeError, ValueError):
-        raise ArgumentError(f"ground_size: expected an int or (H, W), got {value!r}") from None
-    if min(size) < 1:
-        raise ArgumentError(f"ground_size: sizes must be positive, got {value!r}")
-    return size
-
-
-def _check_fields(fields: Sequence[str]) -> tuple[str, ...]:
-    if isinstance(fields, str):
-        fields = (fields,)
-    bad = [f for f in fields if f not in KNOWN_FIELDS]
-    if bad or not fields:
-        raise ArgumentError(
-            f"fields: unknown field(s) {bad}; expected some of {list(KNOWN_FIELDS)}"
-        )
-    return tuple(fields)
-
-
 def _refuse_duplicate_keys(root: Location, table: pa.Table) -> None:
     """DatasetError naming the manifest and the first key (in key order) that more than one
     row holds."""
@@ -137,12 +109,11 @@ def _refuse_duplicate_keys(root: Location, table: pa.Table) -> None:
 class MarsPairsDataset(Dataset):
     """Map-style dataset: ``ds[i]`` reads sample i's members with one seek each.
 
-    Filter arguments are those of :meth:`mars_pairs.Manifest.filter`. ``ground_size`` (int or
-    (H, W)) resizes ground images so they batch; ``normalize_dem`` subtracts each chip's
-    median elevation. ``image_dtype`` is torch.uint8 (default) or torch.float32 (images in
-    [0, 1]). ``transform`` is applied to the sample dict (see
-    :mod:`mars_pairs.torch.transforms`). ``verify`` checks every member of each sample read
-    (tar header, size, CRC-32C; see the module docstring): one extra 512-byte read per member.
+    ``options`` (:class:`~mars_pairs.torch.options.DatasetOptions`: fields, transform,
+    ground_size, pad, normalize_dem, image_dtype, verify, localization), or its fields as
+    keyword arguments (which override ``options``' values); the other keyword arguments are
+    filters, those of :meth:`mars_pairs.Manifest.filter`. ``verify`` costs one extra 512-byte
+    read per member (see the module docstring).
     A ``split`` the dataset does not know (dataset.json's split config and counts) is an
     ArgumentError listing the known ones; a known split without samples gives 0 rows.
     Use as a context manager, or call :meth:`close`. ``root`` is a local folder or an fsspec
@@ -150,38 +121,29 @@ class MarsPairsDataset(Dataset):
     """
 
     def __init__(
-        self,
-        root: str | Path,
-        *,
-        fields: Sequence[str] = DEFAULT_FIELDS,
-        transform: Callable[[dict[str, Any]], dict[str, Any]] | None = None,
-        ground_size: int | Sequence[int] | None = None,
-        normalize_dem: bool = False,
-        image_dtype: torch.dtype = torch.uint8,
-        verify: bool = False,
-        localization: bool = False,
-        **filters: Any,
+        self, root: str | Path, options: DatasetOptions | None = None, **kwargs: Any
     ) -> None:
+        opts, filters = DatasetOptions.split(options, kwargs)
         unknown = set(filters) - set(FILTER_KEYS)
         if unknown:
             raise ArgumentError(f"unknown filter argument(s) {sorted(unknown)}")
-        if transform is not None and not callable(transform):
-            raise ArgumentError(f"transform: expected a callable, got {transform!r}")
+        self.options = opts
         self.root = dataset_root(root)
-        self.fields = _check_fields(fields)
-        self.transform = transform
-        self.ground_size = _ground_size(ground_size)
-        self.normalize_dem = bool(normalize_dem)
-        self._dtypes = {f: out_dtype(f, image_dtype) for f in self.fields}
-        self.image_dtype = image_dtype
+        self.fields = opts.fields
+        self.transform = opts.transform
+        self.ground_size = opts.ground_size
+        self.normalize_dem = opts.normalize_dem
+        self._dtypes = {f: out_dtype(f, opts.image_dtype) for f in self.fields}
+        self.image_dtype = opts.image_dtype
+        self.filters = dict(filters)
         manifest = Manifest.open(self.root).filter(**filters)
         info = read_dataset_info(self.root)
         check_split_names(filters.get("split"), configured_splits(info.doc), str(self.root))
         self.crs: str = info.crs or manifest.crs or ""
         self.chip_px = info.chip_px
         self.ray_stride = info.ray_stride
-        self.verify = bool(verify)
-        self.localization = bool(localization)
+        self.verify = opts.verify
+        self.localization = opts.localization
         self.dense_stride = _dense_stride(info.doc, self.ray_stride)
         # verify=True checks every member of a sample read, like `mars-pairs verify`
         located = (*MEMBERS, *self.fields) if self.verify else self.fields

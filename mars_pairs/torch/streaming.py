@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import random
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -11,7 +11,7 @@ import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
 from mars_pairs.torch.datasets import MarsPairsDataset
-from mars_pairs.torch.decode import DEFAULT_FIELDS
+from mars_pairs.torch.options import DatasetOptions
 
 
 def _world() -> tuple[int, int]:
@@ -26,32 +26,21 @@ class MarsPairsIterableDataset(IterableDataset):
     Shards are split across distributed ranks and DataLoader workers (every shard goes to
     exactly one (rank, worker)); within a shard members are read in file order. Call
     ``set_epoch`` to reshuffle between epochs. A context manager, like the map-style one.
+    Takes the map-style dataset's options and filters (:class:`MarsPairsDataset`), and
+    ``shuffle_buffer`` (samples held for shuffling) and ``seed``.
     """
 
     def __init__(
         self,
         root: str | Path,
+        options: DatasetOptions | None = None,
         *,
-        fields: Sequence[str] = DEFAULT_FIELDS,
-        transform: Callable[[dict[str, Any]], dict[str, Any]] | None = None,
-        ground_size: int | Sequence[int] | None = None,
-        normalize_dem: bool = False,
-        image_dtype: torch.dtype = torch.uint8,
-        verify: bool = False,
         shuffle_buffer: int = 64,
         seed: int = 0,
-        **filters: Any,
+        **kwargs: Any,
     ) -> None:
-        self._inner = MarsPairsDataset(
-            root,
-            fields=fields,
-            transform=transform,
-            ground_size=ground_size,
-            normalize_dem=normalize_dem,
-            image_dtype=image_dtype,
-            verify=verify,
-            **filters,
-        )
+        self._inner = MarsPairsDataset(root, options, **kwargs)
+        self.options = self._inner.options
         self.shuffle_buffer = int(shuffle_buffer)
         self.seed = int(seed)
         self.epoch = 0
