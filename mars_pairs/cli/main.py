@@ -209,7 +209,8 @@ def _cmd_synth(args: argparse.Namespace) -> int:
 def _cmd_show(args: argparse.Namespace) -> int:
     from mars_pairs.report import show_sample
 
-    print(show_sample(args.dataset, args.key, args.out))
+    print(show_sample(args.dataset, args.key, args.out, args.dpi, index=args.index,
+                      seed=args.seed, pick_random=args.random))  # fmt: skip
     return 0
 
 
@@ -396,7 +397,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("show", help="a figure of one sample (needs the viz extra)")
     p.add_argument("dataset", type=local_dataset, help="dataset folder")
-    p.add_argument("key", help="sample key or product id (see mars-pairs query)")
+    pick = p.add_mutually_exclusive_group()
+    pick.add_argument("key", nargs="?", help="sample key or product id (default: the first)")
+    pick.add_argument("--index", type=int, help="the sample at this row (manifest order)")
+    pick.add_argument("--random", action="store_true", help="a sample drawn at random")
+    p.add_argument("--seed", type=int, help="with --random: the same draw every time")
+    p.add_argument("--dpi", type=int, default=90, help="PNG resolution (default 90)")
     p.add_argument("--out", help="PNG path (default KEY.png in the current directory)")
     p.set_defaults(func=_cmd_show)
 

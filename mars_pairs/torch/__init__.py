@@ -1,7 +1,7 @@
 """Torch datasets over a built dataset: map-style and streaming datasets, the loader, collate,
 transforms."""
 
-from mars_pairs.torch.collate import collate_samples
+from mars_pairs.torch.collate import collate_samples, unbind_samples
 from mars_pairs.torch.datasets import MarsPairsDataset
 from mars_pairs.torch.decode import ALL_FIELDS, DEFAULT_FIELDS, decode_member
 from mars_pairs.torch.loader import MarsPairsLoader
@@ -17,4 +17,5 @@ __all__ = [
     "MarsPairsLoader",
     "collate_samples",
     "decode_member",
+    "unbind_samples",
 ]

@@ -10,7 +10,7 @@ from typing import Any
 import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
-from mars_pairs.torch.datasets import MarsPairsDataset
+from mars_pairs.torch.datasets import MarsPairsDataset, describe_dataset
 from mars_pairs.torch.options import DatasetOptions
 
 
@@ -57,9 +57,10 @@ class MarsPairsIterableDataset(IterableDataset):
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def plot(self, sample: dict[str, Any], *, title: str | None = None) -> Any:
-        """A matplotlib Figure of one sample (see :meth:`MarsPairsDataset.plot`)."""
-        return self._inner.plot(sample, title=title)
+    def plot(self, sample: dict[str, Any], **kwargs: Any) -> Any:
+        """A matplotlib Figure of one sample or of a batch (see :meth:`MarsPairsDataset.plot`,
+        whose keyword arguments it takes)."""
+        return self._inner.plot(sample, **kwargs)
 
     def set_epoch(self, epoch: int) -> None:
         """Reseed the shard order and shuffle buffer."""
@@ -89,3 +90,9 @@ class MarsPairsIterableDataset(IterableDataset):
 
     def __len__(self) -> int:
         return len(self._inner)
+
+    def __repr__(self) -> str:
+        lines = describe_dataset(self._inner, type(self).__name__)
+        lines.insert(3, f"    shards: {len(self.shards)}, shuffle buffer {self.shuffle_buffer}, "
+                        f"seed {self.seed}, epoch {self.epoch}")  # fmt: skip
+        return "\n".join(lines)
