@@ -62,6 +62,7 @@ from mars_pairs.store.members import DENSE_GROUND_FIELDS, MEMBERS
 from mars_pairs.store.query import Manifest
 from mars_pairs.torch.decode import (
     ALL_FIELDS,  # noqa: F401  (re-exported)
+    DEFAULT_FIELDS,  # noqa: F401  (re-exported)
     IMAGE_FIELDS,
     MEMBER_SUFFIXES,
     chw_shape,
