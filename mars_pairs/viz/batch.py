@@ -9,12 +9,12 @@ import numpy as np
 
 from mars_pairs.viz.common import pyplot
 from mars_pairs.viz.sample import (
-    _links,
     apply_affine,
     dem_colours,
     display_arrays,
     draw_ortho_panel,
     invert_affine,
+    keypoint_links,
     view_note,
     wedge_pixels,
 )
@@ -27,7 +27,7 @@ def _rows(samples: Sequence[dict[str, Any]]) -> list[str]:
     """The rows a batch figure draws: the ground image, the ortho chip (with the viewshed),
     the DEM chip, those the samples hold (a viewshed alone is drawn on a blank chip)."""
     held = set().union(*(set(s) for s in samples))
-    rows = [name for name in ("ground", "ortho", "dem") if name in held]
+    rows: list[str] = [name for name in ("ground", "ortho", "dem") if name in held]
     if "ortho" not in held and "viewshed" in held:
         rows.insert(1 if "ground" in rows else 0, "viewshed")
     return rows
@@ -67,8 +67,10 @@ def batch_figure(
             if name == "ground" and parts["ground"] is not None:
                 ax.imshow(parts["ground"])
                 if parts["corr"] is not None and parts["corr_ground"] is not None:
-                    links = _links(parts["corr"], parts["corr_ground"], parts["ground"].shape,
-                                   chip_shape, target=(9, 7))  # fmt: skip
+                    links = keypoint_links(
+                        parts["corr"], parts["corr_ground"], parts["ground"].shape, chip_shape,
+                        target=(9, 7),
+                    )  # fmt: skip
                     if links is not None and len(links.ground):
                         ax.scatter(*links.ground.T, c=links.colours, s=7, linewidths=0)
             elif name in ("ortho", "viewshed") and chip is not None:

@@ -25,7 +25,7 @@ class _Links:
     hits: int  # of which hit the terrain
 
 
-def _links(
+def keypoint_links(
     corr: np.ndarray,
     corr_ground: np.ndarray,
     ground_shape: tuple[int, ...],
@@ -451,7 +451,7 @@ def sample_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
     links = None
     if parts["corr"] is not None and parts["corr_ground"] is not None:
         ground_shape = ground.shape if ground is not None else (1, 1)
-        links = _links(parts["corr"], parts["corr_ground"], ground_shape, chip_shape)
+        links = keypoint_links(parts["corr"], parts["corr_ground"], ground_shape, chip_shape)
     zoom = _zoom_box(vis, rover, links, max(n_rows, n_cols)) if links is not None else None
     note = view_note(row, n_rows * n_cols * res * res)
 
