@@ -100,3 +100,22 @@ def test_plot_draws_a_batch(dataset_dir: Path) -> None:
     finally:
         pyplot().close(fig)
         pyplot().close(loose)
+
+
+def test_ground_transforms_move_the_mask_with_the_image() -> None:
+    from mars_pairs.torch.transforms import Crop, Flip, Resize
+
+    mask = torch.zeros((1, 10, 20), dtype=torch.bool)
+    mask[:, :7, :12] = True  # a 7 x 12 image padded to 10 x 20
+    ground = mask.to(torch.uint8).expand(3, -1, -1) * 200
+    sample = {"ground": ground.clone(), "ground_mask": mask}
+    flipped = Flip("horizontal", target="ground")(sample)
+    assert flipped["ground_mask"].dtype == torch.bool
+    assert torch.equal(flipped["ground_mask"], torch.flip(mask, dims=(-1,)))
+    resized = Resize(ground=(20, 40))(sample)["ground_mask"]
+    assert resized.shape == (1, 20, 40) and int(resized.sum()) == 14 * 24
+    cut = Crop(0, 0, 5, 10, target="ground")(sample)["ground_mask"]
+    assert bool(cut.all())
+    # the mask stays where the image's own (bright) pixels went
+    for out in (Flip("horizontal", target="ground")(sample), Resize(ground=(20, 40))(sample)):
+        assert torch.equal(out["ground_mask"][0], out["ground"][0] > 100)
