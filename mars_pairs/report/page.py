@@ -242,7 +242,7 @@ def _gallery_section(root: Path, rows: list[dict[str, Any]], n: int, dpi: int = 
     centres = camera_centres(root, [str(rows[i]["key"]) for i in picks])  # the wedges' apexes
 
     cards = []
-    with MarsPairsDataset(root, fields=("ground", "ortho", "viewshed")) as ds:
+    with MarsPairsDataset(root, fields=("ground", "ortho", "viewshed"), pad=False) as ds:
         for i in sorted(picks, key=lambda i: order.index(i)):
             r = rows[i]
             centre = centres[str(r["key"])]

@@ -64,3 +64,56 @@ def _collate_tensors(
     else:
         torch.stack(tensors, out=target)
     return target
+
+
+def batch_size_of(batch: Mapping[str, Any]) -> int | None:
+    """The number of samples of a collated batch (``collate_samples`` or torch's
+    ``default_collate``), None for a single sample: a batch's images are [B, C, H, W] (or a
+    list of [C, H, W], sizes differing) and its ``meta`` a dict of lists or tensors."""
+    for name in ("ground", "ortho", "dem", "viewshed", "corr"):
+        value = batch.get(name)
+        if isinstance(value, torch.Tensor):
+            return int(value.shape[0]) if value.ndim == 4 else None
+        if isinstance(value, list):
+            return len(value)
+    meta = batch.get("meta")
+    if isinstance(meta, Mapping) and meta:
+        first = next(iter(meta.values()))
+        if isinstance(first, (list, tuple)) or (
+            isinstance(first, torch.Tensor) and first.ndim == 1
+        ):
+            return len(first)
+    return None
+
+
+def _item(value: Any) -> Any:
+    """A meta value of one sample as plain Python (a 0-d tensor of default_collate's -> item)."""
+    if isinstance(value, torch.Tensor) and value.ndim == 0:
+        return value.item()
+    return value
+
+
+def unbind_samples(batch: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """The samples of a collated batch, as ``ds[i]`` returns them (torchgeo's
+    ``unbind_samples``): every [B, ...] tensor unbound along its first dimension, every list
+    split, ``meta`` (a dict of lists or of [B] tensors) one dict per sample; values that are
+    the same for the whole batch (a string) repeated. A single sample is returned as
+    ``[sample]``."""
+    n = batch_size_of(batch)
+    if n is None:
+        return [dict(batch)]
+    samples: list[dict[str, Any]] = [{} for _ in range(n)]
+    for key, value in batch.items():
+        if key == "meta" and isinstance(value, Mapping):
+            for j in range(n):
+                samples[j]["meta"] = {k: _item(v[j]) for k, v in value.items()}
+            continue
+        if isinstance(value, torch.Tensor) and value.ndim >= 1 and value.shape[0] == n:
+            parts: Sequence[Any] = value.unbind(0)
+        elif isinstance(value, (list, tuple)) and len(value) == n:
+            parts = value
+        else:
+            parts = [value] * n
+        for j in range(n):
+            samples[j][key] = parts[j]
+    return samples

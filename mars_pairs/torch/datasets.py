@@ -33,8 +33,10 @@ the manifest has ``<member>_crc32c`` columns; and no key may be on two manifest 
 from __future__ import annotations
 
 import json
+import math
 import warnings
-from collections.abc import Callable, Sequence
+from collections import Counter
+from collections.abc import Sequence
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -60,8 +62,8 @@ from mars_pairs.store.members import DENSE_GROUND_FIELDS, MEMBERS
 from mars_pairs.store.query import Manifest
 from mars_pairs.torch.decode import (
     ALL_FIELDS,  # noqa: F401  (re-exported)
-    DEFAULT_FIELDS,
-    KNOWN_FIELDS,
+    DEFAULT_FIELDS,  # noqa: F401  (re-exported)
+    IMAGE_FIELDS,
     MEMBER_SUFFIXES,
     chw_shape,
     decode_raw,
@@ -70,35 +72,9 @@ from mars_pairs.torch.decode import (
 )
 from mars_pairs.torch.files import ShardFiles
 from mars_pairs.torch.georef import GEO_COLUMNS, chip_transform, corr_ground_grid
+from mars_pairs.torch.options import DatasetOptions
 
 META_COLUMNS = SUMMARY_COLUMNS
-
-
-def _ground_size(value: int | Sequence[int] | None) -> tuple[int, int] | None:
-    if value is None:
-        return None
-    try:
-        if isinstance(value, (int, np.integer)):
-            size = (int(value), int(value))
-        else:
-            h, w = value
-            size = (int(h), int(w))
-    except (TypeError, ValueError):
-        raise ArgumentError(f"ground_size: expected an int or (H, W), got {value!r}") from None
-    if min(size) < 1:
-        raise ArgumentError(f"ground_size: sizes must be positive, got {value!r}")
-    return size
-
-
-def _check_fields(fields: Sequence[str]) -> tuple[str, ...]:
-    if isinstance(fields, str):
-        fields = (fields,)
-    bad = [f for f in fields if f not in KNOWN_FIELDS]
-    if bad or not fields:
-        raise ArgumentError(
-            f"fields: unknown field(s) {bad}; expected some of {list(KNOWN_FIELDS)}"
-        )
-    return tuple(fields)
 
 
 def _refuse_duplicate_keys(root: Location, table: pa.Table) -> None:
@@ -114,15 +90,54 @@ def _refuse_duplicate_keys(root: Location, table: pa.Table) -> None:
         )
 
 
+def _split_counts(table: pa.Table) -> dict[str, int]:
+    """Split name -> rows, the usual splits first (train, val, test, buffer), then the others
+    by name."""
+    counts = {str(k): int(v) for k, v in Counter(table["split"].to_pylist()).items()}
+    usual = [s for s in ("train", "val", "test", "buffer") if s in counts]
+    return {s: counts[s] for s in [*usual, *sorted(set(counts) - set(usual))]}
+
+
+def describe_dataset(ds: MarsPairsDataset, name: str) -> list[str]:
+    """The lines of a dataset's ``repr``: its class, folder, rows by split, fields, sizes."""
+    splits = ", ".join(f"{k} {v}" for k, v in ds.split_counts.items()) or "none"
+    opts = ds.options
+    if "ground" not in opts.fields:
+        ground = "not read"
+    elif opts.pad and "ground" in ds._pad_hw:
+        h, w = ds._pad_hw["ground"]
+        how = "resized and padded" if opts.ground_size else "padded (largest frame)"
+        ground = f"{how} to {h} x {w}, with ground_mask"
+    elif opts.ground_size:
+        ground = f"resized to {opts.ground_size[0]} x {opts.ground_size[1]}"
+    else:
+        ground = "native sizes (pad=False): batch with collate_samples"
+    lines = [
+        name,
+        f"    root: {ds.root}",
+        f"    rows: {len(ds)}",
+        f"    splits: {splits}",
+        f"    fields: {', '.join(opts.fields)}",
+        f"    ground: {ground}",
+        f"    images: {str(opts.image_dtype).replace('torch.', '')}"
+        + (", localization targets" if opts.localization else "")
+        + (", verified reads" if opts.verify else ""),
+    ]
+    if ds.filters:
+        lines.append(f"    filters: {', '.join(f'{k}={v!r}' for k, v in ds.filters.items())}")
+    if opts.transform is not None:
+        lines.append(f"    transform: {opts.transform!r}")
+    return lines
+
+
 class MarsPairsDataset(Dataset[dict[str, Any]]):
     """Map-style dataset: ``ds[i]`` reads sample i's members with one seek each.
 
-    Filter arguments are those of :meth:`mars_pairs.Manifest.filter`. ``ground_size`` (int or
-    (H, W)) resizes ground images so they batch; ``normalize_dem`` subtracts each chip's
-    median elevation. ``image_dtype`` is torch.uint8 (default) or torch.float32 (images in
-    [0, 1]). ``transform`` is applied to the sample dict (see
-    :mod:`mars_pairs.torch.transforms`). ``verify`` checks every member of each sample read
-    (tar header, size, CRC-32C; see the module docstring): one extra 512-byte read per member.
+    ``options`` (:class:`~mars_pairs.torch.options.DatasetOptions`: fields, transform,
+    ground_size, pad, normalize_dem, image_dtype, verify, localization), or its fields as
+    keyword arguments (which override ``options``' values); the other keyword arguments are
+    filters, those of :meth:`mars_pairs.Manifest.filter`. ``verify`` costs one extra 512-byte
+    read per member (see the module docstring).
     A ``split`` the dataset does not know (dataset.json's split config and counts) is an
     ArgumentError listing the known ones; a known split without samples gives 0 rows.
     Use as a context manager, or call :meth:`close`. ``root`` is a local folder or an fsspec
@@ -130,34 +145,25 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
     """
 
     def __init__(
-        self,
-        root: str | Path,
-        *,
-        fields: Sequence[str] = DEFAULT_FIELDS,
-        transform: Callable[[dict[str, Any]], dict[str, Any]] | None = None,
-        ground_size: int | Sequence[int] | None = None,
-        normalize_dem: bool = False,
-        image_dtype: torch.dtype = torch.uint8,
-        verify: bool = False,
-        localization: bool = False,
-        **filters: Any,
+        self, root: str | Path, options: DatasetOptions | None = None, **kwargs: Any
     ) -> None:
-        if transform is not None and not callable(transform):
-            raise ArgumentError(f"transform: expected a callable, got {transform!r}")
+        opts, filters = DatasetOptions.split(options, kwargs)
+        self.options = opts
         self.root = dataset_root(root)
-        self.fields = _check_fields(fields)
-        self.transform = transform
-        self.ground_size = _ground_size(ground_size)
-        self.normalize_dem = bool(normalize_dem)
-        self._dtypes = {f: out_dtype(f, image_dtype) for f in self.fields}
-        self.image_dtype = image_dtype
+        self.fields = opts.fields
+        self.transform = opts.transform
+        self.ground_size = opts.ground_size
+        self.normalize_dem = opts.normalize_dem
+        self._dtypes = {f: out_dtype(f, opts.image_dtype) for f in self.fields}
+        self.image_dtype = opts.image_dtype
+        self.filters = dict(filters)
         manifest = Manifest.open(self.root).filter(**filters)  # ManifestFilter's arguments
         info = read_dataset_info(self.root)
         self.crs: str = info.crs or manifest.crs or ""
         self.chip_px = info.chip_px
         self.ray_stride = info.ray_stride
-        self.verify = bool(verify)
-        self.localization = bool(localization)
+        self.verify = opts.verify
+        self.localization = opts.localization
         self.dense_stride = info.dense_stride
         # verify=True checks every member of a sample read, like `mars-pairs verify`
         located = (*MEMBERS, *self.fields) if self.verify else self.fields
@@ -191,6 +197,13 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
         self._ground_member = (
             table["ground_member"].combine_chunks() if "ground_member" in names else None
         )
+        heights, widths = self._size[:, 1], self._size[:, 0]
+        #: (H, W) label pixels of the largest frame among this dataset's rows (None if empty)
+        self.frame_hw: tuple[int, int] | None = (
+            (int(heights.max()), int(widths.max())) if table.num_rows else None
+        )
+        self._pad_hw = self._pad_shapes() if opts.pad else {}
+        self.split_counts = _split_counts(table)
         self._crc = {
             m: table[f"{m}_crc32c"].fill_null(-1).to_numpy().astype(np.int64) for m in crc_fields
         }
@@ -209,6 +222,9 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
 
     def __len__(self) -> int:
         return len(self._index)
+
+    def __repr__(self) -> str:
+        return "\n".join(describe_dataset(self, type(self).__name__))
 
     def shard_order(self, field: str | None = None) -> dict[str, np.ndarray]:
         """Each shard's sample indices (int64, into this dataset) in the order ``field``'s
@@ -405,21 +421,82 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
         if "ground_px" in sample and "ground" in raw:
             sample["ground_px"] = self._scaled_ground_px(index, sample["ground_px"], raw)
         sample.update(self._georef(index, raw))
+        if self._pad_hw:
+            self._padded(sample, raw)
         sample.update(targets)
         sample["meta"] = self._index.meta(index)
         return self.transform(sample) if self.transform is not None else sample
 
-    def _tensor(self, field: str, raw: np.ndarray) -> torch.Tensor:
-        """One sample's [C, H, W] tensor of a stage-1 array (its own memory)."""
-        out = np.empty(chw_shape(raw), dtype=self._dtypes[field])
+    def _pad_shapes(self) -> dict[str, tuple[int, int]]:
+        """Field -> the (H, W) every sample's tensor is padded to (``pad``): the ground image
+        to ``ground_size`` or the largest frame; the keypoint and dense ground-grid fields to
+        the largest frame's grid (one cell per ``stride`` label pixels, rounded up)."""
+        if self.frame_hw is None:
+            return {}
+        fh, fw = self.frame_hw
+        out = {"ground": self.ground_size or (fh, fw)}
+        for stride, names in (
+            (self.ray_stride, ("corr", "corr_ground")),
+            (self.dense_stride, (*DENSE_GROUND_FIELDS, "dense_ground")),
+        ):
+            for name in names:
+                out[name] = (-(-fh // stride), -(-fw // stride))
+        return out
+
+    def _padded_chw(self, index: int, field: str, raw: np.ndarray) -> tuple[int, int, int]:
+        """The [C, H, W] shape of ``field``'s tensor: its own, or padded (``pad``)."""
+        c, h, w = chw_shape(raw)
+        target = self._pad_hw.get(field)
+        if target is None:
+            return c, h, w
+        if h > target[0] or w > target[1]:
+            shard = self._index.location(index, field)[0]
+            raise DatasetError(
+                join(self.root, shard),
+                self.member_name(index, field),
+                f"{h} x {w} cells, more than the {target[0]} x {target[1]} of the dataset's "
+                f"largest frame {self.frame_hw} (manifest width, height)",
+            )
+        return c, target[0], target[1]
+
+    def _write(self, index: int, field: str, raw: np.ndarray, out: np.ndarray) -> None:
+        """``raw``'s [C, H, W] values into ``out`` (of ``_padded_chw``'s shape): the top-left
+        corner; the rest NaN (float fields other than images) or 0."""
+        _, h, w = chw_shape(raw)
+        if out.shape[1:] != (h, w):
+            floating = out.dtype.kind == "f" and field not in IMAGE_FIELDS
+            out.fill(np.nan if floating else 0)
+            out = out[:, :h, :w]
         finish_chw(field, raw, out)
+
+    def _tensor(self, index: int, field: str, raw: np.ndarray) -> torch.Tensor:
+        """One sample's [C, H, W] tensor of a stage-1 array (its own memory, padded with
+        ``pad``)."""
+        out = np.empty(self._padded_chw(index, field, raw), dtype=self._dtypes[field])
+        self._write(index, field, raw, out)
         return torch.from_numpy(out)
+
+    def _padded(self, sample: dict[str, Any], raw: dict[str, np.ndarray]) -> None:
+        """With ``pad``: ``corr_ground`` / ``dense_ground`` padded with NaN to their grids, and
+        ``ground_mask`` (bool [1, H, W], True on the decoded image's own pixels)."""
+        for name in ("corr_ground", "dense_ground"):
+            target = self._pad_hw.get(name)
+            value = sample.get(name)
+            if target is not None and value is not None and value.shape[1:] != target:
+                grid = torch.full((value.shape[0], *target), math.nan, dtype=value.dtype)
+                grid[:, : value.shape[1], : value.shape[2]] = value
+                sample[name] = grid
+        if "ground" in raw and "ground" in self._pad_hw:
+            h, w = raw["ground"].shape[:2]
+            mask = torch.zeros((1, *self._pad_hw["ground"]), dtype=torch.bool)
+            mask[:, :h, :w] = True
+            sample["ground_mask"] = mask
 
     def __getitem__(self, index: int) -> dict[str, Any]:
         """Sample ``index`` (negative indices count from the end)."""
         i = self._checked(index)
         raw, targets = self._raw(i)
-        tensors = {name: self._tensor(name, r) for name, r in raw.items()}
+        tensors = {name: self._tensor(i, name, r) for name, r in raw.items()}
         return self._finish_sample(tensors, i, raw, targets)
 
     def __getitems__(self, indices: Sequence[int]) -> list[dict[str, Any]]:
@@ -438,30 +515,50 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
         raws = [r for r, _ in read]
         tensors: list[dict[str, torch.Tensor]] = [{} for _ in raws]
         for name in self.fields:
-            shapes = {chw_shape(r[name]) for r in raws}
+            shapes = {
+                self._padded_chw(i, name, r[name]) for i, r in zip(checked, raws, strict=True)
+            }
             dtype = self._dtypes[name]
             if len(shapes) == 1:
                 shape = (len(raws), *shapes.pop())
                 # private memory, also in a worker (see the docstring); the collate stage
                 # writes the batch into shared memory
                 batch = torch.from_numpy(np.empty(shape, dtype=dtype))
-                for j, r in enumerate(raws):
-                    finish_chw(name, r[name], batch[j].numpy())
+                for j, (i, r) in enumerate(zip(checked, raws, strict=True)):
+                    self._write(i, name, r[name], batch[j].numpy())
                     tensors[j][name] = batch[j]
-            else:  # sizes differ (no ground_size): a tensor each
-                for j, r in enumerate(raws):
-                    tensors[j][name] = self._tensor(name, r[name])
+            else:  # sizes differ (pad=False, no ground_size): a tensor each
+                for j, (i, r) in enumerate(zip(checked, raws, strict=True)):
+                    tensors[j][name] = self._tensor(i, name, r[name])
         return [
             self._finish_sample(t, i, r, targets)
             for t, i, (r, targets) in zip(tensors, checked, read, strict=True)
         ]
 
-    def plot(self, sample: dict[str, Any], *, title: str | None = None, dense: bool = False) -> Any:
-        """A matplotlib Figure of one sample (as returned by ``ds[i]``, transformed or not):
-        the ground image, the ortho chip with the viewshed and the camera wedge, the DEM as a
-        hillshade and the keypoints, colour-linked (needs the ``viz`` extra). ``dense``: the
-        figure of its dense members instead (range, depth, the map seen from the rover, the
-        ground image laid on the map)."""
+    def plot(
+        self,
+        sample: dict[str, Any],
+        *,
+        title: str | None = None,
+        dense: bool = False,
+        max_samples: int = 8,
+    ) -> Any:
+        """A matplotlib Figure (needs the ``viz`` extra) of one sample (as ``ds[i]`` returns
+        it, transformed or not) or of a batch (a DataLoader's, collated by torch's
+        ``default_collate`` or :func:`collate_samples`; split by :func:`unbind_samples`).
+
+        One sample: the ground image, the ortho chip with the viewshed and the camera wedge,
+        the DEM with a colourbar, and with ``corr`` the keypoints colour-linked; a legend and
+        the sample's numbers (:func:`mars_pairs.viz.sample.sample_figure`). ``dense``: the
+        figure of its dense members instead. A batch: its first ``max_samples`` samples, one
+        column each, a row per field they hold (:func:`mars_pairs.viz.batch.batch_figure`).
+        """
+        from mars_pairs.torch.collate import batch_size_of, unbind_samples
+
+        if batch_size_of(sample) is not None:
+            from mars_pairs.viz.batch import batch_figure
+
+            return batch_figure(unbind_samples(sample), title=title, max_samples=max_samples)
         from mars_pairs.viz.sample import dense_figure, sample_figure
 
         if dense:

@@ -135,6 +135,17 @@ class MarsPairsLoader(DataLoader[dict[str, Any]]):
         self._warm = WarmBuffers(keep=_slot_count(prefetch_factor))
         self._persistent_flags: torch.Tensor | None = None  # the persistent workers' flags
 
+    def __repr__(self) -> str:
+        batches = f"{len(self)} batches" if hasattr(self.dataset, "__len__") else "streamed"
+        head = (
+            f"{type(self).__name__}(batch_size={self.batch_size}, "
+            f"num_workers={self.num_workers}, {batches}"
+            + (", recycled slots" if self.recycles else "")
+            + ")"
+        )
+        inner = "\n".join("    " + line for line in repr(self.dataset).splitlines())
+        return f"{head}\n{inner}"
+
     @property
     def recycles(self) -> bool:
         """Whether this loader's workers recycle their batch slots."""

@@ -3,15 +3,15 @@
 from __future__ import annotations
 
 import random
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
-from mars_pairs.torch.datasets import MarsPairsDataset
-from mars_pairs.torch.decode import DEFAULT_FIELDS
+from mars_pairs.torch.datasets import MarsPairsDataset, describe_dataset
+from mars_pairs.torch.options import DatasetOptions
 
 
 def _world() -> tuple[int, int]:
@@ -26,32 +26,21 @@ class MarsPairsIterableDataset(IterableDataset[dict[str, Any]]):
     Shards are split across distributed ranks and DataLoader workers (every shard goes to
     exactly one (rank, worker)); within a shard members are read in file order. Call
     ``set_epoch`` to reshuffle between epochs. A context manager, like the map-style one.
+    Takes the map-style dataset's options and filters (:class:`MarsPairsDataset`), and
+    ``shuffle_buffer`` (samples held for shuffling) and ``seed``.
     """
 
     def __init__(
         self,
         root: str | Path,
+        options: DatasetOptions | None = None,
         *,
-        fields: Sequence[str] = DEFAULT_FIELDS,
-        transform: Callable[[dict[str, Any]], dict[str, Any]] | None = None,
-        ground_size: int | Sequence[int] | None = None,
-        normalize_dem: bool = False,
-        image_dtype: torch.dtype = torch.uint8,
-        verify: bool = False,
         shuffle_buffer: int = 64,
         seed: int = 0,
-        **filters: Any,
+        **kwargs: Any,
     ) -> None:
-        self._inner = MarsPairsDataset(
-            root,
-            fields=fields,
-            transform=transform,
-            ground_size=ground_size,
-            normalize_dem=normalize_dem,
-            image_dtype=image_dtype,
-            verify=verify,
-            **filters,
-        )
+        self._inner = MarsPairsDataset(root, options, **kwargs)
+        self.options = self._inner.options
         self.shuffle_buffer = int(shuffle_buffer)
         self.seed = int(seed)
         self.epoch = 0
@@ -68,9 +57,10 @@ class MarsPairsIterableDataset(IterableDataset[dict[str, Any]]):
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def plot(self, sample: dict[str, Any], *, title: str | None = None) -> Any:
-        """A matplotlib Figure of one sample (see :meth:`MarsPairsDataset.plot`)."""
-        return self._inner.plot(sample, title=title)
+    def plot(self, sample: dict[str, Any], **kwargs: Any) -> Any:
+        """A matplotlib Figure of one sample or of a batch (see :meth:`MarsPairsDataset.plot`,
+        whose keyword arguments it takes)."""
+        return self._inner.plot(sample, **kwargs)
 
     def set_epoch(self, epoch: int) -> None:
         """Reseed the shard order and shuffle buffer."""
@@ -100,3 +90,9 @@ class MarsPairsIterableDataset(IterableDataset[dict[str, Any]]):
 
     def __len__(self) -> int:
         return len(self._inner)
+
+    def __repr__(self) -> str:
+        lines = describe_dataset(self._inner, type(self).__name__)
+        lines.insert(3, f"    shards: {len(self.shards)}, shuffle buffer {self.shuffle_buffer}, "
+                        f"seed {self.seed}, epoch {self.epoch}")  # fmt: skip
+        return "\n".join(lines)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import colorsys
 import math
+import textwrap
 from dataclasses import dataclass
 from typing import Any
 
@@ -24,7 +25,7 @@ class _Links:
     hits: int  # of which hit the terrain
 
 
-def _links(
+def keypoint_links(
     corr: np.ndarray,
     corr_ground: np.ndarray,
     ground_shape: tuple[int, ...],
@@ -205,58 +206,139 @@ def _draw_links(ground_ax: Any, map_ax: Any, links: _Links | None) -> None:
     map_ax.scatter(*links.chip[on].T, c=links.colours[on], s=16, edgecolors="black", linewidths=0.4)
 
 
-def _info_panel(
-    ax: Any, row: dict[str, Any], res: float, rotation: float, links: _Links | None
-) -> None:
-    """The sample's numbers as text."""
-    ax.axis("off")
+def _info_lines(
+    row: dict[str, Any], res: float, rotation: float, links: _Links | None
+) -> list[list[str]]:
+    """The sample's numbers, as three columns of short lines."""
 
     def num(name: str, fmt: str) -> str:
         value = row.get(name)
         return "?" if value is None else format(value, fmt)
 
     elevation = row.get("elevation_m", row.get("elevation"))
-    lines = [
-        f"key  {row.get('key')}",
-        f"mission  {row.get('mission')}   instrument  {row.get('instrument')}",
-        f"sol {row.get('sol')}   site {row.get('site')}   drive {row.get('drive')}   "
-        f"split {row.get('split')}",
-        f"rover  E {num('easting', '.1f')}  N {num('northing', '.1f')}  "
+    where = [
+        f"{row.get('mission')}  {row.get('instrument')}   split {row.get('split')}",
+        f"sol {row.get('sol')}   site {row.get('site')}   drive {row.get('drive')}",
+        f"rover  E {num('easting', '.1f')}  N {num('northing', '.1f')}",
+        f"lat {num('latitude', '.6f')}  lon {num('longitude', '.6f')}",
+        f"elevation {'?' if elevation is None else format(elevation, '.1f')} m  "
         f"({row.get('localization')})",
-        f"lat {num('latitude', '.6f')}   lon {num('longitude', '.6f')}",
-        f"elevation  {'?' if elevation is None else format(elevation, '.1f')} m",
-        f"camera  az {num('azimuth_deg', '.1f')}°  el {num('elevation_deg', '.1f')}°  "
-        f"FOV {num('hfov_deg', '.1f')}° x {num('vfov_deg', '.1f')}°",
-        f"viewshed  {row.get('visible_cells')} cells, {num('viewshed_area_m2', '.0f')} m², "
-        f"max range {num('max_visible_range_m', '.0f')} m",
-        f"chip  {res:.2f} map units / px, rotation {rotation:.0f}°",
+    ]
+    view = [
+        f"camera  az {num('azimuth_deg', '.1f')}°  el {num('elevation_deg', '.1f')}°",
+        f"FOV  {num('hfov_deg', '.1f')}° x {num('vfov_deg', '.1f')}°",
+        f"viewshed  {row.get('visible_cells')} cells, {num('viewshed_area_m2', '.0f')} m²",
+        f"farthest visible  {num('max_visible_range_m', '.0f')} m",
+        f"chip  {res:.2f} m/px, rotation {rotation:.0f}°",
     ]
     if links is not None:
-        lines += [
-            f"rays  {links.hits} of {links.rays} strided pixels hit the terrain",
-            f"shown  {int(links.on_chip.sum())} links on the chip"
-            + (f", {int((~links.on_chip).sum())} beyond it (rings)" if not links.on_chip.all()
-               else ""),
-            "colour: hue = image column, brightness = image line",
-        ]  # fmt: skip
+        shown = f"links  {int(links.on_chip.sum())} on the chip"
+        if not links.on_chip.all():
+            shown += f", {int((~links.on_chip).sum())} beyond (rings)"
+        keypoints = [
+            f"rays  {links.hits} of {links.rays} hit the terrain",
+            shown,
+            "colour: hue = image column,",
+            "brightness = image line",
+        ]
     else:
-        lines.append("no correspondence (corr not loaded, or ray casting off)")
-    ax.text(
-        0.0,
-        1.0,
-        "\n".join(lines),
-        va="top",
-        ha="left",
-        fontsize=9,
-        family="monospace",
-        transform=ax.transAxes,
-        wrap=True,
+        keypoints = ["no keypoints: read the corr field", "(fields=ALL_FIELDS) to draw them"]
+    return [where, view, keypoints]
+
+
+def _info_strip(ax: Any, columns: list[list[str]]) -> None:
+    """The sample's numbers in columns across a thin strip."""
+    ax.axis("off")
+    for k, lines in enumerate(columns):
+        ax.text(
+            k / len(columns), 1.0, "\n".join(lines), va="top", ha="left", fontsize=8.5,
+            family="monospace", transform=ax.transAxes,
+        )  # fmt: skip
+
+
+def _legend(
+    ax: Any, links: _Links | None, zoom: bool, camera_centre: bool, column: bool = False
+) -> None:
+    """What the marks on the chip panels mean: in a panel of its own (``column``: one column)
+    or in the strip's right part (two columns)."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    ax.axis("off")
+    handles = [
+        Patch(facecolor=(0.1, 0.95, 0.3, 0.45), edgecolor="none", label="viewshed (visible cells)"),
+        Line2D([], [], color="lime", lw=0.8, label="viewshed outline (DEM)"),
+        Line2D([], [], color="orange", lw=1.3, label="camera wedge (FOV to farthest hit)"),
+        Line2D([], [], marker="^", color="red", markeredgecolor="white", ls="none",
+               markersize=9, label="rover"),
+    ]  # fmt: skip
+    if camera_centre:
+        handles.append(
+            Line2D([], [], marker="o", color="orange", ls="none", markersize=4,
+                   label="camera centre")
+        )  # fmt: skip
+    if zoom:
+        handles.append(Line2D([], [], color="cyan", ls="--", lw=1, label="zoomed area"))
+    if links is not None:
+        handles.append(
+            Line2D([], [], marker="o", color="tab:blue", markeredgecolor="black", ls="none",
+                   markersize=5, label="keypoint (ground pixel = map point)")
+        )  # fmt: skip
+        if not links.on_chip.all():
+            handles.append(
+                Line2D([], [], marker="o", markerfacecolor="none", markeredgecolor="tab:blue",
+                       ls="none", markersize=5, label="keypoint beyond the chip")
+            )  # fmt: skip
+    ax.legend(handles=handles, loc="center left" if column else "upper left",
+              ncol=1 if column else 2, fontsize=9 if column else 8, frameon=False,
+              borderaxespad=0.0, handlelength=1.6, columnspacing=1.0,
+              title="legend" if column else None)  # fmt: skip
+
+
+#: a view smaller than this share of the chip's area is drawn with a note (a down-looking
+#: camera sees a metre or two beside the rover: its viewshed and wedge vanish at chip scale)
+SMALL_VIEW_SHARE = 0.005
+
+
+def view_note(row: dict[str, Any], chip_area_m2: float) -> str | None:
+    """A sentence for a sample whose view covers almost nothing of its chip (under
+    ``SMALL_VIEW_SHARE`` of ``chip_area_m2``, square metres), None otherwise."""
+    area = row.get("viewshed_area_m2")
+    if area is None or not np.isfinite(area) or chip_area_m2 <= 0:
+        return None
+    if area >= SMALL_VIEW_SHARE * chip_area_m2:
+        return None
+    el = row.get("elevation_deg")
+    far = row.get("max_visible_range_m") or 0.0
+    if not area:
+        why = "no ray hits the terrain"
+        if el is not None and el > 0:
+            why += f": the camera looks above the horizon (el {el:.1f}°)"
+        return f"Nothing of the chip is in view: {why}."
+    looks = ""
+    if el is not None and el < -20:
+        looks = f"the camera looks down (el {el:.1f}°) at the ground beside the rover: "
+    return (
+        f"The view covers almost nothing of the chip: {looks}{area:.0f} m² seen, to "
+        f"{far:.1f} m ({100 * area / chip_area_m2:.2f}% of the chip), so the viewshed and the "
+        "wedge are a few pixels and the ground image shows a close-up."
     )
 
 
+def _crop_to_mask(image: np.ndarray | None, mask: np.ndarray | None) -> np.ndarray | None:
+    """A padded ground image cut back to its own pixels (``ground_mask``'s True box)."""
+    if image is None or mask is None or mask.all():
+        return image
+    rows, cols = np.nonzero(mask)
+    if rows.size == 0:
+        return image
+    return image[: rows.max() + 1, : cols.max() + 1]
+
+
 def display_arrays(sample: dict[str, Any]) -> dict[str, Any]:
-    """The sample's images as display arrays: ground [H, W, 3] uint8, ortho [h, w] uint8,
-    viewshed bool, dem float (metres); absent fields are None."""
+    """The sample's images as display arrays: ground [H, W, 3] uint8 (a padded one cut to
+    its ``ground_mask``), ortho [h, w] uint8, viewshed bool, dem float (metres); absent fields
+    are None."""
 
     def arr(name: str) -> np.ndarray | None:
         value = sample.get(name)
@@ -268,8 +350,10 @@ def display_arrays(sample: dict[str, Any]) -> dict[str, Any]:
         return np.asarray((np.clip(np.nan_to_num(a), 0, 1) * 255 + 0.5).astype(np.uint8))
 
     ground, ortho, vis, dem = arr("ground"), arr("ortho"), arr("viewshed"), arr("dem")
+    mask = arr("ground_mask")
+    ground_hwc = None if ground is None else uint8(ground.transpose(1, 2, 0))
     return {
-        "ground": None if ground is None else uint8(ground.transpose(1, 2, 0)),
+        "ground": _crop_to_mask(ground_hwc, None if mask is None else mask[0] > 0),
         "ortho": None if ortho is None else uint8(ortho[0]),
         "viewshed": None if vis is None else vis[0] > 0,
         "dem": None if dem is None else dem[0].astype(np.float64),
@@ -282,14 +366,72 @@ def _missing(ax: Any, what: str) -> None:
     ax.text(0.5, 0.5, f"{what}\nnot in the sample", ha="center", va="center", fontsize=10)
 
 
-def sample_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
-    """A matplotlib Figure (``SHOW_SIZE`` inches) of one dataset sample, transformed or not.
+def dem_colours(dem: np.ndarray, res: float) -> tuple[np.ndarray, Any, Any]:
+    """The DEM chip (metres) as RGB: terrain colours of the elevation, shaded by the
+    hillshade; and the (norm, colormap) of its colourbar."""
+    from matplotlib import colormaps
+    from matplotlib.colors import Normalize
 
-    Top: the ground image; the ortho chip with the viewshed, the rover and the camera wedge;
-    the DEM chip as a hillshade. Bottom: keypoints (ground pixels and their map points),
-    colour-linked, over the ground image and over the ortho zoomed on the viewshed; the
-    sample's numbers. The chip panels are drawn through the sample's ``transform``, so a
-    rotated, cropped or flipped chip shows its own wedge and north arrow.
+    finite = np.isfinite(dem)
+    lo, hi = (float(np.nanmin(dem)), float(np.nanmax(dem))) if finite.any() else (0.0, 1.0)
+    norm = Normalize(vmin=lo, vmax=hi if hi > lo else lo + 1.0)
+    cmap = colormaps["terrain"]
+    shade = np.nan_to_num(hillshade(dem, res), nan=1.0)
+    rgb = cmap(norm(np.where(finite, dem, lo)))[..., :3] * (0.45 + 0.55 * shade[..., None])
+    rgb[~finite] = 1.0
+    return np.clip(rgb, 0, 1), norm, cmap
+
+
+def draw_dem_panel(
+    fig: Any,
+    ax: Any,
+    dem: np.ndarray,
+    res: float,
+    vis: np.ndarray,
+    rover: tuple[float, float],
+    wedge: tuple[np.ndarray, np.ndarray],
+    colourbar: bool = True,
+) -> None:
+    """The DEM chip in terrain colours shaded by its hillshade (a colourbar in metres), the
+    viewshed outline, the wedge and the rover."""
+    from matplotlib.cm import ScalarMappable
+
+    n_rows, n_cols = dem.shape
+    rgb, norm, cmap = dem_colours(dem, res)
+    ax.imshow(rgb, extent=(0, n_cols, n_rows, 0), interpolation="nearest")
+    if vis.any() and not vis.all():
+        ax.contour(
+            np.arange(n_cols) + 0.5,  # pixel centres, in the panel's pixel-edge coordinates
+            np.arange(n_rows) + 0.5,
+            vis.astype(float),
+            levels=[0.5],
+            colors=["lime"],
+            linewidths=0.8,
+        )
+    ax.plot(*wedge, color="orange", lw=1.0)
+    ax.plot(*rover, marker="^", color="red", markersize=9, markeredgecolor="white", ls="none")
+    _limits(ax, (0, 0, n_cols, n_rows))
+    if colourbar:
+        bar = fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=ax, fraction=0.046, pad=0.02)
+        bar.set_label("elevation (m)", fontsize=8)
+        bar.ax.tick_params(labelsize=7)
+
+
+def sample_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
+    """A matplotlib Figure of one dataset sample, transformed or not, drawing the fields it
+    holds.
+
+    Top row: the ground image (a padded one cut to its ``ground_mask``); the ortho chip with
+    the viewshed, the rover and the camera wedge; the DEM chip in terrain colours shaded by
+    its hillshade, with a colourbar in metres. With keypoints (``corr``), a second row: the
+    keypoints (ground pixels and their map points), colour-linked, over the ground image and
+    over the ortho zoomed on the viewshed. Under them a thin strip: the sample's numbers and
+    the legend, and a note when the view covers almost nothing of the chip
+    (:func:`view_note`). ``SHOW_SIZE`` inches with keypoints, ``SHOW_SIZE`` wide and 6.0
+    inches high without. The chip panels are drawn through the sample's ``transform``, so a
+    rotated, cropped or flipped chip shows its own wedge and north arrow. Axes in order:
+    ground, ortho, DEM, (keypoints on the ground, on the map), the strip's text, its legend,
+    then the colourbar.
     """
     plt = pyplot()
     row = dict(sample.get("meta") or {})
@@ -309,15 +451,33 @@ def sample_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
     links = None
     if parts["corr"] is not None and parts["corr_ground"] is not None:
         ground_shape = ground.shape if ground is not None else (1, 1)
-        links = _links(parts["corr"], parts["corr_ground"], ground_shape, chip_shape)
-    zoom = _zoom_box(vis, rover, links, max(n_rows, n_cols))
+        links = keypoint_links(parts["corr"], parts["corr_ground"], ground_shape, chip_shape)
+    zoom = _zoom_box(vis, rover, links, max(n_rows, n_cols)) if links is not None else None
+    note = view_note(row, n_rows * n_cols * res * res)
 
-    fig, axes = plt.subplots(2, 3, figsize=SHOW_SIZE)
-    ax = axes[0, 0]
+    size = SHOW_SIZE if links is not None else (SHOW_SIZE[0], 6.0)
+    fig = plt.figure(figsize=size)
+    if links is not None:
+        grid = fig.add_gridspec(3, 6, height_ratios=[1, 1, 0.2], hspace=0.18, wspace=0.12)
+        top = [fig.add_subplot(grid[0, 2 * k : 2 * k + 2]) for k in range(3)]
+        low = [fig.add_subplot(grid[1, 0:2]), fig.add_subplot(grid[1, 2:4])]
+        text_ax, legend_ax = fig.add_subplot(grid[2, :]), fig.add_subplot(grid[1, 4:6])
+    else:
+        grid = fig.add_gridspec(2, 6, height_ratios=[1, 0.3], hspace=0.1, wspace=0.12)
+        top = [fig.add_subplot(grid[0, 2 * k : 2 * k + 2]) for k in range(3)]
+        low = []
+        inner = grid[1, :].subgridspec(1, 5, wspace=0.05)
+        text_ax, legend_ax = fig.add_subplot(inner[0, :3]), fig.add_subplot(inner[0, 3:])
+
+    ax = top[0]
     if ground is not None:
         ax.imshow(ground)
     else:
         _missing(ax, "ground image")
+    if note is not None:  # on the ground image: a close-up or the sky, little to hide
+        ax.text(0.5, 0.5, textwrap.fill(note, 44), ha="center", va="center", fontsize=9.5,
+                color="darkred", transform=ax.transAxes,
+                bbox={"facecolor": "white", "alpha": 0.85, "edgecolor": "darkred"})  # fmt: skip
     ax.set_title(
         title
         or f"ground image\n{row.get('product_id')}\n{row.get('instrument')}, sol "
@@ -325,7 +485,7 @@ def sample_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
         f"el {row.get('elevation_deg', np.nan):.1f}°",
         fontsize=9,
     )
-    ax = axes[0, 1]
+    ax = top[1]
     if ortho is not None:
         draw_ortho_panel(ax, ortho, vis, rover, wedge)
         if zoom is not None:
@@ -333,66 +493,64 @@ def sample_figure(sample: dict[str, Any], *, title: str | None = None) -> Any:
             ax.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], color="cyan", lw=1, ls="--")
         _north_arrow(ax, inv, n_cols)
         scale_bar(ax, (0, 0, n_cols, n_rows), res, y_down=True)
+        if note is not None:
+            ax.text(0.5, 0.97, "view: almost nothing\n(note on the ground image)", ha="center",
+                    va="top", fontsize=9, color="darkred", transform=ax.transAxes,
+                    bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})  # fmt: skip
     else:
         _missing(ax, "ortho chip")
-    apex = "camera centre ●" if wedge_apex(row)[2] else "rover (camera centre unknown)"
+    apex = "camera centre" if wedge_apex(row)[2] else "rover (camera centre unknown)"
     ax.set_title(
-        f"ortho chip {n_cols * res:.0f} m: viewshed (green) "
-        f"{row.get('viewshed_area_m2', np.nan):.0f} m², rover ▲,\ncamera wedge (orange) az "
-        f"{row.get('azimuth_deg', np.nan):.0f}° ± {row.get('hfov_deg', np.nan) / 2:.1f}° to "
-        f"{row.get('max_visible_range_m', np.nan):.0f} m from the {apex}",
+        f"ortho chip {n_cols * res:.0f} m, viewshed {row.get('viewshed_area_m2', np.nan):.0f} m²"
+        f"\ncamera wedge az {row.get('azimuth_deg', np.nan):.0f}° ± "
+        f"{row.get('hfov_deg', np.nan) / 2:.1f}° to {row.get('max_visible_range_m', np.nan):.0f} m"
+        f" from the {apex}",
         fontsize=9,
     )
-    ax = axes[0, 2]
+    ax = top[2]
     if dem is not None:
-        extent = (0, n_cols, n_rows, 0)
-        ax.imshow(hillshade(dem, res), cmap="gray", vmin=0, vmax=1, extent=extent)
-        if vis.any() and not vis.all():
-            ax.contour(
-                np.arange(n_cols) + 0.5,  # pixel centres, in the panel's pixel-edge coordinates
-                np.arange(n_rows) + 0.5,
-                vis.astype(float),
-                levels=[0.5],
-                colors=["lime"],
-                linewidths=0.8,
-            )
-        ax.plot(*wedge, color="orange", lw=1.0)
-        ax.plot(*rover, marker="^", color="red", markersize=9, markeredgecolor="white", ls="none")
+        draw_dem_panel(fig, ax, dem, res, vis, rover, wedge, colourbar=False)
         _north_arrow(ax, inv, n_cols)
-        _limits(ax, (0, 0, n_cols, n_rows))
         scale_bar(ax, (0, 0, n_cols, n_rows), res, y_down=True)
         finite = np.isfinite(dem)
         lo, hi = (np.nanmin(dem), np.nanmax(dem)) if finite.any() else (np.nan, np.nan)
-        ax.set_title(
-            f"DEM chip hillshade ({lo:.0f} to {hi:.0f} m)\nviewshed outline (green), wedge",
-            fontsize=9,
-        )
+        ax.set_title(f"DEM chip, {lo:.0f} to {hi:.0f} m\n(shaded, viewshed outline)", fontsize=9)
     else:
         _missing(ax, "DEM chip")
 
-    if ground is not None:
-        axes[1, 0].imshow(ground)
-    axes[1, 0].set_title("ground pixels (keypoints, sampled) ...", fontsize=9)
-    ax = axes[1, 1]
-    if ortho is not None:
-        draw_ortho_panel(ax, ortho, vis, rover, wedge, alpha=0.3)
-    _draw_links(axes[1, 0], ax, links)
-    if zoom is not None:
-        _limits(ax, zoom)
+    if links is not None:
+        if ground is not None:
+            low[0].imshow(ground)
+        low[0].set_title("keypoints: ground pixels (sampled) ...", fontsize=9)
         if ortho is not None:
-            scale_bar(ax, zoom, res, y_down=True)
-        ax.set_title(
-            f"... and their map points, same colours\n(ortho zoom "
-            f"{(zoom[2] - zoom[0]) * res:.0f} m across: cyan box)",
-            fontsize=9,
-        )
-    else:
-        ax.set_title("... and their map points on the ortho chip, same colours", fontsize=9)
-    _info_panel(axes[1, 2], row, res, rotation, links)
-    for a in axes.ravel():
+            draw_ortho_panel(low[1], ortho, vis, rover, wedge, alpha=0.3)
+        _draw_links(low[0], low[1], links)
+        if zoom is not None:
+            _limits(low[1], zoom)
+            if ortho is not None:
+                scale_bar(low[1], zoom, res, y_down=True)
+            low[1].set_title(
+                f"... and their map points, same colours (ortho zoom "
+                f"{(zoom[2] - zoom[0]) * res:.0f} m across)",
+                fontsize=9,
+            )
+        else:
+            low[1].set_title("... and their map points on the ortho chip, same colours",
+                             fontsize=9)  # fmt: skip
+    _info_strip(text_ax, _info_lines(row, res, rotation, links))
+    _legend(legend_ax, links, zoom is not None, wedge_apex(row)[2], column=links is not None)
+    for a in [*top, *low]:
         a.set_xticks([])
         a.set_yticks([])
-    fig.tight_layout()
+    if dem is not None:  # the colourbar last: it takes its room from the DEM panel
+        from matplotlib.cm import ScalarMappable
+
+        _, norm, cmap = dem_colours(dem, res)
+        bar = fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=top[2], fraction=0.046,
+                           pad=0.02)  # fmt: skip
+        bar.set_label("elevation (m)", fontsize=8)
+        bar.ax.tick_params(labelsize=7)
+    fig.subplots_adjust(left=0.02, right=0.95, top=0.92, bottom=0.02)
     return fig
 
 

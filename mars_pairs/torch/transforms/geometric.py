@@ -121,6 +121,9 @@ class _Geometric:
                 m, new_hw = made
                 if "ground" in out:
                     out["ground"] = self._apply_ground(sample["ground"], m, new_hw)
+                if "ground_mask" in out:  # bool: moved as 0 / 255, True where > 127
+                    as_u8 = sample["ground_mask"].to(torch.uint8) * 255
+                    out["ground_mask"] = self._apply_ground(as_u8, m, new_hw) > 127
                 for name in ("corr_ground", "dense_ground"):
                     if name in out:
                         out[name] = _move_points(sample[name], np.linalg.inv(m))
