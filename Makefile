@@ -22,7 +22,7 @@ $(DEMO_STAMP): pyproject.toml constraints.txt | $(VENV)/bin/python
 	touch $(DEMO_STAMP)
 
 $(DEV_STAMP): pyproject.toml constraints.txt $(DEMO_STAMP)
-	$(PIP) -e '.[dev,viz,dask]'
+	$(PIP) -e '.[dev,viz,dask,lightning]'
 	touch $(DEV_STAMP)
 
 demo: $(DEMO_STAMP)
