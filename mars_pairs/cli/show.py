@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from mars_pairs.cli.arguments import add_out, count, local_dataset
+from mars_pairs.cli.arguments import add_out, local_dataset
 
 
 def register(sub: Any) -> None:
@@ -18,7 +18,7 @@ def register(sub: Any) -> None:
     pick.add_argument("--index", type=int, help="the sample at this row (manifest order)")
     pick.add_argument("--random", action="store_true", help="a sample drawn at random")
     p.add_argument("--seed", type=int, help="with --random: the same draw every time")
-    p.add_argument("--dpi", type=count(20), default=90, help="PNG resolution (default 90)")
+    p.add_argument("--dpi", type=int, default=90, help="PNG resolution (default 90)")
     add_out(p, "PNG path (default KEY.png in the current directory)")
     p.set_defaults(func=run)
 

@@ -78,7 +78,6 @@ def test_export_qgis_takes_out_and_the_positional(tmp_path: Path) -> None:
     "argv",
     [
         ["export-qgis", "{tmp}", "{tmp}/a.gpkg", "--out", "{tmp}/b.gpkg"],
-        ["export-qgis", "{tmp}"],
         ["synth"],
     ],
 )
