@@ -201,6 +201,7 @@ def _cmd_synth(args: argparse.Namespace) -> int:
         stops=args.stops,
         images_per_stop=args.images_per_stop,
         size=args.size,
+        terrain_labels=args.terrain_labels,
     )
     print(json.dumps(result, indent=2, default=str))
     return 0
@@ -434,6 +435,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stops", type=count(1), help="rover stops (default: the size's: 3, 8, 90)")
     p.add_argument("--images-per-stop", type=count(1), help="default: the size's (4, 4, 3)")
     p.add_argument("--size", choices=("small", "default", "demo"), default="small")
+    p.add_argument("--terrain-labels", action="store_true",
+                   help="also write the true terrain classes and AI4Mars-layout masks")  # fmt: skip
     p.set_defaults(func=_cmd_synth)
     return parser
 

@@ -52,6 +52,20 @@ class SyntheticSpec:
 
 
 @dataclass(frozen=True)
+class TerrainLabelsSpec:
+    """Terrain labels of the ground images (``mars_pairs.terrain_labels``): ``format``
+    ai4mars (the AI4Mars layout under ``root``) or folder (``root/<product id>.png`` with the
+    ``classes`` table); ``max_range_m``: nothing farther from the camera is carried onto the
+    map (ai4mars: 30 for Navcam labels, from the layout)."""
+
+    format: str
+    root: Path
+    classes: dict[int, str] | None = None
+    max_range_m: float | None = None
+    test_set: str | None = None  # ai4mars: the gold test folder read (default min3)
+
+
+@dataclass(frozen=True)
 class InputsConfig:
     """Where the labels, images, PLACES table and orbital rasters are."""
 
@@ -61,6 +75,7 @@ class InputsConfig:
     ortho: Path | str
     images: Path | None = None  # a folder to look for images in, besides the label's folder
     synthetic: SyntheticSpec | None = None
+    terrain_labels: TerrainLabelsSpec | None = None
 
 
 @dataclass(frozen=True)
@@ -167,11 +182,12 @@ _OPT_IN_KEYS: tuple[tuple[str, str, object], ...] = (
     ("chips", "offset_m", None),
     ("output", "members", []),
     ("output", "dense_stride", None),
+    ("inputs", "terrain_labels", None),
 )
 
 
 def _inputs(data: Any, base: Path) -> InputsConfig:
-    known = {"labels", "places", "dem", "ortho", "images", "synthetic"}
+    known = {"labels", "places", "dem", "ortho", "images", "synthetic", "terrain_labels"}
     sec = Section(data, "inputs", known)
     labels = sec.raw("labels")
     if isinstance(labels, str):
@@ -200,6 +216,34 @@ def _inputs(data: Any, base: Path) -> InputsConfig:
         ortho=sec.raster("ortho", base),
         images=sec.path("images", base, None),
         synthetic=synthetic,
+        terrain_labels=_terrain_labels(sec.raw("terrain_labels", None), base),
+    )
+
+
+def _terrain_labels(data: Any, base: Path) -> TerrainLabelsSpec | None:
+    """``inputs.terrain_labels``: {format: ai4mars | folder, root, classes, max_range_m}."""
+    if data is None:
+        return None
+    from mars_pairs.terrain_labels import FORMATS, ClassTable
+
+    key = "inputs.terrain_labels"
+    sec = Section(data, key, {"format", "root", "classes", "max_range_m", "test_set"})
+    fmt = sec.choice("format", FORMATS)
+    classes = sec.raw("classes", None)
+    if fmt == "folder" and classes is None:
+        raise ConfigError(f"{key}.classes: a folder of masks needs its class table")
+    if fmt == "ai4mars" and classes is not None:
+        raise ConfigError(f"{key}.classes: the AI4Mars layout has its own class table")
+    table = None if classes is None else dict(ClassTable.from_mapping(classes, f"{key}.classes").names)
+    test_set = sec.raw("test_set", None)
+    if test_set is not None and (fmt != "ai4mars" or not isinstance(test_set, str)):
+        raise ConfigError(f"{key}.test_set: the AI4Mars gold test folder name (format ai4mars)")
+    return TerrainLabelsSpec(
+        format=fmt,
+        root=sec.path("root", base),
+        classes=table,
+        max_range_m=sec.number("max_range_m", None, maximum=MAX_RADIUS_M),
+        test_set=test_set,
     )
 
 

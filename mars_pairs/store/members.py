@@ -29,14 +29,22 @@ MEMBER_FILES: dict[str, tuple[str, ...]] = {
     "ground_px": ("ground_px.npy",),
 }
 
-#: Every field the dense members can add, in tar order.
-DENSE_FIELDS = tuple(dict.fromkeys(f.split(".")[0] for m in DENSE_MEMBERS for f in MEMBER_FILES[m]))
+#: The terrain-label members (written when ``inputs.terrain_labels`` is set): ``terrain``
+#: (the ground image's classes, uint8 PNG on its pixel grid) and ``terrain_on_map`` (the
+#: classes carried onto the chip grid; 255 where not seen or past the label's range).
+TERRAIN_FIELDS = ("terrain", "terrain_on_map")
+
+#: Every field the optional members (dense and terrain) can add, in tar order.
+DENSE_FIELDS = (
+    *dict.fromkeys(f.split(".")[0] for m in DENSE_MEMBERS for f in MEMBER_FILES[m]),
+    *TERRAIN_FIELDS,
+)
 
 #: Dense fields on the ground image's dense grid (every ``output.dense_stride``-th pixel).
 DENSE_GROUND_FIELDS = ("range", "depth", "hits", "ortho_view", "view_valid", "dem_view")
 
 #: Dense fields on the chip grid (S x S, the chip's affine).
-DENSE_CHIP_FIELDS = ("ground_on_map", "ground_on_map_cover", "ground_px")
+DENSE_CHIP_FIELDS = ("ground_on_map", "ground_on_map_cover", "ground_px", "terrain_on_map")
 
 
 def member_fields(members: tuple[str, ...]) -> tuple[str, ...]:

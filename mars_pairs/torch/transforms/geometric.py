@@ -17,8 +17,9 @@ from mars_pairs.torch.georef import bounds_of, rotation_of
 
 CHIP_FIELDS = ("ortho", "dem", "viewshed")
 #: Optional chip-grid members (``output.members``) that move with the chips.
-_NEAREST = ("viewshed", "ground_on_map_cover", "ground_px")  # masks and pixel maps
+_NEAREST = ("viewshed", "ground_on_map_cover", "ground_px", "terrain_on_map")  # masks, maps
 _NAN_FILL = ("dem", "ground_px")
+_LABEL_FILL = ("terrain_on_map",)  # classes: 255 (no label) where nothing moved in
 
 
 def _chip_mode(name: str) -> str:
@@ -26,6 +27,8 @@ def _chip_mode(name: str) -> str:
 
 
 def _chip_fill(name: str) -> float:
+    if name in _LABEL_FILL:
+        return 255.0
     return math.nan if name in _NAN_FILL else 0.0
 
 
