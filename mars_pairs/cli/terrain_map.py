@@ -40,14 +40,21 @@ def _class_names(doc: dict[str, Any]) -> dict[int, str]:
 
 def merge_splits(root: Path, out: Path, splits: list[str] | None) -> dict[str, Any]:
     """Merge the samples of ``splits`` (None: all) of the dataset at ``root`` into ``out``;
-    returns counts (samples, cells seen, cells with >= 3 votes)."""
-    import rasterio
-    from affine import Affine
+    returns counts (samples, cells seen, cells with >= 3 votes). Members are read from the
+    shards by their manifest locations (no torch), the chip affines rebuilt from the
+    manifest's chip bounds and rotation (``raster.chips.ChipGrid``)."""
+    import io
+    import math
 
+    import numpy as np
+    import rasterio
+    from PIL import Image
+
+    from mars_pairs.raster.chips import ChipGrid
     from mars_pairs.raster.terrain_map import VoteGrid, write_map
     from mars_pairs.store.dataset_info import build_input, read_dataset_doc
     from mars_pairs.store.query import Manifest
-    from mars_pairs.torch import MarsPairsDataset
+    from mars_pairs.store.shards import MemberLocation, read_member
 
     manifest = Manifest.open(root)
     if "terrain_on_map_offset" not in manifest.column_names:
@@ -62,24 +69,32 @@ def merge_splits(root: Path, out: Path, splits: list[str] | None) -> dict[str, A
     with rasterio.open(ortho) as src:
         ortho_transform, crs = src.transform, src.crs
     rows = manifest.filter(split=splits) if splits else manifest
-    table = rows.to_table(["chip_xmin", "chip_ymin", "chip_xmax", "chip_ymax"])
-    if table.num_rows == 0:
+    cols = ["key", "chip_xmin", "chip_ymin", "chip_xmax", "chip_ymax", "chip_rotation_deg",
+            "terrain_on_map_shard", "terrain_on_map_offset", "terrain_on_map_size"]  # fmt: skip
+    table = rows.to_table(cols).to_pylist()
+    if not table:
         raise UsageError(f"{root}: no samples in split(s) {splits}")
     bounds = (
-        min(table["chip_xmin"].to_pylist()), min(table["chip_ymin"].to_pylist()),
-        max(table["chip_xmax"].to_pylist()), max(table["chip_ymax"].to_pylist()),
+        min(r["chip_xmin"] for r in table), min(r["chip_ymin"] for r in table),
+        max(r["chip_xmax"] for r in table), max(r["chip_ymax"] for r in table),
     )  # fmt: skip
     names = _class_names(doc)
     grid = VoteGrid.covering(ortho_transform, crs, bounds, tuple(sorted(names)))
-    filters = {"split": splits} if splits else {}
-    with MarsPairsDataset(root, fields=("terrain_on_map",), **filters) as ds:
-        for i in range(len(ds)):
-            sample = ds[i]
-            t = [float(v) for v in sample["transform"]]
-            grid.add(sample["terrain_on_map"][0].numpy(), Affine(*t))
+    for r in table:
+        loc = MemberLocation(r["terrain_on_map_shard"], r["terrain_on_map_offset"],
+                             r["terrain_on_map_size"])  # fmt: skip
+        data = read_member(root, loc, name=f"{r['key']}.terrain_on_map.png")
+        on_map = np.asarray(Image.open(io.BytesIO(data)))
+        t = math.radians(r["chip_rotation_deg"] or 0.0)
+        side = (r["chip_xmax"] - r["chip_xmin"]) / (abs(math.cos(t)) + abs(math.sin(t)))
+        chip = ChipGrid.around(
+            (r["chip_xmin"] + r["chip_xmax"]) / 2.0, (r["chip_ymin"] + r["chip_ymax"]) / 2.0,
+            side, on_map.shape[0], crs, r["chip_rotation_deg"] or 0.0,
+        )  # fmt: skip
+        grid.add(on_map, chip.transform)
     write_map(out, grid, names)
-    votes = grid.counts.sum(axis=0)
-    return {"samples": table.num_rows, "cells_seen": int((votes > 0).sum()),
+    votes = grid.votes()
+    return {"samples": len(table), "cells_seen": int((votes > 0).sum()),
             "cells_3_votes": int((votes >= 3).sum())}  # fmt: skip
 
 

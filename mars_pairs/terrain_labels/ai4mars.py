@@ -1,7 +1,15 @@
 """The AI4Mars layout: terrain masks found by product id, with their rover and range masks.
 
 Layout, relative to the release root (``ai4mars-dataset-merged-0.x``), and the naming rules,
-each from a public source (the release itself is not on this machine):
+each from a public source (the release itself is not on this machine). The release's own
+``info.md`` ("AI4Mars Merged Dataset", in public copies) says: labels are grayscale PNGs,
+"Unless otherwise noted, distances further than 30 meters and the rover itself are masked";
+NAV values "0 - soil, 1 - bedrock, 2 - sand, 3 - big rock, 255 - NULL (no label)"; "Names of
+images match names of labels, except for the extension (JPG, PNG) and sometimes an obvious
+suffix (e.g. _merged)"; rover masks "MXY (MSL), MRL (MER)" and range masks "RNG-30M, RNL-30M",
+"Masked regions are set to 1 (binary image)"; "MastCam does not have rover or range masks
+applied (they do not exist)"; M2020_GEO labels use a geology key of their own (0-6 bedrock,
+10-17 float rock, 20-22 sand, 30 pebbles, 40 vein, 50 hill/peak).
 
 - Per-mission folders ``msl/ncam``, ``msl/mcam``, ``mer``, ``m2020``. Curiosity Navcam:
   images ``msl/ncam/images/edr/<id>.JPG``, training masks ``msl/ncam/labels/train/<id>.png``,
@@ -27,9 +35,9 @@ each from a public source (the release itself is not on this machine):
   any source found offline: a Mars 2020 mask must be the size of its image, else it is a
   failure row naming the file.
 - Class values: ``classes.AI4MARS_CLASSES`` (0 soil, 1 bedrock, 2 sand, 3 big rock, 255 no
-  label); Mastcam masks use 4 as ignore (``classes.MASTCAM_IGNORE``). ``M2020_GEO`` masks use
-  a geology table of their own, which no public source found offline lists value by value:
-  they are not read (a product with only such a mask has no label).
+  label); Mastcam masks use 4 as ignore (``classes.MASTCAM_IGNORE``). ``M2020_GEO`` masks
+  answer another question (geology, not traversability) with another key: they are not read
+  (a product with only such a mask has no label, a failure row).
 - Rover and range masks: the product id with its product type ``EDR`` replaced by ``MXY``
   (rover) or ``RNG`` (range), PNG; 1 marks an excluded pixel (the rover; beyond 30 m).
   Source: the public loader whose docstring draws the release's tree
@@ -38,8 +46,10 @@ each from a public source (the release itself is not on this machine):
   ``edr/NLA_397681455EDR_F0020000AUT_04096M1.JPG``; ``filename.replace("EDR", "MXY")``,
   ``label[rover_mask == 1]``, ``label[range_mask == 1]``), and Jacob-Miller-s/AI4Mars
   ``find_mask_files`` ("rover masks in ``mxy/`` and 30m range masks in ``rng-30m/``").
-  Mastcam images have neither. A label is 30 m deep where the range masks are (Navcam), so
-  its ``max_range_m`` is 30 for Navcam labels and None otherwise.
+  Mastcam images have neither (info.md). The masks are applied again on reading (the release's
+  labels are already masked, "unless otherwise noted"; applying a mask twice changes nothing).
+  A label is 30 m deep where the range masks are (Navcam), so its ``max_range_m`` is 30 for
+  Navcam labels and for any label read with a range mask, None otherwise.
 
 Masks are indexed once (one listing per folder); a product id named by more than one mask
 in the folders read is a failure row naming them, never a silent choice.
