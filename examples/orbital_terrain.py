@@ -69,7 +69,7 @@ def load(root: Path, splits: list[str], crop: int, truth_path: Path | None):
     return torch.stack(xs), torch.stack(ys), (torch.stack(ts) if ts else None)
 
 
-def network(width: int = 24) -> nn.Module:
+def network(width: int = 16) -> nn.Module:
     """A small fully convolutional net (dilations 1, 2, 4, 8: a ~30 px receptive field)."""
     layers: list[nn.Module] = []
     c = 2
@@ -117,8 +117,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dataset", type=Path, required=True)
     parser.add_argument("--seeds", type=int, default=3)
-    parser.add_argument("--epochs", type=int, default=25)
-    parser.add_argument("--crop", type=int, default=128, help="central chip pixels used")
+    parser.add_argument("--epochs", type=int, default=15)
+    parser.add_argument("--crop", type=int, default=96, help="central chip pixels used")
     parser.add_argument("--held-out", nargs="+", default=["test", "val"])
     parser.add_argument("--out", type=Path, help="a PNG of held-out predictions")
     args = parser.parse_args()

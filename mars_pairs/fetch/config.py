@@ -49,7 +49,22 @@ from mars_pairs.fetch.windows import MAX_CELLS
 from mars_pairs.pipeline.config import read_yaml
 
 MISSIONS = ("msl", "m2020")
-INDEXES = ("RDRINDEX", "EDRINDEX")
+#: MSLMST volumes: RDRINDEX, EDRINDEX; the Navcam volume MSLNAV_1XXX: INDEX (a public PDS
+#: indexer reads ``run_indexer("MSLNAV_1XXX", "INDEX")`` beside ``("MSLMST_000N", "EDRINDEX")``)
+INDEXES = ("RDRINDEX", "EDRINDEX", "INDEX")
+#: ``fetch.products.camera`` per mission: the mast camera (the default) or Navcam
+CAMERAS = {"msl": ("mcam", "ncam"), "m2020": ("zcam", "ncam")}
+#: Curiosity Navcam: one PDS3 volume, ``MSLNAV_1XXX`` (``DATA_V1/SOL<5-digit sol>/`` before
+#: sol 1870, ``DATA/SOL<5-digit sol>/`` after, as its index's PATH_NAME gives), EDR labels
+#: ``NLA_397681455EDR_F0020000AUT_04096M1.LBL``-style (public download code citing
+#: ``MSLNAV_1XXX/DOCUMENT/MSL_CAMERA_SIS.PDF``; a real label's DATA_SET_ID
+#: ``MSL-M-NAVCAM-2-EDR-V1.0``)
+MSL_NAVCAM_VOLUMES = ("MSLNAV_1XXX",)
+#: Perseverance Navcam: bundle ``mars2020_navcam_ops_raw``, labels at
+#: ``data/sol/<5-digit sol>/ids/edr/ncam/<FILE ID>.xml`` (public download code building
+#: ``.../mars2020_navcam_ops_raw/data/sol/{sol:05d}/ids/edr/ncam``; the calibrated bundle
+#: ``mars2020_navcam_ops_calibrated`` uses ``ids/fdr/ncam``)
+M2020_NAVCAM_LABEL_PATH = "data/sol/{sol:05d}/ids/edr/ncam/{product_id}.xml"
 
 
 @dataclass(frozen=True)
@@ -64,6 +79,7 @@ class ProductsSpec:
     collection: str = "data/collection_data.xml"
     label_path: str = "data/sol/{sol:05d}/ids/rdr/zcam/{product_id}.xml"
     filters: ProductFilter = field(default_factory=ProductFilter)
+    camera: str = "zcam"  # m2020: zcam | ncam; msl: mcam | ncam
 
 
 @dataclass(frozen=True)
@@ -159,7 +175,8 @@ def _sols(value: Any, key: str) -> tuple[int, int] | None:
 def _products(data: Any, base: Path) -> ProductsSpec | None:
     key = "fetch.products"
     known = {"mission", "archive", "volumes", "index", "bundle", "collection", "label_path",
-             "sols", "instruments", "product_types", "sites", "drives", "thumbnails"}  # fmt: skip
+             "sols", "instruments", "product_types", "sites", "drives", "thumbnails",
+             "camera", "terrain_labels"}  # fmt: skip
     d = _mapping(data, key, known)
     if not d:
         return None
@@ -175,16 +192,26 @@ def _products(data: Any, base: Path) -> ProductsSpec | None:
         sites=_ints(d.get("sites"), f"{key}.sites"),
         drives=_ints(d.get("drives"), f"{key}.drives"),
         thumbnails=_bool(d.get("thumbnails", False), f"{key}.thumbnails"),
+        product_ids=_named_ids(d.get("terrain_labels"), f"{key}.terrain_labels", base),
     )
+    camera = d.get("camera", CAMERAS[mission][0])
+    if camera not in CAMERAS[mission]:
+        raise ConfigError(
+            f"{key}.camera: expected one of {list(CAMERAS[mission])} for {mission}, got {camera!r}"
+        )
+    navcam = camera == "ncam"
+    default_volumes = MSL_NAVCAM_VOLUMES if navcam and mission == "msl" else ()
+    default_path = M2020_NAVCAM_LABEL_PATH if navcam else ProductsSpec.label_path
     spec = ProductsSpec(
         mission=mission,
         archive=_root(d.get("archive"), f"{key}.archive", base),
-        volumes=_strs(d.get("volumes"), f"{key}.volumes"),
-        index=str(d.get("index", "RDRINDEX")).upper(),
+        volumes=_strs(d.get("volumes"), f"{key}.volumes") or default_volumes,
+        index=str(d.get("index", "INDEX" if navcam else "RDRINDEX")).upper(),
         bundle=d.get("bundle"),
         collection=str(d.get("collection", ProductsSpec.collection)),
-        label_path=str(d.get("label_path", ProductsSpec.label_path)),
+        label_path=str(d.get("label_path", default_path)),
         filters=filters,
+        camera=camera,
     )
     if mission == "msl" and not spec.volumes and filters.sols is None:
         raise ConfigError(
@@ -196,6 +223,31 @@ def _products(data: Any, base: Path) -> ProductsSpec | None:
     if mission == "m2020" and not isinstance(spec.bundle, str):
         raise ConfigError(f"{key}.bundle: required for m2020 (the PDS4 bundle folder)")
     return spec
+
+
+def _named_ids(data: Any, key: str, base: Path) -> frozenset[str]:
+    """``fetch.products.terrain_labels: {format, root[, classes]}``: the product ids (upper
+    case) the label source names (``mars_pairs.terrain_labels``); empty when absent."""
+    if data is None:
+        return frozenset()
+    from mars_pairs.errors import TerrainLabelError
+    from mars_pairs.terrain_labels import FORMATS, ClassTable, open_source
+
+    d = _mapping(data, key, {"format", "root", "classes"})
+    fmt = d.get("format")
+    if fmt not in FORMATS:
+        raise ConfigError(f"{key}.format: expected one of {list(FORMATS)}, got {fmt!r}")
+    root = d.get("root")
+    if not isinstance(root, str) or not root:
+        raise ConfigError(f"{key}.root: expected a folder, got {root!r}")
+    table = ClassTable.from_mapping(d["classes"], f"{key}.classes") if "classes" in d else None
+    try:
+        ids = open_source(fmt, base / Path(root).expanduser(), table).product_ids()
+    except TerrainLabelError as exc:
+        raise ConfigError(f"{key}: {exc}") from None
+    if not ids:
+        raise ConfigError(f"{key}: the terrain labels under {root} name no product")
+    return frozenset(i.upper() for i in ids)
 
 
 def _number(d: dict[str, Any], name: str, key: str, default: float) -> float:
