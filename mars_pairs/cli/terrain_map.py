@@ -112,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
         jobs = [(out.with_name(f"{out.stem}.{s}{out.suffix or '.tif'}"), [s]) for s in wanted]
     for path, splits in jobs:
         got = merge_splits(root, path, splits)
+        took = time.perf_counter() - start
         print(f"{path}: {got['samples']} samples, {got['cells_seen']} cells seen, "
-              f"{got['cells_3_votes']} with >= 3 votes ({time.perf_counter() - start:.1f} s)")  # fmt: skip
+              f"{got['cells_3_votes']} with >= 3 votes ({took:.1f} s)")  # fmt: skip
     return 0

@@ -234,7 +234,9 @@ def _terrain_labels(data: Any, base: Path) -> TerrainLabelsSpec | None:
         raise ConfigError(f"{key}.classes: a folder of masks needs its class table")
     if fmt == "ai4mars" and classes is not None:
         raise ConfigError(f"{key}.classes: the AI4Mars layout has its own class table")
-    table = None if classes is None else dict(ClassTable.from_mapping(classes, f"{key}.classes").names)
+    table = (
+        None if classes is None else dict(ClassTable.from_mapping(classes, f"{key}.classes").names)
+    )
     test_set = sec.raw("test_set", None)
     if test_set is not None and (fmt != "ai4mars" or not isinstance(test_set, str)):
         raise ConfigError(f"{key}.test_set: the AI4Mars gold test folder name (format ai4mars)")

@@ -39,6 +39,13 @@ from mars_pairs.geometry.frames import M2020_PLACES_CRS, MSL_PLACES_CRS, quatern
 from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.geometry.places import Pose
 from mars_pairs.observation import MotionCounter, Observation
+from mars_pairs.synth.ai4mars_truth import (
+    AI4MARS_DIR,
+    CLASSES_NAME,
+    TruthMasks,
+    truth_masks,
+    write_ai4mars_truth,
+)
 from mars_pairs.synth.cameras import (
     ZOOM_STOP_WEIGHTS,
     ZOOM_STOPS_MM,
@@ -54,13 +61,6 @@ from mars_pairs.synth.cameras import (
     zoom_hfov_deg,
 )
 from mars_pairs.synth.ortho import make_ortho
-from mars_pairs.synth.ai4mars_truth import (
-    AI4MARS_DIR,
-    CLASSES_NAME,
-    TruthMasks,
-    truth_masks,
-    write_ai4mars_truth,
-)
 from mars_pairs.synth.render import BLOCK, DemGrid, block_ranges, render_view, render_view_hits
 from mars_pairs.synth.terrain import make_dem
 from mars_pairs.synth.terrain_classes import terrain_classes
@@ -536,6 +536,12 @@ def _generate_one(out: Path, rng: np.random.Generator, spec: MissionSpec, size: 
         "sites": len(trav.sites),
         "places_rows": len(trav.sites) + len(trav.rovers),
         "images": len(shots),
-        **({"terrain_classes": str(out / "orbital" / CLASSES_NAME),
-            "ai4mars": str(out / AI4MARS_DIR)} if terrain_labels else {}),
+        **(
+            {
+                "terrain_classes": str(out / "orbital" / CLASSES_NAME),
+                "ai4mars": str(out / AI4MARS_DIR),
+            }
+            if terrain_labels
+            else {}
+        ),
     }

@@ -448,9 +448,7 @@ def image_cone_cos(mc: MapCamera, margin_deg: float = 3.0) -> float:
     return float(np.cos(np.radians(min(theta + margin_deg, 80.0))))
 
 
-def render_hits(
-    mc: MapCamera, dem: DemGrid, blocks: tuple[F64, F64]
-) -> tuple[F64, F64, F64]:
+def render_hits(mc: MapCamera, dem: DemGrid, blocks: tuple[F64, F64]) -> tuple[F64, F64, F64]:
     """Each pixel's nearest terrain point: (DEM column, DEM row) fractional node coordinates
     (NaN: sky) and its range (metres from the camera centre; inf: sky), (height, width)."""
     p, jinv = camera_params(mc)

@@ -13,7 +13,6 @@ describes. Every product is fetched or named in ``fetch_skipped.parquet``.
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -140,14 +139,17 @@ def test_navcam_products_fetched_or_named(archive, server, tmp_path, mission) ->
     for rel in placed:
         got = cache / rel
         assert got.read_bytes() == (base / rel).read_bytes()
-        assert got.with_suffix(".IMG").read_bytes() == (base / rel).with_suffix(".IMG").read_bytes()
-    reasons = sorted(r["reason"] for r in pq.read_table(cache / "fetch_skipped.parquet").to_pylist())
+        image = (base / rel).with_suffix(".IMG")
+        assert got.with_suffix(".IMG").read_bytes() == image.read_bytes()
+    reasons = sorted(
+        r["reason"] for r in pq.read_table(cache / "fetch_skipped.parquet").to_pylist()
+    )
     assert reasons == ([] if mission == "msl" else ["not a Navcam id", "secondary member"])
 
 
 @pytest.mark.parametrize("mission", ["msl", "m2020"])
 def test_fetch_restricted_to_the_terrain_labels(archive, server, tmp_path, mission) -> None:
-    root, msl, m2020 = archive
+    _, msl, m2020 = archive
     done = _fetch(tmp_path, server.url, mission, restrict=True)
     assert done.returncode == 0, done.stdout[-1500:] + done.stderr[-1500:]
     cache = tmp_path / "cache"
@@ -159,18 +161,19 @@ def test_fetch_restricted_to_the_terrain_labels(archive, server, tmp_path, missi
     assert [s["product_id"] for s in named] == [want]
 
 
-def test_navcam_config_defaults(tmp_path) -> None:
-    from mars_pairs.errors import ConfigError
+def _parse(products: dict[str, object], tmp_path: Path):
     from mars_pairs.fetch.config import parse_fetch
 
-    msl = parse_fetch({"cache": "c", "products": {"mission": "msl", "camera": "ncam",
-                                                  "archive": "http://x"}}, tmp_path, 100, 128)  # fmt: skip
-    assert msl.products.volumes == ("MSLNAV_1XXX",) and msl.products.index == "INDEX"
-    m20 = parse_fetch({"cache": "c", "products": {"mission": "m2020", "camera": "ncam",
-                                                  "archive": "http://x", "bundle": M2020_BUNDLE}},
-                      tmp_path, 100, 128)  # fmt: skip
-    assert m20.products.label_path == "data/sol/{sol:05d}/ids/edr/ncam/{product_id}.xml"
+    return parse_fetch({"cache": "c", "products": products}, tmp_path, 100, 128).products
+
+
+def test_navcam_config_defaults(tmp_path) -> None:
+    from mars_pairs.errors import ConfigError
+
+    msl = _parse({"mission": "msl", "camera": "ncam", "archive": "http://x"}, tmp_path)
+    assert msl.volumes == ("MSLNAV_1XXX",) and msl.index == "INDEX"
+    m20 = _parse({"mission": "m2020", "camera": "ncam", "archive": "http://x",
+                  "bundle": M2020_BUNDLE}, tmp_path)  # fmt: skip
+    assert m20.label_path == "data/sol/{sol:05d}/ids/edr/ncam/{product_id}.xml"
     with pytest.raises(ConfigError, match=r"fetch\.products\.camera"):
-        parse_fetch({"cache": "c", "products": {"mission": "msl", "camera": "zcam",
-                                                "archive": "http://x"}}, tmp_path, 100, 128)  # fmt: skip
-    shutil.rmtree(tmp_path / "c", ignore_errors=True)
+        _parse({"mission": "msl", "camera": "zcam", "archive": "http://x"}, tmp_path)

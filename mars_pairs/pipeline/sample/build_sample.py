@@ -53,10 +53,10 @@ def build_sample(label: Path, ctx: SampleContext) -> Sample:
             keep = "ground_on_map" in ctx.config.output.members
             ground = ground_image(obs, ctx.config.output.image_encoding, keep_pixels=keep)
             obs = ground.observation
-        label = None
+        classes = None
         if ctx.terrain_labels is not None:
             with stage("terrain_labels"):  # the mask for this product, checked against its image
-                label = ctx.terrain_labels.read(obs.product_id, ground.size)
+                classes = ctx.terrain_labels.read(obs.product_id, ground.size)
         with stage("locate"):
             pose = ctx.places.locate(obs)
             camera = MapCamera.from_observation(obs, pose, ctx.crs_wkt)
@@ -75,11 +75,11 @@ def build_sample(label: Path, ctx: SampleContext) -> Sample:
                 )
         terrain: dict[str, bytes] = {}
         counts: dict[str, int] = {}
-        if label is not None:
+        if classes is not None:
             with stage("terrain_on_map"):
                 spec = ctx.config.inputs.terrain_labels
                 limit = None if spec is None else spec.max_range_m
-                terrain, counts, terrain_meta = terrain_members(label, view, grid, chips, limit)
+                terrain, counts, terrain_meta = terrain_members(classes, view, grid, chips, limit)
                 dense_meta = dense_meta | terrain_meta
         with stage("encode"):
             row = manifest_row(obs, pose, view, grid, ctx, cover) | counts

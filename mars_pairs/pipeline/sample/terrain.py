@@ -5,8 +5,9 @@ classes carried onto the chip grid, with per-class pixel counts for the manifest
   (``mars_pairs.terrain_labels``), 255 where unlabelled, on the rover or past the range mask.
 - ``terrain_on_map`` (S, S) uint8 on the chip grid: each visible chip pixel takes the class
   of the image pixel its terrain point projects to (nearest: labels stay labels), through the
-  per-pixel correspondence ``ground_px`` (``dense.ground_pixels_of_chip``: the viewshed chip,
-  so occluded terrain gets nothing) and ``raster.transfer.image_to_chip``. 255 where no
+  per-pixel correspondence of the ``ground_px`` member (``dense.ground_pixels_of_chip``: the
+  viewshed chip, so occluded terrain gets nothing; sampled as
+  ``raster.transfer.image_to_chip`` samples it). 255 where no
   ground pixel saw it, where the image pixel has no label, and where the chip pixel's
   terrain point lies farther than the label's range limit from the camera centre (metres in
   the camera model's local frame, with the planet's curvature as the projection has it).
@@ -22,11 +23,11 @@ import numpy as np
 
 from mars_pairs.geometry.body import MARS_RADIUS_M
 from mars_pairs.pipeline.config import TerrainLabelsSpec
-from mars_pairs.pipeline.sample.dense import chip_points, ground_pixels_of_chip
+from mars_pairs.pipeline.sample.dense import chip_points, project_inside
 from mars_pairs.pipeline.sample.encode import png_bytes
 from mars_pairs.pipeline.sample.view import View
 from mars_pairs.raster.chips import ChipGrid
-from mars_pairs.raster.transfer import image_to_chip
+from mars_pairs.raster.transfer import sample_at
 from mars_pairs.terrain_labels import (
     AI4MARS_CLASSES,
     NO_LABEL,
@@ -50,31 +51,42 @@ def open_labels(spec: TerrainLabelsSpec) -> LabelSource:
     return open_source(spec.format, spec.root, label_table(spec), spec.max_range_m, spec.test_set)
 
 
-def chip_range_m(view: View, grid: ChipGrid, dem: np.ndarray) -> np.ndarray:
-    """(S, S) float32 metres from the camera centre to each chip pixel's terrain point (its
-    centre's map x, y and the DEM chip's height), in the camera model's local frame; NaN
-    where the DEM chip has no data."""
-    rows, cols = np.indices(dem.shape)
-    points = chip_points(grid, dem, rows.ravel(), cols.ravel())
-    camera = view.camera
-    local = camera.local_points(points, MARS_RADIUS_M)
-    dist = np.linalg.norm(local - np.asarray(camera.camera.c, dtype=np.float64), axis=1)
-    return dist.reshape(dem.shape).astype(np.float32)
-
-
 def carry_to_map(
     label: TerrainLabel,
-    ground_px: np.ndarray,
-    range_m: np.ndarray | None,
+    view: View,
+    grid: ChipGrid,
+    visible: np.ndarray,
+    dem: np.ndarray,
     max_range_m: float | None,
 ) -> np.ndarray:
-    """(S, S) uint8: ``label.classes`` carried onto the chip through ``ground_px`` (nearest),
-    ``NO_LABEL`` where not seen, and (with ``max_range_m``) beyond it in ``range_m``."""
-    carried, ok = image_to_chip(label.classes, ground_px, nearest=True, fill=NO_LABEL)
-    out = np.where(ok, carried, NO_LABEL).astype(np.uint8)
-    if max_range_m is not None and range_m is not None:
-        with np.errstate(invalid="ignore"):
-            out[~(range_m <= max_range_m)] = NO_LABEL
+    """(S, S) uint8: ``label.classes`` carried onto the chip (nearest image pixel of each
+    visible chip pixel's terrain point, ``dense.project_inside``; what
+    ``raster.transfer.image_to_chip`` does through ``ground_px``), ``NO_LABEL`` where not
+    seen, and (with ``max_range_m``) where the terrain point lies farther from the camera
+    centre (metres, the camera model's local frame). The range is tested before projecting
+    (after a cut at 1.5 times it plus 5 map units, horizontally from the camera centre): only
+    the chip pixels within it are projected."""
+    out = np.full(dem.shape, NO_LABEL, dtype=np.uint8)
+    rows, cols = np.nonzero(visible & np.isfinite(dem))
+    if not len(rows):
+        return out
+    camera = view.camera
+    points = chip_points(grid, dem, rows, cols)
+    if max_range_m is not None:  # a generous cut in map units first (the map's scale is ~1)
+        cx, cy = (float(v) for v in camera.center_map[:2])
+        reach = 1.5 * max_range_m + 5.0
+        near = (points[:, 0] - cx) ** 2 + (points[:, 1] - cy) ** 2 <= reach * reach
+        rows, cols, points = rows[near], cols[near], points[near]
+    local = camera.local_points(points, MARS_RADIUS_M)
+    if max_range_m is not None:
+        c = np.asarray(camera.camera.c, dtype=np.float64)
+        d = local - c
+        near = np.einsum("ij,ij->i", d, d) <= max_range_m * max_range_m
+        rows, cols, local = rows[near], cols[near], local[near]
+    px, inside = project_inside(camera, local)
+    values, ok = sample_at(label.classes, px[:, 0], px[:, 1], nearest=True, fill=NO_LABEL)
+    keep = inside & ok
+    out[rows[keep], cols[keep]] = values[keep]
     return out
 
 
@@ -95,10 +107,8 @@ def terrain_members(
     of one sample. The range limit is the config's ``max_range_m``, else the label's."""
     visible = np.asarray(chips["viewshed"]) > 0
     dem = np.asarray(chips["dem"])
-    ground_px = ground_pixels_of_chip(view.camera, grid, dem, visible)
     limit = spec_max_range_m if spec_max_range_m is not None else label.max_range_m
-    range_m = chip_range_m(view, grid, dem) if limit is not None else None
-    on_map = carry_to_map(label, ground_px, range_m, limit)
+    on_map = carry_to_map(label, view, grid, visible, dem, limit)
     members = {"terrain.png": png_bytes(label.classes), "terrain_on_map.png": png_bytes(on_map)}
     meta = {
         "terrain_labels": {
