@@ -7,15 +7,15 @@ sample's ``terrain_on_map`` holds the ground image's terrain classes carried ont
 chip (255 where the camera did not see the ground within the label's 30 m). A small fully
 convolutional network takes the ortho and DEM chips averaged to 1 m pixels (the DEM's own
 cells; the labels and the truth are taken at 1 m too) and three maps made from them on the
-whole chip (the slope, the DEM's relief against its 25 m mean, the ortho against its 9 m
-mean: ``features``), and is trained with cross-entropy on the carried classes of the train split (255 ignored,
-classes weighted by their inverse frequency), on the chips' central ``--crop`` pixels (the
-carried labels lie within 30 m of the rover). It is scored on the held-out splits (the
-cross-area test and val areas: terrain the network never saw) per class (IoU) and as mIoU,
-against the carried labels and, when the dataset's ortho has the synthetic mission's
-``terrain_classes.tif`` beside it, against the true classes on every chip pixel of the crop;
-the majority class of the train labels is the baseline. Three seeds by default (CPU, a few
-minutes on the demo).
+whole chip (the slope, the DEM's relief against its 25 m mean, the ortho against its 9 m mean:
+``features``), and is trained with cross-entropy on the carried classes of the train split
+(255 ignored, classes weighted by the square root of their inverse frequency), on the chips'
+central ``--crop`` pixels (the carried labels lie within 30 m of the rover). It is scored on
+the held-out splits (the cross-area test and val areas: terrain the network never saw) per
+class (IoU) and as mIoU, against the carried labels and, when the dataset's ortho has the
+synthetic mission's ``terrain_classes.tif`` beside it, against the true classes on every chip
+pixel of the crop; the majority class of the train labels is the baseline. Three seeds by
+default (CPU, a few minutes on the demo).
 """
 
 from __future__ import annotations
@@ -74,7 +74,8 @@ def load(root: Path, splits: list[str], crop: int, truth_path: Path | None):
             t = s["transform"].double().numpy()
             a = (size - crop) // 2
             cut, half = slice(a, a + crop, 2), slice(a // 2, (a + crop) // 2)
-            x = features(s["ortho"][0].float() / 255.0, s["dem"][0].float(), float(np.hypot(t[0], t[3])))
+            res_m = float(np.hypot(t[0], t[3]))
+            x = features(s["ortho"][0].float() / 255.0, s["dem"][0].float(), res_m)
             xs.append(x[:, half, half])
             ys.append(s["terrain_on_map"][0, cut, cut].long())
             if truth is not None:
