@@ -124,6 +124,8 @@ class _Geometric:
                 m, new_hw = made
                 if "ground" in out:
                     out["ground"] = self._apply_ground(sample["ground"], m, new_hw)
+                if "terrain" in out:  # classes on the ground grid: nearest, 255 outside
+                    out["terrain"] = _warp(sample["terrain"], m, new_hw, "nearest", 255.0)
                 for name in ("corr_ground", "dense_ground"):
                     if name in out:
                         out[name] = _move_points(sample[name], np.linalg.inv(m))
