@@ -12,9 +12,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mars_pairs.cli import terrain_map
 from mars_pairs.cli.arguments import VersionAction, bounded, count, finite
 from mars_pairs.cli.summary import split_warnings
+from mars_pairs.cli.terrain_map import register as register_terrain_map
 from mars_pairs.cli.viewshed import cmd_viewshed
 from mars_pairs.errors import MarsPairsError, UsageError
 from mars_pairs.pipeline.builder.label_list import iter_matches
@@ -431,7 +431,7 @@ def build_parser() -> argparse.ArgumentParser:
     from mars_pairs.fetch.cli import add_fetch_parser
 
     add_fetch_parser(sub)
-    terrain_map.register(sub)
+    register_terrain_map(sub)
 
     p = sub.add_parser("synth", help="generate the synthetic mission (terrain, labels, images)")
     p.add_argument("out", help="output folder")

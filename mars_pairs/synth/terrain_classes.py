@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from mars_pairs.synth.ortho import _smooth
+from mars_pairs.synth.ortho import sand_weight
 from mars_pairs.synth.terrain import Boulders
 
 SOIL, BEDROCK, SAND, BIG_ROCK, NO_LABEL = 0, 1, 2, 3, 255
@@ -27,8 +27,7 @@ def terrain_classes(dem: NDArray[np.float64], res_m: float, factor: int,
     """(n * factor, n * factor) uint8 classes of ``dem`` (n x n, NaN nodata, ``res_m``
     metres a cell) on the ortho grid."""
     filled = np.where(np.isfinite(dem), dem, np.nanmean(dem))
-    low = filled - _smooth(filled, 12.0 / res_m)
-    sand = np.clip(-low / 1.2, 0.0, 1.0)
+    sand = sand_weight(filled, res_m)
     gy, gx = np.gradient(filled, res_m)
     slope = np.degrees(np.arctan(np.hypot(gx, gy)))
     cells = np.full(dem.shape, SOIL, dtype=np.uint8)
