@@ -16,14 +16,14 @@ import torch
 from PIL import Image
 
 from mars_pairs.errors import ArgumentError
-from mars_pairs.store.members import DENSE_FIELDS
+from mars_pairs.store.members import OPTIONAL_FIELDS
 
 DEFAULT_FIELDS = ("ground", "ortho", "dem", "viewshed")
 
 
-#: Every default member's field (the optional dense ones: ``store.members.DENSE_FIELDS``).
+#: Every default member's field (the optional ones: ``store.members.OPTIONAL_FIELDS``).
 ALL_FIELDS = ("ground", "ortho", "dem", "viewshed", "corr")
-KNOWN_FIELDS = ALL_FIELDS + DENSE_FIELDS
+KNOWN_FIELDS = ALL_FIELDS + OPTIONAL_FIELDS
 
 
 #: uint8 with image_dtype=torch.uint8

@@ -12,7 +12,7 @@ import torch
 import torch.nn.functional as F
 
 from mars_pairs.errors import ArgumentError
-from mars_pairs.store.members import DENSE_CHIP_FIELDS
+from mars_pairs.store.members import CHIP_GRID_FIELDS
 from mars_pairs.torch.georef import bounds_of, rotation_of
 
 CHIP_FIELDS = ("ortho", "dem", "viewshed")
@@ -136,7 +136,7 @@ class _Geometric:
             made = self._chip_map(*chip_hw(sample, "corr", "transform", *LOCALIZATION_POINTS))
             if made is not None:
                 m, new_hw = made
-                for name in CHIP_FIELDS + DENSE_CHIP_FIELDS:
+                for name in CHIP_FIELDS + CHIP_GRID_FIELDS:
                     if name in out:
                         out[name] = self._apply_chip(name, out[name], m, new_hw)
                 if "corr" in out:
@@ -184,7 +184,7 @@ def ground_hw(sample: Sample, *needing: str) -> tuple[int, int]:
 def chip_hw(sample: Sample, *needing: str) -> tuple[int, int]:
     """The chips' (H, W); ArgumentError when a field that moves with them is there without
     any chip."""
-    for name in CHIP_FIELDS + DENSE_CHIP_FIELDS:
+    for name in CHIP_FIELDS + CHIP_GRID_FIELDS:
         if name in sample:
             return tuple(sample[name].shape[-2:])
     if any(k in sample for k in needing):
