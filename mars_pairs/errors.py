@@ -39,6 +39,11 @@ class CoverageError(TerrainError):
     raster, its extent and the chip's bounds."""
 
 
+class TerrainLabelError(MarsPairsError):
+    """A terrain label (a ground image's class mask) is missing for a product, does not fit
+    its image, or holds a value its class table does not know; the message names the file."""
+
+
 class ConfigError(MarsPairsError):
     """A build configuration is invalid; the message names the key and what was expected.
 

@@ -162,6 +162,9 @@ def _ensure_synthetic(config: BuildConfig) -> None:
             images_per_stop=spec.images_per_stop,
             size=spec.size,
             log=lambda line: print(f"  {line}", flush=True),
+            # terrain labels read from inside the mission: its AI4Mars-layout truth
+            terrain_labels=inputs.terrain_labels is not None
+            and inputs.terrain_labels.root.is_relative_to(spec.root),
         )
     except BaseException:
         warm.kill()

@@ -23,6 +23,7 @@ import mars_pairs.cli.query as query
 import mars_pairs.cli.report as report
 import mars_pairs.cli.show as show
 import mars_pairs.cli.synth as synth
+import mars_pairs.cli.terrain_map as terrain_map
 import mars_pairs.cli.verify as verify
 import mars_pairs.cli.viewshed as viewshed
 from mars_pairs.cli.arguments import VersionAction
@@ -52,6 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
     export_qgis.register(sub)
     fetch.register(sub)
     synth.register(sub)
+    terrain_map.register(sub)
     return parser
 
 

@@ -19,6 +19,11 @@ def register(sub: Any) -> None:
     p.add_argument("--stops", type=count(1), help="rover stops (default: the size's: 3, 8, 90)")
     p.add_argument("--images-per-stop", type=count(1), help="default: the size's (4, 4, 3)")
     p.add_argument("--size", choices=("small", "default", "demo"), default="small")
+    p.add_argument(
+        "--terrain-labels",
+        action="store_true",
+        help="also write the true terrain classes and AI4Mars-layout masks",
+    )
     p.set_defaults(func=run)
 
 
@@ -33,6 +38,7 @@ def run(args: argparse.Namespace) -> int:
         stops=args.stops,
         images_per_stop=args.images_per_stop,
         size=args.size,
+        terrain_labels=args.terrain_labels,
     )
     print(json.dumps(result, indent=2, default=str))
     return 0

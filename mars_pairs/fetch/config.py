@@ -71,7 +71,23 @@ from mars_pairs.pipeline.config_schema import (
 )
 
 MISSIONS = ("msl", "m2020")
-INDEXES = ("RDRINDEX", "EDRINDEX")
+#: MSLMST volumes: RDRINDEX, EDRINDEX; the Navcam volume MSLNAV_1XXX: INDEX (a public PDS
+#: indexer reads ``run_indexer("MSLNAV_1XXX", "INDEX")`` beside ``("MSLMST_000N", "EDRINDEX")``)
+INDEXES = ("RDRINDEX", "EDRINDEX", "INDEX")
+#: ``fetch.products.camera`` per mission: the mast camera (the default) or Navcam
+CAMERAS = {"msl": ("mcam", "ncam"), "m2020": ("zcam", "ncam")}
+#: Curiosity Navcam: one PDS3 volume, ``MSLNAV_1XXX`` (``DATA_V1/SOL<5-digit sol>/`` before
+#: sol 1870, ``DATA/SOL<5-digit sol>/`` after, as its index's PATH_NAME gives), EDR labels
+#: ``NLA_397681455EDR_F0020000AUT_04096M1.LBL``-style (public download code citing
+#: ``MSLNAV_1XXX/DOCUMENT/MSL_CAMERA_SIS.PDF``; a real label's DATA_SET_ID
+#: ``MSL-M-NAVCAM-2-EDR-V1.0``)
+MSL_NAVCAM_VOLUMES = ("MSLNAV_1XXX",)
+#: Perseverance Navcam: bundle ``mars2020_navcam_ops_raw``, labels at
+#: ``data/sol/<5-digit sol>/ids/edr/ncam/<FILE ID>.xml`` (public download code building
+#: ``.../mars2020_navcam_ops_raw/data/sol/{sol:05d}/ids/edr/ncam``; the calibrated bundle
+#: ``mars2020_navcam_ops_calibrated`` uses ``ids/fdr/ncam``)
+M2020_NAVCAM_LABEL_PATH = "data/sol/{sol:05d}/ids/edr/ncam/{product_id}.xml"
+M2020_LABEL_PATH = "data/sol/{sol:05d}/ids/rdr/zcam/{product_id}.xml"
 #: Bounds of the download policy: a retry count, a backoff and a read timeout (seconds) past
 #: these would leave a fetch waiting for hours on one file; a timeout under a millisecond
 #: fails every read.
@@ -119,6 +135,29 @@ def _cache(value: Any, info: ValidationInfo) -> Path:
     if not isinstance(value, str) or not value.strip() or len(value) > MAX_TEXT:
         raise KeyProblem(f"expected a folder, got {shown(value)}")
     return _local(value, info)
+
+
+def _named_ids(value: Any, info: ValidationInfo) -> frozenset[str]:
+    """``fetch.products.terrain_labels: {format, root[, classes]}``: the product ids (upper
+    case) the label source names (``mars_pairs.terrain_labels``)."""
+    from mars_pairs.errors import TerrainLabelError
+    from mars_pairs.terrain_labels import FORMATS, ClassTable, open_source
+
+    if not isinstance(value, dict) or set(value) - {"format", "root", "classes"}:
+        raise KeyProblem(f"expected {{format, root[, classes]}}, got {shown(value)}")
+    fmt, root = value.get("format"), value.get("root")
+    if fmt not in FORMATS:
+        raise KeyProblem(f"format: expected one of {list(FORMATS)}, got {shown(fmt)}")
+    if not isinstance(root, str) or not root.strip():
+        raise KeyProblem(f"root: expected a folder, got {shown(root)}")
+    try:
+        table = ClassTable.from_mapping(value["classes"], "classes") if "classes" in value else None
+        ids = open_source(fmt, _local(root, info), table).product_ids()
+    except (TerrainLabelError, ConfigError) as exc:
+        raise KeyProblem(str(exc)) from None
+    if not ids:
+        raise KeyProblem(f"the terrain labels under {root} name no product")
+    return frozenset(i.upper() for i in ids)
 
 
 def _listed(value: Any) -> Any:
@@ -185,14 +224,31 @@ class ProductsSection:
     volumes: Names = ()
     """msl: the PDS3 volumes whose ``INDEX/<index>.LBL/.TAB`` list products (e.g.
     MSLMST_0014); none: every volume whose sol range meets ``sols`` (required without sols)."""
-    index: Annotated[Literal["RDRINDEX", "EDRINDEX"], BeforeValidator(_upper_text)] = "RDRINDEX"
-    """msl: which index table of each volume to read."""
+    index: (
+        Annotated[Literal["RDRINDEX", "EDRINDEX", "INDEX"], BeforeValidator(_upper_text)] | None
+    ) = None
+    """msl: which index table of each volume to read; null: RDRINDEX (Mastcam), INDEX
+    (Navcam)."""
     bundle: Text | None = None
     """m2020: the PDS4 bundle's folder under the archive (required for m2020)."""
     collection: Text = "data/collection_data.xml"
     """m2020: the collection label inside the bundle (its inventory lists the products)."""
-    label_path: Text = "data/sol/{sol:05d}/ids/rdr/zcam/{product_id}.xml"
-    """m2020: where a product's label is inside the bundle ({sol}, {product_id})."""
+    label_path: Text | None = None
+    """m2020: where a product's label is inside the bundle ({sol}, {product_id}); null:
+    ``ids/rdr/zcam`` for Mastcam-Z, ``ids/edr/ncam`` for Navcam."""
+    camera: Literal["mcam", "zcam", "ncam"] | None = None
+    """The camera: msl mcam (Mastcam, the default) or ncam (Navcam); m2020 zcam (Mastcam-Z,
+    the default) or ncam (Navcam)."""
+    terrain_labels: (
+        Annotated[
+            frozenset[str],
+            PlainValidator(_named_ids),
+            Expected("a terrain label source {format: ai4mars | folder, root[, classes]}"),
+        ]
+        | None
+    ) = None
+    """Fetch only the products a terrain label source names (``inputs.terrain_labels``'s
+    form); null: every product the filters take."""
     sols: Sols | None = None
     """The sols to take, inclusive; null: any."""
     instruments: UpperNames = ()
@@ -208,6 +264,12 @@ class ProductsSection:
 
     @model_validator(mode="after")
     def _mission_keys(self) -> ProductsSection:
+        if self.camera is not None and self.camera not in CAMERAS[self.mission]:
+            raise KeyProblem(
+                f"expected one of {list(CAMERAS[self.mission])} for {self.mission}, got "
+                f"{self.camera!r}",
+                "camera",
+            )
         if self.mission == "msl" and not self.volumes and self.sols is None:
             raise KeyProblem(
                 "required for msl without sols (PDS3 volumes, e.g. MSLMST_0014; with sols "
@@ -231,6 +293,7 @@ class ProductsSpec:
     collection: str
     label_path: str
     filters: ProductFilter = field(default_factory=ProductFilter)
+    camera: str = "zcam"  # m2020: zcam | ncam; msl: mcam | ncam
 
 
 @schema.dataclass(frozen=True, config=SCHEMA)
@@ -308,16 +371,20 @@ def _products(p: ProductsSection | None) -> ProductsSpec | None:
         sites=p.sites,
         drives=p.drives,
         thumbnails=p.thumbnails,
+        product_ids=p.terrain_labels or frozenset(),
     )
+    camera = p.camera or CAMERAS[p.mission][0]
+    navcam = camera == "ncam"
     return ProductsSpec(
         mission=p.mission,
         archive=p.archive,
-        volumes=p.volumes,
-        index=p.index,
+        volumes=p.volumes or (MSL_NAVCAM_VOLUMES if navcam and p.mission == "msl" else ()),
+        index=p.index or ("INDEX" if navcam else "RDRINDEX"),
         bundle=p.bundle,
         collection=p.collection,
-        label_path=p.label_path,
+        label_path=p.label_path or (M2020_NAVCAM_LABEL_PATH if navcam else M2020_LABEL_PATH),
         filters=filters,
+        camera=camera,
     )
 
 

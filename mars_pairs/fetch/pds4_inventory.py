@@ -110,8 +110,10 @@ def products_from_inventory(
     label_template: str,
     archive_root: str,
     inventory_url: str | None = None,
+    camera: str = "zcam",
 ) -> Listing:
-    """Products of the inventory's primary members that are Mastcam-Z products.
+    """Products of the inventory's primary members that are products of the ``camera``
+    family (``zcam`` Mastcam-Z, ``ncam`` Navcam: ``products.M2020_CAMERAS``).
 
     A secondary member, or a product id of another camera (or outside the SIS grammar), is
     ``Skipped``; a row that is not ``P|S,<LID>::<VID>``, whose VID names no file or whose
@@ -145,14 +147,15 @@ def products_from_inventory(
                 Skipped(lidvid, url, "index", "not an M2020 camera product id", exc.reason)
             )
             continue
-        if not pid.is_mastcamz:
+        if not zcam_fields_of(pid, camera):
+            what = "a Mastcam-Z" if camera == "zcam" else "a Navcam"
             out.skipped.append(
-                Skipped(lidvid, url, "index", "not a Mastcam-Z id", f"camera {pid.camera}")
+                Skipped(lidvid, url, "index", f"not {what} id", f"camera {pid.camera}")
             )
             continue
         try:
             pid = _at_version(pid, _vid_version(lidvid), lidvid)
-            product_id, fields = pid.text, zcam_fields_of(pid)
+            product_id, fields = pid.text, zcam_fields_of(pid, camera)
             inside = label_template.format(product_id=product_id, lid=lidvid.partition("::")[0],
                                            **fields)  # fmt: skip
             rel = bundle / archive_path(inside, where=f"{url}: row {number}")

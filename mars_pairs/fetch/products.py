@@ -61,6 +61,10 @@ _DIGITS = "0123456789"
 _LETTERS = "ABCDEFGHIJKLMNOPQRSTUVWXYZ"
 _ALNUM = _DIGITS + _LETTERS
 _ZCAM_EYES = {"ZL": "MCZ_LEFT", "ZR": "MCZ_RIGHT"}
+#: Mars 2020 Navcam eyes (the SIS's camera field NL, NR; instrument ids as the labels')
+_NCAM_EYES = {"NL": "NAVCAM_LEFT", "NR": "NAVCAM_RIGHT"}
+#: The camera families a Mars 2020 bundle's inventory is read for (``fetch.products.camera``)
+M2020_CAMERAS = {"zcam": _ZCAM_EYES, "ncam": _NCAM_EYES}
 SITE_MAX = 32767
 DRIVE_MAX = 65535
 VERSION_MAX = 1035
@@ -217,6 +221,10 @@ class M2020Id:
     def is_mastcamz(self) -> bool:
         return self.camera in _ZCAM_EYES
 
+    @property
+    def is_navcam(self) -> bool:
+        return self.camera in _NCAM_EYES
+
 
 def parse_m2020_id(product_id: str) -> M2020Id:
     """Parse a Mars 2020 camera product id (54 characters, or 52 without the version).
@@ -271,13 +279,15 @@ def zcam_fields(product_id: str) -> ZcamFields:
     return zcam_fields_of(pid)
 
 
-def zcam_fields_of(pid: M2020Id) -> ZcamFields:
-    """``zcam_fields`` of an id already parsed ({} when it is not a Mastcam-Z id)."""
-    if not pid.is_mastcamz:
+def zcam_fields_of(pid: M2020Id, camera: str = "zcam") -> ZcamFields:
+    """``zcam_fields`` of an id already parsed ({} when it is not an id of the ``camera``
+    family: ``zcam`` Mastcam-Z, ``ncam`` Navcam; ``M2020_CAMERAS``)."""
+    eyes = M2020_CAMERAS[camera]
+    if pid.camera not in eyes:
         return {}
     return {
         "sol": pid.sol,
-        "instrument": _ZCAM_EYES[pid.camera],
+        "instrument": eyes[pid.camera],
         "product_type": pid.product_type,
         "site": pid.site,
         "drive": pid.drive,
@@ -415,6 +425,16 @@ class ProductFilter:
     sites: tuple[int, ...] = ()
     drives: tuple[int, ...] = ()
     thumbnails: bool = False
+    #: only these product ids (upper case; a Mars 2020 id may be given without its version):
+    #: the ids a terrain-label folder names (``fetch.products.terrain_labels``); () = any
+    product_ids: frozenset[str] = frozenset()
+
+    def named(self, product_id: str) -> bool:
+        """Whether ``product_id`` is one of ``product_ids`` (or none are given)."""
+        if not self.product_ids:
+            return True
+        pid = product_id.upper()
+        return pid in self.product_ids or pid[:-2] in self.product_ids
 
     def why_not(self, p: Product, *, unknown_ok: bool = True) -> tuple[str, str] | None:
         """None when ``p`` passes, else (reason, detail); a field the index does not give
@@ -445,6 +465,8 @@ class ProductFilter:
                 return f"{name} {value} not in [{shown}]", f"{name} {value}"
         if p.thumbnail and not self.thumbnails:
             return "thumbnail", "fetch.products.thumbnails is false"
+        if not self.named(p.product_id):
+            return "not named by the terrain labels", f"{len(self.product_ids)} ids named"
         return None
 
     def wants(self, p: Product, *, unknown_ok: bool = True) -> bool:

@@ -143,6 +143,7 @@ def list_products(spec: ProductsSpec, dl: Downloader) -> Listing:
                 spec.label_path,
                 spec.archive,
                 inventory_url=url,
+                camera=spec.camera,
             )
         )
     kept = []

@@ -205,6 +205,56 @@ class SyntheticSpec:
     """Raster and image sizes: small (tests), default, demo (a 3 km DEM, 0.5 m ortho)."""
 
 
+def _class_table(value: Any) -> dict[int, str]:
+    """``inputs.terrain_labels.classes``: {mask value: class name} (``ClassTable``)."""
+    from mars_pairs.terrain_labels import ClassTable
+
+    try:
+        return dict(ClassTable.from_mapping(value, "classes").names)
+    except ConfigError as exc:
+        raise KeyProblem(str(exc).removeprefix("classes: ")) from None
+
+
+@schema.dataclass(frozen=True, config=SCHEMA)
+class TerrainLabelsSpec:
+    """Terrain labels of the ground images (``mars_pairs.terrain_labels``), read by product id."""
+
+    format: Literal["ai4mars", "folder"]
+    """ai4mars: the AI4Mars release's layout under ``root``; folder: ``root/<product id>.png``
+    class masks with the ``classes`` table."""
+    root: LocalFolder
+    """The labels' folder."""
+    classes: (
+        Annotated[
+            dict[int, str],
+            PlainValidator(_class_table),
+            Expected("a mapping of mask value (0..254) to a lower-case class name"),
+        ]
+        | None
+    ) = None
+    """format folder: the class of each mask value (255: no label); ai4mars: its own table."""
+    max_range_m: Annotated[Number, Field(gt=0.0, le=MAX_RADIUS_M)] | None = None
+    """Nothing farther from the camera is carried onto the map (metres); null: the layout's
+    own limit (AI4Mars Navcam labels: 30 m)."""
+    test_set: Annotated[str, Field(min_length=1, max_length=200, strict=True)] | None = None
+    """ai4mars: the gold test folder read (default masked-gold-min3-100agree)."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _format_keys(cls, data: Any) -> Any:
+        """A folder of masks needs its class table; the AI4Mars layout has its own."""
+        if not isinstance(data, dict):
+            return data
+        fmt, classes = data.get("format"), data.get("classes")
+        if fmt == "folder" and classes is None:
+            raise KeyProblem("a folder of masks needs its class table", "classes")
+        if fmt == "ai4mars" and classes is not None:
+            raise KeyProblem("the AI4Mars layout has its own class table", "classes")
+        if fmt != "ai4mars" and data.get("test_set") is not None:
+            raise KeyProblem("the AI4Mars gold test folder name (format ai4mars)", "test_set")
+        return data
+
+
 @schema.dataclass(frozen=True, config=SCHEMA)
 class InputsConfig:
     """Where the labels, images, PLACES table and orbital rasters are."""
@@ -231,6 +281,9 @@ class InputsConfig:
     """A folder to look for images in, besides each label's own folder (null: none)."""
     synthetic: SyntheticSpec | None = None
     """Generate a synthetic mission before the build (the demo); null: none."""
+    terrain_labels: TerrainLabelsSpec | None = None
+    """Terrain labels of the ground images, carried onto the map (members ``terrain`` and
+    ``terrain_on_map``); null: none."""
 
 
 @schema.dataclass(frozen=True, config=SCHEMA)
@@ -458,6 +511,7 @@ _OPT_IN_KEYS: tuple[tuple[str, str, object], ...] = (
     ("chips", "offset_m", None),
     ("output", "members", []),
     ("output", "dense_stride", None),
+    ("inputs", "terrain_labels", None),
 )
 
 #: The build config's sections, in order: (YAML key, schema class, required).

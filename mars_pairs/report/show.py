@@ -9,7 +9,7 @@ from typing import Any
 
 from mars_pairs.errors import ArgumentError, MarsPairsError
 from mars_pairs.report.meta import camera_centres
-from mars_pairs.store.members import DENSE_FIELDS
+from mars_pairs.store.members import OPTIONAL_FIELDS
 from mars_pairs.store.query import Manifest
 from mars_pairs.viz.common import DPI, pyplot
 from mars_pairs.viz.sample import dense_figure, has_dense
@@ -73,7 +73,7 @@ def show_sample(
 def _dense_fields_of(root: Path) -> tuple[str, ...]:
     """The optional dense fields whose members the dataset's manifest locates."""
     names = set(Manifest.open(root).column_names)
-    return tuple(f for f in DENSE_FIELDS if f"{f}_offset" in names)
+    return tuple(f for f in OPTIONAL_FIELDS if f"{f}_offset" in names)
 
 
 def _save_dense(sample: dict[str, Any], out: Path, dpi: int) -> Path:

@@ -12,7 +12,7 @@ import pyarrow as pa
 
 from mars_pairs.errors import ArgumentError
 from mars_pairs.store.geoparquet import BBOX_TYPE
-from mars_pairs.store.members import DENSE_FIELDS, MEMBERS
+from mars_pairs.store.members import MEMBERS, OPTIONAL_FIELDS
 from mars_pairs.store.shards import MemberLocation
 
 _FIELDS: list[tuple[str, pa.DataType]] = [
@@ -84,13 +84,15 @@ for _m in MEMBERS:
 MANIFEST_SCHEMA = pa.schema(_FIELDS)
 
 
-def manifest_schema(fields: Sequence[str] = ()) -> pa.Schema:
-    """The manifest schema of a build writing the optional member ``fields`` as well
+def manifest_schema(fields: Sequence[str] = (), counts: Sequence[str] = ()) -> pa.Schema:
+    """The manifest schema of a build writing the optional member ``fields`` as well, and the
+    int64 pixel-count columns ``counts`` (terrain classes on the map: ``terrain_<class>_px``)
     (``MANIFEST_SCHEMA`` itself when none)."""
-    unknown = [f for f in fields if f not in DENSE_FIELDS]
+    unknown = [f for f in fields if f not in OPTIONAL_FIELDS]
     if unknown:
         raise ArgumentError(f"unknown optional member field(s) {unknown}")
     extra = [f for m in fields for f in _location_fields(m)]
+    extra += [(c, pa.int64()) for c in counts]
     return pa.schema(_FIELDS + extra) if extra else MANIFEST_SCHEMA
 
 

@@ -24,7 +24,7 @@ from mars_pairs.errors import DatasetError
 from mars_pairs.store import fs
 from mars_pairs.store.dataset_info import DATASET_JSON, read_dataset_info
 from mars_pairs.store.integrity import MemberSpec, check_member, repeated_keys, shard_location
-from mars_pairs.store.members import DENSE_FIELDS, MEMBERS
+from mars_pairs.store.members import MEMBERS, OPTIONAL_FIELDS
 from mars_pairs.store.query import Manifest
 
 
@@ -71,7 +71,7 @@ def verify_dataset(root: str | Path) -> VerifyReport:
     manifest = Manifest.open(root)
     names = set(manifest.schema.names)
     # the optional dense members (output.members) that this manifest locates
-    members = (*MEMBERS, *(m for m in DENSE_FIELDS if f"{m}_offset" in names))
+    members = (*MEMBERS, *(m for m in OPTIONAL_FIELDS if f"{m}_offset" in names))
     location = [f"{m}_{s}" for m in members for s in ("shard", "offset", "size")]
     manifest.require(["key", "ground_member", *location])
     checksums = [f"{m}_crc32c" for m in members if f"{m}_crc32c" in names]

@@ -8,6 +8,8 @@ Layout written for one mission (``OUT`` directly, or ``OUT/m2020`` and ``OUT/msl
     places/best_interp.csv | places/localized_interp.csv   PLACES table
     labels/<product>.xml|.LBL and labels/<product>.jpg     labels, each with its image
     truth.parquet       one row per image: pose, camera, pointing (the exact truth)
+    with terrain_labels: orbital/terrain_classes.tif (uint8 true classes, ortho grid, nodata
+    255) and ai4mars/ (every image's class, rover and range masks in the AI4Mars layout)
 
 Frames and units follow ``mars_pairs.geometry.frames`` (map CRS metres, SITE_FRAME NED,
 ROVER_NAV_FRAME).
@@ -38,6 +40,13 @@ from mars_pairs.geometry.frames import M2020_PLACES_CRS, MSL_PLACES_CRS, quatern
 from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.geometry.places import Pose
 from mars_pairs.observation import MotionCounter, Observation
+from mars_pairs.synth.ai4mars_truth import (
+    AI4MARS_DIR,
+    CLASSES_NAME,
+    TruthMasks,
+    truth_masks,
+    write_ai4mars_truth,
+)
 from mars_pairs.synth.cameras import (
     ZOOM_STOP_WEIGHTS,
     ZOOM_STOPS_MM,
@@ -53,8 +62,9 @@ from mars_pairs.synth.cameras import (
     zoom_hfov_deg,
 )
 from mars_pairs.synth.ortho import make_ortho
-from mars_pairs.synth.render import BLOCK, DemGrid, block_ranges, render_view
-from mars_pairs.synth.terrain import make_dem
+from mars_pairs.synth.render import BLOCK, DemGrid, block_ranges, render_view, render_view_hits
+from mars_pairs.synth.terrain import Boulders, make_dem
+from mars_pairs.synth.terrain_classes import terrain_classes
 from mars_pairs.synth.traverse import (
     DemSampler,
     RoverState,
@@ -132,9 +142,14 @@ def generate_mission(
     images_per_stop: int | None = None,
     size: str = "small",
     log: Callable[[str], None] | None = None,
+    terrain_labels: bool = False,
 ) -> dict[str, Any]:
     """Generate a synthetic mission ("m2020", "msl" or "both") under ``out_dir``.
 
+    ``terrain_labels``: also write the true terrain classes (``orbital/terrain_classes.tif``,
+    ``synth.terrain_classes``) and every image's class mask, rover mask and 30 m range mask
+    in the AI4Mars layout under ``ai4mars/`` (``synth.ai4mars_truth``); the other files keep
+    their bytes.
     ``stops`` / ``images_per_stop`` default to the size preset (small: 3 x 4, default:
     8 x 4, demo: 90 x 3). ``log``: called with a line per phase (terrain, traverse,
     rendering), and a tqdm bar counts the rendered images; None: silent.
@@ -155,7 +170,8 @@ def generate_mission(
     for name in names:
         target = out / name if mission == "both" else out
         rng = np.random.default_rng([int(seed), MISSIONS.index(name)])
-        result["missions"][name] = _generate_one(target, rng, SPECS[name], size, k, m, log)
+        result["missions"][name] = _generate_one(target, rng, SPECS[name], size, k, m, log,
+                                                 terrain_labels)  # fmt: skip
     result["images"] = sum(v["images"] for v in result["missions"].values())
     return result
 
@@ -176,8 +192,9 @@ def _write_geotiff(path: Path, data: np.ndarray, transform: Affine, crs: str, no
 
 def _terrain(
     rng: np.random.Generator, spec: MissionSpec, size: SizeSpec
-) -> tuple[np.ndarray, Affine, np.ndarray, Affine]:
-    """DEM (float32 with NaN nodata), its transform, ortho (uint8) and ortho transform."""
+) -> tuple[np.ndarray, Affine, np.ndarray, Affine, Boulders]:
+    """DEM (float32 with NaN nodata), its transform, ortho (uint8), ortho transform and the
+    boulders drawn on it."""
     n = size.dem_cells
     z, boulders = make_dem(rng, n, DEM_RES_M, spec.base_elevation_m)
     # a nodata notch at the north-west corner, as real DTMs have ragged edges
@@ -190,7 +207,7 @@ def _terrain(
     ortho = make_ortho(rng, dem32.astype(np.float64), DEM_RES_M, size.ortho_factor, boulders)
     res_o = DEM_RES_M / size.ortho_factor
     ortho_tr = Affine(res_o, 0.0, left, 0.0, -res_o, top)
-    return dem32, transform, ortho, ortho_tr
+    return dem32, transform, ortho, ortho_tr, boulders
 
 
 # -- images --------------------------------------------------------------------------------------
@@ -409,12 +426,12 @@ Blocks = tuple[np.ndarray, np.ndarray]
 
 def _window(
     grid: DemGrid, blocks: Blocks, ortho: np.ndarray, factor: int, centre_map: np.ndarray,
-    half_m: float,
-) -> tuple[DemGrid, Blocks, np.ndarray]:  # fmt: skip
+    half_m: float, classes: np.ndarray | None = None,
+) -> tuple[DemGrid, Blocks, np.ndarray, np.ndarray | None]:  # fmt: skip
     """The DEM within about ``half_m`` metres east and north of ``centre_map`` (map x, y
     metres), cut on culling-block edges: a DemGrid with its own transform, its blocks'
     (``block_ranges``) z ranges (a slice of ``blocks``, the whole DEM's) and its ortho
-    (``factor`` pixels per DEM cell)."""
+    (``factor`` pixels per DEM cell), and the same window of ``classes`` (the ortho's grid)."""
     col, row = ~grid.transform * (float(centre_map[0]), float(centre_map[1]))
     half = half_m / grid.res
     rows, cols = grid.z.shape
@@ -426,7 +443,8 @@ def _window(
     z = np.ascontiguousarray(grid.z[i0:i1, j0:j1])
     sub = DemGrid(z, grid.transform * Affine.translation(j0, i0))
     lo, hi = (np.ascontiguousarray(b[bi0 : bi0 + nbi, bj0 : bj0 + nbj]) for b in blocks)
-    return sub, (lo, hi), ortho[i0 * factor : i1 * factor, j0 * factor : j1 * factor]
+    cut = (slice(i0 * factor, i1 * factor), slice(j0 * factor, j1 * factor))
+    return sub, (lo, hi), ortho[cut], None if classes is None else classes[cut]
 
 
 def _traverse(rng: np.random.Generator, spec: MissionSpec, preset: SizeSpec, stops: int,
@@ -450,26 +468,32 @@ def mission_traverse(seed: int, mission: str, size: str, stops: int | None = Non
     follows it). Map CRS metres."""
     preset = SIZES[size]
     rng = np.random.default_rng([int(seed), MISSIONS.index(mission)])
-    dem32, dem_tr, _, _ = _terrain(rng, SPECS[mission], preset)
+    dem32, dem_tr, _, _, _ = _terrain(rng, SPECS[mission], preset)
     k = preset.stops if stops is None else int(stops)
     return _traverse(rng, SPECS[mission], preset, k, dem32.astype(np.float64), dem_tr)
 
 
 # -- one mission ---------------------------------------------------------------------------------
 def _generate_one(out: Path, rng: np.random.Generator, spec: MissionSpec, size: str,
-                  stops: int, per_stop: int,
-                  log: Callable[[str], None] | None = None) -> dict[str, Any]:  # fmt: skip
+                  stops: int, per_stop: int, log: Callable[[str], None] | None = None,
+                  terrain_labels: bool = False) -> dict[str, Any]:  # fmt: skip
     preset = SIZES[size]
     say = log or (lambda _line: None)
     t0 = time.perf_counter()
     n = preset.dem_cells
     say(f"{spec.name}: terrain: {n} x {n} m DEM at {DEM_RES_M:g} m, ortho at "
         f"{DEM_RES_M / preset.ortho_factor:g} m ...")  # fmt: skip
-    dem32, dem_tr, ortho, ortho_tr = _terrain(rng, spec, preset)
+    dem32, dem_tr, ortho, ortho_tr, boulders = _terrain(rng, spec, preset)
     dem_path, ortho_path = out / "orbital" / "dem.tif", out / "orbital" / "ortho.tif"
     _write_geotiff(dem_path, np.where(np.isfinite(dem32), dem32, np.float32(DEM_NODATA)),
                    dem_tr, spec.crs, DEM_NODATA, predictor=3)  # fmt: skip
     _write_geotiff(ortho_path, ortho, ortho_tr, spec.crs, 0, predictor=2)
+    classes = None
+    if terrain_labels:
+        classes = terrain_classes(dem32.astype(np.float64), DEM_RES_M, preset.ortho_factor,
+                                  boulders)  # fmt: skip
+        _write_geotiff(out / "orbital" / CLASSES_NAME, classes, ortho_tr, spec.crs, 255,
+                       predictor=1)  # fmt: skip
 
     dem64 = dem32.astype(np.float64)
     trav = _traverse(rng, spec, preset, stops, dem64, dem_tr)
@@ -489,12 +513,15 @@ def _generate_one(out: Path, rng: np.random.Generator, spec: MissionSpec, size: 
     # so two images render at once; files are written in order, so bytes do not depend on it
     cams = [MapCamera.from_observation(s.obs, s.pose, spec.crs) for s in shots]
 
-    def render(mc: MapCamera) -> np.ndarray:
-        if preset.render_window_m is None:
-            return render_view(mc, grid, blocks, ortho, preset.ortho_factor)[0]
-        g, b, o = _window(grid, blocks, ortho, preset.ortho_factor, mc.origin_map,
-                          preset.render_window_m)  # fmt: skip
-        return render_view(mc, g, b, o, preset.ortho_factor)[0]
+    def render(mc: MapCamera) -> tuple[np.ndarray, TruthMasks | None]:
+        g, b, o, c = grid, blocks, ortho, classes
+        if preset.render_window_m is not None:
+            g, b, o, c = _window(grid, blocks, ortho, preset.ortho_factor, mc.origin_map,
+                                 preset.render_window_m, classes)  # fmt: skip
+        if c is None:
+            return render_view(mc, g, b, o, preset.ortho_factor)[0], None
+        rgb, zbuf, hc, hr = render_view_hits(mc, g, b, o, preset.ortho_factor)
+        return rgb, truth_masks(hc, hr, zbuf, c, preset.ortho_factor)
 
     # the bar opens after the first image: that one's time is mostly the renderer's compile
     # (numba, first run), and a rate measured on it gives an ETA of hours
@@ -503,8 +530,11 @@ def _generate_one(out: Path, rng: np.random.Generator, spec: MissionSpec, size: 
         images = pool.map(render, cams)
         bar = None
         try:
-            for shot, rgb in zip(shots, images, strict=True):
+            for shot, (rgb, masks) in zip(shots, images, strict=True):
                 _save_shot(shot, rgb)
+                if masks is not None:
+                    write_ai4mars_truth(out / AI4MARS_DIR, shot.obs.mission, shot.obs.product_id,
+                                        masks, shot.obs.instrument)  # fmt: skip
                 if bar is None:
                     first = time.perf_counter() - t_render
                     say(f"{spec.name}: first image rendered ({first:.1f} s)")
@@ -528,4 +558,12 @@ def _generate_one(out: Path, rng: np.random.Generator, spec: MissionSpec, size: 
         "sites": len(trav.sites),
         "places_rows": len(trav.sites) + len(trav.rovers),
         "images": len(shots),
+        **(
+            {
+                "terrain_classes": str(out / "orbital" / CLASSES_NAME),
+                "ai4mars": str(out / AI4MARS_DIR),
+            }
+            if terrain_labels
+            else {}
+        ),
     }

@@ -129,6 +129,13 @@ def _smooth(z: F64, sigma_px: float) -> F64:
     return np.fft.irfft2(np.fft.rfft2(z) * g, s=z.shape)
 
 
+def sand_weight(filled: F64, res_m: float) -> F64:
+    """0..1 sand weight of DEM cells (``filled``: no NaN, ``res_m`` metres a cell): how far a
+    cell lies below its 12 m Gaussian mean, 1 at 1.2 m or more below."""
+    low = filled - _smooth(filled, 12.0 / res_m)
+    return np.clip(-low / 1.2, 0.0, 1.0)
+
+
 def _smoothstep(x: F64, lo: float, hi: float) -> F64:
     t = np.clip((x - lo) / (hi - lo), 0.0, 1.0)
     return t * t * (3.0 - 2.0 * t)
@@ -167,8 +174,7 @@ def make_ortho(
     n = dem.shape[0]
     filled = np.where(np.isfinite(dem), dem, np.nanmean(dem))
     shade = hillshade(filled, res_m, SUN_AZIMUTH_DEG, SUN_ELEVATION_DEG)
-    low = filled - _smooth(filled, 12.0 / res_m)
-    sand = np.clip(-low / 1.2, 0.0, 1.0)
+    sand = sand_weight(filled, res_m)
     albedo = 0.52 + 0.09 * spectral_noise(rng, n, 3.2, 3.0 / res_m)
     albedo += 0.03 * spectral_noise(rng, n, 2.0, 2.0 / res_m)
     dark = _smoothstep(spectral_noise(rng, n, 3.0, 5.0 / res_m), 0.2, 1.1)

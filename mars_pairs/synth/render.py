@@ -448,13 +448,9 @@ def image_cone_cos(mc: MapCamera, margin_deg: float = 3.0) -> float:
     return float(np.cos(np.radians(min(theta + margin_deg, 80.0))))
 
 
-def render_view(
-    mc: MapCamera, dem: DemGrid, blocks: tuple[F64, F64], ortho: NDArray[np.uint8], factor: int
-) -> tuple[NDArray[np.uint8], F64]:
-    """Render ``mc``'s image (height, width, 3) uint8 and its depth buffer (range m, inf sky).
-
-    ``ortho`` covers the DEM's bounds with ``factor`` pixels per DEM cell.
-    """
+def render_hits(mc: MapCamera, dem: DemGrid, blocks: tuple[F64, F64]) -> tuple[F64, F64, F64]:
+    """Each pixel's nearest terrain point: (DEM column, DEM row) fractional node coordinates
+    (NaN: sky) and its range (metres from the camera centre; inf: sky), (height, width)."""
     p, jinv = camera_params(mc)
     t = dem.transform
     # map x, y of node (i, j): x = t.c + (j + 0.5) t.a, y = t.f + (i + 0.5) t.e
@@ -495,6 +491,38 @@ def render_view(
         hc = np.where(use, hc2, hc)
         hr = np.where(use, hr2, hr)
         zbuf = np.where(use, zb2, zbuf)
+    return hc, hr, zbuf
+
+
+def render_view(
+    mc: MapCamera, dem: DemGrid, blocks: tuple[F64, F64], ortho: NDArray[np.uint8], factor: int
+) -> tuple[NDArray[np.uint8], F64]:
+    """Render ``mc``'s image (height, width, 3) uint8 and its depth buffer (range m, inf sky).
+
+    ``ortho`` covers the DEM's bounds with ``factor`` pixels per DEM cell.
+    """
+    rgb, zbuf, _hc, _hr = render_view_hits(mc, dem, blocks, ortho, factor)
+    return rgb, zbuf
+
+
+def render_view_hits(
+    mc: MapCamera, dem: DemGrid, blocks: tuple[F64, F64], ortho: NDArray[np.uint8], factor: int
+) -> tuple[NDArray[np.uint8], F64, F64, F64]:
+    """``render_view`` and each pixel's terrain point (``render_hits``: DEM column, row)."""
+    hc, hr, zbuf = render_hits(mc, dem, blocks)
     rgb = shade(hc, hr, ortho.astype(np.float32), factor,
                 np.array(SKY_RGB, dtype=np.uint8), np.array(TERRAIN_TINT))  # fmt: skip
-    return rgb, zbuf
+    return rgb, zbuf, hc, hr
+
+
+def classes_at(hit_col: F64, hit_row: F64, classes: NDArray[np.uint8], factor: int,
+               sky: int = 255) -> NDArray[np.uint8]:  # fmt: skip
+    """The class raster ``classes`` (the ortho's grid: ``factor`` pixels per DEM cell) at each
+    pixel's terrain point (DEM column, row; nearest ortho pixel), ``sky`` where none."""
+    ok = np.isfinite(hit_col)
+    oh, ow = classes.shape
+    u = np.where(ok, (hit_col + 0.5) * factor - 0.5, 0.0)
+    v = np.where(ok, (hit_row + 0.5) * factor - 0.5, 0.0)
+    j = np.clip(np.floor(u + 0.5).astype(np.int64), 0, ow - 1)
+    i = np.clip(np.floor(v + 0.5).astype(np.int64), 0, oh - 1)
+    return np.where(ok, classes[i, j], np.uint8(sky)).astype(np.uint8)

@@ -16,20 +16,22 @@ import torch
 from PIL import Image
 
 from mars_pairs.errors import ArgumentError
-from mars_pairs.store.members import DENSE_FIELDS
+from mars_pairs.store.members import OPTIONAL_FIELDS
 
 DEFAULT_FIELDS = ("ground", "ortho", "dem", "viewshed")
 
 
-#: Every default member's field (the optional dense ones: ``store.members.DENSE_FIELDS``).
+#: Every default member's field (the optional ones: ``store.members.OPTIONAL_FIELDS``).
 ALL_FIELDS = ("ground", "ortho", "dem", "viewshed", "corr")
-KNOWN_FIELDS = ALL_FIELDS + DENSE_FIELDS
+KNOWN_FIELDS = ALL_FIELDS + OPTIONAL_FIELDS
 
 
 #: uint8 with image_dtype=torch.uint8
 IMAGE_FIELDS = ("ground", "ortho", "viewshed", "ortho_view", "view_valid", "ground_on_map",
                 "ground_on_map_cover")  # fmt: skip
 MASK_FIELDS = ("viewshed", "view_valid", "ground_on_map_cover")  # {0, 1}
+#: class labels: uint8 whatever ``image_dtype`` (0..254 classes, 255 no label)
+LABEL_FIELDS = ("terrain", "terrain_on_map")
 
 
 #: tar member suffixes of the fields (the ground image's is in the manifest's ground_member)
@@ -49,6 +51,8 @@ MEMBER_SUFFIXES = {
     "ground_on_map": "ground_on_map.png",
     "ground_on_map_cover": "ground_on_map_cover.png",
     "ground_px": "ground_px.npy",
+    "terrain": "terrain.png",
+    "terrain_on_map": "terrain_on_map.png",
 }
 
 
@@ -142,7 +146,7 @@ def decode_raw(
         return _decode_npy(data).astype(np.float64, copy=False)
     if field == "ground_on_map":
         return _image_u8(data, "RGB")
-    if field in ("ortho_view", "view_valid", "ground_on_map_cover"):
+    if field in ("ortho_view", "view_valid", "ground_on_map_cover", *LABEL_FIELDS):
         return _image_u8(data, "L")
     raise ArgumentError(f"unknown field {field!r}; expected one of {list(KNOWN_FIELDS)}")
 
@@ -164,6 +168,8 @@ def out_dtype(field: str, image_dtype: torch.dtype) -> np.dtype:
     (map coordinates), else float32."""
     if field == "hits":
         return np.dtype(np.float64)
+    if field in LABEL_FIELDS:
+        return np.dtype(np.uint8)
     if field in IMAGE_FIELDS and image_dtype == torch.uint8:
         return np.dtype(np.uint8)
     if image_dtype not in (torch.float32, torch.uint8):

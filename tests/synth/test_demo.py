@@ -122,7 +122,8 @@ def test_window_is_the_whole_dem_cut_on_block_edges() -> None:
     blocks = block_ranges(z)
     ortho = np.zeros((1400, 1300), np.uint8)
     for cx, cy, half in ((1300, 8600, 120), (1010, 8990, 200), (1640, 8310, 90), (1300, 8600, 5e3)):
-        sub, sub_blocks, sub_ortho = _window(grid, blocks, ortho, 2, np.array([cx, cy, 0.0]), half)
+        centre = np.array([cx, cy, 0.0])
+        sub, sub_blocks, sub_ortho, _ = _window(grid, blocks, ortho, 2, centre, half)
         for a, b in zip(sub_blocks, block_ranges(sub.z), strict=True):
             np.testing.assert_array_equal(a, b)
         assert sub_ortho.shape == (2 * sub.z.shape[0], 2 * sub.z.shape[1])

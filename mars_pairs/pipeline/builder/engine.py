@@ -148,9 +148,23 @@ def part_tables(config: BuildConfig, outcomes: Iterable[Outcome]) -> tuple[pa.Ta
     failures = [o.row for o in outcomes if o.kind in ("fail", "duplicate")]
     rows = [o.row for o in outcomes if o.kind == "ok"]
     dropped = sum(o.kind == "dropped" for o in outcomes)
-    table = rows_to_table(rows, manifest_schema(member_fields(config.output.members)))
+    table = rows_to_table(rows, build_schema(config))
     table = table.replace_schema_metadata({DROPPED_KEY: str(dropped).encode()})
     return rows_to_table(failures, FAILURE_SCHEMA), table
+
+
+def build_schema(config: BuildConfig) -> pa.Schema:
+    """The manifest schema of ``config``'s build: its optional members' location columns, and
+    with terrain labels their members and per-class pixel counts."""
+    fields = member_fields(config.output.members)
+    spec = config.inputs.terrain_labels
+    if spec is None:
+        return manifest_schema(fields)
+    from mars_pairs.pipeline.sample.terrain import label_table
+    from mars_pairs.store.members import TERRAIN_FIELDS
+    from mars_pairs.terrain_labels import count_columns
+
+    return manifest_schema((*fields, *TERRAIN_FIELDS), count_columns(label_table(spec)))
 
 
 def build_chunk(config: BuildConfig, task: ChunkTask) -> ChunkResult:

@@ -1,7 +1,8 @@
 """One observation -> one dataset sample: the stages in order, each one call.
 
-Stages (named in failure rows and timed): label, image, locate, terrain, viewshed, raycast,
-chips, encode, and dense when ``output.members`` names optional members.
+Stages (named in failure rows and timed): label, image, terrain_labels (with
+``inputs.terrain_labels``), locate, terrain, viewshed, raycast, chips, dense when
+``output.members`` names optional members, terrain_on_map (with terrain labels), encode.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from mars_pairs.pipeline.sample.encode import encode_members
 from mars_pairs.pipeline.sample.ground import ground_image
 from mars_pairs.pipeline.sample.record import manifest_row, sample_meta
 from mars_pairs.pipeline.sample.stages import Stages
+from mars_pairs.pipeline.sample.terrain import terrain_members
 from mars_pairs.pipeline.sample.view import (
     View,
     anchor_view,
@@ -51,6 +53,10 @@ def build_sample(label: Path, ctx: SampleContext) -> Sample:
             keep = "ground_on_map" in ctx.config.output.members
             ground = ground_image(obs, ctx.config.output.image_encoding, keep_pixels=keep)
             obs = ground.observation
+        classes = None
+        if ctx.terrain_labels is not None:
+            with stage("terrain_labels"):  # the mask for this product, checked against its image
+                classes = ctx.terrain_labels.read(obs.product_id, ground.size)
         with stage("locate"):
             pose = ctx.places.locate(obs)
             camera = MapCamera.from_observation(obs, pose, ctx.crs_wkt)
@@ -67,13 +73,22 @@ def build_sample(label: Path, ctx: SampleContext) -> Sample:
                 dense, dense_meta = dense_members(
                     view, grid, chips, ground, out.members, stride, radius, ctx.ortho
                 )
+        terrain: dict[str, bytes] = {}
+        counts: dict[str, int] = {}
+        if classes is not None:
+            with stage("terrain_on_map"):
+                spec = ctx.config.inputs.terrain_labels
+                limit = None if spec is None else spec.max_range_m
+                terrain, counts, terrain_meta = terrain_members(classes, view, grid, chips, limit)
+                dense_meta = dense_meta | terrain_meta
         with stage("encode"):
-            row = manifest_row(obs, pose, view, grid, ctx, cover)
+            row = manifest_row(obs, pose, view, grid, ctx, cover) | counts
             meta = sample_meta(row, obs, view, grid, ctx, ground.size)
             meta["ground_image"] = ground.meta
             if out.members or ctx.config.chips.offset_m is not None:
-                meta.update(localization_fields(view, grid), **dense_meta)
-            members = encode_members(chips, correspondence(view, grid), meta) | dense
+                meta.update(localization_fields(view, grid))
+            meta.update(dense_meta)
+            members = encode_members(chips, correspondence(view, grid), meta) | dense | terrain
     except (MarsPairsError, ValueError, OSError) as exc:
         raise StageError(stage.name, exc) from exc
     row["ground_member"] = ground.name

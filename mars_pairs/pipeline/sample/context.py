@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from mars_pairs.geometry.places import Places
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.raster.chips import ChipReader
 from mars_pairs.raster.terrain import DemWindow, Terrain
+
+if TYPE_CHECKING:
+    from mars_pairs.terrain_labels import LabelSource
 
 
 @dataclass
@@ -20,6 +24,7 @@ class SampleContext:
     ortho: ChipReader
     dem: ChipReader
     crs_wkt: str = ""
+    terrain_labels: LabelSource | None = None  # inputs.terrain_labels, indexed once
     _window: DemWindow | None = None
     _window_key: tuple[int, int, float] | None = None
 
@@ -27,6 +32,11 @@ class SampleContext:
     def open(cls, config: BuildConfig) -> SampleContext:
         """Open the PLACES table and the rasters named by ``config``."""
         places = Places.from_csv(config.inputs.places)
+        labels = None
+        if config.inputs.terrain_labels is not None:
+            from mars_pairs.pipeline.sample.terrain import open_labels
+
+            labels = open_labels(config.inputs.terrain_labels)
         terrain = Terrain.open(config.inputs.dem)
         return cls(
             config,
@@ -35,6 +45,7 @@ class SampleContext:
             ChipReader(config.inputs.ortho),
             ChipReader(config.inputs.dem),
             terrain.crs.to_wkt(),
+            labels,
         )
 
     def dem_window(self, x: float, y: float, radius: float, snap: float = 32.0) -> DemWindow:

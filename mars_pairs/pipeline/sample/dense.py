@@ -136,17 +136,24 @@ def ground_pixels_of_chip(
     rows, cols = np.nonzero(visible & np.isfinite(dem))
     if len(rows):
         points = chip_points(grid, dem, rows, cols)
-        px = camera.camera.project(camera.local_points(points, MARS_RADIUS_M))
-        with np.errstate(invalid="ignore"):
-            inside = (
-                np.isfinite(px).all(axis=1)
-                & (px[:, 0] >= -0.5)
-                & (px[:, 0] <= camera.width - 0.5)
-                & (px[:, 1] >= -0.5)
-                & (px[:, 1] <= camera.height - 0.5)
-            )
+        px, inside = project_inside(camera, camera.local_points(points, MARS_RADIUS_M))
         out[rows[inside], cols[inside]] = px[inside]
     return out
+
+
+def project_inside(camera: MapCamera, local: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 2) image pixels (sample, line) of (N, 3) points in the camera model's local frame
+    (``MapCamera.local_points``), and whether each falls inside the image."""
+    px = camera.camera.project(local)
+    with np.errstate(invalid="ignore"):
+        inside = (
+            np.isfinite(px).all(axis=1)
+            & (px[:, 0] >= -0.5)
+            & (px[:, 0] <= camera.width - 0.5)
+            & (px[:, 1] >= -0.5)
+            & (px[:, 1] <= camera.height - 0.5)
+        )
+    return px, inside
 
 
 def ground_on_map(pixels: np.ndarray, ground_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

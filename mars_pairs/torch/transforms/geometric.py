@@ -12,13 +12,14 @@ import torch
 import torch.nn.functional as F
 
 from mars_pairs.errors import ArgumentError
-from mars_pairs.store.members import DENSE_CHIP_FIELDS
+from mars_pairs.store.members import CHIP_GRID_FIELDS
 from mars_pairs.torch.georef import bounds_of, rotation_of
 
 CHIP_FIELDS = ("ortho", "dem", "viewshed")
 #: Optional chip-grid members (``output.members``) that move with the chips.
-_NEAREST = ("viewshed", "ground_on_map_cover", "ground_px")  # masks and pixel maps
+_NEAREST = ("viewshed", "ground_on_map_cover", "ground_px", "terrain_on_map")  # masks, maps
 _NAN_FILL = ("dem", "ground_px")
+_LABEL_FILL = ("terrain_on_map",)  # classes: 255 (no label) where nothing moved in
 
 
 def _chip_mode(name: str) -> str:
@@ -26,6 +27,8 @@ def _chip_mode(name: str) -> str:
 
 
 def _chip_fill(name: str) -> float:
+    if name in _LABEL_FILL:
+        return 255.0
     return math.nan if name in _NAN_FILL else 0.0
 
 
@@ -124,6 +127,8 @@ class _Geometric:
                 if "ground_mask" in out:  # bool: moved as 0 / 255, True where > 127
                     as_u8 = sample["ground_mask"].to(torch.uint8) * 255
                     out["ground_mask"] = self._apply_ground(as_u8, m, new_hw) > 127
+                if "terrain" in out:  # classes on the ground grid: nearest, 255 outside
+                    out["terrain"] = _warp(sample["terrain"], m, new_hw, "nearest", 255.0)
                 for name in ("corr_ground", "dense_ground"):
                     if name in out:
                         out[name] = _move_points(sample[name], np.linalg.inv(m))
@@ -134,7 +139,7 @@ class _Geometric:
             made = self._chip_map(*chip_hw(sample, "corr", "transform", *LOCALIZATION_POINTS))
             if made is not None:
                 m, new_hw = made
-                for name in CHIP_FIELDS + DENSE_CHIP_FIELDS:
+                for name in CHIP_FIELDS + CHIP_GRID_FIELDS:
                     if name in out:
                         out[name] = self._apply_chip(name, out[name], m, new_hw)
                 if "corr" in out:
@@ -182,7 +187,7 @@ def ground_hw(sample: Sample, *needing: str) -> tuple[int, int]:
 def chip_hw(sample: Sample, *needing: str) -> tuple[int, int]:
     """The chips' (H, W); ArgumentError when a field that moves with them is there without
     any chip."""
-    for name in CHIP_FIELDS + DENSE_CHIP_FIELDS:
+    for name in CHIP_FIELDS + CHIP_GRID_FIELDS:
         if name in sample:
             return tuple(sample[name].shape[-2:])
     if any(k in sample for k in needing):
