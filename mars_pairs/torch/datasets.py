@@ -24,8 +24,9 @@ argument an ArgumentError (also a TypeError / ValueError), a damaged shard or me
 DatasetError naming the shard and the member. A dataset opens only with its dataset.json
 (the ray stride, CRS and chip size) and the manifest columns it reads. Every read stays
 inside the dataset folder and inside the shard file. ``verify=True`` checks each sample it
-reads as ``mars-pairs verify`` does (:mod:`mars_pairs.store.integrity`, the same code): every
-member of the sample, requested or not (``meta.json`` too), must lie inside its shard, follow
+reads as ``mars-pairs verify`` does (:mod:`mars_pairs.store.integrity`, the same code), after
+checking dataset.json and the manifest against the folder's integrity chain once at open
+(:func:`~mars_pairs.store.seal.require_sealed`): every member of the sample, requested or not (``meta.json`` too), must lie inside its shard, follow
 a tar header naming ``<key>.<field>`` with the manifest's size, and match its CRC-32C where
 the manifest has ``<member>_crc32c`` columns; and no key may be on two manifest rows.
 """
@@ -51,6 +52,7 @@ from mars_pairs.errors import (
     SampleIndexError,
 )
 from mars_pairs.store.dataset_info import read_dataset_info
+from mars_pairs.store.seal import require_sealed
 from mars_pairs.store.filter_args import check_split_names, configured_splits, sample_index
 from mars_pairs.store.fs import Location, dataset_root, join
 from mars_pairs.store.integrity import MemberSpec, check_member, repeated_keys
@@ -174,6 +176,8 @@ class MarsPairsDataset(Dataset):
         self.normalize_dem = bool(normalize_dem)
         self._dtypes = {f: out_dtype(f, image_dtype) for f in self.fields}
         self.image_dtype = image_dtype
+        if verify:  # dataset.json and the manifest against the folder's chain, once
+            require_sealed(self.root)
         manifest = Manifest.open(self.root).filter(**filters)
         info = read_dataset_info(self.root)
         check_split_names(filters.get("split"), configured_splits(info.doc), str(self.root))

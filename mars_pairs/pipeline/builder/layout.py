@@ -13,6 +13,7 @@ from typing import Any
 
 from mars_pairs.store import fs
 from mars_pairs.store.atomic import temporary_target
+from mars_pairs.store.seal import SUMS
 from mars_pairs.store.wids_index import WIDS_INDEX
 
 DROPPED_KEY = b"mars_pairs:dropped_in_buffer"
@@ -29,6 +30,7 @@ BUILD_FILES = (
     "manifest.parquet",
     "failures.parquet",
     "dataset.json",
+    SUMS,  # dataset.json's SHA-256 (``store.seal``)
     WIDS_INDEX,
     "README.md",
     "croissant.json",

@@ -49,6 +49,7 @@ from mars_pairs.pipeline.builder.engine import ChunkResult, ChunkTask, Engine, I
 from mars_pairs.pipeline.builder.fingerprints import LabelDigest
 from mars_pairs.pipeline.builder.finish import (
     BuildSummary,
+    dataset_doc,
     finished_summary,
     merge_parts,
     write_card,
@@ -222,11 +223,10 @@ def _run(
         seconds=time.perf_counter() - start,
         stage_seconds=dict(stage_seconds),
     )
-    doc = write_dataset_json(
-        config, summary, manifest, dropped_count(out, plan.chunks), plan.fingerprint
-    )
+    doc = dataset_doc(config, summary, manifest, dropped_count(out, plan.chunks), plan.fingerprint)
     write_wids_index(out, manifest)
     write_card(config, manifest, doc)
+    write_dataset_json(config, doc)  # the record of the files above: after them
     if not config.output.keep_parts:
         remove_parts(out, plan.chunks)  # the last step: a kill before it resumes
     return summary
@@ -332,8 +332,9 @@ def _run_append(
         plan.summary_line(),
     )
     extra = dataset_extra(config, plan, added, failures.num_rows - base_failures)
-    doc = write_dataset_json(config, summary, manifest, dropped, extra=extra)
+    doc = dataset_doc(config, summary, manifest, dropped, extra=extra)
     write_wids_index(out, manifest)
     write_card(config, manifest, doc)
+    write_dataset_json(config, doc)  # the record of the files above: after them
     remove_append_parts(out, plan)  # the stamp before the base: see pipeline.builder.append
     return summary
