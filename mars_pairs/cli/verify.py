@@ -79,7 +79,7 @@ def verify_dataset(root: str | Path) -> VerifyReport:
     damage = [Damage(d.path, None, d.reason) for d in chain or []]
     try:
         report = _verify_members(root)
-    except DatasetError as exc:
+    except DatasetError:
         if not damage:
             raise
         # the manifest (or dataset.json) unreadable: already named by the chain

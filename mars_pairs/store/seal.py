@@ -82,7 +82,9 @@ def seal(root: fs.Location, doc: dict[str, Any]) -> bytes:
     doc[FILES_KEY] = files_record(root)
     data = json.dumps(doc, indent=2).encode()
     fs.put_bytes(fs.join(root, "dataset.json"), data)
-    fs.put_bytes(fs.join(root, SUMS), f"{hashlib.sha256(data).hexdigest()}  dataset.json\n".encode())
+    fs.put_bytes(
+        fs.join(root, SUMS), f"{hashlib.sha256(data).hexdigest()}  dataset.json\n".encode()
+    )
     return data
 
 

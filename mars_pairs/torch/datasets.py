@@ -26,9 +26,10 @@ DatasetError naming the shard and the member. A dataset opens only with its data
 inside the dataset folder and inside the shard file. ``verify=True`` checks each sample it
 reads as ``mars-pairs verify`` does (:mod:`mars_pairs.store.integrity`, the same code), after
 checking dataset.json and the manifest against the folder's integrity chain once at open
-(:func:`~mars_pairs.store.seal.require_sealed`): every member of the sample, requested or not (``meta.json`` too), must lie inside its shard, follow
-a tar header naming ``<key>.<field>`` with the manifest's size, and match its CRC-32C where
-the manifest has ``<member>_crc32c`` columns; and no key may be on two manifest rows.
+(:func:`~mars_pairs.store.seal.require_sealed`): every member of the sample, requested or
+not (``meta.json`` too), must lie inside its shard, follow a tar header naming
+``<key>.<field>`` with the manifest's size, and match its CRC-32C where the manifest has
+``<member>_crc32c`` columns; and no key may be on two manifest rows.
 """
 
 from __future__ import annotations
@@ -52,7 +53,6 @@ from mars_pairs.errors import (
     SampleIndexError,
 )
 from mars_pairs.store.dataset_info import read_dataset_info
-from mars_pairs.store.seal import require_sealed
 from mars_pairs.store.filter_args import check_split_names, configured_splits, sample_index
 from mars_pairs.store.fs import Location, dataset_root, join
 from mars_pairs.store.integrity import MemberSpec, check_member, repeated_keys
@@ -60,6 +60,7 @@ from mars_pairs.store.manifest import SUMMARY_COLUMNS
 from mars_pairs.store.member_index import MemberIndex
 from mars_pairs.store.members import DENSE_GROUND_FIELDS, MEMBERS
 from mars_pairs.store.query import Manifest
+from mars_pairs.store.seal import require_sealed
 from mars_pairs.torch.decode import (
     ALL_FIELDS,  # noqa: F401  (re-exported)
     DEFAULT_FIELDS,

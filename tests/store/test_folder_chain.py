@@ -62,7 +62,10 @@ def test_a_build_seals_its_folder(sealed: Path) -> None:
         data = (sealed / name).read_bytes()
         assert entry == {"sha256": hashlib.sha256(data).hexdigest(), "size": len(data)}
     sums = (sealed / SUMS).read_text()
-    assert sums == f"{hashlib.sha256((sealed / 'dataset.json').read_bytes()).hexdigest()}  dataset.json\n"
+    assert (
+        sums
+        == f"{hashlib.sha256((sealed / 'dataset.json').read_bytes()).hexdigest()}  dataset.json\n"
+    )
     # the coreutils tool checks the sidecar as it is
     assert subprocess.run(["sha256sum", "-c", "--quiet", SUMS], cwd=sealed).returncode == 0
     assert chain_damage(sealed) == []
@@ -112,7 +115,7 @@ def test_the_sweeps_edits_of_dataset_json_are_caught(copy: Path) -> None:
     doc["config"]["geometry"]["ray_stride"] += 1
     path.write_text(json.dumps(doc, indent=2))
     assert named(copy) == {"dataset.json"}
-    with pytest.raises(DatasetError, match="dataset.json.*SHA256SUMS"):
+    with pytest.raises(DatasetError, match=r"dataset\.json.*SHA256SUMS"):
         MarsPairsDataset(copy, verify=True)
 
 
@@ -125,13 +128,16 @@ def _rewrite(root: Path, edit: object) -> None:
 
 @pytest.mark.parametrize(
     "edit",
-    [lambda rows: rows.pop(1), lambda rows: rows[0].update(azimuth_deg=rows[0]["azimuth_deg"] + 88)],
+    [
+        lambda rows: rows.pop(1),
+        lambda rows: rows[0].update(azimuth_deg=rows[0]["azimuth_deg"] + 88),
+    ],
     ids=["row-removed", "value-edited"],
 )
 def test_a_valid_rewritten_manifest_is_caught(copy: Path, edit: object) -> None:
     _rewrite(copy, edit)
     assert "manifest.parquet" in named(copy)
-    with pytest.raises(DatasetError, match="manifest.parquet"):
+    with pytest.raises(DatasetError, match=r"manifest\.parquet"):
         MarsPairsDataset(copy, verify=True)
 
 

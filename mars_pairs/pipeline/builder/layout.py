@@ -19,6 +19,10 @@ from mars_pairs.store.wids_index import WIDS_INDEX
 DROPPED_KEY = b"mars_pairs:dropped_in_buffer"
 
 
+#: The output folder's lock (``pipeline.builder.lock``): every build's, kept, never cleared.
+LOCK_FILE = ".mars-pairs.lock"
+
+
 #: The stamp of a build whose files are being cleared (the old stamp, renamed).
 CLEARING = "parts/clearing.json"
 
@@ -72,7 +76,9 @@ def dropped_count(out: fs.Location, n_chunks: int) -> int:
 
 def written_by(chunks: int | None, rel: str) -> bool:
     """Whether a build of ``chunks`` chunks (None: no build) writes the file ``rel`` (a path
-    relative to the output folder, with ``/``)."""
+    relative to the output folder, with ``/``); the folder's lock is every build's."""
+    if rel == LOCK_FILE:
+        return True
     if chunks is None:
         return False
     if rel in BUILD_FILES:

@@ -63,6 +63,7 @@ from mars_pairs.pipeline.builder.hygiene import (
 )
 from mars_pairs.pipeline.builder.layout import dropped_count, stamp_path
 from mars_pairs.pipeline.builder.local_pool import LocalPool
+from mars_pairs.pipeline.builder.lock import folder_lock
 from mars_pairs.pipeline.builder.plan import (
     check_clearable,
     chunks_of,
@@ -113,20 +114,21 @@ def run_build(
     if append and limit is not None:
         raise ConfigError("--limit: not with --append (an append builds every new label)")
     check_input_files(config)  # before any process opens them
-    if not resume and not append:  # refused before any worker starts (else: once planned)
-        check_clearable(config.output.dir)
-    if append:  # planned before any worker starts: a refused append starts none
-        plan = plan_append(config)
-        if plan.labels_new == 0:
-            return _nothing_to_append(config, plan, start)
-    # the workers start now: their imports and raster opening overlap the planning
-    pool = LocalPool(config, workers) if engine is None and workers > 1 else None
-    if engine is None:
-        engine = pool if pool is not None else InProcess()
-    with pool if pool is not None else contextlib.nullcontext():
-        if append:
-            return _run_append(config, plan, start, strict, progress, engine)
-        return _run(config, start, resume, limit, strict, progress, engine)
+    with folder_lock(config.output.dir):  # one writer: before the folder is read or written
+        if not resume and not append:  # refused before any worker starts (else: once planned)
+            check_clearable(config.output.dir)
+        if append:  # planned before any worker starts: a refused append starts none
+            plan = plan_append(config)
+            if plan.labels_new == 0:
+                return _nothing_to_append(config, plan, start)
+        # the workers start now: their imports and raster opening overlap the planning
+        pool = LocalPool(config, workers) if engine is None and workers > 1 else None
+        if engine is None:
+            engine = pool if pool is not None else InProcess()
+        with pool if pool is not None else contextlib.nullcontext():
+            if append:
+                return _run_append(config, plan, start, strict, progress, engine)
+            return _run(config, start, resume, limit, strict, progress, engine)
 
 
 def _commit_all(
