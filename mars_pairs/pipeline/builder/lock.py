@@ -33,7 +33,7 @@ import threading
 import time
 import uuid
 from collections.abc import Iterator
-from datetime import UTC, datetime
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -53,7 +53,7 @@ def _holder() -> dict[str, Any]:
     return {
         "pid": os.getpid(),
         "host": socket.gethostname(),
-        "started": datetime.now(UTC).isoformat(timespec="seconds"),
+        "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "renewed": time.time(),
         "token": uuid.uuid4().hex,
     }
@@ -134,7 +134,7 @@ def _started(pid: int) -> str:
     except (OSError, ValueError, IndexError, StopIteration):
         return "?"
     at = boot + ticks / os.sysconf("SC_CLK_TCK")
-    return datetime.fromtimestamp(at, UTC).isoformat(timespec="seconds")
+    return datetime.fromtimestamp(at, timezone.utc).isoformat(timespec="seconds")
 
 
 def _read_json(data: bytes) -> dict[str, Any] | None:
@@ -166,7 +166,7 @@ def _stale(info: dict[str, Any] | None, now: float) -> bool:
 def _object_lock(out: str) -> Iterator[None]:
     from mars_pairs.errors import StorageError
 
-    url = fs.join(out, LOCK)
+    url = str(fs.join(out, LOCK))
     filesystem, path = fs.filesystem(url)
     me = _holder()
     for _ in range(2):  # the second try after removing a stale lock
