@@ -115,6 +115,8 @@ def run_build(
         raise ConfigError("--limit: not with --append (an append builds every new label)")
     check_input_files(config)  # before any process opens them
     with folder_lock(config.output.dir):  # one writer: before the folder is read or written
+        if not isinstance(config.output.dir, Path):
+            fs.remove_stale_staging()  # of a build killed mid-upload
         if not resume and not append:  # refused before any worker starts (else: once planned)
             check_clearable(config.output.dir)
         if append:  # planned before any worker starts: a refused append starts none
