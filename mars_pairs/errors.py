@@ -168,3 +168,7 @@ class BuildError(MarsPairsError):
 
 class ContentError(FetchError):
     """A downloaded file is not what its kind requires; names the URL (or file) and why."""
+
+
+class FolderLockedError(MarsPairsError):
+    """Another build, ``--resume`` or ``--append`` holds the output folder's lock."""

@@ -270,7 +270,8 @@ class ProductsSection:
                 f"{self.camera!r}",
                 "camera",
             )
-        if self.mission == "msl" and not self.volumes and self.sols is None:
+        navcam = self.camera == "ncam"  # one volume, MSLNAV_1XXX, when none is named
+        if self.mission == "msl" and not self.volumes and self.sols is None and not navcam:
             raise KeyProblem(
                 "required for msl without sols (PDS3 volumes, e.g. MSLMST_0014; with sols "
                 "they come from the volume sol-range table)",

@@ -54,11 +54,32 @@ def read_observation(path: PathLike) -> Observation:
     if kind == "pds4" and longer:
         raise LabelError(label_path, None, f"larger than {len(data)} bytes: not a label")
     try:
-        if kind == "pds4":
-            return parse_pds4(data, label_path)
-        return parse_pds3(data, label_path, longer)
+        obs = (
+            parse_pds4(data, label_path) if kind == "pds4" else parse_pds3(data, label_path, longer)
+        )
+        _check_fov(obs)
+        return obs
     except LabelError:
         raise
     except Exception as exc:  # safety net of the contract; the readers should not get here
         reason = f"unexpected {type(exc).__name__} while reading the label: {exc}"
         raise LabelError(label_path, None, reason) from exc
+
+
+def _check_fov(obs: Observation) -> None:
+    """LabelError when the camera model's field of view disagrees with the label's
+    (``common.fov_problem``); labels without a field of view are not checked."""
+    import warnings
+
+    from mars_pairs.pds.common import fov_problem
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a NaN edge ray: reported below
+        hfov, vfov = obs.camera.fov_deg(obs.width, obs.height)
+    for field, model, label in (
+        ("HORIZONTAL_FOV", hfov, obs.hfov_deg),
+        ("VERTICAL_FOV", vfov, obs.vfov_deg),
+    ):
+        problem = fov_problem(model, label)
+        if problem is not None:
+            raise LabelError(obs.label_path, field, problem)

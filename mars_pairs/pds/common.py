@@ -34,6 +34,14 @@ MAX_INTEGER = 2**31 - 1
 MAX_IMAGE_SIDE = 100_000
 #: Largest camera model component accepted (C in metres, H and V in pixels are far below).
 MAX_MODEL_COMPONENT = 1e12
+#: the smallest focal length (|A x H|, |A x V|, pixels) of a plausible camera model: the
+#: widest real mast or hazard camera has ~ 250 px; 10 px would see nearly 180 deg across 1000
+MIN_MODEL_SCALE = 10.0
+#: the largest |cos| of the angle between the model's image axes (H' = H - hc A, V' = V - vc A);
+#: real models have ~ 0 (perpendicular axes); 0.5 is 60 deg
+MAX_AXIS_COS = 0.5
+#: how far a model's field of view may be from the label's: the larger of 5 deg and 25 %
+FOV_TOLERANCE_DEG, FOV_TOLERANCE_REL = 5.0, 0.25
 #: Largest rover offset from its SITE origin accepted, per axis (metres): past Mars's diameter
 #: (6.8e6 m) no offset places anything; real ones are hundreds of metres.
 MAX_OFFSET_M = 1e7
@@ -244,9 +252,45 @@ class Fields:
                 self.fail(field, f"{name.upper()} of the {kind} model is not a unit vector "
                                  f"(norm {norm:.6g})")  # fmt: skip
         try:
-            return CameraModel(model_type=kind, frame=frame, **vectors)
+            model = CameraModel(model_type=kind, frame=frame, **vectors)
         except ValueError as exc:
             self.fail(field, f"invalid {kind} camera model: {exc}")
+        problem = degenerate(model)
+        if problem is not None:
+            self.fail(field, f"degenerate {kind} camera model: {problem}")
+        return model
+
+
+def degenerate(model: CameraModel) -> str | None:
+    """What makes ``model`` no camera (H or V without a component across A, a focal length
+    under MIN_MODEL_SCALE pixels, image axes less than 60 deg apart), or None."""
+    if model.hs < MIN_MODEL_SCALE or model.vs < MIN_MODEL_SCALE:
+        return (
+            f"focal lengths |A x H| = {model.hs:.6g}, |A x V| = {model.vs:.6g} px "
+            f"(at least {MIN_MODEL_SCALE:g} px)"
+        )
+    h = model.h - model.hc * model.a
+    v = model.v - model.vc * model.a
+    cos = float(abs(h @ v) / (np.linalg.norm(h) * np.linalg.norm(v)))
+    if cos > MAX_AXIS_COS:
+        return f"image axes H and V are {np.degrees(np.arccos(min(cos, 1.0))):.3g} deg apart"
+    return None
+
+
+def fov_problem(model_deg: float, label_deg: float | None) -> str | None:
+    """Whether a model's field of view ``model_deg`` disagrees with the label's
+    ``label_deg`` beyond the tolerance (FOV_TOLERANCE_DEG or FOV_TOLERANCE_REL, the larger)."""
+    if label_deg is None:
+        return None
+    if not np.isfinite(model_deg):
+        return f"the model's field of view is {model_deg} (label {label_deg:.4g} deg)"
+    tolerance = max(FOV_TOLERANCE_DEG, FOV_TOLERANCE_REL * label_deg)
+    if abs(model_deg - label_deg) > tolerance:
+        return (
+            f"the camera model sees {model_deg:.4g} deg, the label says {label_deg:.4g} deg "
+            f"(tolerance {tolerance:.3g} deg)"
+        )
+    return None
 
 
 def quantity_value(value: Any) -> Any:

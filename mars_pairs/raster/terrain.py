@@ -134,8 +134,9 @@ class Terrain:
 
     # -- lifecycle -------------------------------------------------------------------------
     def _open(self) -> None:
-        """Open the datasets and check their CRSs are projected and their grids axis-aligned
-        (TerrainError naming the file otherwise)."""
+        """Open the datasets and check their CRSs are projected, their grids axis-aligned and
+        the DEM's values elevations on Mars (``check_dem_values``); TerrainError naming the
+        file otherwise."""
         self._dem = _open_raster(self.dem_path, "DEM")
         try:
             crs = self._dem.crs
@@ -145,6 +146,7 @@ class Terrain:
             self.crs_wkt: str = crs.to_wkt()
             self.pyproj_crs = CRS.from_wkt(self.crs_wkt)
             check_map_crs(self.pyproj_crs, self.dem_path, "DEM")
+            check_dem_values(self._dem, self.dem_path)
             if self.ortho_path is not None:
                 self._ortho = _open_raster(self.ortho_path, "orthoimage")
                 if self._ortho.crs is None or not self._ortho.crs.to_wkt():
@@ -411,3 +413,35 @@ def _bilinear_patch(p: np.ndarray, fc: float, fr: float) -> float:
             acc += w * float(p[i, j])
             total += w
     return acc / total if total > 0 else float("nan")
+
+
+#: the elevations a Mars DEM may hold, in metres (Hellas floor ~ -8.2 km, Olympus Mons
+#: ~ +21.9 km above the areoid), with a margin
+MARS_ELEVATION_M = (-12_000.0, 30_000.0)
+#: the side of the decimated read the open-time range check looks at, in pixels
+CHECK_SIDE_PX = 256
+
+
+def check_dem_values(src: Any, path: str) -> None:
+    """TerrainError naming the DEM unless band 1 holds real numbers (an integer or float
+    dtype: no complex) whose valid values, on a decimated read of at most CHECK_SIDE_PX
+    pixels a side, lie within MARS_ELEVATION_M (3e38 m everywhere is not a Mars surface)."""
+    dtype = np.dtype(src.dtypes[0])
+    if dtype.kind not in "iuf":
+        raise TerrainError(
+            f"{path}: DEM band 1 is {dtype.name}, not real numbers (elevations in metres)"
+        )
+    rows = max(1, min(src.height, CHECK_SIDE_PX))
+    cols = max(1, min(src.width, CHECK_SIDE_PX))
+    data = src.read(1, out_shape=(rows, cols), masked=True)
+    values = np.ma.compressed(data).astype(np.float64)
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return  # all nodata: the samples fail at coverage, named
+    low, high = float(values.min()), float(values.max())
+    lo, hi = MARS_ELEVATION_M
+    if low < lo or high > hi:
+        raise TerrainError(
+            f"{path}: DEM elevations {low:.6g} .. {high:.6g} m lie outside the Mars range "
+            f"{lo:g} .. {hi:g} m (wrong units, nodata not declared, or not a DEM)"
+        )

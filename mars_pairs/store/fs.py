@@ -262,12 +262,39 @@ def total_size(root: Location) -> int:
     return sum(p.stat().st_size for p in Path(root).rglob("*") if p.is_file())
 
 
+#: the name of a staging folder: the prefix, the pid of the process that made it, a suffix
+STAGING_PREFIX = "mars-pairs-upload-"
+
+
 @contextmanager
 def local_staging() -> Iterator[Path]:
     """A fresh local folder (in the system temporary folder) for files on their way to
-    object storage; removed with its content when the block ends."""
-    with tempfile.TemporaryDirectory(prefix="mars-pairs-upload-") as tmp:
+    object storage, named ``mars-pairs-upload-<pid>-...``; removed with its content when the
+    block ends (a killed process's: by :func:`remove_stale_staging`)."""
+    with tempfile.TemporaryDirectory(prefix=f"{STAGING_PREFIX}{os.getpid()}-") as tmp:
         yield Path(tmp)
+
+
+def remove_stale_staging() -> list[Path]:
+    """Remove the staging folders (:func:`local_staging`) in the system temporary folder
+    whose process is gone (a build killed mid-upload: SIGKILL, a lost bucket); the ones of
+    running processes stay. Returns the folders removed."""
+    removed = []
+    root = Path(tempfile.gettempdir())
+    for path in sorted(root.glob(f"{STAGING_PREFIX}*")):
+        pid_text = path.name[len(STAGING_PREFIX) :].split("-", 1)[0]
+        if not pid_text.isdigit() or path.is_symlink() or not path.is_dir():
+            continue
+        try:
+            os.kill(int(pid_text), 0)
+            continue  # alive (or not ours to signal: alive)
+        except ProcessLookupError:
+            pass
+        except PermissionError:
+            continue
+        shutil.rmtree(path, ignore_errors=True)
+        removed.append(path)
+    return removed
 
 
 def write_parquet(table: Any, path: Location, row_group_size: int = 4096) -> None:

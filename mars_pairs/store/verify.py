@@ -1,5 +1,9 @@
 """``mars-pairs verify DIR``: check a built dataset against its manifest.
 
+The folder's integrity chain is checked first (:func:`~mars_pairs.store.seal.chain_damage`:
+``SHA256SUMS`` against dataset.json, then the size and SHA-256 dataset.json records of the
+manifest, the failures, the card, croissant.json and the shard index), each damaged file
+named; a dataset built before the chain is reported as having "no integrity record" (once).
 The dataset must have its ``dataset.json`` (:func:`~mars_pairs.store.dataset_info.
 read_dataset_info`: the ray stride, CRS and chip size every reader needs) and no key on two
 manifest rows. Each member is checked by :func:`~mars_pairs.store.integrity.check_member`,
@@ -26,6 +30,7 @@ from mars_pairs.store.dataset_info import DATASET_JSON, read_dataset_info
 from mars_pairs.store.integrity import MemberSpec, check_member, repeated_keys, shard_location
 from mars_pairs.store.members import MEMBERS, OPTIONAL_FIELDS
 from mars_pairs.store.query import Manifest
+from mars_pairs.store.seal import NO_RECORD, chain_damage
 
 
 @dataclass(frozen=True)
@@ -52,10 +57,11 @@ class VerifyReport:
     shards: int = 0
     unchecked: int = 0  # members without a checksum (a dataset built before checksums)
     damage: list[Damage] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # warnings (no integrity record)
 
     def format(self) -> str:
-        """One line per damaged member, then a summary line."""
-        lines = [str(d) for d in self.damage]
+        """One line per note and per damaged file or member, then a summary line."""
+        lines = [f"warning: {n}" for n in self.notes] + [str(d) for d in self.damage]
         state = f"{len(self.damage)} damaged" if self.damage else "all intact"
         extra = f", {self.unchecked} without a checksum" if self.unchecked else ""
         lines.append(
@@ -68,6 +74,24 @@ def verify_dataset(root: str | Path) -> VerifyReport:
     """Check the dataset at ``root`` (see the module docstring). A manifest that cannot be
     read or lacks a location column raises DatasetError naming it and the column."""
     root = fs.dataset_root(root)
+    chain = chain_damage(root)
+    notes = [NO_RECORD] if chain is None else []
+    damage = [Damage(d.path, None, d.reason) for d in chain or []]
+    try:
+        report = _verify_members(root)
+    except DatasetError:
+        if not damage:
+            raise
+        # the manifest (or dataset.json) unreadable: already named by the chain
+        return VerifyReport(root, damage=damage, notes=notes)
+    report.damage[:0] = damage
+    report.notes = notes
+    return report
+
+
+def _verify_members(root: fs.Location) -> VerifyReport:
+    """verify_dataset's checks after the chain: dataset.json's fields, repeated keys, every
+    member."""
     manifest = Manifest.open(root)
     names = set(manifest.schema.names)
     # the optional dense members (output.members) that this manifest locates

@@ -24,10 +24,12 @@ argument an ArgumentError (also a TypeError / ValueError), a damaged shard or me
 DatasetError naming the shard and the member. A dataset opens only with its dataset.json
 (the ray stride, CRS and chip size) and the manifest columns it reads. Every read stays
 inside the dataset folder and inside the shard file. ``verify=True`` checks each sample it
-reads as ``mars-pairs verify`` does (:mod:`mars_pairs.store.integrity`, the same code): every
-member of the sample, requested or not (``meta.json`` too), must lie inside its shard, follow
-a tar header naming ``<key>.<field>`` with the manifest's size, and match its CRC-32C where
-the manifest has ``<member>_crc32c`` columns; and no key may be on two manifest rows.
+reads as ``mars-pairs verify`` does (:mod:`mars_pairs.store.integrity`, the same code), after
+checking dataset.json and the manifest against the folder's integrity chain once at open
+(:func:`~mars_pairs.store.seal.require_sealed`): every member of the sample, requested or
+not (``meta.json`` too), must lie inside its shard, follow a tar header naming
+``<key>.<field>`` with the manifest's size, and match its CRC-32C where the manifest has
+``<member>_crc32c`` columns; and no key may be on two manifest rows.
 """
 
 from __future__ import annotations
@@ -60,6 +62,7 @@ from mars_pairs.store.manifest import SUMMARY_COLUMNS
 from mars_pairs.store.member_index import MemberIndex
 from mars_pairs.store.members import DENSE_GROUND_FIELDS, MEMBERS
 from mars_pairs.store.query import Manifest
+from mars_pairs.store.seal import require_sealed
 from mars_pairs.torch.decode import (
     ALL_FIELDS,  # noqa: F401  (re-exported)
     DEFAULT_FIELDS,  # noqa: F401  (re-exported)
@@ -157,6 +160,8 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
         self._dtypes = {f: out_dtype(f, opts.image_dtype) for f in self.fields}
         self.image_dtype = opts.image_dtype
         self.filters = dict(filters)
+        if opts.verify:  # dataset.json and the manifest against the folder's chain, once
+            require_sealed(self.root)
         manifest = Manifest.open(self.root).filter(**filters)  # ManifestFilter's arguments
         info = read_dataset_info(self.root)
         self.crs: str = info.crs or manifest.crs or ""

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import io
 import json
+import warnings
 from functools import lru_cache
 from typing import Any
 
@@ -56,14 +57,32 @@ MEMBER_SUFFIXES = {
 }
 
 
+#: the most pixels an image member may have (a full-frame Navcam image has 20 Mpx); a larger
+#: one (a decompression bomb: a few KB of PNG for 20000 x 20000 pixels) is a ValueError, which
+#: the datasets report as a DatasetError naming the shard and the member
+MAX_MEMBER_PIXELS = 64_000_000
+
 UINT8_DIVISORS = {"ground": 255.0, "ortho": 255.0, "viewshed": 1.0}  # float32 = uint8 / this
 
 
 def _image_u8(
     data: bytes | bytearray, mode: str, size: tuple[int, int] | None = None
 ) -> np.ndarray:
-    """Decode an image to uint8 [H, W] or [H, W, C] (resized to ``size`` (H, W) if given)."""
-    with Image.open(io.BytesIO(data)) as im:
+    """Decode an image to uint8 [H, W] or [H, W, C] (resized to ``size`` (H, W) if given);
+    ValueError for an image of more than MAX_MEMBER_PIXELS pixels, before its pixels are
+    decoded."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # checked below
+            opened = Image.open(io.BytesIO(data))
+    except Image.DecompressionBombError as exc:
+        raise ValueError(f"image over the pixel limit: {exc}") from None
+    with opened as im:
+        if im.width * im.height > MAX_MEMBER_PIXELS:
+            raise ValueError(
+                f"{im.width} x {im.height} pixels: over the limit of {MAX_MEMBER_PIXELS} "
+                "pixels an image member may have"
+            )
         if im.mode != mode:
             im = im.convert(mode)
         if size is not None and (im.height, im.width) != tuple(size):

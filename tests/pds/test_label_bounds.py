@@ -1,5 +1,6 @@
-"""Label parsing is bounded in time and memory on any thread: pathological labels are a
-LabelError within 5 s on a worker thread (where no SIGALRM timer runs), the structural bounds
+"""Label parsing is bounded in work and memory on any thread: pathological labels are a
+LabelError within 5 s of CPU time on a worker thread (counted on the thread, whatever the
+machine's load) (where no SIGALRM timer runs), the structural bounds
 sit far above the real labels, and a label at every bound still parses quickly."""
 
 from __future__ import annotations
@@ -23,10 +24,10 @@ BUDGET_S = 5.0
 
 
 def on_a_thread(fn, *args) -> tuple[float, object]:
-    """``support.threads.on_a_thread`` within BUDGET_S, and under it (one long C call that
-    holds the GIL would finish late but still finish)."""
+    """``support.threads.on_a_thread``: under BUDGET_S of the thread's CPU time (not wall
+    time: a loaded machine does not fail it)."""
     elapsed, result = run_on_a_thread(fn, *args, budget_s=BUDGET_S)
-    assert elapsed < BUDGET_S, f"took {elapsed:.1f} s on a worker thread"
+    assert elapsed < BUDGET_S, f"took {elapsed:.1f} s of CPU time on a worker thread"
     return elapsed, result
 
 

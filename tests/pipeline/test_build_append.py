@@ -23,6 +23,7 @@ from mars_pairs.pipeline.builder.append import check_append_config, plan_append,
 from mars_pairs.pipeline.builder.layout import stamp_path
 from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import BuildConfig, load_config
+from mars_pairs.store.seal import chain_damage
 from support.configs import config_file
 
 #: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
@@ -136,6 +137,8 @@ def test_an_append_equals_a_single_build_of_both_releases(
     ref = json.loads((single / "dataset.json").read_text())
     assert doc["splits"] == ref["splits"]  # the leak check over the whole dataset
     assert doc["counts"] == ref["counts"]
+    assert chain_damage(out) == []  # the append rewrote the folder's integrity chain
+    assert sorted(doc["files"]) == sorted(ref["files"])
     assert doc["counts"]["failures"] == 3  # 2 broken labels and the duplicate key
     duplicate = [f for f in _failures(out) if "DuplicateKeyError" in f]
     assert len(duplicate) == 1 and "J02.xml" in duplicate[0][1]

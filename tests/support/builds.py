@@ -4,6 +4,7 @@ a finished folder."""
 from __future__ import annotations
 
 import io
+import json
 from contextlib import redirect_stdout
 from pathlib import Path
 from typing import Any
@@ -12,6 +13,7 @@ import pyarrow.parquet as pq
 
 from mars_pairs.cli.main import main
 from mars_pairs.pipeline.builder.run import run_build
+from mars_pairs.store.seal import FILES_KEY, seal
 from support.configs import build_config, config_doc, config_file
 
 # the small build of the store and CLI tests: 64 m chips of 32 px, 2 samples a shard
@@ -75,3 +77,14 @@ def cli_built_dataset(base: Path, mission: Path) -> Path:
         assert main(["build", "--config", str(config), "--quiet"]) == 0
     (work / "build.out").write_text(out.getvalue())
     return root
+
+
+def reseal(root: Path) -> None:
+    """Record the folder's files as they are now in its dataset.json and SHA256SUMS (as a
+    build does), for tests that damage a manifest on purpose to exercise the member checks
+    behind the folder's integrity chain. A folder without dataset.json is left as it is."""
+    path = root / "dataset.json"
+    if path.is_file():
+        doc = json.loads(path.read_bytes())
+        doc.pop(FILES_KEY, None)
+        seal(root, doc)

@@ -212,3 +212,32 @@ def test_chip_reads_outside_the_bands_are_terrain_errors(mission_dir: Path) -> N
         assert np.isfinite(reader.read(grid)).any()
         with pytest.raises(TerrainError, match="band 2"):
             reader.read(grid, band=2)
+
+
+def _png_bomb(side: int) -> bytes:
+    """A valid PNG header of ``side`` x ``side`` grey pixels (CRCs correct) over a few bytes
+    of image data: a decoder that trusts the header allocates side**2 bytes."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        crc = zlib.crc32(kind + body) & 0xFFFFFFFF
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", crc)
+
+    ihdr = struct.pack(">IIBBBBB", side, side, 8, 0, 0, 0, 0)
+    idat = zlib.compress(b"\0" * 1024, 9)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", idat) + chunk(b"IEND", b"")
+
+
+def test_a_decompression_bomb_member_is_a_dataset_error_naming_it(copy: Path) -> None:
+    key, shard, offset, size = location(copy, 1, "ortho")
+    bomb = _png_bomb(20000)
+    assert len(bomb) <= size
+    with open(copy / shard, "r+b") as fh:  # the member's bytes, its tar header kept
+        fh.seek(offset)
+        fh.write(bomb + b"\0" * (size - len(bomb)))
+    with MarsPairsDataset(copy, fields=("ortho",)) as ds, pytest.raises(DatasetError) as err:
+        ds[1]
+    message = str(err.value)
+    assert shard in message and f"{key}.ortho.png" in message
+    assert "pixel limit" in message or "over the limit" in message

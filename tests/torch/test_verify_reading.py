@@ -22,6 +22,7 @@ from mars_pairs import Manifest
 from mars_pairs.cli.main import main
 from mars_pairs.errors import ArgumentError, DatasetError, MarsPairsError, MissingMemberError
 from mars_pairs.torch import ALL_FIELDS, MarsPairsDataset, MarsPairsIterableDataset, MarsPairsLoader
+from support.builds import reseal
 
 ROW, OTHER = 4, 7  # the damaged sample's manifest row (read first), and a later one's
 
@@ -170,6 +171,7 @@ def test_every_corruption_is_a_dataset_error_and_fails_verify(
     copy: Path, corruption: Callable[[Path], Damage], capsys: pytest.CaptureFixture[str]
 ) -> None:
     damage = corruption(copy)
+    reseal(copy)  # the member checks behind the folder's chain (tests/store/test_folder_chain)
     with pytest.raises(DatasetError) as err:
         read_all(copy, verify=True)
     message = str(err.value)
@@ -242,6 +244,7 @@ def test_a_worker_error_reaches_the_caller_as_a_dataset_error(
     copy: Path, loader: type[DataLoader]
 ) -> None:
     damage = swap_ortho(copy)
+    reseal(copy)
     kwargs = {} if loader is MarsPairsLoader else {"collate_fn": list}
     kind = message = None
     with MarsPairsDataset(copy, fields=("ortho",), verify=True) as ds:

@@ -1,6 +1,7 @@
 """The end of a build: chunk parts merged into manifest.parquet and failures.parquet, then the
-files that explain the folder (dataset.json, README.md, croissant.json), then ``parts/`` goes
-(``hygiene.remove_parts``).
+files that explain the folder (the shard index, README.md, croissant.json), then dataset.json
+recording their digests and SHA256SUMS over it (``store.seal``: the folder's integrity chain),
+then ``parts/`` goes (``hygiene.remove_parts``).
 
 Every path written in the folder is relative to it: dataset.json's config names its inputs
 relative to the dataset folder as they were at build time, the manifest's ``label_path`` is
@@ -38,6 +39,7 @@ from mars_pairs.store.croissant import croissant_metadata, dataset_description, 
 from mars_pairs.store.dataset_info import DatasetInfo, dataset_document
 from mars_pairs.store.geoparquet import crs_name, named_crs, table_geo_metadata
 from mars_pairs.store.manifest import FAILURE_SCHEMA, MANIFEST_SCHEMA
+from mars_pairs.store.seal import seal
 
 #: What dataset.json says of its paths: a dataset on disk, one on object storage.
 PATHS_NOTE = (
@@ -187,7 +189,7 @@ def library_versions() -> dict[str, str]:
     }
 
 
-def write_dataset_json(
+def dataset_doc(
     config: BuildConfig,
     summary: BuildSummary,
     manifest: pa.Table,
@@ -195,10 +197,10 @@ def write_dataset_json(
     fingerprint: dict[str, Any] | None = None,
     extra: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Write dataset.json (with the finished build's ``build_stamp`` when ``fingerprint``,
-    the build's stamp, is given; ``extra``'s keys over the document's: an append's
-    ``appends`` and ``build_stamp``); returns the document. ``input_files`` holds the
-    fingerprints of the PLACES table, DEM and ortho without their paths
+    """The dataset.json document (with the finished build's ``build_stamp`` when
+    ``fingerprint``, the build's stamp, is given; ``extra``'s keys over the document's: an
+    append's ``appends`` and ``build_stamp``), written last by :func:`write_dataset_json`.
+    ``input_files`` holds the fingerprints of the PLACES table, DEM and ortho without their paths
     (``fingerprints.input_files``), which ``--append`` checks."""
     counts: dict[str, Any] = {"samples": summary.samples, "failures": summary.failures}
     if manifest.num_rows:
@@ -232,9 +234,13 @@ def write_dataset_json(
     if fingerprint is not None:
         doc[FINISHED_KEY] = stamp_digest(fingerprint)
     doc.update(extra or {})
-    doc = dataset_document(doc, fs.join(out, "dataset.json"))  # format_version first, checked
-    fs.put_bytes(fs.join(out, "dataset.json"), json.dumps(doc, indent=2).encode())
-    return doc
+    return dataset_document(doc, fs.join(out, "dataset.json"))  # format_version first, checked
+
+
+def write_dataset_json(config: BuildConfig, doc: dict[str, Any]) -> None:
+    """Write dataset.json ``doc`` with the record of the folder's files, then SHA256SUMS over
+    it (``store.seal``): the last files of a build, after every file they record."""
+    seal(config.output.dir, doc)
 
 
 def write_card(config: BuildConfig, manifest: pa.Table, doc: dict[str, Any]) -> None:

@@ -35,6 +35,7 @@ from mars_pairs.pipeline.builder.stamp import (
 )
 from mars_pairs.store import fs
 from mars_pairs.store.manifest import FAILURE_SCHEMA
+from mars_pairs.store.seal import SUMS
 from mars_pairs.store.wids_index import WIDS_INDEX
 
 
@@ -170,6 +171,7 @@ def built_keys(out: fs.Location, done: Iterable[int]) -> dict[str, str]:
 
 #: What ``clear_outputs`` removes, in order (patterns relative to the output folder).
 _CLEARED = (
+    SUMS,  # the chain's sidecar first: no reader checks a half-cleared folder against it
     "manifest.parquet",
     "dataset.json",
     "README.md",

@@ -18,10 +18,15 @@ from typing import Any
 
 from mars_pairs.store import fs
 from mars_pairs.store.atomic import temporary_target
+from mars_pairs.store.seal import SUMS
 from mars_pairs.store.splits import SPLIT_NAME
 from mars_pairs.store.wids_index import WIDS_INDEX
 
 DROPPED_KEY = b"mars_pairs:dropped_in_buffer"
+
+
+#: The output folder's lock (``pipeline.builder.lock``): every build's, kept, never cleared.
+LOCK_FILE = ".mars-pairs.lock"
 
 
 #: The stamp of a build whose files are being cleared (the old stamp, renamed).
@@ -35,6 +40,7 @@ BUILD_FILES = (
     "manifest.parquet",
     "failures.parquet",
     "dataset.json",
+    SUMS,  # dataset.json's SHA-256 (``store.seal``)
     WIDS_INDEX,
     "README.md",
     "croissant.json",
@@ -90,7 +96,9 @@ def dropped_count(out: fs.Location, n_chunks: int) -> int:
 
 def written_by(chunks: int | None, rel: str) -> bool:
     """Whether a build of ``chunks`` chunks (None: no build) writes the file ``rel`` (a path
-    relative to the output folder, with ``/``)."""
+    relative to the output folder, with ``/``); the folder's lock is every build's."""
+    if rel == LOCK_FILE:
+        return True
     if chunks is None:
         return False
     if rel in BUILD_FILES or SPLIT_FILE.fullmatch(rel):

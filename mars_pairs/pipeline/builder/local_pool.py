@@ -29,6 +29,7 @@ import contextlib
 import multiprocessing as mp
 import os
 import signal
+import sys
 import threading
 from collections import deque
 from collections.abc import Iterable, Iterator
@@ -65,16 +66,40 @@ def _start_server(ctx: BaseContext) -> None:
     (only from the main thread, the one that may set signal handlers)."""
     if ctx.get_start_method() != "forkserver":
         return
-    from multiprocessing import forkserver
+    from multiprocessing import forkserver, resource_tracker
 
-    if threading.current_thread() is not threading.main_thread():
-        forkserver.ensure_running()
-        return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    with _safe_path():
+        resource_tracker.ensure_running()  # also a `python -c`: started without the cwd
+        if threading.current_thread() is not threading.main_thread():
+            forkserver.ensure_running()
+            return
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        try:
+            forkserver.ensure_running()
+        finally:
+            signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
+def _safe_path() -> Iterator[None]:
+    """The environment of a helper process this block execs (the fork server, the resource
+    tracker: ``python -c ...``, which would put the current folder first on ``sys.path``, so
+    a user's ``concurrent.py`` there would shadow the standard library in every worker):
+    ``PYTHONSAFEPATH=1`` (no current folder) and ``PYTHONPATH`` the driver's own ``sys.path``
+    without the current folder (the fork server of Python 3.11 ignores the driver's path)."""
+    cwd = os.getcwd()
+    path = [p for p in sys.path if p and os.path.abspath(p) != cwd]
+    saved = {k: os.environ.get(k) for k in ("PYTHONSAFEPATH", "PYTHONPATH")}
+    os.environ["PYTHONSAFEPATH"] = "1"
+    os.environ["PYTHONPATH"] = os.pathsep.join(path)
     try:
-        forkserver.ensure_running()
+        yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
 
 
 @contextlib.contextmanager

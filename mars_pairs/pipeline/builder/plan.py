@@ -19,7 +19,7 @@ from itertools import islice
 from pathlib import Path
 from typing import Any
 
-from mars_pairs.errors import ConfigError
+from mars_pairs.errors import ConfigError, TerrainError
 from mars_pairs.pipeline.builder.hygiene import foreign_file
 from mars_pairs.pipeline.builder.label_list import iter_matches
 from mars_pairs.pipeline.builder.layout import part_paths, stamp_path, written_by
@@ -33,6 +33,7 @@ from mars_pairs.pipeline.builder.stamp import (
 )
 from mars_pairs.pipeline.config import BuildConfig, SyntheticSpec
 from mars_pairs.pipeline.splitting import split_rule
+from mars_pairs.raster.terrain import Terrain
 from mars_pairs.raster.vsi import open_raster
 from mars_pairs.store import fs
 
@@ -64,6 +65,11 @@ def check_inputs(config: BuildConfig) -> None:
                     raise ConfigError(f"inputs.{key}: {path} has no CRS")
         except rasterio.errors.RasterioIOError as exc:
             raise ConfigError(f"inputs.{key}: cannot open {path}: {exc}") from None
+    try:  # the checks every worker's Terrain makes, once, before any work
+        Terrain.open(config.inputs.dem, config.inputs.ortho).close()
+    except TerrainError as exc:
+        key = "ortho" if str(exc).startswith(str(config.inputs.ortho)) else "dem"
+        raise ConfigError(f"inputs.{key}: {exc}") from None
     with open_raster(config.inputs.dem) as src:  # a split config error stops it here
         split_rule(config, src.crs.to_wkt(), tuple(src.bounds), src.res)
 

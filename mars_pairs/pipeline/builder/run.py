@@ -49,6 +49,7 @@ from mars_pairs.pipeline.builder.engine import ChunkResult, ChunkTask, Engine, I
 from mars_pairs.pipeline.builder.fingerprints import LabelDigest
 from mars_pairs.pipeline.builder.finish import (
     BuildSummary,
+    dataset_doc,
     finished_summary,
     merge_parts,
     write_card,
@@ -62,6 +63,7 @@ from mars_pairs.pipeline.builder.hygiene import (
 )
 from mars_pairs.pipeline.builder.layout import dropped_count, stamp_path
 from mars_pairs.pipeline.builder.local_pool import LocalPool
+from mars_pairs.pipeline.builder.lock import folder_lock
 from mars_pairs.pipeline.builder.plan import (
     check_clearable,
     chunks_of,
@@ -112,20 +114,23 @@ def run_build(
     if append and limit is not None:
         raise ConfigError("--limit: not with --append (an append builds every new label)")
     check_input_files(config)  # before any process opens them
-    if not resume and not append:  # refused before any worker starts (else: once planned)
-        check_clearable(config.output.dir)
-    if append:  # planned before any worker starts: a refused append starts none
-        plan = plan_append(config)
-        if plan.labels_new == 0:
-            return _nothing_to_append(config, plan, start)
-    # the workers start now: their imports and raster opening overlap the planning
-    pool = LocalPool(config, workers) if engine is None and workers > 1 else None
-    if engine is None:
-        engine = pool if pool is not None else InProcess()
-    with pool if pool is not None else contextlib.nullcontext():
-        if append:
-            return _run_append(config, plan, start, strict, progress, engine)
-        return _run(config, start, resume, limit, strict, progress, engine)
+    with folder_lock(config.output.dir):  # one writer: before the folder is read or written
+        if not isinstance(config.output.dir, Path):
+            fs.remove_stale_staging()  # of a build killed mid-upload
+        if not resume and not append:  # refused before any worker starts (else: once planned)
+            check_clearable(config.output.dir)
+        if append:  # planned before any worker starts: a refused append starts none
+            plan = plan_append(config)
+            if plan.labels_new == 0:
+                return _nothing_to_append(config, plan, start)
+        # the workers start now: their imports and raster opening overlap the planning
+        pool = LocalPool(config, workers) if engine is None and workers > 1 else None
+        if engine is None:
+            engine = pool if pool is not None else InProcess()
+        with pool if pool is not None else contextlib.nullcontext():
+            if append:
+                return _run_append(config, plan, start, strict, progress, engine)
+            return _run(config, start, resume, limit, strict, progress, engine)
 
 
 def _commit_all(
@@ -222,11 +227,10 @@ def _run(
         seconds=time.perf_counter() - start,
         stage_seconds=dict(stage_seconds),
     )
-    doc = write_dataset_json(
-        config, summary, manifest, dropped_count(out, plan.chunks), plan.fingerprint
-    )
+    doc = dataset_doc(config, summary, manifest, dropped_count(out, plan.chunks), plan.fingerprint)
     write_wids_index(out, manifest)
     write_card(config, manifest, doc)
+    write_dataset_json(config, doc)  # the record of the files above: after them
     if not config.output.keep_parts:
         remove_parts(out, plan.chunks)  # the last step: a kill before it resumes
     return summary
@@ -332,8 +336,9 @@ def _run_append(
         plan.summary_line(),
     )
     extra = dataset_extra(config, plan, added, failures.num_rows - base_failures)
-    doc = write_dataset_json(config, summary, manifest, dropped, extra=extra)
+    doc = dataset_doc(config, summary, manifest, dropped, extra=extra)
     write_wids_index(out, manifest)
     write_card(config, manifest, doc)
+    write_dataset_json(config, doc)  # the record of the files above: after them
     remove_append_parts(out, plan)  # the stamp before the base: see pipeline.builder.append
     return summary
