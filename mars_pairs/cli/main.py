@@ -242,6 +242,10 @@ def _cmd_export_qgis(args: argparse.Namespace) -> int:
 def _cmd_query(args: argparse.Namespace) -> int:
     from mars_pairs.cli.query import check_query_splits, filter_arguments, run_query
 
+    if args.saw is not None or args.overlaps is not None:
+        from mars_pairs.cli.query import footprint_query
+
+        return footprint_query(args.dataset, args.saw, args.overlaps, args.format, args.out)
     filters = filter_arguments(
         bbox=args.bbox,
         bbox_map=args.bbox_map,
@@ -384,6 +388,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="within a great-circle radius (metres) of a point",
     )
     where.add_argument("--polygon", help="WKT polygon in the dataset CRS")
+    where.add_argument(
+        "--saw", nargs=2, type=finite, metavar=("LON", "LAT"),
+        help="the images whose footprint holds the point (a catalogue: its visible footprint; "
+        "a dataset: the manifest's), nearest first, with the range",
+    )  # fmt: skip
+    where.add_argument(
+        "--overlaps", metavar="KEY", help="the images that saw the same ground as KEY (pairs.parquet), by IoU"
+    )
     p.add_argument("--mission", action="append", help="m2020 or msl (repeat for several)")
     p.add_argument(
         "--instrument", action="append", help="e.g. MAST_LEFT, NAV_LEFT (repeat for several)"

@@ -53,7 +53,7 @@ def geo_crs(schema: pa.Schema, path: Path) -> Any:
     """The primary geometry column's CRS (PROJJSON) of a GeoParquet file's ``schema``."""
     meta = (schema.metadata or {}).get(b"geo")
     if meta is None:
-        raise DatasetError(f"{path}: no GeoParquet 'geo' metadata")
+        raise DatasetError(path, None, "no GeoParquet 'geo' metadata")
     doc = json.loads(meta)
     return doc["columns"][doc["primary_column"]]["crs"]
 
@@ -85,7 +85,7 @@ class Catalog:
         root = Path(folder)
         path = root / "catalog.parquet"
         if not path.is_file():
-            raise DatasetError(f"{root}: no catalog.parquet (not a footprint catalogue folder)")
+            raise DatasetError(root, None, "no catalog.parquet (not a footprint catalogue folder)")
         table = pq.read_table(path)
         return cls(root, table, geo_crs(table.schema, path))
 
@@ -123,7 +123,7 @@ class Catalog:
             raise ArgumentError(f"overlaps: no image {key!r} in {self.folder / 'catalog.parquet'}")
         path = self.folder / "pairs.parquet"
         if not path.is_file():
-            raise DatasetError(f"{self.folder}: no pairs.parquet (made without pairs)")
+            raise DatasetError(self.folder, None, "no pairs.parquet (made without pairs)")
         pairs = pq.read_table(path, filters=(pc.field("key_a") == key) | (pc.field("key_b") == key))
         other = pc.if_else(pc.equal(pairs["key_a"], key), pairs["key_b"], pairs["key_a"])
         keep = ["iou", "intersection_m2", "distance_m", "heading_diff_deg", "same_position"]

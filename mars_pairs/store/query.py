@@ -100,6 +100,7 @@ class Manifest:
         instrument: str | list[str] | None = None,
         sol: tuple[int, int] | None = None,
         split: str | list[str] | None = None,
+        saw: tuple[float, float] | None = None,
     ) -> Manifest:
         """A new Manifest keeping rows that satisfy every given predicate.
 
@@ -111,7 +112,9 @@ class Manifest:
         a value or a list of values. Numbers may be Python, numpy or pandas scalars (and the
         tuples numpy arrays or pandas Series); a wrong type, size, a NaN or an empty list
         raises ArgumentError naming the argument; a column a predicate needs that the
-        manifest lacks, DatasetError naming the column.
+        manifest lacks, DatasetError naming the column. ``saw``: (lon, lat) degrees east/north
+        on the Mars sphere, longitude first: the samples whose ``footprint`` polygon (the
+        manifest's: the convex hull of the cells in view and the camera) holds the point.
         """
         import pyarrow.dataset as ds
 
@@ -129,6 +132,7 @@ class Manifest:
                 (instrument, ("instrument",)),
                 (sol, ("sol",)),
                 (split, ("split",)),
+                (saw, ("footprint", "bbox")),
             )
             if value is not None
             for column in columns
@@ -168,6 +172,21 @@ class Manifest:
                 & (f("northing") <= y1)
             )
             exact.append(_PolygonPredicate(shapely_module().to_wkb(geom)))
+        if saw is not None:
+            from mars_pairs.geometry.frames import lonlat_to_map
+            from mars_pairs.store.catalog import checked_point
+
+            lon, lat = checked_point(saw, "saw")
+            if self.crs is None:
+                raise DatasetError(self.root, "footprint", "saw: the manifest names no CRS")
+            mx, my = (float(v[0]) for v in lonlat_to_map([lon], [lat], self.crs))
+            terms.append(
+                (f("bbox", "xmin") <= mx)
+                & (f("bbox", "xmax") >= mx)
+                & (f("bbox", "ymin") <= my)
+                & (f("bbox", "ymax") >= my)
+            )
+            exact.append(_SawPredicate(mx, my))
         for name, value in (("mission", mission), ("instrument", instrument), ("split", split)):
             if value is not None:
                 terms.append(f(name).isin(strings(value, name)))
@@ -267,3 +286,15 @@ class _PolygonPredicate:
             geom, table["easting"].to_numpy(), table["northing"].to_numpy()
         )
         return pa.array(inside)
+
+
+@dataclass(frozen=True)
+class _SawPredicate:
+    x: float  # map units, dataset CRS
+    y: float
+
+    def __call__(self, table: pa.Table) -> pa.Array:
+        import shapely
+
+        geoms = shapely.from_wkb(table["footprint"].to_numpy(zero_copy_only=False))
+        return pa.array(shapely.intersects_xy(geoms, self.x, self.y) & ~shapely.is_missing(geoms))

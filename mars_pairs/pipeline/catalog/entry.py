@@ -42,6 +42,10 @@ from mars_pairs.store.splits import hilbert_index
 _BROWSE = (".jpg", ".jpeg", ".png")
 #: vertices of the wedge's arc per degree of azimuth
 _ARC_STEP_DEG = 1.0
+#: sub-cells per DEM cell side on which the view test draws the footprint's outline: the
+#: image's edges cut DEM cells, and a whole-cell outline misses half a cell along them (IoU
+#: 0.25 against the chip for a narrow view); line of sight stays the DEM cell's
+SUBCELLS = 4
 
 
 def checked_size(obs: Observation) -> Observation:
@@ -107,6 +111,56 @@ def visible_ranges(view: View) -> tuple[float | None, float | None]:
     return float(np.median(dist)), float(dist.max())
 
 
+def fine_mask(view: View, sub: int = SUBCELLS) -> tuple[np.ndarray, Any]:
+    """The view on a grid ``sub`` times finer than the DEM window's (uint8, 1 = in view) and
+    its transform: a sub-cell is in view when its DEM cell is in line of sight
+    (``view.los``) and its centre, at the DEM's bilinear height there, passes the exact view test
+    (``view.in_view``), as a chip pixel is tested (``chips.chip_view``)."""
+    from affine import Affine
+
+    from mars_pairs.pipeline.sample.view import in_view
+
+    los = view.los
+    fine = np.zeros((los.shape[0] * sub, los.shape[1] * sub), dtype=np.uint8)
+    rows, cols = np.nonzero(los)
+    if len(rows):
+        offsets = (np.arange(sub) + 0.5) / sub - 0.5
+        dy, dx = (a.ravel() for a in np.meshgrid(offsets, offsets, indexing="ij"))
+        rr = np.repeat(rows, sub * sub)
+        cc = np.repeat(cols, sub * sub)
+        fr = rr * sub + np.tile(np.repeat(np.arange(sub), sub), len(rows))
+        fc = cc * sub + np.tile(np.tile(np.arange(sub), sub), len(rows))
+        x, y = view.window.colrow_to_xy(cc + np.tile(dx, len(rows)), rr + np.tile(dy, len(rows)))
+        z = bilinear(view.window.data, cc + np.tile(dx, len(rows)), rr + np.tile(dy, len(rows)))
+        keep = in_view(np.column_stack([x, y, z]), view) & np.isfinite(z)
+        fine[fr[keep], fc[keep]] = 1
+    return fine, view.window.transform * Affine.scale(1.0 / sub)
+
+
+def bilinear(data: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
+    """``data`` (rows, cols; cell centres at integers) at fractional (col, row), bilinear,
+    clamped at the edges; NaN where a neighbour is NaN (as the chips' DEM reads)."""
+    h, w = data.shape
+    c = np.clip(col, 0.0, w - 1.0)
+    r = np.clip(row, 0.0, h - 1.0)
+    c0 = np.minimum(np.floor(c).astype(np.intp), max(w - 2, 0))
+    r0 = np.minimum(np.floor(r).astype(np.intp), max(h - 2, 0))
+    c1, r1 = np.minimum(c0 + 1, w - 1), np.minimum(r0 + 1, h - 1)
+    fc, fr = c - c0, r - r0
+    d = data.astype(np.float64, copy=False)
+    top = d[r0, c0] * (1 - fc) + d[r0, c1] * fc
+    bottom = d[r1, c0] * (1 - fc) + d[r1, c1] * fc
+    out: np.ndarray = top * (1 - fr) + bottom * fr
+    return out
+
+
+def _true_area(outline: Any, cam: MapCamera) -> float:
+    """The outline's area in true square metres (map area through the local Jacobian)."""
+    if outline is None:
+        return 0.0
+    return float(outline.area / abs(float(np.linalg.det(cam.jacobian[:2, :2]))))
+
+
 def wedge_polygon(view: View) -> shapely.Polygon:
     """The frustum's horizontal wedge (map CRS): from the camera centre out to ``radius_m``
     (true metres) across the image's true-north azimuth band; the full disc when the band is
@@ -132,7 +186,8 @@ def _row(obs: Observation, view: View, ctx: SampleContext, quat: np.ndarray) -> 
     lon, lat = map_to_lonlat([cx], [cy], ctx.crs_wkt)
     az, el = image_centre_pointing_deg(obs.camera, obs.width, obs.height, quat)
     hfov, vfov = obs.camera.fov_deg(obs.width, obs.height)
-    outline = mask_outline(view.mask, view.window.transform)
+    fine, transform = fine_mask(view)
+    outline = mask_outline(fine, transform)
     median, far = visible_ranges(view)
     stats = view_statistics(view)
     image = relative_label_path(obs.image_path, cfg.inputs.labels) if obs.image_path else None
@@ -151,7 +206,7 @@ def _row(obs: Observation, view: View, ctx: SampleContext, quat: np.ndarray) -> 
         "label_path": relative_label_path(obs.label_path, cfg.inputs.labels),
         "image_path": image, "dem_offset_m": view.dem_offset_m,
         "radius_m": float(view.radius_m), "view_mask": view.mode,
-        "visible_cells": stats["visible_cells"], "visible_area_m2": stats["viewshed_area_m2"],
+        "visible_cells": stats["visible_cells"], "visible_area_m2": _true_area(outline, cam),
         "median_range_m": median, "max_range_m": far,
         "footprint_parts": outline_parts(outline),
         "footprint": None if outline is None else shapely.to_wkb(outline),

@@ -40,6 +40,7 @@ from mars_pairs.pipeline.builder.plan import check_inputs, chunks_of, labels_of
 from mars_pairs.pipeline.builder.run import check_input_files
 from mars_pairs.pipeline.builder.stamp import fingerprint, read_stamp, stamp_difference, stamp_digest
 from mars_pairs.pipeline.catalog.chunk import catalog_chunk
+from mars_pairs.pipeline.catalog.entry import SUBCELLS
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.raster.outline import SIMPLIFY_CELLS
 from mars_pairs.store.atomic import atomic_write_bytes, temporary_target, write_parquet_atomic
@@ -313,9 +314,10 @@ def catalog_doc(
         "crs": wkt,
         "crs_name": crs_name(crs),
         "footprint": {
-            "source": "the view's cells (line of sight and the exact view test) vectorized",
+            "source": "the view vectorized: line of sight per DEM cell, the exact view test "
+            f"per 1/{SUBCELLS} sub-cell",
             "dem_cell": cell,
-            "simplify_tolerance": SIMPLIFY_CELLS * cell,
+            "simplify_tolerance": SIMPLIFY_CELLS * cell / SUBCELLS,
             "unit": "map units of the CRS",
             "radius_m": config.geometry.radius,
             "view_mask": config.geometry.view_mask,
