@@ -88,8 +88,9 @@ def saw_agreement(config_path: Path, catalog: Catalog, n_points: int, seed: int 
     xs, ys = np.array(pts).T
     lons, lats = map_to_lonlat(xs, ys, catalog.table.schema.metadata and json.dumps(catalog.crs))
     agree, seen_any, far_false = 0, 0, 0
+    agree_uniform, seen_uniform = 0, 0
     worst = 0.0
-    for x, y, lon, lat in zip(xs, ys, lons, lats, strict=True):
+    for i, (x, y, lon, lat) in enumerate(zip(xs, ys, lons, lats, strict=True)):
         got = set(catalog.saw(float(lon), float(lat))["key"].to_pylist())
         truth = set()
         for key, (codes, transform, cell) in rasters.items():
@@ -99,6 +100,9 @@ def saw_agreement(config_path: Path, catalog: Catalog, n_points: int, seed: int 
                 truth.add(key)
         agree += got == truth
         seen_any += bool(truth or got)
+        if i < n_points // 2:
+            agree_uniform += got == truth
+            seen_uniform += bool(truth or got)
         for key in got - truth:  # the distance to the raster's nearest visible cell, in cells
             codes, transform, cell = rasters[key]
             rr, cc = np.nonzero(codes == 1)
@@ -107,6 +111,8 @@ def saw_agreement(config_path: Path, catalog: Catalog, n_points: int, seed: int 
             worst = max(worst, d)
             far_false += d > 1.0
     return {"points": n_points, "agree": agree / n_points, "points_seen": seen_any,
+            "uniform_points": n_points // 2, "uniform_agree": agree_uniform / (n_points // 2),
+            "uniform_seen": seen_uniform,
             "false_beyond_one_cell": far_false, "worst_false_cells": worst}
 
 

