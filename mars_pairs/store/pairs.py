@@ -102,6 +102,11 @@ def iter_pairs(fp: Footprints, batch_rows: int = BATCH_ROWS) -> Iterator[pa.Reco
     map_area = np.where(valid, shapely.area(geoms), np.nan)
     positive = np.isfinite(fp.area_m2) & (map_area > 0)
     scale = np.where(positive, fp.area_m2 / np.where(positive, map_area, 1.0), 1.0)
+    rank = np.empty(len(fp.keys), dtype=np.int64)
+    rank[np.argsort(fp.keys, kind="stable")] = np.arange(len(fp.keys))
+    position = np.unique(fp.position, return_inverse=True)[1]
+    keys = pa.array(fp.keys, type=pa.string())
+    split = None if fp.split is None else pa.array(fp.split, type=pa.string())
     for start in range(0, len(index), batch_rows):
         query = index[start : start + batch_rows]
         qi, ti = tree.query(geoms[query], predicate="intersects")
@@ -116,31 +121,32 @@ def iter_pairs(fp: Footprints, batch_rows: int = BATCH_ROWS) -> Iterator[pa.Reco
         a, b, inter, union = a[keep], b[keep], inter[keep], union[keep]
         if not len(a):
             continue
-        yield _batch(fp, a, b, inter, union, scale)
+        yield _batch(fp, a, b, inter, union, scale, (rank, position, keys, split))
 
 
 def _batch(fp: Footprints, a: np.ndarray, b: np.ndarray, inter: np.ndarray, union: np.ndarray,
-           scale: np.ndarray) -> pa.RecordBatch:  # fmt: skip
-    ka, kb = fp.keys[a], fp.keys[b]
-    swap = ka > kb
+           scale: np.ndarray, lookup: tuple[np.ndarray, np.ndarray, pa.Array, pa.Array | None],
+           ) -> pa.RecordBatch:  # fmt: skip
+    rank, position, keys, split = lookup
+    swap = rank[a] > rank[b]
     first, second = np.where(swap, b, a), np.where(swap, a, b)
     mean_z = (fp.z[a] + fp.z[b]) / 2.0
     ground = great_circle_m(fp.lon[a], fp.lat[a], fp.lon[b], fp.lat[b], MARS_RADIUS_M + mean_z)
     distance = np.hypot(ground, fp.z[a] - fp.z[b])
     heading = np.abs((fp.azimuth[a] - fp.azimuth[b] + 180.0) % 360.0 - 180.0)
-    columns: dict[str, Sequence[object] | np.ndarray] = {
-        "key_a": fp.keys[first].tolist(),
-        "key_b": fp.keys[second].tolist(),
+    columns: dict[str, Sequence[object] | np.ndarray | pa.Array] = {
+        "key_a": keys.take(pa.array(first)),
+        "key_b": keys.take(pa.array(second)),
         "intersection_m2": inter * (scale[a] + scale[b]) / 2.0,
         "iou": inter / union,
         "distance_m": distance,
         "heading_diff_deg": heading,
-        "same_position": fp.position[a] == fp.position[b],
+        "same_position": position[a] == position[b],
     }
     schema = PAIR_SCHEMA
-    if fp.split is not None:
-        sa, sb = fp.split[first], fp.split[second]
-        columns |= {"split_a": sa.tolist(), "split_b": sb.tolist(), "cross_split": sa != sb}
+    if split is not None and fp.split is not None:
+        sa, sb = split.take(pa.array(first)), split.take(pa.array(second))
+        columns |= {"split_a": sa, "split_b": sb, "cross_split": fp.split[first] != fp.split[second]}
         schema = DATASET_PAIR_SCHEMA
     return pa.RecordBatch.from_pydict(
         {k: pa.array(v, type=schema.field(k).type) for k, v in columns.items()}, schema=schema
