@@ -7,7 +7,7 @@
    N = 10k, 30k, 100k: seconds, microseconds per image, pairs, and the peak RSS growth
    during pairing (flat: the pairs are streamed to disk in batches).
 
-usage: python benchmarks/bench_catalog.py [--config configs/demo.yaml] [--skip-build] [--sizes 10000 30000 100000]
+usage: python benchmarks/bench_catalog.py [--config C] [--skip-build] [--sizes N ...]
 """
 
 from __future__ import annotations

@@ -45,7 +45,14 @@ def chip_ious(catalog: Catalog, dataset: Path) -> dict[str, float]:
                     continue
                 key = name[: -len(".meta.json")]
                 meta = json.loads(tar.extractfile(members[name]).read())  # type: ignore[union-attr]
-                chip = np.asarray(Image.open(io.BytesIO(tar.extractfile(members[f"{key}.viewshed.png"]).read()))) > 0  # type: ignore[union-attr]
+                chip = (
+                    np.asarray(
+                        Image.open(
+                            io.BytesIO(tar.extractfile(members[f"{key}.viewshed.png"]).read())
+                        )
+                    )
+                    > 0
+                )  # type: ignore[union-attr]
                 transform = Affine(*meta["chip_transform"])
                 geom = geoms.get(key)
                 mine = np.zeros_like(chip)
@@ -56,7 +63,9 @@ def chip_ious(catalog: Catalog, dataset: Path) -> dict[str, float]:
     return out
 
 
-def saw_agreement(config_path: Path, catalog: Catalog, n_points: int, seed: int = 0) -> dict[str, float]:
+def saw_agreement(
+    config_path: Path, catalog: Catalog, n_points: int, seed: int = 0
+) -> dict[str, float]:
     config = load_config(config_path)
     labels = sorted(glob.glob(config.inputs.labels[0]))
     keys = catalog.table["key"].to_pylist()
@@ -67,8 +76,14 @@ def saw_agreement(config_path: Path, catalog: Catalog, n_points: int, seed: int 
         for key, label_rel in zip(keys, catalog.table["label_path"].to_pylist(), strict=True):
             label = next(p for p in labels if p.endswith(label_rel))
             out = tmp / f"{key}.tif"
-            args = argparse.Namespace(label=label, places=str(config.inputs.places), radius=config.geometry.radius,
-                                      height=config.geometry.observer_height, mask=config.geometry.view_mask, out=str(out))
+            args = argparse.Namespace(
+                label=label,
+                places=str(config.inputs.places),
+                radius=config.geometry.radius,
+                height=config.geometry.observer_height,
+                mask=config.geometry.view_mask,
+                out=str(out),
+            )
             with redirect_stdout(io.StringIO()):
                 label_viewshed(args, terrain)
             with rasterio.open(out) as src:
@@ -93,7 +108,7 @@ def saw_agreement(config_path: Path, catalog: Catalog, n_points: int, seed: int 
     for i, (x, y, lon, lat) in enumerate(zip(xs, ys, lons, lats, strict=True)):
         got = set(catalog.saw(float(lon), float(lat))["key"].to_pylist())
         truth = set()
-        for key, (codes, transform, cell) in rasters.items():
+        for key, (codes, transform, _cell) in rasters.items():
             col, row = ~transform * (x, y)
             r, c = int(np.floor(row)), int(np.floor(col))
             if 0 <= r < codes.shape[0] and 0 <= c < codes.shape[1] and codes[r, c] == 1:
@@ -104,16 +119,26 @@ def saw_agreement(config_path: Path, catalog: Catalog, n_points: int, seed: int 
             agree_uniform += got == truth
             seen_uniform += bool(truth or got)
         for key in got - truth:  # the distance to the raster's nearest visible cell, in cells
-            codes, transform, cell = rasters[key]
+            codes, transform, _ = rasters[key]
             rr, cc = np.nonzero(codes == 1)
             col, row = ~transform * (x, y)
-            d = float(np.min(np.maximum(np.abs(cc + 0.5 - col), np.abs(rr + 0.5 - row)) - 0.5)) if len(rr) else np.inf
+            d = (
+                float(np.min(np.maximum(np.abs(cc + 0.5 - col), np.abs(rr + 0.5 - row)) - 0.5))
+                if len(rr)
+                else np.inf
+            )
             worst = max(worst, d)
             far_false += d > 1.0
-    return {"points": n_points, "agree": agree / n_points, "points_seen": seen_any,
-            "uniform_points": n_points // 2, "uniform_agree": agree_uniform / (n_points // 2),
-            "uniform_seen": seen_uniform,
-            "false_beyond_one_cell": far_false, "worst_false_cells": worst}
+    return {
+        "points": n_points,
+        "agree": agree / n_points,
+        "points_seen": seen_any,
+        "uniform_points": n_points // 2,
+        "uniform_agree": agree_uniform / (n_points // 2),
+        "uniform_seen": seen_uniform,
+        "false_beyond_one_cell": far_false,
+        "worst_false_cells": worst,
+    }
 
 
 def main() -> int:
@@ -127,12 +152,16 @@ def main() -> int:
     config = load_config(a.config)
     labels = sorted(glob.glob(config.inputs.labels[0]))
     failures = pq.read_table(Path(a.catalog) / "failures.parquet")
-    print(f"labels {len(labels)}; catalog rows {len(catalog)}; failure rows {failures.num_rows}; "
-          f"all accounted: {len(labels) == len(catalog) + failures.num_rows}")
+    print(
+        f"labels {len(labels)}; catalog rows {len(catalog)}; failure rows {failures.num_rows}; "
+        f"all accounted: {len(labels) == len(catalog) + failures.num_rows}"
+    )
     ious = chip_ious(catalog, Path(a.dataset))
     v = np.array(list(ious.values()))
-    print(f"chip IoU over {len(v)} images: min {v.min():.4f}, median {np.median(v):.4f}, "
-          f"below 0.95: {int((v < 0.95).sum())}")
+    print(
+        f"chip IoU over {len(v)} images: min {v.min():.4f}, median {np.median(v):.4f}, "
+        f"below 0.95: {int((v < 0.95).sum())}"
+    )
     print(json.dumps(saw_agreement(Path(a.config), catalog, a.points)))
     return 0
 

@@ -21,7 +21,6 @@ def register(sub: Any) -> None:
     p.add_argument("--workers", type=count(1), default=1, help="worker processes (default 1)")
     p.add_argument("--resume", action="store_true", help="keep the chunks of a killed run")
     p.add_argument("--no-pairs", action="store_true", help="do not write pairs.parquet")
-    p.add_argument("--stac", action="store_true", help="also write the STAC collection (stac/)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--engine", choices=("local", "dask"), default="local",
                    help="local: this machine's process pool; dask: a Dask cluster")  # fmt: skip
@@ -54,10 +53,6 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         pairs=not args.no_pairs,
     )
-    if args.stac:
-        from mars_pairs.store.stac import write_stac
-
-        write_stac(summary.out_dir)
     print(
         f"{summary.out_dir}: {summary.images} images, {summary.failures} failures, "
         f"{summary.pairs} pairs; {summary.chunks_built} chunks built, "

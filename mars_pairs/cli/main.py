@@ -389,12 +389,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     where.add_argument("--polygon", help="WKT polygon in the dataset CRS")
     where.add_argument(
-        "--saw", nargs=2, type=finite, metavar=("LON", "LAT"),
+        "--saw",
+        nargs=2,
+        type=finite,
+        metavar=("LON", "LAT"),
         help="the images whose footprint holds the point (a catalogue: its visible footprint; "
         "a dataset: the manifest's), nearest first, with the range",
-    )  # fmt: skip
+    )
     where.add_argument(
-        "--overlaps", metavar="KEY", help="the images that saw the same ground as KEY (pairs.parquet), by IoU"
+        "--overlaps",
+        metavar="KEY",
+        help="the images that saw the same ground as KEY (pairs.parquet), by IoU",
     )
     p.add_argument("--mission", action="append", help="m2020 or msl (repeat for several)")
     p.add_argument(

@@ -7,6 +7,7 @@ import numpy as np
 import shapely
 from affine import Affine
 from rasterio import features
+from shapely.geometry.base import BaseGeometry
 
 #: The simplification tolerance as a fraction of the raster's cell (map units): the outline
 #: moves by at most a quarter cell, below the DEM cell the footprint is measured on.
@@ -43,13 +44,15 @@ def mask_outline(
     shape: shapely.Polygon | shapely.MultiPolygon = (
         polygons[0] if len(polygons) == 1 else shapely.MultiPolygon(polygons)
     )
+    simple: BaseGeometry = shape
     if tolerance > 0:
-        shape = shapely.simplify(shape, tolerance, preserve_topology=True)
-    if not shape.is_valid:
-        shape = shapely.make_valid(shape)
-        kept = [g for g in getattr(shape, "geoms", [shape]) if isinstance(g, shapely.Polygon)]
-        shape = kept[0] if len(kept) == 1 else shapely.MultiPolygon(kept)
-    return shape
+        simple = shapely.simplify(shape, tolerance, preserve_topology=True)
+    if not simple.is_valid:
+        simple = shapely.make_valid(simple)
+    kept = [g for g in getattr(simple, "geoms", [simple]) if isinstance(g, shapely.Polygon)]
+    if isinstance(simple, shapely.Polygon | shapely.MultiPolygon):
+        return simple
+    return kept[0] if len(kept) == 1 else shapely.MultiPolygon(kept)
 
 
 def outline_parts(shape: shapely.Polygon | shapely.MultiPolygon | None) -> int:

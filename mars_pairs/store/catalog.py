@@ -58,9 +58,7 @@ def geo_crs(schema: pa.Schema, path: Path) -> Any:
     return doc["columns"][doc["primary_column"]]["crs"]
 
 
-def points_in(
-    geometry: np.ndarray, x: float, y: float
-) -> np.ndarray:
+def points_in(geometry: np.ndarray, x: float, y: float) -> np.ndarray:
     """Indices of the (multi)polygons of ``geometry`` that hold map point (x, y) (inside or
     on the boundary), through an STRtree."""
     valid = np.flatnonzero(~shapely.is_missing(geometry))
@@ -90,13 +88,15 @@ class Catalog:
         return cls(root, table, geo_crs(table.schema, path))
 
     def __len__(self) -> int:
-        return self.table.num_rows
+        return int(self.table.num_rows)
 
     @property
     def geometry(self) -> np.ndarray:
         """The footprints as shapely geometries (None: no visible ground), map CRS."""
         if self._geometry is None:
-            self._geometry = shapely.from_wkb(self.table["footprint"].to_numpy(zero_copy_only=False))
+            self._geometry = shapely.from_wkb(
+                self.table["footprint"].to_numpy(zero_copy_only=False)
+            )
         return self._geometry
 
     def saw(self, lon: float, lat: float) -> pa.Table:
@@ -110,8 +110,13 @@ class Catalog:
         cam_lon = hits["camera_lon"].to_numpy(zero_copy_only=False)
         cam_lat = hits["camera_lat"].to_numpy(zero_copy_only=False)
         z = self.table["camera_z"].to_numpy(zero_copy_only=False)[rows]
-        ranges = great_circle_m(cam_lon, cam_lat, np.full_like(cam_lon, lon),
-                                np.full_like(cam_lat, lat), MARS_RADIUS_M + z)  # fmt: skip
+        ranges = great_circle_m(
+            cam_lon,
+            cam_lat,
+            np.full_like(cam_lon, lon),
+            np.full_like(cam_lat, lat),
+            MARS_RADIUS_M + z,
+        )
         hits = hits.append_column("range_m", pa.array(ranges, type=pa.float64()))
         return hits.sort_by([("range_m", "ascending"), ("key", "ascending")])
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -55,11 +56,15 @@ class Footprints:
         manifest (``footprint``, ``longitude``/``latitude``/``elevation_m`` of the rover,
         ``viewshed_area_m2``, ``split``)."""
         names = table.column_names
-        col = lambda name: table[name].to_numpy(zero_copy_only=False)  # noqa: E731
-        geoms = shapely.from_wkb(col(geometry))
+
+        def col(name: str) -> np.ndarray:
+            values: np.ndarray = table[name].to_numpy(zero_copy_only=False)
+            return values
+
+        geoms = np.asarray(shapely.from_wkb(col(geometry)), dtype=object)
         catalog = "camera_lon" in names
         area = col("visible_area_m2" if catalog else "viewshed_area_m2").astype(np.float64)
-        position = np.array(
+        position = np.asarray(
             [
                 f"{m}|{s}|{d}|{p}"
                 for m, s, d, p in zip(
@@ -81,13 +86,15 @@ class Footprints:
         )
 
 
-def great_circle_m(lon_a: np.ndarray, lat_a: np.ndarray, lon_b: np.ndarray, lat_b: np.ndarray,
-                   radius: float) -> np.ndarray:  # fmt: skip
+def great_circle_m(
+    lon_a: np.ndarray, lat_a: np.ndarray, lon_b: np.ndarray, lat_b: np.ndarray, radius: Any
+) -> np.ndarray:
     """Great-circle distance (metres on a sphere of ``radius`` m) between lon/lat degrees."""
     la, lb = np.radians(lat_a), np.radians(lat_b)
     dlon, dlat = np.radians(lon_b - lon_a), lb - la
     h = np.sin(dlat / 2) ** 2 + np.cos(la) * np.cos(lb) * np.sin(dlon / 2) ** 2
-    return 2.0 * radius * np.arcsin(np.sqrt(np.clip(h, 0.0, 1.0)))
+    out: np.ndarray = np.asarray(2.0 * radius * np.arcsin(np.sqrt(np.clip(h, 0.0, 1.0))))
+    return out
 
 
 def iter_pairs(fp: Footprints, batch_rows: int = BATCH_ROWS) -> Iterator[pa.RecordBatch]:
@@ -124,9 +131,15 @@ def iter_pairs(fp: Footprints, batch_rows: int = BATCH_ROWS) -> Iterator[pa.Reco
         yield _batch(fp, a, b, inter, union, scale, (rank, position, keys, split))
 
 
-def _batch(fp: Footprints, a: np.ndarray, b: np.ndarray, inter: np.ndarray, union: np.ndarray,
-           scale: np.ndarray, lookup: tuple[np.ndarray, np.ndarray, pa.Array, pa.Array | None],
-           ) -> pa.RecordBatch:  # fmt: skip
+def _batch(
+    fp: Footprints,
+    a: np.ndarray,
+    b: np.ndarray,
+    inter: np.ndarray,
+    union: np.ndarray,
+    scale: np.ndarray,
+    lookup: tuple[np.ndarray, np.ndarray, pa.Array, pa.Array | None],
+) -> pa.RecordBatch:
     rank, position, keys, split = lookup
     swap = rank[a] > rank[b]
     first, second = np.where(swap, b, a), np.where(swap, a, b)
@@ -146,7 +159,11 @@ def _batch(fp: Footprints, a: np.ndarray, b: np.ndarray, inter: np.ndarray, unio
     schema = PAIR_SCHEMA
     if split is not None and fp.split is not None:
         sa, sb = split.take(pa.array(first)), split.take(pa.array(second))
-        columns |= {"split_a": sa, "split_b": sb, "cross_split": fp.split[first] != fp.split[second]}
+        columns |= {
+            "split_a": sa,
+            "split_b": sb,
+            "cross_split": fp.split[first] != fp.split[second],
+        }
         schema = DATASET_PAIR_SCHEMA
     return pa.RecordBatch.from_pydict(
         {k: pa.array(v, type=schema.field(k).type) for k, v in columns.items()}, schema=schema
@@ -165,11 +182,10 @@ def write_pairs(path: Path, fp: Footprints, batch_rows: int = BATCH_ROWS) -> int
     schema = PAIR_SCHEMA if fp.split is None else DATASET_PAIR_SCHEMA
     count = 0
     path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
-        with pq.ParquetWriter(tmp, schema, compression="zstd") as writer:
-            for batch in iter_pairs(fp, batch_rows):
-                writer.write_batch(batch)
-                count += batch.num_rows
-            if count == 0:
-                writer.write_table(schema.empty_table())
+    with atomic_path(path) as tmp, pq.ParquetWriter(tmp, schema, compression="zstd") as writer:
+        for batch in iter_pairs(fp, batch_rows):
+            writer.write_batch(batch)
+            count += batch.num_rows
+        if count == 0:
+            writer.write_table(schema.empty_table())
     return count

@@ -27,7 +27,9 @@ def catalog_chunk(config: BuildConfig, task: ChunkTask) -> ChunkResult:
         try:
             row = catalog_entry(Path(label), ctx)
         except StageError as exc:
-            outcomes.append(Outcome("fail", label, row=worker.failure_row(label, exc.stage, exc.error)))
+            outcomes.append(
+                Outcome("fail", label, row=worker.failure_row(label, exc.stage, exc.error))
+            )
             continue
         except Exception as exc:  # a bug must not stop the catalogue: a failure row
             outcomes.append(Outcome("fail", label, row=worker.failure_row(label, "internal", exc)))

@@ -171,7 +171,7 @@ def wedge_polygon(view: View) -> shapely.Polygon:
     full = (az0, az1) == (0.0, 360.0) or width == 0.0
     if full:
         width = 360.0
-    steps = max(int(math.ceil(width / _ARC_STEP_DEG)), 2)
+    steps = max(math.ceil(width / _ARC_STEP_DEG), 2)
     az = np.radians(az0 + np.linspace(0.0, width, steps + 1))
     ne = view.radius_m * np.column_stack([np.cos(az), np.sin(az)])  # north, east metres
     xy = ne @ cam.jacobian[:2, :2].T + cam.center_map[:2]

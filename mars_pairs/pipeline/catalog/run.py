@@ -38,7 +38,12 @@ from mars_pairs.pipeline.builder.finish import dataset_crs, license_of, named_wk
 from mars_pairs.pipeline.builder.local_pool import LocalPool
 from mars_pairs.pipeline.builder.plan import check_inputs, chunks_of, labels_of
 from mars_pairs.pipeline.builder.run import check_input_files
-from mars_pairs.pipeline.builder.stamp import fingerprint, read_stamp, stamp_difference, stamp_digest
+from mars_pairs.pipeline.builder.stamp import (
+    fingerprint,
+    read_stamp,
+    stamp_difference,
+    stamp_digest,
+)
 from mars_pairs.pipeline.catalog.chunk import catalog_chunk
 from mars_pairs.pipeline.catalog.entry import SUBCELLS
 from mars_pairs.pipeline.config import BuildConfig
@@ -50,7 +55,13 @@ from mars_pairs.store.manifest import FAILURE_SCHEMA
 from mars_pairs.store.pairs import Footprints, write_pairs
 
 #: the files of a finished catalogue folder
-CATALOG_FILES = ("catalog.parquet", "failures.parquet", "pairs.parquet", "catalog.json", "README.md")
+CATALOG_FILES = (
+    "catalog.parquet",
+    "failures.parquet",
+    "pairs.parquet",
+    "catalog.json",
+    "README.md",
+)
 STAMP = "parts/stamp.json"
 _PART = re.compile(r"parts/(catalog|failures)-[0-9]{6,}\.parquet")
 
@@ -191,7 +202,9 @@ def _commit(out: Path, result: ChunkResult, seen: dict[str, str]) -> None:
             continue
         key = outcome.row["key"]
         if key in seen:
-            error = DuplicateKeyError(f"{outcome.label}: key {key}: already catalogued from {seen[key]}")
+            error = DuplicateKeyError(
+                f"{outcome.label}: key {key}: already catalogued from {seen[key]}"
+            )
             failures.append(worker.failure_row(outcome.label, "record", error))
             continue
         seen[key] = outcome.row["label_path"]
