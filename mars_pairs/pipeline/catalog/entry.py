@@ -114,15 +114,24 @@ def visible_ranges(view: View) -> tuple[float | None, float | None]:
 def fine_mask(view: View, sub: int = SUBCELLS) -> tuple[np.ndarray, Any]:
     """The view on a grid ``sub`` times finer than the DEM window's (uint8, 1 = in view) and
     its transform: a sub-cell is in view when its DEM cell is in line of sight
-    (``view.los``) and its centre, at the DEM's bilinear height there, passes the exact view test
-    (``view.in_view``), as a chip pixel is tested (``chips.chip_view``)."""
+    (``view.los``) and its centre, at the DEM's bilinear height there, passes the exact view
+    test (``view.in_view``), as a chip pixel is tested (``chips.chip_view``). Only the cells
+    near the image's edges are sub-tested: a cell in view whose 8 neighbours are too is
+    whole, a cell with none in view is out (the image's edges are straight at the cell's
+    scale)."""
     from affine import Affine
 
     from mars_pairs.pipeline.sample.view import in_view
 
-    los = view.los
-    fine = np.zeros((los.shape[0] * sub, los.shape[1] * sub), dtype=np.uint8)
-    rows, cols = np.nonzero(los)
+    los = view.los.astype(bool)
+    mask = view.mask.astype(bool)
+    # whole cells: in view with their 8 neighbours (all sub-cells in), or in line of sight
+    # with no neighbour in view (all out); the rest, along the image's edges, sub-tested
+    grown, inner = _neighbourhood(mask)
+    inner &= los
+    edge = los & grown & ~inner
+    fine = np.kron(inner, np.ones((sub, sub), dtype=bool)).astype(np.uint8)
+    rows, cols = np.nonzero(edge)
     if len(rows):
         offsets = (np.arange(sub) + 0.5) / sub - 0.5
         dy, dx = (a.ravel() for a in np.meshgrid(offsets, offsets, indexing="ij"))
@@ -130,11 +139,20 @@ def fine_mask(view: View, sub: int = SUBCELLS) -> tuple[np.ndarray, Any]:
         cc = np.repeat(cols, sub * sub)
         fr = rr * sub + np.tile(np.repeat(np.arange(sub), sub), len(rows))
         fc = cc * sub + np.tile(np.tile(np.arange(sub), sub), len(rows))
-        x, y = view.window.colrow_to_xy(cc + np.tile(dx, len(rows)), rr + np.tile(dy, len(rows)))
-        z = bilinear(view.window.data, cc + np.tile(dx, len(rows)), rr + np.tile(dy, len(rows)))
+        fx, fy = cc + np.tile(dx, len(rows)), rr + np.tile(dy, len(rows))
+        x, y = view.window.colrow_to_xy(fx, fy)
+        z = bilinear(view.window.data, fx, fy)
         keep = in_view(np.column_stack([x, y, z]), view) & np.isfinite(z)
         fine[fr[keep], fc[keep]] = 1
     return fine, view.window.transform * Affine.scale(1.0 / sub)
+
+
+def _neighbourhood(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(any, all) of each cell's 3 x 3 neighbourhood in ``mask`` (bool; off the grid: out)."""
+    padded = np.pad(mask, 1)
+    h, w = mask.shape
+    shifts = [padded[i : i + h, j : j + w] for i in range(3) for j in range(3)]
+    return np.logical_or.reduce(shifts), np.logical_and.reduce(shifts)
 
 
 def bilinear(data: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
