@@ -112,7 +112,36 @@ def main() -> None:
     if not args.skip_build:
         bench_engines(args.config, args.workers)
         print()
+        bench_per_image(args.config)
+        print()
     bench_pairs(args.sizes)
+
+
+def bench_per_image(config_path: str, count: int = 60) -> None:
+    """Per image in one process, start-up excluded: the build's ``build_sample`` against the
+    catalogue's ``catalog_entry`` on the same labels (the first one warms both)."""
+    from mars_pairs.pipeline.builder.label_list import iter_matches
+    from mars_pairs.pipeline.catalog.entry import catalog_entry
+    from mars_pairs.pipeline.config import load_config
+    from mars_pairs.pipeline.sample.build_sample import build_sample
+    from mars_pairs.pipeline.sample.context import SampleContext
+
+    config = load_config(config_path)
+    labels = [Path(p) for p in list(iter_matches(config.inputs.labels))[: count + 1]]
+    ctx = SampleContext.open(config)
+    rates = {}
+    for name, fn in (("build_sample", build_sample), ("catalog_entry", catalog_entry)):
+        fn(labels[0], ctx)
+        start = time.perf_counter()
+        for label in labels[1:]:
+            fn(label, ctx)
+        rates[name] = (len(labels) - 1) / (time.perf_counter() - start)
+    ctx.close()
+    anchor = rates["build_sample"]
+    print("| per image, one process (start-up excluded) | images/s | ratio to build |")
+    print("|---|---:|---:|")
+    for name, rate in rates.items():
+        print(f"| {name} | {rate:.1f} | {rate / anchor:.2f}x |")
 
 
 if __name__ == "__main__":

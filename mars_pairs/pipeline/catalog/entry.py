@@ -123,8 +123,15 @@ def fine_mask(view: View, sub: int = SUBCELLS) -> tuple[np.ndarray, Any]:
 
     from mars_pairs.pipeline.sample.view import in_view
 
-    los = view.los.astype(bool)
-    mask = view.mask.astype(bool)
+    full_los = view.los.astype(bool)
+    near = np.flatnonzero(full_los.any(axis=1)), np.flatnonzero(full_los.any(axis=0))
+    if not len(near[0]):
+        return np.zeros((sub, sub), dtype=np.uint8), view.window.transform * Affine.scale(1 / sub)
+    # the bounding box of the line of sight (one cell more), on which the rest works
+    r0, c0 = max(int(near[0][0]) - 1, 0), max(int(near[1][0]) - 1, 0)
+    r1, c1 = int(near[0][-1]) + 2, int(near[1][-1]) + 2
+    los = full_los[r0:r1, c0:c1]
+    mask = view.mask[r0:r1, c0:c1].astype(bool)
     # whole cells: in view with their 8 neighbours (all sub-cells in), or in line of sight
     # with no neighbour in view (all out); the rest, along the image's edges, sub-tested
     grown, inner = _neighbourhood(mask)
@@ -139,12 +146,13 @@ def fine_mask(view: View, sub: int = SUBCELLS) -> tuple[np.ndarray, Any]:
         cc = np.repeat(cols, sub * sub)
         fr = rr * sub + np.tile(np.repeat(np.arange(sub), sub), len(rows))
         fc = cc * sub + np.tile(np.tile(np.arange(sub), sub), len(rows))
-        fx, fy = cc + np.tile(dx, len(rows)), rr + np.tile(dy, len(rows))
+        fx, fy = cc + c0 + np.tile(dx, len(rows)), rr + r0 + np.tile(dy, len(rows))
         x, y = view.window.colrow_to_xy(fx, fy)
         z = bilinear(view.window.data, fx, fy)
         keep = in_view(np.column_stack([x, y, z]), view) & np.isfinite(z)
         fine[fr[keep], fc[keep]] = 1
-    return fine, view.window.transform * Affine.scale(1.0 / sub)
+    shift = Affine.translation(c0, r0) * Affine.scale(1.0 / sub)
+    return fine, view.window.transform * shift
 
 
 def _neighbourhood(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
