@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mars_pairs.cli import catalog
+from mars_pairs.cli.catalog import register as register_catalog
 from mars_pairs.cli.arguments import VersionAction, bounded, count, finite
 from mars_pairs.cli.summary import split_warnings
 from mars_pairs.cli.viewshed import cmd_viewshed
@@ -306,7 +306,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--version", action=VersionAction, help="the package's and key libraries' versions"
     )
     sub = parser.add_subparsers(dest="command", required=True)
-    catalog.register(sub)
+    register_catalog(sub)
 
     p = sub.add_parser("locate", help="read labels and place each image on the map")
     p.add_argument("labels", nargs="+", help="PDS3 .LBL or PDS4 .xml label(s)")
