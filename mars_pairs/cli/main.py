@@ -12,8 +12,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mars_pairs.cli.catalog import register as register_catalog
 from mars_pairs.cli.arguments import VersionAction, bounded, count, finite
+from mars_pairs.cli.catalog import register as register_catalog
 from mars_pairs.cli.summary import split_warnings
 from mars_pairs.cli.viewshed import cmd_viewshed
 from mars_pairs.errors import MarsPairsError, UsageError
