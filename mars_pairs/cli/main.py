@@ -14,6 +14,7 @@ import sys
 from collections.abc import Sequence
 
 import mars_pairs.cli.build as build
+import mars_pairs.cli.catalog as catalog
 import mars_pairs.cli.export_qgis as export_qgis
 import mars_pairs.cli.fetch as fetch
 import mars_pairs.cli.inspect as inspect
@@ -44,6 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
     locate.register(sub)
     viewshed.register(sub)
     build.register(sub)
+    catalog.register(sub)
     inspect.register(sub)
     verify.register(sub)
     query.register(sub)

@@ -102,6 +102,19 @@ def register(sub: Any) -> None:
     )
     where.add_argument("--polygon", metavar="WKT", help="WKT polygon in lon/lat degrees")
     where.add_argument("--polygon-map", metavar="WKT", help="WKT polygon in the dataset CRS")
+    where.add_argument(
+        "--saw",
+        nargs=2,
+        type=finite,
+        metavar=("LON", "LAT"),
+        help="the images whose footprint holds the point, longitude first (a catalogue: its "
+        "visible footprint, nearest first, with the range; a dataset: the manifest's footprint)",
+    )
+    where.add_argument(
+        "--overlaps",
+        metavar="KEY",
+        help="the images that saw the same ground as KEY (a catalogue's pairs.parquet), by IoU",
+    )
     p.add_argument(
         "--by",
         choices=BY,
@@ -127,6 +140,8 @@ def register(sub: Any) -> None:
 
 def run(args: Any) -> int:
     """``mars-pairs query``: the rows matching the options, printed or written."""
+    if args.saw is not None or args.overlaps is not None:
+        return footprint_query(args.dataset, args.saw, args.overlaps, args.format, args.out)
     filters = filter_arguments(
         bbox=args.bbox,
         bbox_map=args.bbox_map,
@@ -295,4 +310,61 @@ def _table(table: pa.Table) -> str:
     lines = ["  ".join(k.ljust(w) for k, w in zip(SHOWN, widths, strict=True))]
     lines += ["  ".join(c.ljust(w) for c, w in zip(cell, widths, strict=True)) for cell in cells]
     lines.append(f"({len(rows)} rows)")
+    return "\n".join(lines)
+
+
+def footprint_query(
+    folder: str | Path,
+    saw: Sequence[float] | None,
+    overlaps: str | None,
+    fmt: str = "table",
+    out: str | None = None,
+) -> int:
+    """``query --saw LON LAT`` / ``--overlaps KEY`` on a catalogue folder (catalog.parquet:
+    ``store.catalog.Catalog``) or a dataset (``--saw``: ``Manifest.filter(saw=...)``)."""
+    from mars_pairs.store.catalog import Catalog, checked_point
+
+    root = Path(folder)
+    if saw is not None:
+        lon, lat = checked_point(saw, "--saw")
+    if (root / "catalog.parquet").is_file():
+        catalog = Catalog.open(root)
+        table = catalog.saw(lon, lat) if saw is not None else catalog.overlaps(str(overlaps))
+    elif saw is not None:
+        # the manifest's footprint (a hull of the cells in view) meets a 1e-7 degree box (~6 mm)
+        # around the point
+        box = (lon - 1e-7, lat - 1e-7, lon + 1e-7, lat + 1e-7)
+        manifest = Manifest.open(root).filter(bbox_lonlat=box, by="footprint")
+        table = manifest.to_table(columns=list(SHOWN))
+    else:
+        raise MarsPairsError(f"--overlaps: {root} holds no catalog.parquet (a footprint catalogue)")
+    if fmt == "parquet":
+        if not out:
+            raise MarsPairsError("--format parquet needs --out FILE")
+        write_parquet_atomic(table, Path(out))
+        print(f"{out}: {table.num_rows} rows")
+        return 0
+    text = _csv(table) if fmt == "csv" else _any_table(table)
+    if out:
+        Path(out).write_text(text)
+    else:
+        sys.stdout.write(text if text.endswith("\n") else text + "\n")
+    return 0
+
+
+def _any_table(table: pa.Table) -> str:
+    """Every column of ``table`` as aligned text (floats to 2 places, lon/lat to 6)."""
+    names = table.column_names
+    cells = [
+        [
+            f"{v:.6f}" if isinstance(v, float) and ("lon" in k or "lat" in k)
+            else f"{v:.2f}" if isinstance(v, float) else str(v)
+            for k, v in row.items()
+        ]
+        for row in table.to_pylist()
+    ]  # fmt: skip
+    widths = [max([len(k)] + [len(c[i]) for c in cells]) for i, k in enumerate(names)]
+    lines = ["  ".join(k.ljust(w) for k, w in zip(names, widths, strict=True))]
+    lines += ["  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)) for row in cells]
+    lines.append(f"({table.num_rows} rows)")
     return "\n".join(lines)

@@ -41,7 +41,7 @@ from __future__ import annotations
 import os
 import socket
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Protocol
@@ -68,10 +68,14 @@ from mars_pairs.store.splits import BUFFER
 
 @dataclass(frozen=True)
 class ChunkTask:
-    """Chunk ``index`` of the build: its labels, in label order."""
+    """Chunk ``index`` of the build: its labels, in label order. ``job``: what a worker runs
+    for the chunk instead of building samples (a module-level function, so it pickles by
+    name: the footprint catalogue's ``pipeline.catalog.chunk.catalog_chunk``); None: the
+    build's samples."""
 
     index: int
     labels: tuple[str, ...]
+    job: Callable[[BuildConfig, ChunkTask], ChunkResult] | None = None
 
 
 @dataclass(frozen=True)
@@ -171,7 +175,10 @@ def build_chunk(config: BuildConfig, task: ChunkTask) -> ChunkResult:
     """Build chunk ``task`` in this process (its context open: ``worker.open_context``) and
     write its shard into ``config.output.dir``; WorkerStartError when the context could not
     be opened. A sample is written as soon as it is built (one sample in memory). On object
-    storage the chunk is written to a local temporary folder, then uploaded (``_upload``)."""
+    storage the chunk is written to a local temporary folder, then uploaded (``_upload``).
+    A task with a ``job`` runs that instead, in the same context."""
+    if task.job is not None:
+        return task.job(config, task)
     if not isinstance(config.output.dir, Path):
         with fs.local_staging() as staging:
             return _upload(config.output.dir, staging, _build_chunk(config, task, staging))

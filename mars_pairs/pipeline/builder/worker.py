@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from mars_pairs.allocator import reuse_freed_memory
-from mars_pairs.errors import MarsPairsError, StageError
+from mars_pairs.errors import MarsPairsError, StageError, WorkerStartError
 from mars_pairs.kernels.warm import warm_kernels
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.sample.build_sample import Sample, build_sample
@@ -59,6 +59,13 @@ def use_context(context: SampleContext | None) -> None:
 def current_config() -> BuildConfig | None:
     """The config this process's context was opened for."""
     return None if _CONTEXT is None else _CONTEXT.config
+
+
+def context() -> SampleContext:
+    """This process's open context; WorkerStartError (with why it could not open) if none."""
+    if _CONTEXT is None:
+        raise WorkerStartError(_START_ERROR or "worker context not opened")
+    return _CONTEXT
 
 
 def close_context() -> None:

@@ -1,0 +1,148 @@
+"""Speed of the footprint catalogue.
+
+1. The catalogue against the build, same run, same labels (the demo config's), 2 workers:
+   images per second of ``run_catalog`` and of ``run_build`` (the anchor), and their ratio.
+2. Pairs of a large synthetic catalogue: N footprints (view wedges of 30-100 m, 3 images a
+   stop, stops 8 m apart along a winding traverse) paired by ``store.pairs.write_pairs``, at
+   N = 10k, 30k, 100k: seconds, microseconds per image, pairs, and the peak RSS growth
+   during pairing (flat: the pairs are streamed to disk in batches).
+
+usage: python benchmarks/bench_catalog.py [--config C] [--skip-build] [--sizes N ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import shapely
+
+from mars_pairs.store.pairs import Footprints, write_pairs
+
+
+def synthetic_footprints(n: int, seed: int = 0) -> Footprints:
+    """``n`` wedge footprints along a winding traverse (map metres)."""
+    rng = np.random.default_rng(seed)
+    stops = (n + 2) // 3
+    heading = np.cumsum(rng.normal(0, 0.2, stops))
+    x = np.cumsum(8.0 * np.cos(heading))
+    y = np.cumsum(8.0 * np.sin(heading))
+    sx, sy = np.repeat(x, 3)[:n], np.repeat(y, 3)[:n]
+    az = rng.uniform(0, 2 * np.pi, n)
+    half = np.radians(rng.uniform(10, 25, n))
+    reach = rng.uniform(30, 100, n)
+    t = np.linspace(-1, 1, 9)
+    angles = az[:, None] + half[:, None] * t[None, :]
+    ring_x = np.concatenate([sx[:, None], sx[:, None] + reach[:, None] * np.sin(angles)], axis=1)
+    ring_y = np.concatenate([sy[:, None], sy[:, None] + reach[:, None] * np.cos(angles)], axis=1)
+    coords = np.stack([ring_x, ring_y], axis=-1)
+    geoms = shapely.polygons(coords)
+    return Footprints(
+        keys=np.array([f"img{i:07d}" for i in range(n)], dtype=object),
+        geometry=geoms,
+        area_m2=shapely.area(geoms),
+        lon=sx / 59274.0,
+        lat=sy / 59274.0,
+        z=np.zeros(n),
+        azimuth=np.degrees(az) % 360.0,
+        position=np.repeat(np.arange(stops), 3)[:n].astype(str).astype(object),
+    )
+
+
+def rss_mb() -> float:
+    """Peak resident set size of this process so far, MB."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def bench_pairs(sizes: list[int]) -> None:
+    print("| footprints | seconds | us / image | pairs | peak RSS growth while pairing (MB) |")
+    print("|---:|---:|---:|---:|---:|")
+    for n in sizes:
+        fp = synthetic_footprints(n)
+        out = Path(tempfile.mkdtemp(prefix="pairs-")) / "pairs.parquet"
+        before = rss_mb()
+        start = time.perf_counter()
+        count = write_pairs(out, fp)
+        seconds = time.perf_counter() - start
+        grow = rss_mb() - before
+        print(f"| {n:,} | {seconds:.2f} | {seconds / n * 1e6:.1f} | {count:,} | {grow:.0f} |")
+        shutil.rmtree(out.parent)
+
+
+def bench_engines(config_path: str, workers: int) -> None:
+    from mars_pairs.pipeline.builder.run import run_build
+    from mars_pairs.pipeline.catalog.run import run_catalog
+    from mars_pairs.pipeline.config import load_config
+
+    config = load_config(config_path)
+    base = Path(tempfile.mkdtemp(prefix="bench-catalog-"))
+    from dataclasses import replace
+
+    rows = []
+    for name in ("build", "catalog"):
+        start = time.perf_counter()
+        if name == "build":
+            cfg = replace(config, output=replace(config.output, dir=base / "ds"))
+            n = run_build(cfg, workers=workers, progress=False).samples
+        else:
+            n = run_catalog(config, base / "cat", workers=workers, progress=False).images
+        seconds = time.perf_counter() - start
+        rows.append((name, n, seconds))
+    anchor = rows[0][1] / rows[0][2]
+    print(f"| run ({workers} workers) | images | seconds | images/s | ratio to build |")
+    print("|---|---:|---:|---:|---:|")
+    for name, n, seconds in rows:
+        rate = n / seconds
+        print(f"| {name} | {n} | {seconds:.1f} | {rate:.1f} | {rate / anchor:.2f}x |")
+    shutil.rmtree(base)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--config", default="configs/demo.yaml")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--skip-build", action="store_true")
+    parser.add_argument("--sizes", type=int, nargs="*", default=[10_000, 30_000, 100_000])
+    args = parser.parse_args()
+    if not args.skip_build:
+        bench_engines(args.config, args.workers)
+        print()
+        bench_per_image(args.config)
+        print()
+    bench_pairs(args.sizes)
+
+
+def bench_per_image(config_path: str, count: int = 60) -> None:
+    """Per image in one process, start-up excluded: the build's ``build_sample`` against the
+    catalogue's ``catalog_entry`` on the same labels (the first one warms both)."""
+    from mars_pairs.pipeline.builder.label_list import iter_matches
+    from mars_pairs.pipeline.catalog.entry import catalog_entry
+    from mars_pairs.pipeline.config import load_config
+    from mars_pairs.pipeline.sample.build_sample import build_sample
+    from mars_pairs.pipeline.sample.context import SampleContext
+
+    config = load_config(config_path)
+    labels = [Path(p) for p in list(iter_matches(config.inputs.labels))[: count + 1]]
+    ctx = SampleContext.open(config)
+    rates = {}
+    for name, fn in (("build_sample", build_sample), ("catalog_entry", catalog_entry)):
+        fn(labels[0], ctx)
+        start = time.perf_counter()
+        for label in labels[1:]:
+            fn(label, ctx)
+        rates[name] = (len(labels) - 1) / (time.perf_counter() - start)
+    ctx.close()
+    anchor = rates["build_sample"]
+    print("| per image, one process (start-up excluded) | images/s | ratio to build |")
+    print("|---|---:|---:|")
+    for name, rate in rates.items():
+        print(f"| {name} | {rate:.1f} | {rate / anchor:.2f}x |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,348 @@
+"""The footprint catalogue of a config's labels (``run_catalog``): every image's visible
+footprint, without chips, into a catalogue folder.
+
+The folder holds ``catalog.parquet`` (``store.catalog_schema``; rows in Hilbert order of the
+camera centre, then key), ``failures.parquet`` (the build's failure rows), ``pairs.parquet``
+(``store.pairs``), ``catalog.json`` (config, versions, counts, the inputs' fingerprints, the
+stamp's digest) and ``README.md``. The labels are streamed in the build's order and cut into
+chunks of ``output.shard_size`` as the build cuts them; the chunks run on the build's engines
+(in process, ``LocalPool``, ``DaskEngine``: a ``ChunkTask`` whose job is
+``chunk.catalog_chunk``), and the driver commits each chunk's parts in chunk order
+(``parts/failures-K.parquet``, then ``parts/catalog-K.parquet``, the chunk's commit marker,
+each written atomically). A killed catalogue rerun with ``resume`` keeps the committed
+chunks when its stamp (``parts/stamp.json``: the build's fingerprint of config, labels and
+inputs) matches, and writes the same bytes as an uninterrupted run: nothing written depends
+on timing, worker count or engine. The folder is local (object storage is the build's only).
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import re
+import time
+from collections import Counter
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+from tqdm import tqdm
+
+from mars_pairs.errors import ConfigError, DuplicateKeyError
+from mars_pairs.pipeline.builder import worker
+from mars_pairs.pipeline.builder.engine import ChunkResult, ChunkTask, Engine, InProcess
+from mars_pairs.pipeline.builder.fingerprints import input_files
+from mars_pairs.pipeline.builder.finish import dataset_crs, license_of, named_wkt, relative_config
+from mars_pairs.pipeline.builder.local_pool import LocalPool
+from mars_pairs.pipeline.builder.plan import check_inputs, chunks_of, labels_of
+from mars_pairs.pipeline.builder.run import check_input_files
+from mars_pairs.pipeline.builder.stamp import (
+    fingerprint,
+    read_stamp,
+    stamp_difference,
+    stamp_digest,
+)
+from mars_pairs.pipeline.catalog.chunk import catalog_chunk
+from mars_pairs.pipeline.catalog.entry import SUBCELLS
+from mars_pairs.pipeline.config import BuildConfig
+from mars_pairs.raster.outline import SIMPLIFY_CELLS
+from mars_pairs.store.atomic import atomic_write_bytes, temporary_target, write_parquet_atomic
+from mars_pairs.store.catalog_schema import CATALOG_SCHEMA, catalog_geo_metadata
+from mars_pairs.store.geoparquet import crs_name
+from mars_pairs.store.manifest import FAILURE_SCHEMA
+from mars_pairs.store.pairs import Footprints, write_pairs
+
+#: the files of a finished catalogue folder
+CATALOG_FILES = (
+    "catalog.parquet",
+    "failures.parquet",
+    "pairs.parquet",
+    "catalog.json",
+    "README.md",
+)
+STAMP = "parts/stamp.json"
+_PART = re.compile(r"parts/(catalog|failures)-[0-9]{6,}\.parquet")
+
+
+@dataclass(frozen=True)
+class CatalogSummary:
+    """What a catalogue run wrote: counts, chunks built and kept, seconds, failure reasons."""
+
+    out_dir: Path
+    images: int
+    failures: int
+    pairs: int
+    chunks_built: int
+    chunks_resumed: int
+    seconds: float
+    failures_by_reason: dict[str, int] = field(default_factory=dict)
+
+
+def part_paths(out: Path, k: int) -> tuple[Path, Path]:
+    """Chunk k's catalogue part (its commit marker) and failure part."""
+    return out / f"parts/catalog-{k:06d}.parquet", out / f"parts/failures-{k:06d}.parquet"
+
+
+def _ours(rel: str) -> bool:
+    target = temporary_target(rel.rpartition("/")[2])
+    if target is not None:
+        rel = f"{rel.rpartition('/')[0]}/{target}".lstrip("/")
+    return rel in CATALOG_FILES or rel == STAMP or _PART.fullmatch(rel) is not None
+
+
+def check_folder(out: Path) -> list[Path]:
+    """The catalogue files in ``out``; ConfigError (nothing removed) when it holds any other."""
+    if not out.exists():
+        return []
+    if not out.is_dir():
+        raise ConfigError(f"--out: {out} is not a folder")
+    files = [p for p in sorted(out.rglob("*")) if p.is_file()]
+    for path in files:
+        rel = path.relative_to(out).as_posix()
+        if not _ours(rel):
+            raise ConfigError(
+                f"--out: {out} holds {rel}, which a catalogue does not write; refusing to "
+                "clear the folder (nothing was removed): use a new or empty folder"
+            )
+    return files
+
+
+def run_catalog(
+    config: BuildConfig,
+    out: Path | str | None = None,
+    *,
+    workers: int = 1,
+    resume: bool = False,
+    engine: Engine | None = None,
+    progress: bool = True,
+    pairs: bool = True,
+) -> CatalogSummary:
+    """The footprint catalogue of ``config``'s labels in ``out`` (default ``output.dir``).
+
+    ``engine``: None for this machine's pool of ``workers`` processes (this process when 1)
+    or another build engine (``DaskEngine``). ``resume``: keep the chunks an interrupted run
+    with the same stamp committed. ``pairs``: also write pairs.parquet.
+    """
+    start = time.perf_counter()
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ConfigError(f"--workers: expected an integer >= 1, got {workers!r}")
+    folder = Path(out) if out is not None else config.output.dir
+    if not isinstance(folder, Path):
+        raise ConfigError(f"--out: {folder}: the catalogue is written to a local folder")
+    folder = folder.resolve()
+    config = replace(config, output=replace(config.output, dir=folder))
+    check_input_files(config)
+    check_inputs(config)
+    files = check_folder(folder)
+    stamp = {"kind": "catalog", **fingerprint(config, labels_of(config))}
+    if resume:
+        previous = read_stamp(folder / STAMP)
+        finished = _finished(folder, stamp)
+        if finished is not None:
+            return replace(finished, seconds=time.perf_counter() - start)
+        why = None if previous is None else stamp_difference(previous, stamp)
+        if why is not None:
+            raise ConfigError(f"--resume: {folder}: {why}; rerun without --resume")
+        if previous is None:
+            resume = False
+    if not resume:
+        for path in files:
+            path.unlink()
+    (folder / "parts").mkdir(parents=True, exist_ok=True)
+    if not resume or not (folder / STAMP).exists():
+        atomic_write_bytes(folder / STAMP, json.dumps(stamp).encode())
+    chunk_size = config.output.shard_size
+    n_chunks = -(-int(stamp["count"]) // chunk_size)
+    done = {k for k in range(n_chunks) if part_paths(folder, k)[0].exists()}
+    todo = (
+        ChunkTask(k, tuple(labels), job=catalog_chunk)
+        for k, labels in enumerate(chunks_of(labels_of(config), chunk_size))
+        if k not in done
+    )
+    pool = LocalPool(config, workers) if engine is None and workers > 1 else None
+    chosen: Engine = engine if engine is not None else (pool or _InProcessCatalog())
+    seen = _keys_of(folder, sorted(done))
+    bar = tqdm(total=int(stamp["count"]), unit="img", disable=not progress, desc="catalog")
+    bar.update(sum(pq.read_metadata(part_paths(folder, k)[0]).num_rows for k in done))
+    built = 0
+    try:
+        for result in chosen.run(config, todo):
+            _commit(folder, result, seen)
+            bar.update(len(result.outcomes))
+            built += 1
+    finally:
+        bar.close()
+        if pool is not None:
+            pool.close()
+    return _finish(config, folder, n_chunks, stamp, built, len(done), start, pairs)
+
+
+class _InProcessCatalog(InProcess):
+    """The one-process engine (the build's ``InProcess``)."""
+
+
+def _keys_of(out: Path, done: list[int]) -> dict[str, str]:
+    seen: dict[str, str] = {}
+    for k in done:
+        table = pq.read_table(part_paths(out, k)[0], columns=["key", "label_path"])
+        seen.update(zip(table["key"].to_pylist(), table["label_path"].to_pylist(), strict=True))
+    return seen
+
+
+def _commit(out: Path, result: ChunkResult, seen: dict[str, str]) -> None:
+    """Write chunk ``result``'s failure part, then its catalogue part (the commit marker); a
+    key already catalogued (from an earlier label) becomes a ``record`` failure row."""
+    rows: list[dict[str, Any]] = []
+    failures: list[dict[str, Any]] = []
+    for outcome in result.outcomes:
+        if outcome.kind != "ok":
+            failures.append(outcome.row)
+            continue
+        key = outcome.row["key"]
+        if key in seen:
+            error = DuplicateKeyError(
+                f"{outcome.label}: key {key}: already catalogued from {seen[key]}"
+            )
+            failures.append(worker.failure_row(outcome.label, "record", error))
+            continue
+        seen[key] = outcome.row["label_path"]
+        rows.append(outcome.row)
+    catalog_part, failure_part = part_paths(out, result.index)
+    write_parquet_atomic(pa.Table.from_pylist(failures, schema=FAILURE_SCHEMA), failure_part)
+    write_parquet_atomic(pa.Table.from_pylist(rows, schema=CATALOG_SCHEMA), catalog_part)
+
+
+def _finished(out: Path, stamp: dict[str, Any]) -> CatalogSummary | None:
+    """The summary of the finished catalogue in ``out`` when its stamp is ``stamp``."""
+    try:
+        doc = json.loads((out / "catalog.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if doc.get("stamp") != stamp_digest(stamp) or (out / STAMP).exists():
+        return None
+    counts = doc.get("counts", {})
+    return CatalogSummary(
+        out, counts.get("images", 0), counts.get("failures", 0), counts.get("pairs", 0),
+        0, doc.get("chunks", 0), 0.0, doc.get("failures_by_reason", {}),
+    )  # fmt: skip
+
+
+def _finish(
+    config: BuildConfig,
+    out: Path,
+    n_chunks: int,
+    stamp: dict[str, Any],
+    built: int,
+    resumed: int,
+    start: float,
+    pairs: bool,
+) -> CatalogSummary:
+    """Merge the parts into the catalogue's files, describe it, remove parts/ (last)."""
+    parts = [pq.read_table(part_paths(out, k)[0]) for k in range(n_chunks)]
+    catalog = pa.concat_tables(parts) if parts else CATALOG_SCHEMA.empty_table()
+    catalog = catalog.sort_by([("hilbert", "ascending"), ("key", "ascending")])
+    failures = pa.concat_tables(
+        [pq.read_table(part_paths(out, k)[1]) for k in range(n_chunks)]
+    ) if n_chunks else FAILURE_SCHEMA.empty_table()  # fmt: skip
+    crs = dataset_crs(config)
+    catalog = catalog.replace_schema_metadata(catalog_geo_metadata(crs, _bbox(catalog)))
+    write_parquet_atomic(catalog, out / "catalog.parquet", row_group_size=1024)
+    write_parquet_atomic(failures, out / "failures.parquet")
+    n_pairs = 0
+    if pairs:
+        n_pairs = write_pairs(out / "pairs.parquet", Footprints.from_table(catalog))
+    reasons = Counter(
+        f"{s} ({e})"
+        for s, e in zip(
+            failures["stage"].to_pylist(), failures["error_type"].to_pylist(), strict=True
+        )
+    )
+    doc = catalog_doc(config, catalog, failures.num_rows, n_pairs, dict(reasons), stamp, crs)
+    doc["chunks"] = n_chunks
+    atomic_write_bytes(out / "catalog.json", json.dumps(doc, indent=2).encode())
+    from mars_pairs.store.catalog_card import catalog_card
+
+    atomic_write_bytes(out / "README.md", catalog_card(doc).encode())
+    for k in range(n_chunks):
+        for path in part_paths(out, k):
+            path.unlink(missing_ok=True)
+    (out / STAMP).unlink(missing_ok=True)
+    (out / "parts").rmdir()
+    return CatalogSummary(
+        out, catalog.num_rows, failures.num_rows, n_pairs, built, resumed,
+        time.perf_counter() - start, dict(reasons),
+    )  # fmt: skip
+
+
+def _bbox(table: pa.Table) -> list[float] | None:
+    import pyarrow.compute as pc
+
+    if table.num_rows == 0 or table["bbox"].null_count == table.num_rows:
+        return None
+    col = table["bbox"]
+    return [
+        pc.min(pc.struct_field(col, "xmin")).as_py(),
+        pc.min(pc.struct_field(col, "ymin")).as_py(),
+        pc.max(pc.struct_field(col, "xmax")).as_py(),
+        pc.max(pc.struct_field(col, "ymax")).as_py(),
+    ]
+
+
+def catalog_doc(
+    config: BuildConfig,
+    catalog: pa.Table,
+    failures: int,
+    pairs: int,
+    reasons: dict[str, int],
+    stamp: dict[str, Any],
+    crs: str,
+) -> dict[str, Any]:
+    """catalog.json: the config (paths relative to the folder), versions, counts, the CRS,
+    the footprint's simplification, the inputs' fingerprints and the stamp's digest (no
+    timings: a resumed catalogue writes the same bytes)."""
+    import numpy
+    import pyarrow
+    import rasterio
+    import shapely
+
+    from mars_pairs.version import __version__
+
+    with rasterio.open(config.inputs.dem) as src:
+        cell = float(max(abs(src.res[0]), abs(src.res[1])))
+    wkt = named_wkt(crs)
+    return {
+        "kind": "mars-pairs footprint catalogue",
+        "config": relative_config(config),
+        "license": license_of(config),
+        "versions": {
+            "mars_pairs": __version__,
+            "numpy": numpy.__version__,
+            "rasterio": rasterio.__version__,
+            "pyarrow": pyarrow.__version__,
+            "shapely": shapely.__version__,
+            "python": platform.python_version(),
+        },
+        "crs": wkt,
+        "crs_name": crs_name(crs),
+        "footprint": {
+            "source": "the view vectorized: line of sight per DEM cell, the exact view test "
+            f"per 1/{SUBCELLS} sub-cell",
+            "dem_cell": cell,
+            "simplify_tolerance": SIMPLIFY_CELLS * cell / SUBCELLS,
+            "unit": "map units of the CRS",
+            "radius_m": config.geometry.radius,
+            "view_mask": config.geometry.view_mask,
+        },
+        "counts": {
+            "images": catalog.num_rows,
+            "failures": failures,
+            "pairs": pairs,
+            "by_mission": dict(Counter(catalog["mission"].to_pylist())),
+            "by_instrument": dict(Counter(catalog["instrument"].to_pylist())),
+        },
+        "failures_by_reason": reasons,
+        "input_files": input_files(config),
+        "stamp": stamp_digest(stamp),
+    }

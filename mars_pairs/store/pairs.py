@@ -1,0 +1,191 @@
+"""Pairs of images that saw the same ground: every pair whose footprints overlap, found
+through a spatial index (``shapely.STRtree``: O(N log N + pairs), never all N^2 pairs), and
+streamed in batches of query rows, so memory holds one batch of pairs at a time.
+
+Frames and units: footprints in one map CRS (map units); areas are turned into true square
+metres by each footprint's own scale (its true visible area over its map area), distances
+between camera centres are true metres on the Mars sphere (great circle at the mean height,
+then the height difference), headings are the centre rays' azimuths (degrees from true
+north).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import shapely
+
+from mars_pairs.geometry.body import MARS_RADIUS_M
+from mars_pairs.store.atomic import atomic_path
+from mars_pairs.store.catalog_schema import DATASET_PAIR_SCHEMA, PAIR_SCHEMA
+
+#: query rows per batch: bounds the memory of the pairs in flight
+BATCH_ROWS = 4096
+
+
+@dataclass(frozen=True)
+class Footprints:
+    """The images to pair, one entry per image (arrays of one length N).
+
+    ``geometry``: shapely (multi)polygons in the map CRS (None: no footprint, never paired);
+    ``area_m2``: each footprint's true area (square metres; NaN: take the map area);
+    ``lon``/``lat``: camera centres, degrees on the Mars sphere; ``z``: their heights (m);
+    ``azimuth``: centre-ray azimuth (degrees from true north); ``position``: one id per
+    rover position (images with equal ids share a position); ``split``: each image's split
+    (None: not a dataset)."""
+
+    keys: np.ndarray
+    geometry: np.ndarray
+    area_m2: np.ndarray
+    lon: np.ndarray
+    lat: np.ndarray
+    z: np.ndarray
+    azimuth: np.ndarray
+    position: np.ndarray
+    split: np.ndarray | None = None
+
+    @classmethod
+    def from_table(cls, table: pa.Table, geometry: str = "footprint") -> Footprints:
+        """The footprints of a catalogue table (``catalog.parquet``'s columns) or of a dataset
+        manifest (``footprint``, ``longitude``/``latitude``/``elevation_m`` of the rover,
+        ``viewshed_area_m2``, ``split``)."""
+        names = table.column_names
+
+        def col(name: str) -> np.ndarray:
+            values: np.ndarray = table[name].to_numpy(zero_copy_only=False)
+            return values
+
+        geoms = np.asarray(shapely.from_wkb(col(geometry)), dtype=object)
+        catalog = "camera_lon" in names
+        area = col("visible_area_m2" if catalog else "viewshed_area_m2").astype(np.float64)
+        position = np.asarray(
+            [
+                f"{m}|{s}|{d}|{p}"
+                for m, s, d, p in zip(
+                    col("mission"), col("site"), col("drive"), col("pose"), strict=True
+                )
+            ],
+            dtype=object,
+        )
+        return cls(
+            keys=col("key").astype(object),
+            geometry=geoms,
+            area_m2=area,
+            lon=col("camera_lon" if catalog else "longitude").astype(np.float64),
+            lat=col("camera_lat" if catalog else "latitude").astype(np.float64),
+            z=col("camera_z" if catalog else "elevation_m").astype(np.float64),
+            azimuth=col("azimuth_deg").astype(np.float64),
+            position=position,
+            split=None if "split" not in names else col("split").astype(object),
+        )
+
+
+def great_circle_m(
+    lon_a: np.ndarray, lat_a: np.ndarray, lon_b: np.ndarray, lat_b: np.ndarray, radius: Any
+) -> np.ndarray:
+    """Great-circle distance (metres on a sphere of ``radius`` m) between lon/lat degrees."""
+    la, lb = np.radians(lat_a), np.radians(lat_b)
+    dlon, dlat = np.radians(lon_b - lon_a), lb - la
+    h = np.sin(dlat / 2) ** 2 + np.cos(la) * np.cos(lb) * np.sin(dlon / 2) ** 2
+    out: np.ndarray = np.asarray(2.0 * radius * np.arcsin(np.sqrt(np.clip(h, 0.0, 1.0))))
+    return out
+
+
+def iter_pairs(fp: Footprints, batch_rows: int = BATCH_ROWS) -> Iterator[pa.RecordBatch]:
+    """Every pair of images whose footprints overlap (intersection area > 0), once each, as
+    record batches of ``PAIR_SCHEMA`` (``DATASET_PAIR_SCHEMA`` when ``fp.split`` is given):
+    ``key_a`` < ``key_b``. Rows come in the order of the query image (the table's row
+    order), then of its partner: the same for the same footprints."""
+    geoms = fp.geometry
+    valid = ~shapely.is_missing(geoms)
+    index = np.flatnonzero(valid)
+    tree = shapely.STRtree(geoms[index])
+    map_area = np.where(valid, shapely.area(geoms), np.nan)
+    positive = np.isfinite(fp.area_m2) & (map_area > 0)
+    scale = np.where(positive, fp.area_m2 / np.where(positive, map_area, 1.0), 1.0)
+    rank = np.empty(len(fp.keys), dtype=np.int64)
+    rank[np.argsort(fp.keys, kind="stable")] = np.arange(len(fp.keys))
+    position = np.unique(fp.position, return_inverse=True)[1]
+    keys = pa.array(fp.keys, type=pa.string())
+    split = None if fp.split is None else pa.array(fp.split, type=pa.string())
+    for start in range(0, len(index), batch_rows):
+        query = index[start : start + batch_rows]
+        qi, ti = tree.query(geoms[query], predicate="intersects")
+        a, b = query[qi], index[ti]
+        keep = b > a
+        a, b = a[keep], b[keep]
+        order = np.lexsort((b, a))
+        a, b = a[order], b[order]
+        inter = shapely.area(shapely.intersection(geoms[a], geoms[b]))
+        union = map_area[a] + map_area[b] - inter
+        keep = inter > 0
+        a, b, inter, union = a[keep], b[keep], inter[keep], union[keep]
+        if not len(a):
+            continue
+        yield _batch(fp, a, b, inter, union, scale, (rank, position, keys, split))
+
+
+def _batch(
+    fp: Footprints,
+    a: np.ndarray,
+    b: np.ndarray,
+    inter: np.ndarray,
+    union: np.ndarray,
+    scale: np.ndarray,
+    lookup: tuple[np.ndarray, np.ndarray, pa.Array, pa.Array | None],
+) -> pa.RecordBatch:
+    rank, position, keys, split = lookup
+    swap = rank[a] > rank[b]
+    first, second = np.where(swap, b, a), np.where(swap, a, b)
+    mean_z = (fp.z[a] + fp.z[b]) / 2.0
+    ground = great_circle_m(fp.lon[a], fp.lat[a], fp.lon[b], fp.lat[b], MARS_RADIUS_M + mean_z)
+    distance = np.hypot(ground, fp.z[a] - fp.z[b])
+    heading = np.abs((fp.azimuth[a] - fp.azimuth[b] + 180.0) % 360.0 - 180.0)
+    columns: dict[str, Sequence[object] | np.ndarray | pa.Array] = {
+        "key_a": keys.take(pa.array(first)),
+        "key_b": keys.take(pa.array(second)),
+        "intersection_m2": inter * (scale[a] + scale[b]) / 2.0,
+        "iou": inter / union,
+        "distance_m": distance,
+        "heading_diff_deg": heading,
+        "same_position": position[a] == position[b],
+    }
+    schema = PAIR_SCHEMA
+    if split is not None and fp.split is not None:
+        sa, sb = split.take(pa.array(first)), split.take(pa.array(second))
+        columns |= {
+            "split_a": sa,
+            "split_b": sb,
+            "cross_split": fp.split[first] != fp.split[second],
+        }
+        schema = DATASET_PAIR_SCHEMA
+    return pa.RecordBatch.from_pydict(
+        {k: pa.array(v, type=schema.field(k).type) for k, v in columns.items()}, schema=schema
+    )
+
+
+def pairs_table(fp: Footprints, batch_rows: int = BATCH_ROWS) -> pa.Table:
+    """``iter_pairs`` gathered in one table (a catalogue's; a stream for very large ones)."""
+    schema = PAIR_SCHEMA if fp.split is None else DATASET_PAIR_SCHEMA
+    return pa.Table.from_batches(list(iter_pairs(fp, batch_rows)), schema=schema)
+
+
+def write_pairs(path: Path, fp: Footprints, batch_rows: int = BATCH_ROWS) -> int:
+    """Write ``iter_pairs(fp)`` to the Parquet file ``path`` (atomically, batch by batch);
+    the number of pairs."""
+    schema = PAIR_SCHEMA if fp.split is None else DATASET_PAIR_SCHEMA
+    count = 0
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp, pq.ParquetWriter(tmp, schema, compression="zstd") as writer:
+        for batch in iter_pairs(fp, batch_rows):
+            writer.write_batch(batch)
+            count += batch.num_rows
+        if count == 0:
+            writer.write_table(schema.empty_table())
+    return count
