@@ -27,6 +27,8 @@ COMMANDS = {
     "export-qgis": "export_qgis",
     "fetch": "fetch",
     "synth": "synth",
+    "catalog": "catalog",
+    "terrain-map": "terrain_map",
 }
 
 

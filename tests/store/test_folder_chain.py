@@ -18,9 +18,9 @@ import pyarrow.parquet as pq
 import pytest
 
 from mars_pairs.cli.main import main
-from mars_pairs.cli.verify import verify_dataset
 from mars_pairs.errors import DatasetError
 from mars_pairs.store.seal import FILES_KEY, NO_RECORD, SEALED, SUMS, chain_damage
+from mars_pairs.store.verify import verify_dataset
 from mars_pairs.torch import MarsPairsDataset
 from support.builds import build_small
 
