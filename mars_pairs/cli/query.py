@@ -331,11 +331,7 @@ def footprint_query(
         catalog = Catalog.open(root)
         table = catalog.saw(lon, lat) if saw is not None else catalog.overlaps(str(overlaps))
     elif saw is not None:
-        # the manifest's footprint (a hull of the cells in view) meets a 1e-7 degree box (~6 mm)
-        # around the point
-        box = (lon - 1e-7, lat - 1e-7, lon + 1e-7, lat + 1e-7)
-        manifest = Manifest.open(root).filter(bbox_lonlat=box, by="footprint")
-        table = manifest.to_table(columns=list(SHOWN))
+        table = Manifest.open(root).filter(saw=(lon, lat)).to_table(columns=list(SHOWN))
     else:
         raise MarsPairsError(f"--overlaps: {root} holds no catalog.parquet (a footprint catalogue)")
     if fmt == "parquet":

@@ -104,13 +104,17 @@ class Manifest:
         xmax, ymax) map units, ``near`` (lon, lat, radius_m), ``polygon_lonlat`` /
         ``polygon_map`` (``polygon``: the map one), ``mission``, ``instrument``, ``split``,
         ``sol`` (first, last) and ``by`` (``rover``, ``footprint`` or ``chip``: what a place
-        filter tests). A bad value is an ArgumentError naming the argument; a mission,
+        filter tests); ``saw`` (lon, lat) degrees: the samples whose footprint polygon holds
+        the point (the manifest's footprint: a hull of the cells in view). A bad value is an
+        ArgumentError naming the argument; a mission,
         instrument or split the dataset lacks an ArgumentError listing its values; a sol range
         outside its sols or a place filter missing the dataset's extent a FilterWarning
         giving its sols or its extent (0 rows); a column a predicate needs that the manifest lacks,
         DatasetError naming the column.
         """
         if spec is None:
+            if "saw" in arguments:  # the footprints holding a point: they meet a ~6 mm box
+                arguments = _saw_as_box(arguments)
             if "near" in arguments:
                 arguments = {**arguments, "near": near_in_order(arguments["near"], self.values)}
             spec = ManifestFilter.of(arguments)
@@ -237,3 +241,18 @@ class Manifest:
                 where = fs.join(self.root, "manifest.parquet")
                 raise DatasetError(where, None, str(exc)) from None
         return int(self.to_table(columns=["key"]).num_rows)
+
+
+def _saw_as_box(arguments: dict[str, Any]) -> dict[str, Any]:
+    """``saw=(lon, lat)`` as the place filter it is: a 1e-7 degree (~6 mm) lon/lat box tested
+    against the footprints; another place filter or ``by`` beside it is an ArgumentError."""
+    from mars_pairs.store.catalog import checked_point
+
+    rest = {k: v for k, v in arguments.items() if k != "saw"}
+    others = [k for k in ("bbox_lonlat", "bbox_map", "near", "polygon", "polygon_lonlat",
+                          "polygon_map", "by") if rest.get(k) is not None]  # fmt: skip
+    if others:
+        raise ArgumentError(f"saw: a place of its own; not with {', '.join(others)}")
+    lon, lat = checked_point(arguments["saw"], "saw")
+    eps = 1e-7
+    return {**rest, "bbox_lonlat": (lon - eps, lat - eps, lon + eps, lat + eps), "by": "footprint"}
