@@ -72,18 +72,21 @@ class VerifyReport:
 
 def verify_dataset(root: str | Path) -> VerifyReport:
     """Check the dataset at ``root`` (see the module docstring). A manifest that cannot be
-    read or lacks a location column raises DatasetError naming it and the column."""
+    read or lacks a location column raises DatasetError naming it and the column (with what
+    the chain found)."""
     root = fs.dataset_root(root)
     chain = chain_damage(root)
     notes = [NO_RECORD] if chain is None else []
     damage = [Damage(d.path, None, d.reason) for d in chain or []]
     try:
         report = _verify_members(root)
-    except DatasetError:
+    except DatasetError as exc:
         if not damage:
             raise
-        # the manifest (or dataset.json) unreadable: already named by the chain
-        return VerifyReport(root, damage=damage, notes=notes)
+        # the manifest (or dataset.json) unreadable: one error, with what the chain found
+        found = "; ".join(str(d) for d in damage)
+        reason = " ".join(str(exc.reason).split())
+        raise DatasetError(exc.path, exc.member, f"{reason} ({found})") from None
     report.damage[:0] = damage
     report.notes = notes
     return report

@@ -144,15 +144,7 @@ def test_a_damaged_manifest_is_one_line_naming_it(
         pq.write_table(pa.table({"x": [1, 2]}), path)
     argv = [a.format(ds=copy, tmp=tmp_path) for a in command]
     assert main(argv) == 2
-    if command[0] != "verify":
-        one_line_error(capsys, "manifest.parquet")
-        return
-    # verify reports the damage it finds, one line each, then its summary line: the folder's
-    # integrity chain names the manifest first
-    err = capsys.readouterr().err
-    lines = err.splitlines()
-    assert "Traceback" not in err and lines[0].startswith("manifest.parquet: "), err
-    assert lines[-1].endswith("1 damaged"), err
+    one_line_error(capsys, "manifest.parquet")
 
 
 def test_a_manifest_missing_one_column_is_named(
