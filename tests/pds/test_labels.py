@@ -292,7 +292,16 @@ def test_attached_label_img_round_trip(tmp_path: Path, model: str, dtype: type, 
     """write_pds3_img: the label at the start of the IMG reads back; pdr reads the pixels."""
     import pdr
 
-    obs = replace(_synthetic(model, True), width=40, height=24)
+    full = _synthetic(model, True)
+    # a 40 x 24 crop of the frame: the label's field of view is the crop's (a plausible model)
+    assert full.hfov_deg is not None and full.vfov_deg is not None
+    obs = replace(
+        full,
+        width=40,
+        height=24,
+        hfov_deg=full.hfov_deg * 40 / full.width,
+        vfov_deg=full.vfov_deg * 24 / full.height,
+    )
     rng = np.random.default_rng(1)
     shape = (24, 40) if bands == 1 else (24, 40, 3)
     pixels = rng.integers(0, np.iinfo(dtype).max, size=shape).astype(dtype)

@@ -13,7 +13,7 @@ import pytest
 import rasterio
 from affine import Affine
 
-from mars_pairs.errors import ConfigError, TerrainError
+from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import parse_config
 from support.configs import build_config
@@ -79,7 +79,9 @@ def test_a_rotated_ortho_stops_the_build_before_any_sample(small_mission, tmp_pa
     turned = t * Affine.rotation(2.0)
     ortho = rewrite(src, tmp_path / "turned.tif", turned)
     config = build_config(small_mission, tmp_path / "ds", inputs={"ortho": str(ortho)})
-    with pytest.raises(TerrainError, match=r"turned\.tif: raster grid is rotated.*gdalwarp"):
+    with pytest.raises(
+        ConfigError, match=r"inputs\.ortho: .*turned\.tif: .*grid is rotated.*gdalwarp"
+    ):
         run_build(config, progress=False)
     assert not (tmp_path / "ds" / "shards").exists() or not any((tmp_path / "ds").rglob("*.tar"))
 

@@ -89,6 +89,7 @@ def _local_lock(out: Path) -> Iterator[None]:
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     path = out / LOCK
+    made = not path.exists()
     fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
     try:
         try:
@@ -99,6 +100,14 @@ def _local_lock(out: Path) -> Iterator[None]:
             raise FolderLockedError(_describe(out, _local_holder(os.fstat(fd).st_ino))) from None
         try:
             yield
+        except Exception:
+            # a run refused (a folder of someone else's files) touches nothing: the lock file
+            # it made goes, while it still holds the lock (a run that starts meanwhile fails to
+            # lock the old file, exits 2, and the next one makes a new file)
+            if made:
+                with contextlib.suppress(OSError):
+                    path.unlink()
+            raise
         finally:
             if created and sorted(os.listdir(out)) == [LOCK]:
                 path.unlink()  # a run that left nothing leaves no folder
