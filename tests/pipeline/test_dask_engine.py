@@ -52,11 +52,12 @@ def config(tmp: Path, mission: Path, out: str, shard_size: int = 2) -> Path:
 
 
 def digests(out: Path) -> dict[str, str]:
-    """sha256 of every output file but dataset.json (which holds the timing)."""
+    """sha256 of every output file but dataset.json (which holds the timing) and SHA256SUMS
+    (its digest)."""
     return {
         p.relative_to(out).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
         for p in sorted(out.rglob("*"))
-        if p.is_file() and p.name != "dataset.json"
+        if p.is_file() and p.name not in ("dataset.json", "SHA256SUMS")  # (its digest)
     }
 
 

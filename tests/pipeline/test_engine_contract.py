@@ -39,7 +39,8 @@ def _digests(out: Path) -> dict[str, str]:
     return {
         p.relative_to(out).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
         for p in sorted(out.rglob("*"))
-        if p.is_file() and p.name not in ("dataset.json", "shardindex.json")  # hold paths
+        if p.is_file()
+        and p.name not in ("dataset.json", "SHA256SUMS", "shardindex.json")  # hold paths
     }
 
 

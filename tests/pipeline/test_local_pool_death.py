@@ -26,7 +26,8 @@ def _digest(root: Path) -> dict[str, str]:
     return {
         str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
         for p in sorted(root.rglob("*"))
-        if p.is_file() and p.name not in ("dataset.json", "shardindex.json")  # hold paths
+        if p.is_file()
+        and p.name not in ("dataset.json", "SHA256SUMS", "shardindex.json")  # hold paths
     }
 
 
