@@ -9,7 +9,7 @@ import warnings
 from typing import TYPE_CHECKING, Any
 
 from mars_pairs.cli.arguments import count
-from mars_pairs.errors import UsageError
+from mars_pairs.errors import ConfigError, UsageError
 
 if TYPE_CHECKING:
     from mars_pairs.pipeline.builder.engine import Engine
@@ -70,7 +70,11 @@ def run(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     if args.out:
         out = dataset_root(args.out)
-        out = out.resolve() if isinstance(out, Path) else out
+        if isinstance(out, Path):
+            try:
+                out = out.resolve()
+            except (OSError, RuntimeError) as exc:  # RuntimeError: a symlink loop (Python 3.11)
+                raise ConfigError(f"--out: {args.out}: cannot resolve the path ({exc})") from None
         config = replace(config, output=replace(config.output, dir=out))
     if args.dry_run and args.append:  # the new labels and chunks; writes nothing
         from mars_pairs.pipeline.builder.append import plan_append

@@ -351,3 +351,14 @@ def test_json_output_is_valid_json(small_mission: Path, capsys: pytest.CaptureFi
     places = small_mission / "places" / "best_interp.csv"
     assert main(["locate", str(label), "--places", str(places), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["localization"] == "places"
+
+
+def test_a_symlink_loop_as_out_is_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "a").symlink_to(tmp_path / "b")
+    (tmp_path / "b").symlink_to(tmp_path / "a")
+    config = Path(__file__).resolve().parents[2] / "configs" / "demo.yaml"
+    argv = ["build", "--config", str(config), "--out", str(tmp_path / "a"), "--dry-run"]
+    assert main(argv) == 2
+    one_line_error(capsys, "--out: ")
