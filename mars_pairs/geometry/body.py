@@ -12,6 +12,9 @@ from numpy.typing import ArrayLike
 
 #: Mars sphere radius (metres), IAU 2015 (the radius of every Mars map CRS used here).
 MARS_RADIUS_M = 3396190.0
+#: the elevations a Mars surface may have, metres above the areoid (Hellas floor ~ -8.2 km,
+#: Olympus Mons ~ +21.9 km), with a margin: a DEM or PLACES value outside is not Mars
+MARS_ELEVATION_M = (-12_000.0, 30_000.0)
 #: Mars IAU ellipsoid radii (metres): equatorial, polar.
 MARS_EQUATORIAL_RADIUS_M, MARS_POLAR_RADIUS_M = 3396190.0, 3376200.0
 #: Planetocentric longitude/latitude on the Mars sphere, east-positive.

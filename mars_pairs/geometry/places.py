@@ -20,6 +20,7 @@ import pyarrow.csv as pacsv
 
 from mars_pairs.errors import PlacesError
 from mars_pairs.geometry.attitude import rpy_to_quaternion
+from mars_pairs.geometry.body import MARS_ELEVATION_M
 from mars_pairs.geometry.frames import (
     M2020_PLACES_CRS,
     MARS_RADIUS_M,
@@ -448,6 +449,7 @@ class Places:
             self._value("planetocentric_latitude", row),
             self._value("elevation", row),
         )
+        self._check_body(row, latitude=lat, longitude=lon, elevation=elev)
         return (lon, lat, elev) if _valid(lon, lat, elev) else None
 
     def _rows(self, site: int, drive: int) -> slice:
@@ -457,6 +459,28 @@ class Places:
         key = (site + 1) * (1 << 32) + drive + 1
         lo = int(np.searchsorted(self._rkey, key, side="left"))
         return slice(lo, int(np.searchsorted(self._rkey, key, side="right")))
+
+    def _check_body(self, row: int, **values: float) -> None:
+        """PlacesError naming the line and column of a value no place on Mars has: a latitude
+        past +-90 deg, a longitude past +-360 deg, a map coordinate past half the sphere's
+        circumference, an elevation outside ``MARS_ELEVATION_M`` (-9999 and empty: unknown)."""
+        half = math.pi * MARS_RADIUS_M
+        lo, hi = MARS_ELEVATION_M
+        bounds = {
+            "latitude": (-90.0, 90.0),
+            "longitude": (-360.0, 360.0),
+            "easting": (-half, half),
+            "northing": (-half, half),
+            "elevation": (lo, hi),
+        }
+        columns = {"latitude": "planetocentric_latitude"}
+        for name, value in values.items():
+            low, high = bounds[name]
+            if _valid(value) and not low <= value <= high:
+                raise PlacesError(
+                    f"{self._where(row, columns.get(name, name))}: {value:g} is no {name} on "
+                    f"Mars (expected {low:g} .. {high:g})"
+                )
 
     def poses(self, site: int, drive: int) -> list[int]:
         """The pose numbers of the ROVER rows for (site, drive), ascending ([-1]: one row for
@@ -503,6 +527,7 @@ class Places:
         e, n = self._value("easting", row), self._value("northing", row)
         lat, lon = self._value("planetocentric_latitude", row), self._value("longitude", row)
         elev = self._value("elevation", row)
+        self._check_body(row, easting=e, northing=n, latitude=lat, longitude=lon, elevation=elev)
         if not _valid(e, n, lat, lon, elev):
             return None
         q = self._quaternion(row)

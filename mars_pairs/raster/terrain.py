@@ -32,6 +32,7 @@ from rasterio.windows import Window, from_bounds
 from rasterio.windows import transform as window_transform
 
 from mars_pairs.errors import TerrainError
+from mars_pairs.geometry.body import MARS_ELEVATION_M
 from mars_pairs.geometry.frames import MARS_LONLAT, crs_string, map_to_map
 from mars_pairs.raster.crs import check_map_crs
 from mars_pairs.raster.grid import NorthUp
@@ -415,9 +416,6 @@ def _bilinear_patch(p: np.ndarray, fc: float, fr: float) -> float:
     return acc / total if total > 0 else float("nan")
 
 
-#: the elevations a Mars DEM may hold, in metres (Hellas floor ~ -8.2 km, Olympus Mons
-#: ~ +21.9 km above the areoid), with a margin
-MARS_ELEVATION_M = (-12_000.0, 30_000.0)
 #: the side of the decimated read the open-time range check looks at, in pixels
 CHECK_SIDE_PX = 256
 

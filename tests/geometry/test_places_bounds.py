@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import gzip
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -99,3 +100,28 @@ def test_a_byte_that_is_not_utf8_is_named(tmp_path: Path) -> None:
     bad.write_bytes(b"".join(lines))
     with pytest.raises(PlacesError, match=r"best_interp\.csv: cannot read PLACES table: not UTF-8"):
         Places.from_csv(bad)
+
+
+@pytest.mark.parametrize(
+    ("column", "value", "named"),
+    [
+        ("planetocentric_latitude", "1000.0", "planetocentric_latitude: 1000 is no latitude"),
+        ("easting", "1e308", "easting: 1e+308 is no easting"),
+        ("elevation", "3e38", "elevation: 3e+38 is no elevation"),
+    ],
+)
+def test_a_value_no_place_on_mars_has_is_refused(
+    tmp_path: Path, column: str, value: str, named: str
+) -> None:
+    if not REAL.is_file():
+        pytest.skip(f"the real PLACES table is not at {REAL}")
+    lines = REAL.read_text().splitlines(keepends=True)
+    header = lines[0].strip().split(",")
+    at = next(i for i, line in enumerate(lines) if line.startswith("ROVER,3,1950,"))
+    cells = lines[at].rstrip("\n").split(",")
+    cells[header.index(column)] = value
+    lines[at] = ",".join(cells) + "\n"
+    bad = tmp_path / "best_interp.csv"
+    bad.write_text("".join(lines))
+    with pytest.raises(PlacesError, match=rf"best_interp\.csv: line {at + 1}: {re.escape(named)}"):
+        Places.from_csv(bad).rover_pose(3, 1950)
