@@ -155,6 +155,7 @@ def check_structure(text: str, path: Path) -> None:
     uncommented = _PDR_COMMENT.sub("\n", text)
     statements = chunk_statements(filter(None, map(str.strip, uncommented.split("\n"))))
     scopes: list[Counter[str]] = [Counter()]
+    firsts: list[dict[str, str]] = [{}]  # each scope's keys' first values
     pointers: Counter[str] = Counter()
     separators = 0
     for key, value in statements:
@@ -164,12 +165,14 @@ def check_structure(text: str, path: Path) -> None:
         separators += value.count(",")
         if key in PVL_BLOCK_INITIALS:
             scopes.append(Counter())
+            firsts.append({})
             if len(scopes) - 1 > MAX_DEPTH:
                 reason = f"GROUP/OBJECT nested deeper than {MAX_DEPTH} ({value[:60]!r})"
                 raise LabelError(path, key, reason)
         elif key.startswith("END"):  # pdr closes a block on any END* statement
             if len(scopes) > 1:
                 scopes.pop()
+                firsts.pop()
         else:
             scopes[-1][key] += 1
             if scopes[-1][key] > MAX_KEY_REPEATS:
@@ -177,6 +180,15 @@ def check_structure(text: str, path: Path) -> None:
                 raise LabelError(path, key, reason)
             if key.startswith("^"):
                 pointers[key] += 1
+            else:  # a keyword given twice in one group with two values: which is meant?
+                given = " ".join(value.split())
+                first = firsts[-1].setdefault(key, given)
+                if first != given:
+                    reason = (
+                        f"given twice in one GROUP/OBJECT with different values ({first[:40]!r}, "
+                        f"then {given[:40]!r})"
+                    )
+                    raise LabelError(path, key, reason)
     if len(statements) > MAX_STATEMENTS:
         reason = f"{len(statements):,} statements (at most {MAX_STATEMENTS:,})"
         raise LabelError(path, None, reason)

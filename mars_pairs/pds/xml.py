@@ -99,8 +99,18 @@ class XmlLabel:
         return None
 
     def child(self, el: etree._Element, prefix: str, local: str) -> etree._Element | None:
-        """The first direct child ``prefix:local`` of ``el``, or None."""
-        return el.find(q(prefix, local))
+        """The direct child ``prefix:local`` of ``el``, or None; LabelError when two such
+        values (leaf elements) disagree: which one is meant cannot be told."""
+        found = el.findall(q(prefix, local))
+        if len(found) > 1 and len(found[0]) == 0:
+            texts = {self.text(x) for x in found}
+            if len(texts) > 1:
+                shown = ", ".join(sorted(texts))[:80]
+                self.f.fail(
+                    name_of(prefix, local),
+                    f"given {len(found)} times with different values ({shown})",
+                )
+        return found[0] if found else None
 
     def need(
         self, el: etree._Element | None, prefix: str, local: str, where: str = ""

@@ -87,3 +87,19 @@ def test_a_degenerate_or_disagreeing_model_is_a_label_error(
     with pytest.raises(LabelError, match=re.escape(reason)) as err:
         read_observation(path)
     assert str(path) in str(err.value)
+
+
+def test_conflicting_duplicate_fields_are_refused(samples_dir: Path, tmp_path: Path) -> None:
+    """A PDS3 keyword twice in one group with two values (``LINES``) is refused naming the
+    field; the same value twice is read."""
+    ml = samples_dir / "msl" / "2663ML0139550021002124C00_DRCX.LBL"
+    text = ml.read_text(errors="replace")
+    line = next(x for x in text.splitlines() if x.strip().startswith("LINES "))
+    indent = line[: len(line) - len(line.lstrip())]
+    twice = tmp_path / "twice.LBL"
+    twice.write_text(text.replace(line, f"{line}\n{indent}LINES = 7777", 1))
+    with pytest.raises(LabelError, match=r"LINES.*different values"):
+        read_observation(twice)
+    same = tmp_path / "same.LBL"
+    same.write_text(text.replace(line, f"{line}\n{line}", 1))
+    assert read_observation(same).height == read_observation(ml).height
