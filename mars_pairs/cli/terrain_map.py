@@ -27,10 +27,10 @@ def register(sub: Any) -> None:
     p.set_defaults(func=run)
 
 
-def _class_names(doc: dict[str, Any]) -> dict[int, str]:
+def _class_names(config: dict[str, Any]) -> dict[int, str]:
     from mars_pairs.terrain_labels import AI4MARS_CLASSES
 
-    inputs = (doc.get("config") or {}).get("inputs") or {}
+    inputs = config.get("inputs") or {}
     spec = inputs.get("terrain_labels") or {}
     classes = spec.get("classes")
     if isinstance(classes, dict) and classes:
@@ -52,7 +52,7 @@ def merge_splits(root: Path, out: Path, splits: list[str] | None) -> dict[str, A
 
     from mars_pairs.raster.chips import ChipGrid
     from mars_pairs.raster.terrain_map import VoteGrid, write_map
-    from mars_pairs.store.dataset_info import build_input, read_dataset_doc
+    from mars_pairs.store.dataset_info import read_dataset_info
     from mars_pairs.store.query import Manifest
     from mars_pairs.store.shards import MemberLocation, read_member
 
@@ -62,8 +62,8 @@ def merge_splits(root: Path, out: Path, splits: list[str] | None) -> dict[str, A
             f"{root}: the dataset has no terrain_on_map member (build it with "
             "inputs.terrain_labels)"
         )
-    doc = read_dataset_doc(root)
-    ortho = build_input(root, doc, "ortho")
+    info = read_dataset_info(root, required=False)
+    ortho = info.build_input(root, "ortho")
     if ortho is None or not Path(ortho).exists():
         raise UsageError(f"{root}/dataset.json: config.inputs.ortho {ortho} not found")
     with rasterio.open(ortho) as src:
@@ -78,7 +78,7 @@ def merge_splits(root: Path, out: Path, splits: list[str] | None) -> dict[str, A
         min(r["chip_xmin"] for r in table), min(r["chip_ymin"] for r in table),
         max(r["chip_xmax"] for r in table), max(r["chip_ymax"] for r in table),
     )  # fmt: skip
-    names = _class_names(doc)
+    names = _class_names(info.config)
     grid = VoteGrid.covering(ortho_transform, crs, bounds, tuple(sorted(names)))
     for r in table:
         loc = MemberLocation(r["terrain_on_map_shard"], r["terrain_on_map_offset"],

@@ -252,12 +252,13 @@ class DatasetValues:
             mm = pc.min_max(self.scan(["sol"])["sol"]).as_py()
             return None if mm["min"] is None else (int(mm["min"]), int(mm["max"]))
 
-        return self._get("sols", compute)  # type: ignore[no-any-return]
+        return self._get("sols", compute)  # type: ignore[no-any-return]  # (a cache of Any)
 
     def extent(self, by: By) -> tuple[Box | None, Box | None]:
         """(lon/lat box (W, S, E, N) degrees, map box (xmin, ymin, xmax, ymax) in the dataset
         CRS) of what ``by`` tests over every row; None where unknown (no rows, no CRS)."""
-        return self._get(f"extent:{by}", lambda: self._extent(by))  # type: ignore[no-any-return]
+        found = self._get(f"extent:{by}", lambda: self._extent(by))
+        return found  # type: ignore[no-any-return]  # (a cache of Any)
 
     def _extent(self, by: By) -> tuple[Box | None, Box | None]:
         import pyarrow.compute as pc
@@ -509,7 +510,8 @@ def _path(column: Any) -> tuple[str, ...]:
 
 
 def _bounds(geom: Any) -> Box | None:
-    return None if geom is None else tuple(float(v) for v in geom.bounds)  # type: ignore[return-value]
+    bounds = None if geom is None else tuple(float(v) for v in geom.bounds)
+    return bounds  # type: ignore[return-value]  # (shapely's bounds: always 4 numbers)
 
 
 def _wkb(geom: Any) -> bytes:

@@ -109,8 +109,9 @@ def _local_lock(out: Path) -> Iterator[None]:
                     path.unlink()
             raise
         finally:
-            if created and sorted(os.listdir(out)) == [LOCK]:
-                path.unlink()  # a run that left nothing leaves no folder
+            if created and sorted(os.listdir(out)) in ([LOCK], []):
+                with contextlib.suppress(OSError):
+                    path.unlink()  # a run that left nothing leaves no folder
                 with contextlib.suppress(OSError):
                     out.rmdir()
     finally:
