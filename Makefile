@@ -30,11 +30,11 @@ demo: $(DEMO_STAMP)
 	$(VENV)/bin/mars-pairs inspect out/demo/dataset
 
 test: $(DEV_STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n auto
 
 # the development lane: every test but those marked slow (CI's `make test` runs them all)
 test-fast: $(DEV_STAMP)
-	$(PY) -m pytest -q -m "not slow"
+	$(PY) -m pytest -q -n auto -m "not slow"
 
 docs: $(DEV_STAMP)
 	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --quiet

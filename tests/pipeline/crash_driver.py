@@ -1,4 +1,4 @@
-"""Kill a rebuild over an old dataset at every file operation; resume; compare to a clean build.
+"""Kill a rebuild over an old dataset at every kind of file operation; resume; compare to a clean build.
 
 Run by tests/pipeline/test_build_crash.py as ``python crash_driver.py NEW.yaml OLD.yaml``
 (both configs write the same output folder). This process only imports; every build runs in
@@ -7,11 +7,14 @@ a forked child, so no child inherits numba or Arrow threads. Steps:
 1. reference: clear the folder, build NEW; keep every file's bytes.
 2. count: build OLD, then NEW over it with each file operation under the output folder
    (os.replace/rename/unlink/remove/rmdir/mkdir, open for writing) recorded in order.
-3. for every N: build OLD, then NEW with the child SIGKILLing itself just before operation
-   N, then NEW with ``resume=True`` in a fresh child; the folder must equal the reference
-   (dataset.json up to its build time). A kill before anything changed leaves the old
-   dataset as it was, which ``resume`` refuses (its config differs: the documented
-   refusal); those points are listed as untouched and rebuilt without ``resume``.
+3. for every kill point N (every operation up to the first change of the old dataset, then
+   the first and the last operation of each kind: the operation with the digits of its path
+   masked, so the commits of the shards of every chunk count as one kind): build OLD, then
+   NEW with the child SIGKILLing itself just before operation N, then NEW with
+   ``resume=True`` in a fresh child; the folder must equal the reference (dataset.json up to
+   its build time). A kill before anything changed leaves the old dataset as it was, which
+   ``resume`` refuses (its config differs: the documented refusal); those points are listed
+   as untouched and rebuilt without ``resume``.
 
 Prints one JSON line: the operations of the rebuild and the kill points that did not match.
 """
@@ -23,6 +26,7 @@ import hashlib
 import io
 import json
 import os
+import re
 import shutil
 import signal
 import sys
@@ -65,6 +69,19 @@ def _patch(out: Path, kill_at: int | None, log: list[tuple[str, str]]) -> None:
 
     builtins.open = opened  # type: ignore[assignment]
     io.open = opened  # type: ignore[assignment]
+
+
+def kill_points(ops: list[tuple[str, str]], first_change: int) -> list[int]:
+    """The 1-based kill points: every operation up to ``first_change``, then the first and the
+    last of each kind (the operation and its path with every run of digits masked)."""
+    points = set(range(1, first_change + 1))
+    first: dict[tuple[str, str], int] = {}
+    last: dict[tuple[str, str], int] = {}
+    for n, (op, path) in enumerate(ops, start=1):
+        kind = (op, re.sub(r"\d+", "#", path))
+        first.setdefault(kind, n)
+        last[kind] = n
+    return sorted(points | set(first.values()) | set(last.values()))
 
 
 def _in_child(fn: Any) -> int:
@@ -131,7 +148,9 @@ def main(new: Path, old: Path) -> dict[str, Any]:
     mismatched: list[dict[str, Any]] = []
     statuses: list[int] = []
     untouched: list[int] = []
-    for n in range(1, len(ops) + 1):
+    first_change = ops.index(["replace", "dataset.json"]) + 1
+    points = kill_points([tuple(op) for op in ops], first_change)
+    for n in points:
         shutil.rmtree(out)
         shutil.copytree(old_state, out)
 
@@ -153,6 +172,7 @@ def main(new: Path, old: Path) -> dict[str, Any]:
             mismatched.append({"kill_at": n, "op": ops[n - 1], "resume": resumed, "diff": diff})
     return {
         "ops": ops,
+        "points": points,
         "killed": sum(s == -signal.SIGKILL for s in statuses),
         "mismatched": mismatched,
         "untouched": untouched,

@@ -1,10 +1,12 @@
-"""A rebuild over an old dataset killed (SIGKILL) at every one of its file operations, each
-time resumed with ``resume=True``, ends byte-identical to a clean build (issue 17)."""
+"""A rebuild over an old dataset killed (SIGKILL) at every kind of its file operations (the
+first and the last of each), each time resumed with ``resume=True``, ends byte-identical to a
+clean build."""
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -51,12 +53,18 @@ def test_a_rebuild_killed_at_every_file_operation_resumes_byte_identical(
     report = json.loads(done.stdout.strip().splitlines()[-1])
     ops = [tuple(op) for op in report["ops"]]
     assert report["mismatched"] == [], report["mismatched"]
-    assert report["killed"] == len(ops)  # every kill point was reached and killed the build
+    points = report["points"]
+    # every kind of operation (its path's digits masked) is a kill point at its first and last
+    # occurrence, and every operation before the old dataset changes
+    kinds = {(op, re.sub(r"\d+", "#", path)) for op, path in ops}
+    assert {(ops[n - 1][0], re.sub(r"\d+", "#", ops[n - 1][1])) for n in points} == kinds
+    assert report["killed"] == len(points)  # every kill point was reached and killed the build
     # only kills before the first change leave the old dataset (which resume refuses, its
     # config being another): the ops before its stamp goes (a finished build's stamp is its
     # dataset.json, renamed to parts/clearing.json)
     first_change = ops.index(("replace", "dataset.json")) + 1
     assert report["untouched"] == list(range(1, first_change + 1))
+    assert set(range(1, first_change + 1)) <= set(points)
     # the kill points cover the clearing of every old output and every commit of the new one
     unlinked = {path for op, path in ops if op == "unlink"}
     old = ("parts/clearing.json", "manifest.parquet", "failures.parquet", "README.md")
