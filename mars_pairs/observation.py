@@ -56,6 +56,7 @@ class Observation:
     vfov_deg: float | None = None
     start_time: datetime | None = None
     image_path: Path | None = None
+    lmst: str | None = None  # local mean solar time of day at the start, "HH:MM:SS[.fff]"
 
     @property
     def site(self) -> int:

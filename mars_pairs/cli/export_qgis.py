@@ -13,7 +13,7 @@ from mars_pairs.cli.arguments import add_out, local_dataset, out_path
 def register(sub: Any) -> None:
     """Add the ``export-qgis`` subparser to the top-level subparsers ``sub``."""
     p = sub.add_parser("export-qgis", help="a GeoPackage of positions, footprints and wedges")
-    p.add_argument("dataset", type=local_dataset, help="dataset folder")
+    p.add_argument("dataset", type=local_dataset, help="dataset or footprint catalogue folder")
     add_out(p, "output .gpkg (default DATASET-qgis.gpkg beside the folder)", positional=True)
     p.add_argument("--viewsheds", action="store_true", help="also write viewshed GeoTIFFs")
     p.add_argument(

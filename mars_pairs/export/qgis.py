@@ -54,7 +54,8 @@ def export_geopackage(
 ) -> Path:
     """Write ``out`` (.gpkg; default ``<root>-qgis.gpkg`` beside the dataset folder:
     ``store.beside``; a path inside the folder is refused) with layers rover_positions,
-    footprints, camera_wedges.
+    footprints, camera_wedges (of a footprint catalogue folder: ``catalog_qgis``, with its
+    pairs).
 
     Geometries are in the dataset CRS; attributes come from the manifest. With
     ``with_viewsheds``, each sample's viewshed chip is written as ``KEY_viewshed.tif`` in the
@@ -70,6 +71,12 @@ def export_geopackage(
         raise MarsPairsError(f"{out}: the output must be a .gpkg file")
     if not root.is_dir():
         raise MarsPairsError(f"{root}: no such dataset folder")
+    if (root / "catalog.parquet").is_file() and not (root / "manifest.parquet").exists():
+        if with_viewsheds or with_chips:
+            raise MarsPairsError(f"{root}: a footprint catalogue has no chips or viewsheds")
+        from mars_pairs.export.catalog_qgis import export_catalog_geopackage
+
+        return export_catalog_geopackage(root, out)
     rows = Manifest.open(root).require().to_table().to_pylist()
     if not rows:
         raise MarsPairsError(f"{root}: the dataset has no samples")

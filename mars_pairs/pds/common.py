@@ -231,6 +231,23 @@ class Fields:
             return datetime(value.year, value.month, value.day, tzinfo=timezone.utc)
         self.fail(field, f"expected a time, got {_show(value)}")
 
+    def local_time(self, value: Any, field: str, sol: int | None = None) -> str:
+        """A local solar time of day as "HH:MM:SS[.fff]" (Mars hours of 1/24 sol), from
+        "HH:MM:SS[.fff]" or "Sol-NNNNNM" before it (Curiosity's and Perseverance's form,
+        whose sol must be ``sol`` when given)."""
+        text = self.text(value, field).strip()
+        match = _LOCAL_TIME_RE.fullmatch(text)
+        if match is None:
+            self.fail(
+                field, f"expected a local time HH:MM:SS or Sol-NNNNNMHH:MM:SS, got {_show(value)}"
+            )
+        day, hh, mm, ss = match.group(1), int(match[2]), int(match[3]), float(match[4])
+        if hh > 24 or mm > 59 or ss >= 61:
+            self.fail(field, f"not a time of day: {_show(value)}")
+        if day is not None and sol is not None and int(day) != sol:
+            self.fail(field, f"sol {int(day)} is not the label's sol {sol}")
+        return text[match.start(2) :]
+
     def model_type_code(self, value: Any, field: str) -> int:
         """CAHVORE's model type: 1, 2 or 3 (labels write it as an integer or a real, "3.0")."""
         number = self.number(value, field)
@@ -305,6 +322,11 @@ def quantity_units(value: Any) -> str | None:
     if isinstance(value, Mapping) and set(value) == {"value", "units"}:
         return str(value["units"])
     return None
+
+
+_LOCAL_TIME_RE = re.compile(
+    r"(?:Sol-?([0-9]{1,6})M)?([0-9]{1,2}):([0-9]{2}):([0-9]{2}(?:\.[0-9]+)?)"
+)
 
 
 def parse_time(text: str) -> datetime | None:

@@ -246,6 +246,7 @@ def observation_from_label(label: Mapping[str, Any], path: Path) -> Observation:
         **_pointing(f, label),
         start_time=_start_time(f, label),
         image_path=_image_path(path, label),
+        lmst=_lmst(f, label),
     )
 
 
@@ -410,6 +411,18 @@ def _start_time(f: Fields, label: Mapping[str, Any]) -> datetime | None:
         value = label.get(key)
         if not is_null(value):
             return f.time(value, key)
+    return None
+
+
+def _lmst(f: Fields, label: Mapping[str, Any]) -> str | None:
+    """LOCAL_MEAN_SOLAR_TIME (Curiosity writes MSL:LOCAL_MEAN_SOLAR_TIME, "Sol-NNNNNM" before
+    the time) as "HH:MM:SS[.fff]", its sol checked against PLANET_DAY_NUMBER (None if
+    absent)."""
+    for key in ("LOCAL_MEAN_SOLAR_TIME", "MSL:LOCAL_MEAN_SOLAR_TIME"):
+        value = label.get(key)
+        if not is_null(value):
+            sol = f.integer(_require(f, label, "PLANET_DAY_NUMBER"), "PLANET_DAY_NUMBER")
+            return f.local_time(value, key, sol)
     return None
 
 

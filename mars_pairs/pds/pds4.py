@@ -93,6 +93,7 @@ class _Reader(XmlLabel):
             vfov_deg=self.optional_angle("img", "line_fov", 1e-9, 180.0),
             start_time=self.start_time(),
             image_path=image_beside(self.path, self.file_name()),
+            lmst=self.lmst(),
         )
 
     def product_id(self) -> str:
@@ -314,6 +315,20 @@ class _Reader(XmlLabel):
         """Time_Coordinates/start_date_time as UTC (None if absent)."""
         el = self.first("pds", "start_date_time")
         return None if el is None else self.f.time(self.text(el), "start_date_time")
+
+    def lmst(self) -> str | None:
+        """Time_Coordinates/local_mean_solar_time, else msn:start_local_mean_solar_time, else
+        mars2020:start_local_mean_solar_time ("Sol-NNNNNM" before the time), as
+        "HH:MM:SS[.fff]" (None if absent)."""
+        for prefix, local in (
+            ("pds", "local_mean_solar_time"),
+            ("msn", "start_local_mean_solar_time"),
+            ("mars2020", "start_local_mean_solar_time"),
+        ):
+            el = self.first(prefix, local)
+            if el is not None and self.text(el):
+                return self.f.local_time(self.text(el), name_of(prefix, local), self.sol())
+        return None
 
     def file_name(self) -> str | None:
         """The data file named in File_Area_Observational, if any."""

@@ -302,12 +302,17 @@ def _provenance_section(root: Path, info: DatasetInfo, crs_name: str) -> str:
 
 def report_html(root: str | Path, samples: int = DEFAULT_SAMPLES, dpi: int = DPI) -> str:
     """The report page of the dataset folder ``root`` with ``samples`` gallery samples, its
-    figures drawn at ``dpi`` dots per inch."""
+    figures drawn at ``dpi`` dots per inch; of a footprint catalogue folder, its map of
+    footprints and pairs (``report.catalog_page``)."""
     if isinstance(samples, bool) or not isinstance(samples, int) or samples < 0:
         raise UsageError(f"samples: expected a whole number >= 0, got {samples!r}")
     root = Path(root)
     if not root.is_dir():
         raise MarsPairsError(f"{root}: no such dataset folder")
+    if (root / "catalog.parquet").is_file() and not (root / "manifest.parquet").exists():
+        from mars_pairs.report.catalog_page import catalog_report_html
+
+        return catalog_report_html(root, dpi)
     manifest = Manifest.open(root).require(COLUMNS)
     rows = manifest.to_table(columns=list(COLUMNS)).to_pylist()
     info = read_dataset_info(root, required=False)

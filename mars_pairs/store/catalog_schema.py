@@ -23,7 +23,7 @@ CATALOG_FIELDS: list[tuple[str, pa.DataType]] = [
     ("drive", pa.int32()),
     ("pose", pa.int32()),
     ("time", pa.timestamp("ms", tz="UTC")),  # the label's start time, UTC
-    ("lmst", pa.string()),  # local mean solar time as the label writes it (null: none)
+    ("lmst", pa.string()),  # local mean solar time of day, "HH:MM:SS[.fff]" (null: none)
     ("camera_x", pa.float64()),  # camera centre, map CRS, map units
     ("camera_y", pa.float64()),
     ("camera_z", pa.float64()),  # metres above the areoid, the rover standing on the DEM

@@ -24,6 +24,7 @@ from __future__ import annotations
 import hashlib
 import json
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -76,10 +77,13 @@ def sealed_names(root: fs.Location) -> list[str]:
     return [*SEALED, *lists]
 
 
-def files_record(root: fs.Location) -> dict[str, dict[str, Any]]:
-    """The ``files`` record of the sealed files present in ``root``: name -> {sha256, size}."""
+def files_record(
+    root: fs.Location, names: Sequence[str] | None = None
+) -> dict[str, dict[str, Any]]:
+    """The ``files`` record of the sealed files (``names``, default ``sealed_names(root)``)
+    present in ``root``: name -> {sha256, size}."""
     record: dict[str, dict[str, Any]] = {}
-    for name in sealed_names(root):
+    for name in sealed_names(root) if names is None else names:
         path = fs.join(root, name)
         if fs.exists(path):
             sha, size = file_digest(path)

@@ -48,12 +48,16 @@ def overview(
     dpi: int = DPI,
 ) -> Path:
     """All footprints over a downsampled ortho with the rover traverse and the held-out areas
-    (:func:`overview_figure`), written to ``out`` (default ``<root>-overview.png`` beside the
-    dataset folder: ``store.beside``; a path inside the folder is refused): a PNG of
-    ``OVERVIEW_SIZE`` inches at ``dpi``."""
+    (:func:`overview_figure`; of a footprint catalogue folder, its footprints and pairs:
+    ``catalog_map.catalog_figure``, ``colour_by`` sol or instrument), written to ``out``
+    (default ``<root>-overview.png`` beside the folder: ``store.beside``; a path inside the
+    folder is refused): a PNG of ``OVERVIEW_SIZE`` inches at ``dpi``."""
+    from mars_pairs.viz.catalog_map import catalog_figure, is_catalog
+
     plt = pyplot()
     out = beside(root, OVERVIEW_SUFFIX) if out is None else outside(root, out, OVERVIEW_SUFFIX)
-    fig = overview_figure(root, ortho_path, colour_by=colour_by, max_px=max_px)
+    draw = catalog_figure if is_catalog(root) else overview_figure
+    fig = draw(root, ortho_path, colour_by=colour_by, max_px=max_px)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(out, dpi=dpi)

@@ -72,7 +72,10 @@ def test_every_label_is_a_row_or_a_failure(built: tuple[Path, Path], mission: Pa
         "README.md",
         "catalog.json",
         "catalog.parquet",
+        "collection.json",
         "failures.parquet",
+        "items.ndjson",
+        "items.parquet",
         "pairs.parquet",
     ]
 

@@ -220,7 +220,7 @@ def _row(obs: Observation, view: View, ctx: SampleContext, quat: np.ndarray) -> 
     return {
         "key": sample_key(obs), "product_id": obs.product_id, "mission": obs.mission,
         "instrument": obs.instrument, "sol": obs.sol, "site": obs.rmc.site,
-        "drive": obs.rmc.drive, "pose": obs.rmc.pose, "time": obs.start_time, "lmst": None,
+        "drive": obs.rmc.drive, "pose": obs.rmc.pose, "time": obs.start_time, "lmst": obs.lmst,
         "camera_x": cx, "camera_y": cy, "camera_z": cz,
         "camera_lon": float(lon[0]), "camera_lat": float(lat[0]),
         "easting": float(cam.origin_map[0]), "northing": float(cam.origin_map[1]),

@@ -47,12 +47,15 @@ from mars_pairs.pipeline.builder.stamp import (
 from mars_pairs.pipeline.catalog.chunk import catalog_chunk
 from mars_pairs.pipeline.catalog.entry import SUBCELLS
 from mars_pairs.pipeline.config import BuildConfig
+from mars_pairs.pipeline.sample.record import labels_root
 from mars_pairs.raster.outline import SIMPLIFY_CELLS
 from mars_pairs.store.atomic import atomic_write_bytes, temporary_target, write_parquet_atomic
 from mars_pairs.store.catalog_schema import CATALOG_SCHEMA, catalog_geo_metadata
 from mars_pairs.store.geoparquet import crs_name
 from mars_pairs.store.manifest import FAILURE_SCHEMA
 from mars_pairs.store.pairs import Footprints, write_pairs
+from mars_pairs.store.seal import FILES_KEY, files_record
+from mars_pairs.store.stac import STAC_FILES, write_stac
 
 #: the files of a finished catalogue folder
 CATALOG_FILES = (
@@ -61,7 +64,10 @@ CATALOG_FILES = (
     "pairs.parquet",
     "catalog.json",
     "README.md",
+    *STAC_FILES,
 )
+#: the files catalog.json's ``files`` record covers (SHA-256 and size)
+CATALOG_SEALED = tuple(n for n in CATALOG_FILES if n != "catalog.json")
 STAMP = "parts/stamp.json"
 _PART = re.compile(r"parts/(catalog|failures)-[0-9]{6,}\.parquet")
 
@@ -261,10 +267,12 @@ def _finish(
     )
     doc = catalog_doc(config, catalog, failures.num_rows, n_pairs, dict(reasons), stamp, crs)
     doc["chunks"] = n_chunks
-    atomic_write_bytes(out / "catalog.json", json.dumps(doc, indent=2).encode())
     from mars_pairs.store.catalog_card import catalog_card
 
     atomic_write_bytes(out / "README.md", catalog_card(doc).encode())
+    write_stac(out, catalog, crs, doc, Path(labels_root(config.inputs.labels)))
+    doc[FILES_KEY] = files_record(out, CATALOG_SEALED)
+    atomic_write_bytes(out / "catalog.json", json.dumps(doc, indent=2).encode())
     for k in range(n_chunks):
         for path in part_paths(out, k):
             path.unlink(missing_ok=True)
