@@ -14,8 +14,16 @@ from typing import Any
 import pyarrow.parquet as pq
 
 from mars_pairs.errors import DatasetError
-from mars_pairs.report.page import CSS, _esc, _failures, _failures_section, _fmt, _img, _span
-from mars_pairs.report.page import _table as table_html
+from mars_pairs.report.page import (
+    CSS,
+    esc,
+    failures_section,
+    fmt,
+    img_html,
+    read_failures,
+    span,
+    table_html,
+)
 from mars_pairs.viz.catalog_map import catalog_figure
 
 TOP_PAIRS = 25  # pairs listed on the page, highest IoU first
@@ -44,33 +52,33 @@ def catalog_report_html(root: str | Path, dpi: int) -> str:
         doc = json.loads((root / "catalog.json").read_text())
     except (OSError, ValueError):
         doc = {}
-    failures = _failures(root)
+    failures = read_failures(root)
     sols = [int(s) for s in cat["sol"].to_pylist() if s is not None]
     title = f"mars-pairs footprint catalogue {root}"
     n_failed = failures.num_rows if failures is not None else 0
-    sub = f"{cat.num_rows} images, {n_failed} failures, sols {_span(sols)}"
+    sub = f"{cat.num_rows} images, {n_failed} failures, sols {span(sols)}"
     maps = "".join(
-        _img(_png(catalog_figure(root, colour_by=by), dpi), f"footprints coloured by {by}")
+        img_html(_png(catalog_figure(root, colour_by=by), dpi), f"footprints coloured by {by}")
         for by in ("sol", "instrument")
     ) if cat.num_rows else '<p class="sub">no images: nothing to draw</p>'  # fmt: skip
     counts = Counter(cat["instrument"].to_pylist())
     by_instrument = table_html(
-        ["instrument", "images"], [[_esc(k), v] for k, v in sorted(counts.items())], numeric={1}
+        ["instrument", "images"], [[esc(k), v] for k, v in sorted(counts.items())], numeric={1}
     )
     body = [
-        f'<h1>{_esc(title)}</h1><p class="sub">{_esc(sub)}</p>',
+        f'<h1>{esc(title)}</h1><p class="sub">{esc(sub)}</p>',
         '<section id="map"><h2>Map</h2><p class="sub">visible footprints over the orthoimage, '
         "pairs of images that saw the same ground as lines between the camera centres; map "
-        f"coordinates of {_esc(doc.get('crs_name', ''))}</p>{maps}</section>",
+        f"coordinates of {esc(doc.get('crs_name', ''))}</p>{maps}</section>",
         f'<section id="instruments"><h2>Images</h2>{by_instrument}</section>',
         _pairs_section(root),
-        _failures_section(failures),
+        failures_section(failures),
         '<section id="provenance"><h2>Provenance</h2><p class="sub">catalog.json</p>'
-        f"<pre>{_esc(json.dumps(doc, indent=2))}</pre></section>",
+        f"<pre>{esc(json.dumps(doc, indent=2))}</pre></section>",
     ]
     return (
         '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
-        f"<title>{_esc(title)}</title>"
+        f"<title>{esc(title)}</title>"
         '<meta name="viewport" content="width=device-width,initial-scale=1">'
         f"<style>{CSS}</style></head><body><main>{''.join(body)}</main></body></html>\n"
     )
@@ -84,9 +92,9 @@ def _pairs_section(root: Path) -> str:
     pairs = pq.read_table(path)
     top = pairs.sort_by([("iou", "descending"), ("key_a", "ascending")]).slice(0, TOP_PAIRS)
     rows = [
-        [_esc(r["key_a"]), _esc(r["key_b"]), _fmt(r["iou"], ".3f"),
-         _fmt(r["intersection_m2"], ".0f"), _fmt(r["distance_m"], ".1f"),
-         _fmt(r["heading_diff_deg"], ".0f"), "yes" if r["same_position"] else "no"]
+        [esc(r["key_a"]), esc(r["key_b"]), fmt(r["iou"], ".3f"),
+         fmt(r["intersection_m2"], ".0f"), fmt(r["distance_m"], ".1f"),
+         fmt(r["heading_diff_deg"], ".0f"), "yes" if r["same_position"] else "no"]
         for r in top.to_pylist()
     ]  # fmt: skip
     same = sum(bool(v) for v in pairs["same_position"].to_pylist())

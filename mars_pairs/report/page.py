@@ -69,11 +69,11 @@ max-height:480px}
 """
 
 
-def _esc(value: Any) -> str:
+def esc(value: Any) -> str:
     return html.escape("" if value is None else str(value))
 
 
-def _img(png: bytes, alt: str, cls: str = "") -> str:
+def img_html(png: bytes, alt: str, cls: str = "") -> str:
     from PIL import Image
 
     with Image.open(io.BytesIO(png)) as im:
@@ -81,17 +81,17 @@ def _img(png: bytes, alt: str, cls: str = "") -> str:
     data = base64.b64encode(png).decode("ascii")
     klass = f' class="{cls}"' if cls else ""
     return (
-        f'<img{klass} alt="{_esc(alt)}" width="{width}" height="{height}" '
+        f'<img{klass} alt="{esc(alt)}" width="{width}" height="{height}" '
         f'src="data:image/png;base64,{data}">'
     )
 
 
-def _table(header: list[str], rows: list[list[Any]], numeric: Set[int] = frozenset()) -> str:
-    head = "".join(f"<th>{_esc(h)}</th>" for h in header)
+def table_html(header: list[str], rows: list[list[Any]], numeric: Set[int] = frozenset()) -> str:
+    head = "".join(f"<th>{esc(h)}</th>" for h in header)
     body = "".join(
         "<tr>"
         + "".join(
-            f'<td class="n">{_esc(v)}</td>' if i in numeric else f"<td>{v}</td>"
+            f'<td class="n">{esc(v)}</td>' if i in numeric else f"<td>{v}</td>"
             for i, v in enumerate(row)
         )
         + "</tr>"
@@ -100,13 +100,13 @@ def _table(header: list[str], rows: list[list[Any]], numeric: Set[int] = frozens
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
-def _fmt(value: Any, spec: str = "") -> str:
+def fmt(value: Any, spec: str = "") -> str:
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return "–"
     return format(value, spec)
 
 
-def _span(values: list[int]) -> str:
+def span(values: list[int]) -> str:
     """'a–b' of the smallest and largest value ('a' when they are equal, '–' for none)."""
     if not values:
         return "–"
@@ -117,7 +117,7 @@ def _span(values: list[int]) -> str:
 # -- reading ------------------------------------------------------------------------------------
 
 
-def _failures(root: Path) -> pa.Table | None:
+def read_failures(root: Path) -> pa.Table | None:
     path = root / "failures.parquet"
     if not path.is_file():
         return None
@@ -164,18 +164,18 @@ def _split_section(rows: list[dict[str, Any]], info: DatasetInfo, n_failed: int)
         colour = colours[name]
         table_rows.append(
             [
-                f'<span class="swatch" style="background:{colour}"></span>{_esc(name)}',
+                f'<span class="swatch" style="background:{colour}"></span>{esc(name)}',
                 counts[name],
                 f"{100 * counts[name] / len(rows):.1f} %",
                 len(stops),
-                _span(sols),
-                _esc(", ".join(sorted({str(r["instrument"]) for r in mine}))),
+                span(sols),
+                esc(", ".join(sorted({str(r["instrument"]) for r in mine}))),
             ]
         )
     table_rows.append(["<b>all</b>", len(rows), "100 %" if rows else "–",
                        len({(r["easting"], r["northing"]) for r in rows}), "", ""])  # fmt: skip
     parts = [
-        _table(
+        table_html(
             ["split", "samples", "share", "rover positions", "sols", "instruments"],
             table_rows,
             numeric={1, 2, 3},
@@ -186,11 +186,11 @@ def _split_section(rows: list[dict[str, Any]], info: DatasetInfo, n_failed: int)
         kv = []
         for key, value in rep.items():
             name = f"{key[:-2]} (m)" if key.endswith("_m") else key
-            kv.append([_esc(name.replace("_", " ")), _esc(_for_people(key, value))])
-        parts.append(_table(["split rule and leak check (dataset.json)", "value"], kv))
+            kv.append([esc(name.replace("_", " ")), esc(_for_people(key, value))])
+        parts.append(table_html(["split rule and leak check (dataset.json)", "value"], kv))
     summary = f"{len(rows)} samples, {n_failed} failures"
     return (
-        f'<section id="splits"><h2>Samples per split</h2><p class="sub">{_esc(summary)}</p>'
+        f'<section id="splits"><h2>Samples per split</h2><p class="sub">{esc(summary)}</p>'
         f'<div class="row">{"".join(parts)}</div></section>'
     )
 
@@ -199,7 +199,7 @@ def _file_name(path: Any) -> str:
     return Path(str(path)).name if path else ""
 
 
-def _failures_section(failures: pa.Table | None) -> str:
+def failures_section(failures: pa.Table | None) -> str:
     head = '<section id="failures"><h2>Failures</h2>'
     if failures is None:
         return head + '<p class="sub">no failures.parquet in the dataset folder</p></section>'
@@ -207,18 +207,18 @@ def _failures_section(failures: pa.Table | None) -> str:
         return head + '<p class="empty">no failures: every product became a sample</p></section>'
     rows = failures.to_pylist()
     reasons = Counter((r.get("stage"), r.get("error_type")) for r in rows)
-    by_reason = _table(
+    by_reason = table_html(
         ["stage", "error", "products"],
-        [[_esc(s), _esc(e), n] for (s, e), n in reasons.most_common()],
+        [[esc(s), esc(e), n] for (s, e), n in reasons.most_common()],
         numeric={2},
     )
     listed = [
         [
-            _esc(r.get("product_id")),
-            _esc(r.get("stage")),
-            _esc(r.get("error_type")),
-            f'<div class="msg">{_esc(r.get("message"))}</div>',
-            f'<span title="{_esc(r.get("path"))}">{_esc(_file_name(r.get("path")))}</span>',
+            esc(r.get("product_id")),
+            esc(r.get("stage")),
+            esc(r.get("error_type")),
+            f'<div class="msg">{esc(r.get("message"))}</div>',
+            f'<span title="{esc(r.get("path"))}">{esc(_file_name(r.get("path")))}</span>',
         ]
         for r in rows[:MAX_FAILURE_ROWS]
     ]
@@ -226,7 +226,7 @@ def _failures_section(failures: pa.Table | None) -> str:
     note = f'<p class="sub">{more} more in failures.parquet</p>' if more > 0 else ""
     return (
         f'{head}<p class="sub">{len(rows)} products failed (failures.parquet)</p>{by_reason}'
-        f"{_table(['product', 'stage', 'error', 'message', 'file'], listed)}{note}</section>"
+        f"{table_html(['product', 'stage', 'error', 'message', 'file'], listed)}{note}</section>"
     )
 
 
@@ -248,14 +248,14 @@ def _gallery_section(root: Path, rows: list[dict[str, Any]], n: int, dpi: int = 
             centre = centres[str(r["key"])]
             png = sample_card(ds[ds.index_of(str(r["key"]))], camera_center_map=centre, dpi=dpi)
             caption = (
-                f"<b>{_esc(r['key'])}</b><br>{_esc(r['instrument'])}, sol {_esc(r['sol'])}, "
-                f"split <b>{_esc(r['split'])}</b><br>camera az {_fmt(r['azimuth_deg'], '.1f')}°, "
-                f"el {_fmt(r['elevation_deg'], '.1f')}°; farthest visible "
-                f"{_fmt(r['max_visible_range_m'], '.0f')} m, visible area "
-                f"{_fmt(r['viewshed_area_m2'], ',.0f')} m²"
+                f"<b>{esc(r['key'])}</b><br>{esc(r['instrument'])}, sol {esc(r['sol'])}, "
+                f"split <b>{esc(r['split'])}</b><br>camera az {fmt(r['azimuth_deg'], '.1f')}°, "
+                f"el {fmt(r['elevation_deg'], '.1f')}°; farthest visible "
+                f"{fmt(r['max_visible_range_m'], '.0f')} m, visible area "
+                f"{fmt(r['viewshed_area_m2'], ',.0f')} m²"
             )
             cards.append(
-                f"<figure>{_img(png, 'sample ' + str(r['key']), 'card')}"
+                f"<figure>{img_html(png, 'sample ' + str(r['key']), 'card')}"
                 f"<figcaption>{caption}</figcaption></figure>"
             )
     return (
@@ -274,26 +274,26 @@ def _provenance_section(root: Path, info: DatasetInfo, crs_name: str) -> str:
     written = datetime.fromtimestamp(dataset_json_path(root).stat().st_mtime, tz=timezone.utc)
     seconds = info.build_seconds
     facts = [
-        ["dataset", _esc(root.resolve())],
-        ["built (dataset.json written)", _esc(written.strftime("%Y-%m-%d %H:%M:%S UTC"))],
-        ["build time", _esc(f"{seconds:.1f} s" if isinstance(seconds, (int, float)) else "–")],
-        ["CRS", _esc(crs_name)],
-        ["chip", _esc(", ".join(f"{k} {v}" for k, v in info.chip.items()))],
+        ["dataset", esc(root.resolve())],
+        ["built (dataset.json written)", esc(written.strftime("%Y-%m-%d %H:%M:%S UTC"))],
+        ["build time", esc(f"{seconds:.1f} s" if isinstance(seconds, (int, float)) else "–")],
+        ["CRS", esc(crs_name)],
+        ["chip", esc(", ".join(f"{k} {v}" for k, v in info.chip.items()))],
     ]
     for key, value in info.counts.items():
         if isinstance(value, dict):
             value = ", ".join(f"{k} {v}" for k, v in value.items())
-        facts.append([_esc(f"count: {key.replace('_', ' ')}"), _esc(value)])
+        facts.append([esc(f"count: {key.replace('_', ' ')}"), esc(value)])
     for key, value in info.failures_by_reason.items():
-        facts.append([_esc(f"failures: {key}"), _esc(value)])
-    versions = [[_esc(k), _esc(v)] for k, v in info.versions.items()]
+        facts.append([esc(f"failures: {key}"), esc(value)])
+    versions = [[esc(k), esc(v)] for k, v in info.versions.items()]
     generated = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
-    versions.append(["report written by", _esc(f"mars_pairs {__version__}, {generated}")])
+    versions.append(["report written by", esc(f"mars_pairs {__version__}, {generated}")])
     config = json.dumps(info.config, indent=2)
     return (
-        f'{head}<div class="row">{_table(["build", ""], facts)}'
-        f"{_table(['versions', ''], versions)}</div>"
-        f"<h3>Build configuration</h3><pre>{_esc(config)}</pre></section>"
+        f'{head}<div class="row">{table_html(["build", ""], facts)}'
+        f"{table_html(['versions', ''], versions)}</div>"
+        f"<h3>Build configuration</h3><pre>{esc(config)}</pre></section>"
     )
 
 
@@ -316,7 +316,7 @@ def report_html(root: str | Path, samples: int = DEFAULT_SAMPLES, dpi: int = DPI
     manifest = Manifest.open(root).require(COLUMNS)
     rows = manifest.to_table(columns=list(COLUMNS)).to_pylist()
     info = read_dataset_info(root, required=False)
-    failures = _failures(root)
+    failures = read_failures(root)
     n_failed = failures.num_rows if failures is not None else 0
     crs_name, unit = describe_crs(info.crs or manifest.crs)
     ortho_path = info.build_input(root, "ortho")
@@ -324,31 +324,31 @@ def report_html(root: str | Path, samples: int = DEFAULT_SAMPLES, dpi: int = DPI
     title = f"mars-pairs dataset {root}"
     missions = ", ".join(sorted({str(r["mission"]) for r in rows}))
     sols = [int(r["sol"]) for r in rows if r["sol"] is not None]
-    sol_text = f"sols {_span(sols)}" if sols else ""
+    sol_text = f"sols {span(sols)}" if sols else ""
     sub = ", ".join(
         x for x in (f"{len(rows)} samples", f"{n_failed} failures", missions, sol_text) if x
     )
     if rows:
-        the_map = _img(
+        the_map = img_html(
             map_figure(rows, info, ortho_path, crs_name, unit, dpi=dpi), "map of the footprints"
         )
-        hists = _img(histograms_figure(rows, dpi), "histograms of the view statistics")
+        hists = img_html(histograms_figure(rows, dpi), "histograms of the view statistics")
     else:
         the_map = hists = '<p class="sub">no samples: nothing to draw</p>'
     body = [
-        f'<h1>{_esc(title)}</h1><p class="sub">{_esc(sub)}</p>',
+        f'<h1>{esc(title)}</h1><p class="sub">{esc(sub)}</p>',
         f'<section id="map"><h2>Map</h2><p class="sub">rover positions (red ▲) joined in '
         f"(sol, site, drive) order, footprints (the visible area's hull) coloured by split, "
-        f"over the orthoimage; map coordinates of {_esc(crs_name)}</p>{the_map}</section>",
+        f"over the orthoimage; map coordinates of {esc(crs_name)}</p>{the_map}</section>",
         _split_section(rows, info, n_failed),
         f'<section id="histograms"><h2>View statistics</h2>{hists}</section>',
         _gallery_section(root, rows, samples, dpi),
-        _failures_section(failures),
+        failures_section(failures),
         _provenance_section(root, info, crs_name),
     ]
     return (
         '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
-        f"<title>{_esc(title)}</title>"
+        f"<title>{esc(title)}</title>"
         '<meta name="viewport" content="width=device-width,initial-scale=1">'
         f"<style>{CSS}</style></head><body><main>{''.join(body)}</main></body></html>\n"
     )

@@ -30,6 +30,7 @@ catalogue gives the same bytes.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
 import os
@@ -234,14 +235,30 @@ def write_stac(
     folder: Path, catalog: pa.Table, crs: str, doc: dict[str, Any], labels_root: Path
 ) -> int:
     """Write ``STAC_FILES`` of ``catalog`` into ``folder``, each atomically; returns the
-    number of Items. ``doc``: catalog.json's document (license, versions)."""
-    import stac_geoparquet.arrow
-
+    number of Items. ``doc``: catalog.json's document (license, versions). ``items.parquet``
+    needs stac-geoparquet (the ``stac`` extra, ``pip install 'mars-pairs[stac]'``): without
+    it that file is not written (and an old one removed), and ``doc["stac_parquet"]`` says
+    why; the JSON files need nothing more."""
     items = list(stac_items(catalog, crs, folder, labels_root))
     collection = stac_collection(items, doc, catalog.num_rows - len(items))
     lines = "".join(json.dumps(item, separators=(",", ":")) + "\n" for item in items)
     atomic_write_bytes(folder / "items.ndjson", lines.encode())
-    with atomic_path(folder / "items.parquet") as tmp:
+    if importlib.util.find_spec("stac_geoparquet") is None:
+        (folder / "items.parquet").unlink(missing_ok=True)
+        doc["stac_parquet"] = "not written: stac-geoparquet is not installed (mars-pairs[stac])"
+    else:
+        _write_items_parquet(folder / "items.parquet", items, collection)
+    atomic_write_bytes(folder / "collection.json", json.dumps(collection, indent=2).encode())
+    return len(items)
+
+
+def _write_items_parquet(
+    path: Path, items: list[dict[str, Any]], collection: dict[str, Any]
+) -> None:
+    """stac-geoparquet's ``items.parquet`` of ``items``, atomically."""
+    import stac_geoparquet.arrow
+
+    with atomic_path(path) as tmp:
         if items:
             reader = stac_geoparquet.arrow.parse_stac_items_to_arrow(items)
             stac_geoparquet.arrow.to_parquet(
@@ -249,5 +266,3 @@ def write_stac(
             )
         else:
             pa.parquet.write_table(pa.table({"id": pa.array([], pa.string())}), tmp)
-    atomic_write_bytes(folder / "collection.json", json.dumps(collection, indent=2).encode())
-    return len(items)
