@@ -131,3 +131,32 @@ def test_duckdb_spatial_reads_geometry_and_crs(cat: Path) -> None:
         assert shapely.from_wkb(bytes(wkb)).equals_exact(geom, 0.0)
         assert area == pytest.approx(geom.area, rel=1e-9)
         assert "Mars" in json.loads(crs)["name"]
+
+
+def test_without_stac_geoparquet_the_json_stac_files_are_written_alone(
+    cat: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import importlib.util
+
+    import pyarrow as pa
+
+    from mars_pairs.store import stac
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        stac.importlib.util,
+        "find_spec",
+        lambda name, *a: None if name == "stac_geoparquet" else real(name, *a),
+    )
+    folder = tmp_path / "cat"
+    folder.mkdir()
+    (folder / "items.parquet").write_bytes(b"an old one")
+    catalog = pq.read_table(cat / "catalog.parquet")
+    crs = json.loads((cat / "catalog.json").read_text())["crs"]
+    doc: dict[str, object] = {"license": "CC-BY-4.0"}
+    n = stac.write_stac(folder, catalog, crs, doc, cat)
+    assert n == len(_items(cat))
+    assert not (folder / "items.parquet").exists()  # the old one is gone, none half-written
+    assert "stac-geoparquet" in str(doc["stac_parquet"])
+    assert (folder / "items.ndjson").read_bytes() != b"" and (folder / "collection.json").exists()
+    assert isinstance(catalog, pa.Table)
