@@ -22,6 +22,9 @@ def catalog_card(doc: dict[str, Any]) -> str:
         f"- failures: {counts['failures']} (`failures.parquet`: label, stage, error)",
         f"- pairs of images whose footprints overlap: {counts['pairs']} (`pairs.parquet`)",
         f"- CRS: {doc['crs_name']} (map units; the WKT in `catalog.json`)",
+        "- STAC: `collection.json` (a STAC 1.1 Collection, proj and ssys extensions), one Item "
+        "per image with a time in `items.ndjson` and in `items.parquet` (stac-geoparquet); "
+        "footprints in longitude/latitude on the Mars sphere",
         f"- footprint: {foot['source']}, radius {foot['radius_m']} m, {foot['view_mask']} "
         f"mask, simplified by {foot['simplify_tolerance']:g} map units (DEM cell "
         f"{foot['dem_cell']:g})",
