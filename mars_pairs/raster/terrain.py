@@ -15,7 +15,9 @@ east-left: ``raster.grid.NorthUp``); every transform and array here is north-up 
 
 from __future__ import annotations
 
+import contextlib
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -239,8 +241,10 @@ class Terrain:
             )
 
     def _read_dem(self, window: Window) -> NDArray[np.float32]:
-        """Read band 1 in ``window`` as float32 metres, nodata/masked -> NaN, scale/offset."""
-        arr = self._grid.read(self._dem, 1, window, masked=True)
+        """Read band 1 in ``window`` as float32 metres, nodata/masked -> NaN, scale/offset;
+        TerrainError naming the DEM when GDAL cannot read it (a truncated or damaged file)."""
+        with reading(self.dem_path, "DEM"):
+            arr = self._grid.read(self._dem, 1, window, masked=True)
         scale = self._dem.scales[0] if self._dem.scales else 1.0
         offset = self._dem.offsets[0] if self._dem.offsets else 0.0
         out = arr.astype(np.float32).filled(np.nan)
@@ -354,15 +358,16 @@ class Terrain:
         """Boundless windowed read of an ortho in the DEM's CRS, resampled to ``shape``."""
         grid = self._ortho_grid
         win = from_bounds(*bounds, transform=grid.transform)
-        data = grid.read(
-            self._ortho,
-            None,
-            win,
-            out_shape=(self._ortho.count, *shape),
-            boundless=True,
-            masked=True,
-            resampling=Resampling.bilinear,
-        )
+        with reading(self.ortho_path, "orthoimage"):
+            data = grid.read(
+                self._ortho,
+                None,
+                win,
+                out_shape=(self._ortho.count, *shape),
+                boundless=True,
+                masked=True,
+                resampling=Resampling.bilinear,
+            )
         valid = ~np.ma.getmaskarray(data).any(axis=0)
         assert isinstance(valid, np.ndarray)  # (bands, rows, cols) reduced over the bands
         return np.ma.filled(data, 0), valid
@@ -376,7 +381,8 @@ class Terrain:
         grid = self._ortho_grid
         src_win = from_bounds(*ob, transform=grid.transform).round_offsets().round_lengths()
         src_win = src_win.intersection(Window(0, 0, grid.width, grid.height))
-        src = grid.read(self._ortho, None, src_win, masked=True)
+        with reading(self.ortho_path, "orthoimage"):
+            src = grid.read(self._ortho, None, src_win, masked=True)
         count = self._ortho.count
         dst = np.zeros((count, *shape), dtype=self._ortho.dtypes[0])
         dst_ok = np.zeros((count, *shape), dtype=np.uint8)
@@ -401,6 +407,20 @@ def _open_raster(path: str, what: str) -> Any:
         return open_raster(path)
     except rasterio.errors.RasterioIOError as exc:
         raise TerrainError(f"{path}: cannot open {what}: {exc}") from exc
+
+
+@contextlib.contextmanager
+def reading(path: object, what: str) -> Iterator[None]:
+    """A block reading ``path`` (a ``what``: "DEM", "orthoimage") whose rasterio errors
+    become a TerrainError naming the file and GDAL's reason, not rasterio's "Read failed. See
+    previous exception for details." alone."""
+    try:
+        yield
+    except rasterio.errors.RasterioError as exc:
+        reason = exc.__cause__ or exc
+        raise TerrainError(
+            f"{path}: cannot read the {what} (a truncated or damaged file?): {reason}"
+        ) from exc
 
 
 def _bilinear_patch(p: np.ndarray, fc: float, fr: float) -> float:
@@ -431,7 +451,8 @@ def check_dem_values(src: Any, path: str) -> None:
         )
     rows = max(1, min(src.height, CHECK_SIDE_PX))
     cols = max(1, min(src.width, CHECK_SIDE_PX))
-    data = src.read(1, out_shape=(rows, cols), masked=True)
+    with reading(path, "DEM"):
+        data = src.read(1, out_shape=(rows, cols), masked=True)
     values = np.ma.compressed(data).astype(np.float64)
     values = values[np.isfinite(values)]
     if values.size == 0:
