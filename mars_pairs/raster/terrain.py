@@ -38,7 +38,7 @@ from mars_pairs.geometry.body import MARS_ELEVATION_M
 from mars_pairs.geometry.frames import MARS_LONLAT, crs_string, map_to_map
 from mars_pairs.raster.crs import check_map_crs
 from mars_pairs.raster.grid import NorthUp
-from mars_pairs.raster.vsi import open_raster
+from mars_pairs.raster.vsi import gdal_reason, open_raster
 
 Bounds = tuple[float, float, float, float]
 
@@ -417,9 +417,8 @@ def reading(path: object, what: str) -> Iterator[None]:
     try:
         yield
     except rasterio.errors.RasterioError as exc:
-        reason = exc.__cause__ or exc
         raise TerrainError(
-            f"{path}: cannot read the {what} (a truncated or damaged file?): {reason}"
+            f"{path}: cannot read the {what} (a truncated or damaged file?): {gdal_reason(exc)}"
         ) from exc
 
 

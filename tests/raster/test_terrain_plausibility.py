@@ -18,6 +18,7 @@ from rasterio.enums import Resampling
 from mars_pairs.errors import ConfigError, TerrainError
 from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import parse_config
+from mars_pairs.raster.chips import ChipGrid, ChipReader
 from mars_pairs.raster.terrain import Terrain
 from support.builds import small_doc
 
@@ -139,3 +140,15 @@ def test_a_build_over_a_dem_damaged_past_the_open_check_names_it_in_failure_rows
     assert summary.failures == len(rows) > 0
     for row in rows:
         assert str(path) in row["message"] and "Read failed" not in row["message"], row
+
+
+def test_a_chip_read_from_a_damaged_raster_gives_gdals_reason(
+    small_mission: Path, tmp_path: Path
+) -> None:
+    path = _damaged_under_overview(small_mission / "orbital" / "dem.tif", tmp_path / "d.tif")
+    with ChipReader(path) as reader:
+        left, bottom, right, top = reader.bounds
+        grid = ChipGrid.around((left + right) / 2, (bottom + top) / 2, 64, 64, reader.crs_wkt)
+        with pytest.raises(TerrainError, match="IReadBlock failed") as err:
+            reader.read(grid)
+    assert str(path) in str(err.value) and "Read failed" not in str(err.value)
