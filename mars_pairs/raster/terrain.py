@@ -137,9 +137,9 @@ class Terrain:
 
     # -- lifecycle -------------------------------------------------------------------------
     def _open(self) -> None:
-        """Open the datasets and check their CRSs are projected, their grids axis-aligned and
-        the DEM's values elevations on Mars (``check_dem_values``); TerrainError naming the
-        file otherwise."""
+        """Open the datasets and check their CRSs are projected, their grids axis-aligned, the
+        DEM's blocks of a bounded size (``check_dem_blocks``) and its values elevations on
+        Mars (``check_dem_values``); TerrainError naming the file otherwise."""
         self._dem = _open_raster(self.dem_path, "DEM")
         try:
             crs = self._dem.crs
@@ -149,6 +149,7 @@ class Terrain:
             self.crs_wkt: str = crs.to_wkt()
             self.pyproj_crs = CRS.from_wkt(self.crs_wkt)
             check_map_crs(self.pyproj_crs, self.dem_path, "DEM")
+            check_dem_blocks(self._dem, self.dem_path)
             check_dem_values(self._dem, self.dem_path)
             if self.ortho_path is not None:
                 self._ortho = _open_raster(self.ortho_path, "orthoimage")
@@ -437,6 +438,24 @@ def _bilinear_patch(p: np.ndarray, fc: float, fr: float) -> float:
 
 #: the side of the decimated read the open-time range check looks at, in pixels
 CHECK_SIDE_PX = 256
+#: the largest compressed block (tile or strip) a DEM may have, decoded, in bytes: GDAL
+#: decodes a whole block for any read inside it, so one deflate block of a 16384 x 16384
+#: float32 DEM (1 MiB on disk) costs 1 GiB of memory per worker
+MAX_BLOCK_BYTES = 256 << 20
+
+
+def check_dem_blocks(src: Any, path: str) -> None:
+    """TerrainError naming the DEM when a compressed block of band 1 decodes to more than
+    MAX_BLOCK_BYTES (a decompression bomb, or a DEM written as one huge strip)."""
+    rows, cols = src.block_shapes[0]
+    size = rows * cols * np.dtype(src.dtypes[0]).itemsize
+    if src.compression is not None and size > MAX_BLOCK_BYTES:
+        raise TerrainError(
+            f"{path}: DEM is compressed in blocks of {cols} x {rows} pixels ({size >> 20} MiB "
+            f"each decoded, over the {MAX_BLOCK_BYTES >> 20} MiB limit): a decompression bomb "
+            f"or one huge strip; re-tile it, e.g. gdal_translate -co TILED=YES "
+            f"-co COMPRESS=DEFLATE {path} tiled.tif"
+        )
 
 
 def check_dem_values(src: Any, path: str) -> None:

@@ -15,6 +15,7 @@ import pytest
 import rasterio
 from rasterio.enums import Resampling
 
+import mars_pairs.raster.terrain as terrain_module
 from mars_pairs.errors import ConfigError, TerrainError
 from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import parse_config
@@ -152,3 +153,25 @@ def test_a_chip_read_from_a_damaged_raster_gives_gdals_reason(
         with pytest.raises(TerrainError, match="IReadBlock failed") as err:
             reader.read(grid)
     assert str(path) in str(err.value) and "Read failed" not in str(err.value)
+
+
+def test_a_dem_of_huge_compressed_blocks_is_refused_at_open_and_by_the_build(
+    small_mission: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A deflate DEM whose block decodes past the limit (a bomb: 1 MiB on disk, 1 GiB per
+    block at 16384 x 16384 float32) is refused before any read. The limit is lowered to
+    1 MiB here so that a 1024 x 1024 block (4 MiB decoded) stands in for the bomb."""
+    monkeypatch.setattr(terrain_module, "MAX_BLOCK_BYTES", 1 << 20)
+    with rasterio.open(small_mission / "orbital" / "dem.tif") as src:
+        profile, data = src.profile, src.read()
+    profile.update(tiled=True, blockxsize=1024, blockysize=1024, compress="deflate")
+    path = tmp_path / "bomb.tif"
+    with rasterio.open(path, "w", **profile) as out:
+        out.write(data)
+    with pytest.raises(TerrainError, match="decompression bomb") as err:
+        Terrain.open(path)
+    assert str(path) in str(err.value)
+    doc = small_doc(small_mission, tmp_path / "ds")
+    doc["inputs"]["dem"] = str(path)
+    with pytest.raises(ConfigError, match=f"inputs.dem: {path}.*decompression bomb"):
+        run_build(parse_config(doc, base=small_mission), progress=False)
