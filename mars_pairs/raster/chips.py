@@ -30,7 +30,7 @@ from mars_pairs.geometry.frames import crs_string
 from mars_pairs.kernels.resample import sample_affine
 from mars_pairs.raster.grid import NorthUp
 from mars_pairs.raster.transfer import sample_at
-from mars_pairs.raster.vsi import open_raster
+from mars_pairs.raster.vsi import gdal_reason, open_raster
 
 #: Most pixels ``ChipReader.read_points`` holds at once (a strip of its window).
 POINT_STRIP_PIXELS = 1 << 22
@@ -225,7 +225,9 @@ class ChipReader:
         try:
             values = self._read(grid, nearest, band)
         except rasterio.errors.RasterioError as exc:
-            raise TerrainError(f"{self.path}: band {band}: cannot read a chip: {exc}") from None
+            raise TerrainError(
+                f"{self.path}: band {band}: cannot read a chip: {gdal_reason(exc)}"
+            ) from None
         if (scale, offset) != (1.0, 0.0):
             values = values * np.float32(scale) + np.float32(offset)
         return values
@@ -299,7 +301,9 @@ class ChipReader:
                 data = data.astype(np.float32).filled(np.nan)
                 values[sel] = sample_at(data, u[sel], v[sel] - r0, nearest=False)[0]
         except rasterio.errors.RasterioError as exc:
-            raise TerrainError(f"{self.path}: band {band}: cannot read points: {exc}") from None
+            raise TerrainError(
+                f"{self.path}: band {band}: cannot read points: {gdal_reason(exc)}"
+            ) from None
         scale, offset = self.scale_offset(band)
         if (scale, offset) != (1.0, 0.0):
             values = values * np.float32(scale) + np.float32(offset)

@@ -15,7 +15,9 @@ east-left: ``raster.grid.NorthUp``); every transform and array here is north-up 
 
 from __future__ import annotations
 
+import contextlib
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -36,7 +38,7 @@ from mars_pairs.geometry.body import MARS_ELEVATION_M
 from mars_pairs.geometry.frames import MARS_LONLAT, crs_string, map_to_map
 from mars_pairs.raster.crs import check_map_crs
 from mars_pairs.raster.grid import NorthUp
-from mars_pairs.raster.vsi import open_raster
+from mars_pairs.raster.vsi import gdal_reason, open_raster
 
 Bounds = tuple[float, float, float, float]
 
@@ -135,9 +137,9 @@ class Terrain:
 
     # -- lifecycle -------------------------------------------------------------------------
     def _open(self) -> None:
-        """Open the datasets and check their CRSs are projected, their grids axis-aligned and
-        the DEM's values elevations on Mars (``check_dem_values``); TerrainError naming the
-        file otherwise."""
+        """Open the datasets and check their CRSs are projected, their grids axis-aligned, the
+        DEM's blocks of a bounded size (``check_dem_blocks``) and its values elevations on
+        Mars (``check_dem_values``); TerrainError naming the file otherwise."""
         self._dem = _open_raster(self.dem_path, "DEM")
         try:
             crs = self._dem.crs
@@ -147,6 +149,7 @@ class Terrain:
             self.crs_wkt: str = crs.to_wkt()
             self.pyproj_crs = CRS.from_wkt(self.crs_wkt)
             check_map_crs(self.pyproj_crs, self.dem_path, "DEM")
+            check_dem_blocks(self._dem, self.dem_path)
             check_dem_values(self._dem, self.dem_path)
             if self.ortho_path is not None:
                 self._ortho = _open_raster(self.ortho_path, "orthoimage")
@@ -239,8 +242,10 @@ class Terrain:
             )
 
     def _read_dem(self, window: Window) -> NDArray[np.float32]:
-        """Read band 1 in ``window`` as float32 metres, nodata/masked -> NaN, scale/offset."""
-        arr = self._grid.read(self._dem, 1, window, masked=True)
+        """Read band 1 in ``window`` as float32 metres, nodata/masked -> NaN, scale/offset;
+        TerrainError naming the DEM when GDAL cannot read it (a truncated or damaged file)."""
+        with reading(self.dem_path, "DEM"):
+            arr = self._grid.read(self._dem, 1, window, masked=True)
         scale = self._dem.scales[0] if self._dem.scales else 1.0
         offset = self._dem.offsets[0] if self._dem.offsets else 0.0
         out = arr.astype(np.float32).filled(np.nan)
@@ -354,15 +359,16 @@ class Terrain:
         """Boundless windowed read of an ortho in the DEM's CRS, resampled to ``shape``."""
         grid = self._ortho_grid
         win = from_bounds(*bounds, transform=grid.transform)
-        data = grid.read(
-            self._ortho,
-            None,
-            win,
-            out_shape=(self._ortho.count, *shape),
-            boundless=True,
-            masked=True,
-            resampling=Resampling.bilinear,
-        )
+        with reading(self.ortho_path, "orthoimage"):
+            data = grid.read(
+                self._ortho,
+                None,
+                win,
+                out_shape=(self._ortho.count, *shape),
+                boundless=True,
+                masked=True,
+                resampling=Resampling.bilinear,
+            )
         valid = ~np.ma.getmaskarray(data).any(axis=0)
         assert isinstance(valid, np.ndarray)  # (bands, rows, cols) reduced over the bands
         return np.ma.filled(data, 0), valid
@@ -376,7 +382,8 @@ class Terrain:
         grid = self._ortho_grid
         src_win = from_bounds(*ob, transform=grid.transform).round_offsets().round_lengths()
         src_win = src_win.intersection(Window(0, 0, grid.width, grid.height))
-        src = grid.read(self._ortho, None, src_win, masked=True)
+        with reading(self.ortho_path, "orthoimage"):
+            src = grid.read(self._ortho, None, src_win, masked=True)
         count = self._ortho.count
         dst = np.zeros((count, *shape), dtype=self._ortho.dtypes[0])
         dst_ok = np.zeros((count, *shape), dtype=np.uint8)
@@ -403,6 +410,19 @@ def _open_raster(path: str, what: str) -> Any:
         raise TerrainError(f"{path}: cannot open {what}: {exc}") from exc
 
 
+@contextlib.contextmanager
+def reading(path: object, what: str) -> Iterator[None]:
+    """A block reading ``path`` (a ``what``: "DEM", "orthoimage") whose rasterio errors
+    become a TerrainError naming the file and GDAL's reason, not rasterio's "Read failed. See
+    previous exception for details." alone."""
+    try:
+        yield
+    except rasterio.errors.RasterioError as exc:
+        raise TerrainError(
+            f"{path}: cannot read the {what} (a truncated or damaged file?): {gdal_reason(exc)}"
+        ) from exc
+
+
 def _bilinear_patch(p: np.ndarray, fc: float, fr: float) -> float:
     """Bilinear value of a (<=2, <=2) patch at (col, row) offsets in [0, 1]; skips 0 weights."""
     total, acc = 0.0, 0.0
@@ -418,6 +438,24 @@ def _bilinear_patch(p: np.ndarray, fc: float, fr: float) -> float:
 
 #: the side of the decimated read the open-time range check looks at, in pixels
 CHECK_SIDE_PX = 256
+#: the largest compressed block (tile or strip) a DEM may have, decoded, in bytes: GDAL
+#: decodes a whole block for any read inside it, so one deflate block of a 16384 x 16384
+#: float32 DEM (1 MiB on disk) costs 1 GiB of memory per worker
+MAX_BLOCK_BYTES = 256 << 20
+
+
+def check_dem_blocks(src: Any, path: str) -> None:
+    """TerrainError naming the DEM when a compressed block of band 1 decodes to more than
+    MAX_BLOCK_BYTES (a decompression bomb, or a DEM written as one huge strip)."""
+    rows, cols = src.block_shapes[0]
+    size = rows * cols * np.dtype(src.dtypes[0]).itemsize
+    if src.compression is not None and size > MAX_BLOCK_BYTES:
+        raise TerrainError(
+            f"{path}: DEM is compressed in blocks of {cols} x {rows} pixels ({size >> 20} MiB "
+            f"each decoded, over the {MAX_BLOCK_BYTES >> 20} MiB limit): a decompression bomb "
+            f"or one huge strip; re-tile it, e.g. gdal_translate -co TILED=YES "
+            f"-co COMPRESS=DEFLATE {path} tiled.tif"
+        )
 
 
 def check_dem_values(src: Any, path: str) -> None:
@@ -431,7 +469,8 @@ def check_dem_values(src: Any, path: str) -> None:
         )
     rows = max(1, min(src.height, CHECK_SIDE_PX))
     cols = max(1, min(src.width, CHECK_SIDE_PX))
-    data = src.read(1, out_shape=(rows, cols), masked=True)
+    with reading(path, "DEM"):
+        data = src.read(1, out_shape=(rows, cols), masked=True)
     values = np.ma.compressed(data).astype(np.float64)
     values = values[np.isfinite(values)]
     if values.size == 0:

@@ -141,3 +141,10 @@ def remote_env(**overrides: str) -> Iterator[None]:
     options.update(overrides)
     with rasterio.Env(**options):
         yield
+
+
+def gdal_reason(exc: BaseException) -> str:
+    """The reason GDAL gave for a rasterio read error: rasterio's own message for a failed
+    read is "Read failed. See previous exception for details.", GDAL's (the block that
+    failed, and why) is the exception it chains."""
+    return str(exc.__cause__ or exc)

@@ -328,3 +328,23 @@ def test_a_fifo_among_the_labels_is_a_failure_row(mission: Path, tmp_path: Path)
     assert (summary.samples, summary.failures) == (4, 1)
     row = failures(tmp_path / "ds")["a_fifo.xml"]
     assert row["stage"] == "label" and "not a regular file" in row["message"]
+
+
+def test_symlink_loops_and_dangling_links_among_the_labels_are_failure_rows(
+    mission: Path, tmp_path: Path
+) -> None:
+    labels = tmp_path / "labels"
+    copy_labels(mission, labels)
+    (labels / "self.xml").symlink_to(labels / "self.xml")
+    (labels / "dangling.xml").symlink_to(labels / "nowhere.xml")
+    places = mission / "places" / "best_interp.csv"
+    config = load_config(
+        write_config(tmp_path / "c.yaml", mission, tmp_path / "ds", labels, places)
+    )
+    summary = run_build(config, progress=False)
+    assert (summary.samples, summary.failures) == (4, 2)
+    rows = failures(tmp_path / "ds")
+    for name in ("self.xml", "dangling.xml"):
+        assert rows[name]["stage"] == "label", rows[name]
+        assert str(labels / name) in rows[name]["message"], rows[name]
+    assert "symbolic links" in rows["self.xml"]["message"]

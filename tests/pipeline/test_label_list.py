@@ -121,3 +121,17 @@ def test_double_star_does_not_follow_a_symlink_loop(tmp_path: Path) -> None:
     (tmp_path / "s" / "up").symlink_to(tmp_path)  # s/up/s/up/... for ever
     found = list(iter_matches([f"{tmp_path}/**/*.xml"]))
     assert found == [f"{tmp_path}/s/x.xml"]
+
+
+@pytest.mark.skipif(not hasattr(os, "symlink"), reason="needs symlinks")
+def test_a_label_that_is_a_symlink_loop_is_listed_not_dropped(tmp_path: Path) -> None:
+    (tmp_path / "a.xml").touch()
+    (tmp_path / "self.xml").symlink_to(tmp_path / "self.xml")  # stat: ELOOP
+    (tmp_path / "p.xml").symlink_to(tmp_path / "q.xml")  # p -> q -> p
+    (tmp_path / "q.xml").symlink_to(tmp_path / "p.xml")
+    (tmp_path / "dangling.xml").symlink_to(tmp_path / "nowhere")
+    names = ["a.xml", "dangling.xml", "p.xml", "q.xml", "self.xml"]
+    for pattern in ("*.xml", "**/*.xml"):
+        found = list(iter_matches([f"{tmp_path}/{pattern}"]))
+        assert found == [f"{tmp_path}/{n}" for n in names], pattern
+        assert found == _sorted_glob([f"{tmp_path}/{pattern}"])  # as glob lists them

@@ -25,6 +25,7 @@ import pytest
 from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import load_config
 from support.configs import config_file
+from support.missions import MissionCache
 
 ROOT = Path(__file__).resolve().parents[2]
 MARK = "MARS_PAIRS_TEST_BUILD"
@@ -161,3 +162,28 @@ def test_ctrl_c_while_the_fork_server_starts_is_quiet_and_leaves_no_process(
     assert "Traceback" not in text, text
     assert "mars-pairs build: interrupted" in text, text
     assert build.returncode == 130, text
+
+
+@pytest.mark.slow
+def test_ctrl_c_mid_build_prints_the_tools_line_only(
+    missions: MissionCache, tmp_path: Path
+) -> None:
+    """Once the workers build (a shard is written), a Ctrl-C prints one line: no traceback,
+    no resource tracker "leaked semaphore" warning for the locks of the killed workers."""
+    mission = missions(seed=3, stops=4, images_per_stop=2)  # 8 labels, a shard each
+    out = tmp_path / "ds"
+    config = _config(tmp_path / "c.yaml", mission, out)
+    tag = uuid.uuid4().hex
+    try:
+        build = _start(config, tag)
+        deadline = time.monotonic() + 120
+        while not list(out.glob("shards/*.tar")) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert list(out.glob("shards/*.tar")), "no shard written"
+        os.killpg(build.pid, signal.SIGINT)  # what a terminal's Ctrl-C sends
+        _, err = build.communicate(timeout=60)
+        assert _left_after(tag, GRACE_S) == []
+    finally:
+        _reap(tag)
+    assert err.decode() == "mars-pairs build: interrupted\n"
+    assert build.returncode == 130  # the CLI's Ctrl-C status

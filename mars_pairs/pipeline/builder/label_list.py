@@ -26,7 +26,9 @@ components before the last match folders only (symlinks followed), the last any 
 pattern ending in ``/`` matches folders only; a pattern without wildcards matches the path if
 it exists. One deliberate difference: ``**`` does not enter a folder that is one of its own
 ancestors (a symlink loop), where glob descends until the OS refuses the path (~40 levels),
-listing the same files under ever longer names.
+listing the same files under ever longer names. An entry that cannot be stat'ed (a symlink
+to itself, a loop of symlinks) is matched as a file, as glob does, never dropped: the build
+then names it in a failure row, as it does a dangling symlink.
 """
 
 from __future__ import annotations
@@ -162,8 +164,8 @@ class _Pattern:
                     for entry in entries:
                         try:
                             is_dir = entry.is_dir()
-                        except OSError:
-                            continue
+                        except OSError:  # a symlink loop: offered as a file, so the
+                            is_dir = False  # build names it in a failure row
                         final, after = self._step(states, entry.name, is_dir)
                         if final or (after and is_dir):
                             names.append(entry.name)

@@ -20,7 +20,9 @@
   exits (its last client gone), and the resource tracker after it. On an error or Ctrl-C in
   the driver the pool kills its workers instead of waiting for their samples. The fork
   server and its workers ignore SIGINT (the server starts with it ignored, before its
-  imports): Ctrl-C is the driver's to handle, and prints no worker or server traceback.
+  imports): Ctrl-C is the driver's to handle, and prints no worker or server traceback. The
+  locks a worker makes are anonymous (``_anonymous_locks``), so a killed worker leaves no
+  semaphore for the resource tracker to warn about: a Ctrl-C prints the tool's line only.
 """
 
 from __future__ import annotations
@@ -135,11 +137,22 @@ def _exit_with_driver() -> None:
     threading.Thread(target=watch, name="exit-with-driver", daemon=True).start()
 
 
+def _anonymous_locks() -> None:
+    """Make the locks this worker creates (numba's threading-layer lock, made when its first
+    parallel kernel runs) anonymous semaphores, unlinked as they are made, rather than named
+    ones registered with the resource tracker: a worker killed on an error or a Ctrl-C then
+    leaves no semaphore behind, and the tracker prints no "leaked semaphore" warning. A
+    worker starts no process, so its default start method serves only these locks."""
+    if "fork" in mp.get_all_start_methods():
+        mp.set_start_method("fork", force=True)
+
+
 def _start_worker(config: BuildConfig, settings: dict[str, str]) -> None:
     """A worker's initializer: watch the driver, take the driver's build ``settings``
     (``runtime.build_settings``: a fork server's workers inherit the server's environment,
     from when it started), set the process defaults, then open the build context."""
     _exit_with_driver()
+    _anonymous_locks()
     runtime.take_build_settings(settings)
     runtime.configure_process()
     worker.open_context(config)
