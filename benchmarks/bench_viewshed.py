@@ -39,6 +39,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import numba
 import numpy as np
 import rasterio
 from affine import Affine
@@ -209,6 +210,16 @@ def timed(fn: Callable[[], object]) -> Callable[[], float]:
     return run
 
 
+def one_thread(fn: Callable[[], object]) -> object:
+    """``fn()`` with numba's parallel regions on one thread."""
+    n = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        return fn()
+    finally:
+        numba.set_num_threads(n)
+
+
 def gdal_cells(mask: np.ndarray, gt, win, cells) -> np.ndarray:
     """``mask`` (on a grid of geotransform ``gt``, same cell size) at the window's ``cells``."""
     c_off = round((win.transform.c - gt[0]) / gt[1])
@@ -277,7 +288,10 @@ def run_radius(args, radius: float, dem_path: Path, tmp: Path, worker, rows) -> 
 
     # the full circle and both GDAL anchors, interleaved round by round
     full = compute_viewshed(win, x, y, **vs_kw)
-    fns = {"ours": timed(lambda: compute_viewshed(win, x, y, **vs_kw))}
+    fns = {
+        "ours": timed(lambda: compute_viewshed(win, x, y, **vs_kw)),
+        "ours_1t": timed(lambda: one_thread(lambda: compute_viewshed(win, x, y, **vs_kw))),
+    }
     g_req = {"x": x, "y": y, "height": HEIGHT, "radius": radius}
     g_mask = None
     if worker is not None:
@@ -292,7 +306,11 @@ def run_radius(args, radius: float, dem_path: Path, tmp: Path, worker, rows) -> 
 
     rows.append(("viewshed full 360 (oversample=1, default)", med["ours"],
                  accuracy(full[full_cells], full_ref),
-                 f"{int(full.sum())} cells visible; {len(full_ref)} checked"))  # fmt: skip
+                 f"{int(full.sum())} cells visible; {len(full_ref)} checked; "
+                 f"{numba.get_num_threads()} threads"))  # fmt: skip
+    same = np.array_equal(full, one_thread(lambda: compute_viewshed(win, x, y, **vs_kw)))
+    rows.append(("viewshed full 360, 1 numba thread", med["ours_1t"], "| |",
+                 "mask identical to the threaded one" if same else "MASK DIFFERS"))  # fmt: skip
     if g_mask is None:
         rows.append(("GDAL ViewshedGenerate full 360 (in process)", None, na,
                      f"no GDAL bindings in {args.gdal_python}"))  # fmt: skip
