@@ -1,13 +1,22 @@
-"""Benchmark: numba viewshed / ray casting against gdal_viewshed on one fractal DEM.
+"""Benchmark: numba viewshed / ray casting against GDAL's viewshed on one fractal DEM.
 
     python benchmarks/bench_viewshed.py            # 4096 x 4096 DEM at 1 m, radius 2000 m
+    python benchmarks/bench_viewshed.py --radius 500,2000          # a radius sweep, one run
     python benchmarks/bench_viewshed.py --size 1024 --radius 500   # quick run
 
 Builds a seeded spectral fractal DEM as a GeoTIFF (Mars equirectangular CRS) in a temp dir,
-puts the observer at its centre 2 m above the ground, and prints a markdown table of median
-wall times (ms; warm-up runs first, then the median of --repeats runs) with the speed-up
-against gdal_viewshed's full 360-degree run, and the machine load (os.getloadavg) before and
-after: numba's threads stall when other processes hold the cores, so compare rows of one run.
+puts the observer at its centre 2 m above the ground, and prints, per radius, a markdown table
+of median wall times (ms; warm-up runs first, then the median of --repeats runs) with the
+speed-up against GDAL's full 360-degree viewshed called in process, and the machine load
+(os.getloadavg) before and after: numba's threads stall when other processes hold the cores,
+so compare rows of one run.
+
+The anchor: ``gdal.ViewshedGenerate`` (MEM dataset in, MEM dataset out, curvature
+coefficient 1) timed inside a long-lived worker (benchmarks/gdal_viewshed_worker.py, run by
+``--gdal-python``, default Debian's /usr/bin/python3 with python3-gdal), so neither process
+start nor file I/O is counted. Its rounds are interleaved with our full-360 call and with the
+``gdal_viewshed`` command run as a subprocess (the second GDAL row: process start and GeoTIFF
+I/O included).
 
 Accuracy: each viewshed (ours and gdal_viewshed's) is compared with the exact line-of-sight
 reference of the tests (tests/support/los_reference.py: bilinear terrain, the whole segment
@@ -19,6 +28,7 @@ false negatives per 1000 sampled cells.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import shutil
@@ -29,6 +39,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import numba
 import numpy as np
 import rasterio
 from affine import Affine
@@ -143,20 +154,95 @@ def run_gdal(dem_path: Path, out: Path, x: float, y: float, radius: float) -> li
             "-b", "1", "-cc", "1", str(dem_path), str(out)]  # fmt: skip
 
 
+class GdalWorker:
+    """benchmarks/gdal_viewshed_worker.py in a long-lived ``python`` (with GDAL's bindings)."""
+
+    def __init__(self, python: str, dem_path: Path) -> None:
+        script = Path(__file__).with_name("gdal_viewshed_worker.py")
+        self.proc = subprocess.Popen(
+            [python, str(script)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+        )
+        self.version = str(self.ask({"dem": str(dem_path)})["gdal"])
+
+    def ask(self, req: dict[str, object]) -> dict[str, object]:
+        """Send one request, return its reply (see the worker's docstring)."""
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        self.proc.stdin.write(json.dumps(req) + "\n")
+        self.proc.stdin.flush()
+        line = self.proc.stdout.readline()
+        if not line:
+            raise RuntimeError("the GDAL worker exited")
+        return dict(json.loads(line))
+
+    def close(self) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.close()
+        self.proc.wait(timeout=30)
+
+
+def start_worker(python: str, dem_path: Path) -> GdalWorker | None:
+    """The in-process GDAL worker, or None when ``python`` has no GDAL bindings."""
+    probe = [python, "-c", "from osgeo import gdal; gdal.ViewshedGenerate"]
+    if shutil.which(python) is None or subprocess.run(probe, capture_output=True).returncode:
+        return None
+    return GdalWorker(python, dem_path)
+
+
+def interleaved(fns: dict[str, Callable[[], float]], repeats: int, warmup: int = 2):
+    """Median ms of each ``fn`` (each returns its own ms), run in round-robin rounds."""
+    times: dict[str, list[float]] = {k: [] for k in fns}
+    for i in range(warmup + repeats):
+        for k, fn in fns.items():
+            ms = fn()
+            if i >= warmup:
+                times[k].append(ms)
+    return {k: float(np.median(v)) for k, v in times.items()}
+
+
+def timed(fn: Callable[[], object]) -> Callable[[], float]:
+    """``fn`` wrapped to return its wall time in ms."""
+
+    def run() -> float:
+        t = time.perf_counter()
+        fn()
+        return (time.perf_counter() - t) * 1e3
+
+    return run
+
+
+def one_thread(fn: Callable[[], object]) -> object:
+    """``fn()`` with numba's parallel regions on one thread."""
+    n = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        return fn()
+    finally:
+        numba.set_num_threads(n)
+
+
+def gdal_cells(mask: np.ndarray, gt, win, cells) -> np.ndarray:
+    """``mask`` (on a grid of geotransform ``gt``, same cell size) at the window's ``cells``."""
+    c_off = round((win.transform.c - gt[0]) / gt[1])
+    r_off = round((win.transform.f - gt[3]) / gt[5])
+    return mask[cells[0] + r_off, cells[1] + c_off]
+
+
 def main(argv: list[str] | None = None) -> None:
     configure_process()
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=4096, help="DEM size in cells (square)")
     ap.add_argument("--cell", type=float, default=1.0, help="cell size in metres")
-    ap.add_argument("--radius", type=float, default=2000.0, help="viewshed radius, metres")
+    ap.add_argument("--radius", default="2000",
+                    help="viewshed radius, metres; a comma list sweeps (500,2000)")  # fmt: skip
     ap.add_argument("--repeats", type=int, default=7, help="timed runs per case (>= 5)")
     ap.add_argument("--ref-cells", type=int, default=200_000,
                     help="cells per case checked against the exact reference")  # fmt: skip
+    ap.add_argument("--gdal-python", default="/usr/bin/python3",
+                    help="a Python with GDAL's bindings (the in-process anchor)")  # fmt: skip
     args = ap.parse_args(argv)
     args.repeats = max(5, args.repeats)
-    args.load_before = os.getloadavg()
+    radii = [float(r) for r in str(args.radius).split(",")]
 
-    rows: list[tuple[str, float | None, str, str]] = []
     na = "| |"
     t0 = time.perf_counter()
     tiny = np.zeros((16, 16), np.float32), Affine(1, 0, 0, 0, -1, 16)
@@ -164,97 +250,147 @@ def main(argv: list[str] | None = None) -> None:
     compute_viewshed(tiny, 8, 8, height=2, radius=5, az_band=(0, 10), el_band=(-10, 0))
     cast_rays([[8.0, 8.0, 2.0]], [[0.0, 0.6, -0.8]], tiny, max_range=5)
     cast_rays([[8.0, 8.0, 2.0]], [[0.0, 0.6, -0.8]], tiny, max_range=5, pyramid=max_pyramid(tiny))
-    rows.append(("numba first call (compile or cache load)", (time.perf_counter() - t0) * 1e3,
-                 na, "once per process"))  # fmt: skip
+    first = ("numba first call (compile or cache load)", (time.perf_counter() - t0) * 1e3,
+             na, "once per process")  # fmt: skip
 
     with tempfile.TemporaryDirectory() as tmp:
         dem_path = Path(tmp) / "dem.tif"
         write_dem(dem_path, fractal_dem(args.size, std=25.0 * args.size / 4096), args.cell)
-        half = args.size * args.cell / 2
-        x, y = X0 + half + args.cell / 2, Y0 - half - args.cell / 2
-        with Terrain.open(dem_path) as t:
-            win = t.read_dem_window(x, y, args.radius)
-            rows.append(("DEM window read (rasterio)",
-                         median_ms(lambda: t.read_dem_window(x, y, args.radius), args.repeats),
-                         na, f"{win.shape[0]} x {win.shape[1]} window"))  # fmt: skip
-            eye = np.array([x, y, t.elevation_at(x, y) + HEIGHT])
+        worker = start_worker(args.gdal_python, dem_path)
+        try:
+            for i, radius in enumerate(radii):
+                args.load_before = os.getloadavg()
+                rows = [first] if i == 0 else []
+                gdal_ms = run_radius(args, radius, dem_path, Path(tmp), worker, rows)
+                print_table(rows, gdal_ms, args, radius, worker)
+        finally:
+            if worker is not None:
+                worker.close()
 
-        vs_kw = {"height": HEIGHT, "radius": args.radius}
-        full = compute_viewshed(win, x, y, **vs_kw)
-        cam_az = open_azimuth(full, win, x, y, 20 * HEIGHT / math.tan(math.radians(-CAM_EL)))
-        cases = [
-            ("viewshed full 360 (oversample=1, default)", {}),
-            ("viewshed full 360 (oversample=2)", {"oversample": 2}),
-            (f"viewshed wedge 6 x 5 deg (Mastcam-like, az {cam_az:.0f})",
-             {"az_band": (cam_az - 3, cam_az + 3), "el_band": (CAM_EL - 2.5, CAM_EL + 2.5)}),
-            ("viewshed wedge 20 x 11 deg",
-             {"az_band": (cam_az - 10, cam_az + 10), "el_band": (CAM_EL - 5.5, CAM_EL + 5.5)}),
-            ("viewshed wedge 30 deg, all elevations",
-             {"az_band": (cam_az - 15, cam_az + 15)}),
-        ]  # fmt: skip
-        u0, v0 = (float(t) - 0.5 for t in ~win.transform * (x, y))
-        ref_kw = {"a": win.transform.a, "e": win.transform.e, "planet_radius": R_MARS}
-        full_cells = None
-        for name, kw in cases:
-            mask = compute_viewshed(win, x, y, **vs_kw, **kw)
-            ms = median_ms(lambda kw=kw: compute_viewshed(win, x, y, **vs_kw, **kw), args.repeats)
-            cells = band_cells(win, x, y, args.radius, kw.get("az_band"), kw.get("el_band"),
-                               eye[2], args.ref_cells)  # fmt: skip
-            ref = exact_viewshed(win.data, u0, v0, eye[2], args.radius, cells=cells, **ref_kw)
-            if not kw:
-                full_cells, full_ref = cells, ref
-            rows.append((name, ms, accuracy(mask[cells], ref),
-                         f"{int(mask.sum())} cells visible; {len(ref)} checked"))  # fmt: skip
 
-        cmd = run_gdal(dem_path, Path(tmp) / "gdal_vs.tif", x, y, args.radius)
-        gdal_ms = None
-        if cmd is None:
-            rows.append(("gdal_viewshed full 360 (subprocess)", None, na, "not installed"))
+def run_radius(args, radius: float, dem_path: Path, tmp: Path, worker, rows) -> float | None:
+    """Append the rows of one radius to ``rows``; GDAL's in-process median ms (or None)."""
+    na = "| |"
+    half = args.size * args.cell / 2
+    x, y = X0 + half + args.cell / 2, Y0 - half - args.cell / 2
+    with Terrain.open(dem_path) as t:
+        win = t.read_dem_window(x, y, radius)
+        rows.append(("DEM window read (rasterio)",
+                     median_ms(lambda: t.read_dem_window(x, y, radius), args.repeats),
+                     na, f"{win.shape[0]} x {win.shape[1]} window"))  # fmt: skip
+        eye = np.array([x, y, t.elevation_at(x, y) + HEIGHT])
+
+    vs_kw = {"height": HEIGHT, "radius": radius}
+    u0, v0 = (float(c) - 0.5 for c in ~win.transform * (x, y))
+    ref_kw = {"a": win.transform.a, "e": win.transform.e, "planet_radius": R_MARS}
+    full_cells = band_cells(win, x, y, radius, None, None, eye[2], args.ref_cells)
+    full_ref = exact_viewshed(win.data, u0, v0, eye[2], radius, cells=full_cells, **ref_kw)
+
+    # the full circle and both GDAL anchors, interleaved round by round
+    full = compute_viewshed(win, x, y, **vs_kw)
+    fns = {
+        "ours": timed(lambda: compute_viewshed(win, x, y, **vs_kw)),
+        "ours_1t": timed(lambda: one_thread(lambda: compute_viewshed(win, x, y, **vs_kw))),
+    }
+    g_req = {"x": x, "y": y, "height": HEIGHT, "radius": radius}
+    g_mask = None
+    if worker is not None:
+        reply = worker.ask({**g_req, "out": str(tmp / "gdal_mem.npy")})
+        g_mask = np.load(tmp / "gdal_mem.npy").astype(bool)
+        g_gt = reply["gt"]
+        fns["gdal"] = lambda: float(worker.ask({**g_req, "out": None})["ms"])
+    cmd = run_gdal(dem_path, tmp / "gdal_vs.tif", x, y, radius)
+    if cmd is not None:
+        fns["subprocess"] = timed(lambda: subprocess.run(cmd, check=True))
+    med = interleaved(fns, args.repeats)
+
+    rows.append(("viewshed full 360 (oversample=1, default)", med["ours"],
+                 accuracy(full[full_cells], full_ref),
+                 f"{int(full.sum())} cells visible; {len(full_ref)} checked; "
+                 f"{numba.get_num_threads()} threads"))  # fmt: skip
+    same = np.array_equal(full, one_thread(lambda: compute_viewshed(win, x, y, **vs_kw)))
+    rows.append(("viewshed full 360, 1 numba thread", med["ours_1t"], "| |",
+                 "mask identical to the threaded one" if same else "MASK DIFFERS"))  # fmt: skip
+    if g_mask is None:
+        rows.append(("GDAL ViewshedGenerate full 360 (in process)", None, na,
+                     f"no GDAL bindings in {args.gdal_python}"))  # fmt: skip
+    else:
+        rows.append(("GDAL ViewshedGenerate full 360 (in process, MEM in and out)", med["gdal"],
+                     accuracy(gdal_cells(g_mask, g_gt, win, full_cells), full_ref),
+                     f"{int(g_mask.sum())} cells visible"))  # fmt: skip
+    if cmd is None:
+        rows.append(("gdal_viewshed full 360 (subprocess)", None, na, "not installed"))
+    else:
+        with rasterio.open(tmp / "gdal_vs.tif") as ds:
+            s_mask = ds.read(1) == 255
+            s_gt = ds.transform.to_gdal()
+        rows.append(("gdal_viewshed full 360 (subprocess)", med["subprocess"],
+                     accuracy(gdal_cells(s_mask, s_gt, win, full_cells), full_ref),
+                     f"{int(s_mask.sum())} cells visible; incl. process start + GeoTIFF "
+                     "I/O"))  # fmt: skip
+
+    full_az = open_azimuth(full, win, x, y, 20 * HEIGHT / math.tan(math.radians(-CAM_EL)))
+    cam_az = full_az
+    cases = [
+        ("viewshed full 360 (oversample=2)", {"oversample": 2}),
+        (f"viewshed wedge 6 x 5 deg (Mastcam-like, az {cam_az:.0f})",
+         {"az_band": (cam_az - 3, cam_az + 3), "el_band": (CAM_EL - 2.5, CAM_EL + 2.5)}),
+        ("viewshed wedge 20 x 11 deg",
+         {"az_band": (cam_az - 10, cam_az + 10), "el_band": (CAM_EL - 5.5, CAM_EL + 5.5)}),
+        ("viewshed wedge 30 deg, all elevations",
+         {"az_band": (cam_az - 15, cam_az + 15)}),
+    ]  # fmt: skip
+    for name, kw in cases:
+        mask = compute_viewshed(win, x, y, **vs_kw, **kw)
+        ms = median_ms(lambda kw=kw: compute_viewshed(win, x, y, **vs_kw, **kw), args.repeats)
+        if kw.get("az_band") is None:
+            cells, ref = full_cells, full_ref
         else:
-            gdal_ms = median_ms(lambda: subprocess.run(cmd, check=True), args.repeats)
-            with rasterio.open(Path(tmp) / "gdal_vs.tif") as ds:
-                gdal_vis = ds.read(1) == 255
-                # the window's cells on the gdal output grid (same cell size, same origin grid)
-                c_off = round((win.transform.c - ds.transform.c) / ds.transform.a)
-                r_off = round((win.transform.f - ds.transform.f) / ds.transform.e)
-            g_mask = gdal_vis[full_cells[0] + r_off, full_cells[1] + c_off]
-            rows.append(("gdal_viewshed full 360 (subprocess)", gdal_ms,
-                         accuracy(g_mask, full_ref),
-                         f"{int(gdal_vis.sum())} cells visible; incl. process start + GeoTIFF "
-                         "I/O"))  # fmt: skip
+            cells = band_cells(win, x, y, radius, kw.get("az_band"), kw.get("el_band"),
+                               eye[2], args.ref_cells)  # fmt: skip
+            ref = exact_viewshed(win.data, u0, v0, eye[2], radius, cells=cells, **ref_kw)
+        rows.append((name, ms, accuracy(mask[cells], ref),
+                     f"{int(mask.sum())} cells visible; {len(ref)} checked"))  # fmt: skip
 
-        origins, dirs = camera_rays(1648, 1200, 4, 20.0, eye, cam_az)
-        hits, _ = cast_rays(origins, dirs, win, max_range=args.radius)
-        n_hits = f"{int(np.isfinite(hits[:, 0]).sum())} hits"
-        pyr = max_pyramid(win)
-        rows.append(("max pyramid of the window (`max_pyramid`, once per window)",
-                     median_ms(lambda: max_pyramid(win), args.repeats), na,
-                     f"levels 2..{pyr.n_levels}"))  # fmt: skip
-        ms = median_ms(lambda: cast_rays(origins, dirs, win, max_range=args.radius, pyramid=pyr),
-                       args.repeats)  # fmt: skip
-        rows.append((f"ray casting 1648 x 1200 / stride 4 ({len(dirs)} rays), pyramid given", ms,
-                     na, n_hits))  # fmt: skip
-        ms = median_ms(lambda: cast_rays(origins, dirs, win, max_range=args.radius), args.repeats)
-        rows.append(("ray casting, same rays, pyramid built in the call", ms, na, n_hits))
-
-    print_table(rows, gdal_ms, args)
+    origins, dirs = camera_rays(1648, 1200, 4, 20.0, eye, cam_az)
+    hits, _ = cast_rays(origins, dirs, win, max_range=radius)
+    n_hits = f"{int(np.isfinite(hits[:, 0]).sum())} hits"
+    pyr = max_pyramid(win)
+    rows.append(("max pyramid of the window (`max_pyramid`, once per window)",
+                 median_ms(lambda: max_pyramid(win), args.repeats), na,
+                 f"levels 2..{pyr.n_levels}"))  # fmt: skip
+    ms = median_ms(lambda: cast_rays(origins, dirs, win, max_range=radius, pyramid=pyr),
+                   args.repeats)  # fmt: skip
+    rows.append((f"ray casting 1648 x 1200 / stride 4 ({len(dirs)} rays), pyramid given", ms,
+                 na, n_hits))  # fmt: skip
+    ms = median_ms(lambda: cast_rays(origins, dirs, win, max_range=radius), args.repeats)
+    rows.append(("ray casting, same rays, pyramid built in the call", ms, na, n_hits))
+    return med.get("gdal")
 
 
-def print_table(rows, gdal_ms: float | None, args: argparse.Namespace) -> None:
-    """Markdown table: name, median ms, speed-up vs gdal_viewshed full run, note."""
+def print_table(rows, gdal_ms: float | None, args: argparse.Namespace, radius: float,
+                worker: GdalWorker | None) -> None:  # fmt: skip
+    """Markdown table: name, median ms, speed-up vs GDAL in process (full circle), note."""
     before = ", ".join(f"{v:.2f}" for v in args.load_before)
     after = ", ".join(f"{v:.2f}" for v in os.getloadavg())
+    gdal = "no in-process GDAL" if worker is None else f"GDAL {worker.version}"
     print(
-        f"\nDEM {args.size} x {args.size} at {args.cell} m, radius {args.radius} m, observer "
-        f"{HEIGHT} m above the centre, median of {args.repeats} after 2 warm-up runs; "
-        f"{os.cpu_count()} CPUs, load average (1, 5, 15 min) {before} before, {after} after\n"
+        f"\nDEM {args.size} x {args.size} at {args.cell} m, radius {radius:g} m, observer "
+        f"{HEIGHT} m above the centre, median of {args.repeats} after 2 warm-up runs "
+        f"(full-360 rows interleaved round by round); {gdal}; {os.cpu_count()} CPUs, "
+        f"load average (1, 5, 15 min) {before} before, {after} after\n"
     )
-    print("| case | median ms | speed-up vs gdal_viewshed full | IoU vs exact | false + /1000 "
-          "| false - /1000 | note |")  # fmt: skip
+    print("| case | median ms | speed-up vs GDAL in process, full | IoU vs exact "
+          "| false + /1000 | false - /1000 | note |")  # fmt: skip
     print("|---|---:|---:|---:|---:|---:|---|")
     for name, ms, acc, note in rows:
         ms_s = "n/a" if ms is None else f"{ms:.1f}"
-        ratio = "n/a" if (ms is None or gdal_ms is None) else f"{gdal_ms / ms:.2f}x"
+        if "viewshed" not in name.lower():
+            ratio = ""  # the ratio compares viewsheds only
+        elif ms is None or gdal_ms is None:
+            ratio = "n/a"
+        else:
+            ratio = f"{gdal_ms / ms:.2f}x"
         print(f"| {name} | {ms_s} | {ratio} | {acc} | {note} |")
 
 
