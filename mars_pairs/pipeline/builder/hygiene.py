@@ -16,7 +16,6 @@ import fnmatch
 import os
 import re
 import tarfile
-from collections.abc import Iterable
 from pathlib import Path
 
 from mars_pairs.pipeline.builder.layout import (
@@ -158,15 +157,6 @@ def remove_empty_parts(out: fs.Location) -> None:
     parts = out / "parts"
     if parts.is_dir() and not parts.is_symlink() and not any(parts.iterdir()):
         parts.rmdir()
-
-
-def built_keys(out: fs.Location, done: Iterable[int]) -> dict[str, str]:
-    """Sample key -> label path of the chunks a resumed build keeps (for duplicate ids)."""
-    seen: dict[str, str] = {}
-    for k in done:
-        part = fs.read_parquet(part_paths(out, k)[1], columns=["key", "label_path"])
-        seen.update(zip(part["key"].to_pylist(), part["label_path"].to_pylist(), strict=True))
-    return seen
 
 
 #: What ``clear_outputs`` removes, in order (patterns relative to the output folder).
