@@ -21,6 +21,7 @@ from pathlib import Path
 from mars_pairs.pipeline.builder.layout import (
     CHUNK_FILE,
     CLEARING,
+    KEY_INDEX,
     is_temporary,
     part_paths,
     stamp_path,
@@ -173,6 +174,7 @@ _CLEARED = (
     "parts/manifest-*.parquet",
     "parts/*.parquet",
     "parts/base-dataset.json",
+    KEY_INDEX,
     "shards/*.tar",
 )
 

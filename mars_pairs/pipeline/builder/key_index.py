@@ -3,12 +3,15 @@
 A build refuses a second label with a sample key already built (``commit.select_chunk``
 asks ``key in seen`` and ``seen[key]`` for every key of a chunk, then records the chunk's
 own). :class:`KeyIndex` answers those from an SQLite table (the standard library's
-``sqlite3``; key the primary key, so a lookup is one B-tree search) in a scratch file of
-a fresh local folder (``store.fs.local_staging``: removed when the build ends, a killed
-driver's by ``fs.remove_stale_staging`` at the next build), with a page cache of a few
-MiB: the driver holds no key, whatever the count. The index is scratch: a resumed build or
-an append fills it again from the committed manifest parts (:meth:`KeyIndex.add_parts`) or
-the dataset's manifest, so it needs no journal and no sync.
+``sqlite3``; key the primary key, so a lookup is one B-tree search) in a scratch file,
+with a page cache of a few MiB: the driver holds no key, whatever the count. The file is
+``parts/keys.sqlite`` of a local output folder (``layout.KEY_INDEX``: removed when the
+build's commits end; one a killed build left is a build file, cleared with the others or
+replaced by the resumed build's), and in the local staging folder of an object storage
+output (``store.fs.local_staging``, where its uploads are staged: removed when the build
+ends, a killed driver's by ``fs.remove_stale_staging`` at the next build). The index is
+scratch: a resumed build or an append fills it again from the committed manifest parts
+(:meth:`KeyIndex.add_parts`) or the dataset's manifest, so it needs no journal and no sync.
 
 Measured (``benchmarks/bench_scale.py``): the driver's peak resident set during the build
 pass stays flat from 10k to 1M labels, where the key dictionary it replaced grew with them.
@@ -23,7 +26,7 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 
-from mars_pairs.pipeline.builder.layout import part_paths
+from mars_pairs.pipeline.builder.layout import KEY_INDEX, part_paths
 from mars_pairs.store import fs
 
 #: The SQLite page cache, KiB (``PRAGMA cache_size`` takes a negative count of KiB).
@@ -98,9 +101,21 @@ class KeyIndex(Mapping[str, str]):
 
 
 @contextlib.contextmanager
-def open_index() -> Iterator[KeyIndex]:
-    """An empty :class:`KeyIndex` in a fresh local scratch folder, removed with it when the
-    block ends."""
+def open_index(out: fs.Location) -> Iterator[KeyIndex]:
+    """An empty :class:`KeyIndex` for the build into ``out``, its file removed when the block
+    ends: ``parts/keys.sqlite`` of a local folder (``parts/`` made first; one a killed build
+    left is replaced), a file of a fresh local staging folder for object storage."""
+    if isinstance(out, Path):
+        path = out / KEY_INDEX
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.unlink(missing_ok=True)  # a killed build's: scratch, filled again from the parts
+        index = KeyIndex(path)
+        try:
+            yield index
+        finally:
+            index.close()
+            path.unlink(missing_ok=True)
+        return
     with fs.local_staging() as folder:
         index = KeyIndex(folder / "keys.sqlite")
         try:

@@ -115,7 +115,8 @@ def run_build(
         raise ConfigError("--limit: not with --append (an append builds every new label)")
     check_input_files(config)  # before any process opens them
     with folder_lock(config.output.dir):  # one writer: before the folder is read or written
-        fs.remove_stale_staging()  # of a build killed mid-upload, or its key index
+        if not isinstance(config.output.dir, Path):
+            fs.remove_stale_staging()  # of a build killed mid-upload (or its key index)
         if not resume and not append:  # refused before any worker starts (else: once planned)
             check_clearable(config.output.dir)
         if append:  # planned before any worker starts: a refused append starts none
@@ -189,7 +190,7 @@ def _run(
     chunks = enumerate(chunks_of(digest.tally(labels_of(config, limit)), plan.chunk_size))
     todo = (ChunkTask(k, tuple(labels)) for k, labels in chunks if k not in done)
     stage_seconds: Counter[str] = Counter()
-    with open_index() as seen:
+    with open_index(out) as seen:
         seen.add_parts(out, sorted(done))
         results = engine.run(config, todo)
         bar = tqdm(
@@ -304,7 +305,7 @@ def _run_append(
         if not is_done(out, k)
     )
     stage_seconds: Counter[str] = Counter()
-    with open_index() as seen:
+    with open_index(out) as seen:
         seen.update(plan.keys)
         seen.add_parts(out, (k for k in chunks if is_done(out, k)))
         results = engine.run(config, todo)
