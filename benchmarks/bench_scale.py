@@ -10,8 +10,10 @@ function, so it pickles by name), which builds no sample and returns one tiny ou
 label (``dropped``: it owns its key, so the duplicate-key check records every key, and no
 shard is written). So what is measured is the driver: listing, chunking, the duplicate-key
 check, the parts it writes and the finish. Each case runs in a fresh subprocess, which
-reports the growth of its peak resident set over the build (``VmHWM`` in
-``/proc/self/status``, after the imports and a warm-up build) and its CPU per label
+reports the growth of its peak resident set (``VmHWM`` in ``/proc/self/status``, over the
+value after the imports and a warm-up build) up to the finish (the commit pass: listing,
+chunks, key check, parts; taken as ``merge_parts`` starts) and over the whole build, and its
+CPU per label
 (``resource.getrusage``). The anchor, "dict (before)", is the same build with the keys in a
 ``dict`` in the driver (what ``key_index.KeyIndex`` replaced), alternated with it per size.
 Prints a markdown table with the load average (1 min) after each case.
@@ -90,11 +92,19 @@ def _child(index: str, root: Path, pattern: str) -> None:
     run.run_build(plan_config(root / "inputs", warm, root / "warm"), engine=StubEngine(),
                   progress=False)  # fmt: skip
     config = plan_config(root / "inputs", pattern, root / "dataset")
+    merge, at_merge = run.merge_parts, [0]
+
+    def timed_merge(*args: Any) -> Any:  # the commit pass ends where the finish starts
+        at_merge[0] = _vm_hwm_kib()
+        return merge(*args)
+
+    run.merge_parts = timed_merge  # type: ignore[assignment]
     base, cpu, start = _vm_hwm_kib(), _cpu(), time.perf_counter()
     summary = run.run_build(config, engine=StubEngine(), progress=False)
     seconds, cpu = time.perf_counter() - start, _cpu() - cpu
     dataset = json.loads((root / "dataset" / "dataset.json").read_text())
-    print(json.dumps({"rss_kib": _vm_hwm_kib() - base, "cpu": cpu, "seconds": seconds,
+    print(json.dumps({"rss_kib": _vm_hwm_kib() - base, "commit_kib": at_merge[0] - base,
+                      "cpu": cpu, "seconds": seconds,
                       "samples": summary.samples, "counts": dataset.get("counts")}))  # fmt: skip
 
 
@@ -116,9 +126,9 @@ def scale_table(sizes: list[int], per_dir: int) -> None:
         f"{', '.join(f'{x:.2f}' for x in os.getloadavg())} before; chunk job stubbed "
         f"(no sample built), each case in a fresh process\n"
     )
-    print("| labels | duplicate-key record | driver peak RSS growth MiB | CPU us/label "
-          "| seconds | load (1 min) |")  # fmt: skip
-    print("|---:|---|---:|---:|---:|---:|")
+    print("| labels | duplicate-key record | driver peak RSS growth MiB: to the finish "
+          "| whole build | CPU us/label | seconds | load (1 min) |")  # fmt: skip
+    print("|---:|---|---:|---:|---:|---:|---:|")
     for size in sizes:
         root = Path(tempfile.mkdtemp(prefix="bench_scale_"))
         try:
@@ -128,7 +138,8 @@ def scale_table(sizes: list[int], per_dir: int) -> None:
                 shutil.rmtree(root / "warm", ignore_errors=True)
                 r = _run(index, root, pattern)
                 print(
-                    f"| {size:,} | {name} | {r['rss_kib'] / 1024:.1f} "
+                    f"| {size:,} | {name} | {r['commit_kib'] / 1024:.1f} "
+                    f"| {r['rss_kib'] / 1024:.1f} "
                     f"| {r['cpu'] * 1e6 / size:.0f} | {r['seconds']:.1f} "
                     f"| {os.getloadavg()[0]:.2f} |",
                     flush=True,
