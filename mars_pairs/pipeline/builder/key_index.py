@@ -13,8 +13,10 @@ ends, a killed driver's by ``fs.remove_stale_staging`` at the next build). The i
 scratch: a resumed build or an append fills it again from the committed manifest parts
 (:meth:`KeyIndex.add_parts`) or the dataset's manifest, so it needs no journal and no sync.
 
-Measured (``benchmarks/bench_scale.py``): the driver's peak resident set during the build
-pass stays flat from 10k to 1M labels, where the key dictionary it replaced grew with them.
+Measured (``benchmarks/bench_scale.py``, the chunk job stubbed, load ~10): the driver's peak
+resident set over the commit pass grew by 3.4 MiB at 10k labels and 11.9 MiB at 100k (the
+8 MiB page cache filled), where a dict of the keys grew by 4.5 and 28.4 MiB (~265 bytes a
+key), for ~15 % more driver CPU a label (158 against 138 us at 100k).
 """
 
 from __future__ import annotations
