@@ -35,6 +35,8 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
+from bench_plan import _vm_hwm_kib  # a script beside this one
+
 INDEXES = {"sqlite": "SQLite index (KeyIndex)", "dict": "dict (before)"}
 
 
@@ -65,15 +67,6 @@ class _DictIndex(dict[str, str]):
 @contextlib.contextmanager
 def _dict_index(out: Any) -> Iterator[_DictIndex]:
     yield _DictIndex()
-
-
-def _vm_hwm_kib() -> int:
-    """This process's peak resident set so far, KiB (Linux)."""
-    with open("/proc/self/status") as status:
-        for line in status:
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1])
-    raise RuntimeError("no VmHWM in /proc/self/status")
 
 
 def _cpu() -> float:
