@@ -3,6 +3,7 @@
     python benchmarks/bench_build.py [--stops K] [--images-per-stop M] [--size-px P]
                                      [--shard-size S] [--mission DIR] [--engines local,dask]
                                      [--dense]
+    python benchmarks/bench_build.py --scale [--sizes 10000 100000]
 
 Generates a synthetic mission (64 stops x 8 images = 512 samples by default; generating it
 takes minutes, so ``--mission DIR`` keeps it in DIR and reuses it) and builds it with
@@ -19,7 +20,9 @@ workers: the projection column, with the worker cost taken from the 1-worker bui
 times. Prints markdown tables with the load average; the other anchor is the study's QGIS
 tool: tens of seconds per image. ``--dense`` adds, in the same run, the local 1-worker build
 with every dense member on (``output.members: all``) against the same build without them,
-alternated, best of 2 each, and each dense member's mean size per sample.
+alternated, best of 2 each, and each dense member's mean size per sample. ``--scale``
+instead runs ``bench_scale.py``: the driver's peak memory and CPU per label at ``--sizes``
+labels, the chunk job stubbed.
 """
 
 from __future__ import annotations
@@ -170,7 +173,14 @@ def main() -> None:
     parser.add_argument("--mission", type=Path, help="keep (or reuse) the mission here")
     parser.add_argument("--engines", default="local,dask")
     parser.add_argument("--dense", action="store_true", help="add the dense members' cost")
+    parser.add_argument("--scale", action="store_true", help="the driver at scale (bench_scale)")
+    parser.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000])
     args = parser.parse_args()
+    if args.scale:
+        from bench_scale import scale_table
+
+        scale_table(args.sizes, per_dir=1000)
+        return
     runs = [("local", 1), ("local", 2)] if "local" in args.engines else []
     runs += [("dask", 2)] if "dask" in args.engines else []
     _time_the_ends()

@@ -87,3 +87,24 @@ def _pid(_: int) -> int:
     import os
 
     return os.getpid()
+
+
+@pytest.mark.slow
+def test_run_pulls_at_most_its_window_of_chunks_ahead(small_mission: Path, tmp_path: Path) -> None:
+    from mars_pairs.pipeline.builder.engine import ChunkTask
+
+    config = build_config(small_mission, tmp_path / "ds")
+    pulled: list[int] = []
+
+    def chunks() -> Iterator[ChunkTask]:  # 12 chunks of labels that fail at once (no file)
+        for k in range(12):
+            pulled.append(k)
+            yield ChunkTask(k, (str(tmp_path / f"missing_{k:03d}.xml"),))
+
+    with LocalPool(config, workers=2) as pool:
+        got, ahead = [], []
+        for result in pool.run(config, chunks()):
+            got.append(result.index)
+            ahead.append(len(pulled) - len(got))
+    assert got == list(range(12))
+    assert max(ahead) == 2 * pool.workers  # the chunk window ahead, never more

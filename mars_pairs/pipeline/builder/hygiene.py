@@ -16,12 +16,12 @@ import fnmatch
 import os
 import re
 import tarfile
-from collections.abc import Iterable
 from pathlib import Path
 
 from mars_pairs.pipeline.builder.layout import (
     CHUNK_FILE,
     CLEARING,
+    KEY_INDEX,
     is_temporary,
     part_paths,
     stamp_path,
@@ -160,15 +160,6 @@ def remove_empty_parts(out: fs.Location) -> None:
         parts.rmdir()
 
 
-def built_keys(out: fs.Location, done: Iterable[int]) -> dict[str, str]:
-    """Sample key -> label path of the chunks a resumed build keeps (for duplicate ids)."""
-    seen: dict[str, str] = {}
-    for k in done:
-        part = fs.read_parquet(part_paths(out, k)[1], columns=["key", "label_path"])
-        seen.update(zip(part["key"].to_pylist(), part["label_path"].to_pylist(), strict=True))
-    return seen
-
-
 #: What ``clear_outputs`` removes, in order (patterns relative to the output folder).
 _CLEARED = (
     SUMS,  # the chain's sidecar first: no reader checks a half-cleared folder against it
@@ -183,6 +174,7 @@ _CLEARED = (
     "parts/manifest-*.parquet",
     "parts/*.parquet",
     "parts/base-dataset.json",
+    KEY_INDEX,
     "shards/*.tar",
 )
 

@@ -33,10 +33,16 @@ LOCK_FILE = ".mars-pairs.lock"
 CLEARING = "parts/clearing.json"
 
 
+#: The driver's index of the sample keys built (``pipeline.builder.key_index``), a local
+#: build's scratch file while its chunks are committed.
+KEY_INDEX = "parts/keys.sqlite"
+
+
 #: The files of a build besides its chunks', relative to the output folder.
 BUILD_FILES = (
     "parts/build.json",
     CLEARING,
+    KEY_INDEX,
     "manifest.parquet",
     "failures.parquet",
     "dataset.json",

@@ -56,11 +56,11 @@ from mars_pairs.pipeline.builder.finish import (
     write_dataset_json,
 )
 from mars_pairs.pipeline.builder.hygiene import (
-    built_keys,
     clear_outputs,
     remove_parts,
     remove_temporaries,
 )
+from mars_pairs.pipeline.builder.key_index import KeyIndex, open_index
 from mars_pairs.pipeline.builder.layout import dropped_count, stamp_path
 from mars_pairs.pipeline.builder.local_pool import LocalPool
 from mars_pairs.pipeline.builder.lock import folder_lock
@@ -116,7 +116,7 @@ def run_build(
     check_input_files(config)  # before any process opens them
     with folder_lock(config.output.dir):  # one writer: before the folder is read or written
         if not isinstance(config.output.dir, Path):
-            fs.remove_stale_staging()  # of a build killed mid-upload
+            fs.remove_stale_staging()  # of a build killed mid-upload (or its key index)
         if not resume and not append:  # refused before any worker starts (else: once planned)
             check_clearable(config.output.dir)
         if append:  # planned before any worker starts: a refused append starts none
@@ -139,10 +139,10 @@ def _commit_all(
     bar: tqdm[NoReturn],  # a bar updated by hand (no iterable)
     strict: bool,
     stage_seconds: Counter[str],
-    seen: dict[str, str],
+    seen: KeyIndex,
 ) -> int:
     """Commit every chunk of ``results`` in order (``commit.select_chunk``, then
-    ``commit.write_chunk``; ``seen``: key -> label of the samples built, updated), the bar
+    ``commit.write_chunk``; ``seen``: key -> label of the samples built, on disk, updated), the bar
     following; closes the bar and the results. The number of chunks committed."""
     built = 0
     try:
@@ -186,20 +186,21 @@ def _run(
         stamp.parent.mkdir(parents=True, exist_ok=True)
     fs.put_bytes(stamp, json.dumps(plan.fingerprint).encode())
     done = done_chunks(out, plan.chunks)
-    seen = built_keys(out, sorted(done))
     digest = LabelDigest()  # the second pass must list what the first did
     chunks = enumerate(chunks_of(digest.tally(labels_of(config, limit)), plan.chunk_size))
     todo = (ChunkTask(k, tuple(labels)) for k, labels in chunks if k not in done)
-    results = engine.run(config, todo)
-    bar = tqdm(
-        total=plan.labels,
-        initial=plan.labels - plan.labels_to_build,
-        unit="img",
-        disable=not progress,
-        desc="build",
-    )
     stage_seconds: Counter[str] = Counter()
-    built = _commit_all(config, results, bar, strict, stage_seconds, seen)
+    with open_index(out) as seen:
+        seen.add_parts(out, sorted(done))
+        results = engine.run(config, todo)
+        bar = tqdm(
+            total=plan.labels,
+            initial=plan.labels - plan.labels_to_build,
+            unit="img",
+            disable=not progress,
+            desc="build",
+        )
+        built = _commit_all(config, results, bar, strict, stage_seconds, seen)
     remove_temporaries(out)  # of a worker killed mid-shard, whose chunk was built again
     listed = plan.fingerprint
     if (digest.count, digest.hexdigest()) != (listed["count"], listed["labels"]):
@@ -296,8 +297,6 @@ def _run_append(
         snapshot_base(out)  # before the stamp: while the stamp is there, the base is whole
         atomic_write_bytes(stamp_path(out), json.dumps(plan.fingerprint).encode())
     chunks = new_chunks(plan)
-    seen = dict(plan.keys)
-    seen.update(built_keys(out, (k for k in chunks if is_done(out, k))))
     digest = LabelDigest()  # the second pass must list what the first did
     listed = chunks_of(digest.tally(new_labels(config, plan.known, LabelDigest())), plan.chunk_size)
     todo = (
@@ -305,16 +304,19 @@ def _run_append(
         for k, labels in zip(chunks, listed, strict=False)
         if not is_done(out, k)
     )
-    results = engine.run(config, todo)
-    bar = tqdm(
-        total=plan.labels_new,
-        initial=labels_done(plan),
-        unit="img",
-        disable=not progress,
-        desc="append",
-    )
     stage_seconds: Counter[str] = Counter()
-    built = _commit_all(config, results, bar, strict, stage_seconds, seen)
+    with open_index(out) as seen:
+        seen.update(plan.keys)
+        seen.add_parts(out, (k for k in chunks if is_done(out, k)))
+        results = engine.run(config, todo)
+        bar = tqdm(
+            total=plan.labels_new,
+            initial=labels_done(plan),
+            unit="img",
+            disable=not progress,
+            desc="append",
+        )
+        built = _commit_all(config, results, bar, strict, stage_seconds, seen)
     remove_temporaries(out)
     stamp = plan.fingerprint
     if (digest.count, digest.hexdigest()) != (stamp["count"], stamp["labels"]):
