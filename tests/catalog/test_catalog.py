@@ -135,7 +135,7 @@ def test_saw_agrees_with_the_viewshed_geotiffs(
     footprints' box) against the set of images whose ``mars-pairs viewshed --label`` GeoTIFF
     (read with rasterio) marks the point's cell visible: >= 99 % equal; and at 500 points
     inside footprints (where the image edges are) no returned image whose raster is more
-    than one cell from a visible cell there (the footprint is drawn on quarter cells, the
+    than one cell from a visible cell there (the footprint is drawn on eighth cells, the
     GeoTIFF on whole cells: they differ inside the cells an image edge cuts)."""
     cat, _ = built
     catalog = Catalog.open(cat)
