@@ -105,10 +105,12 @@ def saw_agreement(
     lons, lats = map_to_lonlat(xs, ys, json.dumps(catalog.crs))
     agree = np.zeros(2 * n_points, dtype=bool)
     within_cell = np.zeros(2 * n_points, dtype=bool)
+    cell_agree = np.zeros(2 * n_points, dtype=bool)
     seen = np.zeros(2 * n_points, dtype=bool)
     worst_extra = worst_missed = 0.0
     for i, (x, y, lon, lat) in enumerate(zip(xs, ys, lons, lats, strict=True)):
         got = set(catalog.saw(float(lon), float(lat))["key"].to_pylist())
+        cell_got = set(catalog.saw(float(lon), float(lat), per_cell=True)["key"].to_pylist())
         truth = set()
         for key, (codes, transform, _cell) in rasters.items():
             col, row = ~transform * (x, y)
@@ -116,6 +118,7 @@ def saw_agreement(
             if 0 <= r < codes.shape[0] and 0 <= c < codes.shape[1] and codes[r, c] == 1:
                 truth.add(key)
         agree[i] = got == truth
+        cell_agree[i] = cell_got == truth
         seen[i] = bool(truth or got)
         near = True
         for key in got ^ truth:  # the distance (cells) to the raster's nearest other verdict
@@ -142,6 +145,8 @@ def saw_agreement(
         "inside_points": n_points,
         "inside_agree": float(agree[ins].mean()),
         "agree_up_to_one_cell": float(within_cell.mean()),
+        "per_cell_uniform_agree": float(cell_agree[uni].mean()),
+        "per_cell_inside_agree": float(cell_agree[ins].mean()),
         "worst_extra_cells": worst_extra,
         "worst_missed_cells": worst_missed,
     }

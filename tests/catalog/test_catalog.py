@@ -336,3 +336,21 @@ def test_pairs_on_synthetic_footprints_match_brute_force() -> None:
     assert found == brute
     iou = table["iou"].to_numpy()
     assert np.all((iou > 0) & (iou <= 1))
+
+
+def test_saw_per_cell_tests_the_dem_cells_centre(built: tuple[Path, Path]) -> None:
+    """``saw(per_cell=True)`` answers for the centre of the DEM cell holding the point (the
+    grid catalog.json names), as ``saw`` at that centre; without the grid it is refused."""
+    cat, _ = built
+    catalog = Catalog.open(cat)
+    grid = Affine(*json.loads((cat / "catalog.json").read_text())["footprint"]["dem_transform"])
+    c = catalog.geometry[0].representative_point()
+    col, row = ~grid * (c.x + 0.3 * grid.a, c.y)
+    cx, cy = grid * (np.floor(col) + 0.5, np.floor(row) + 0.5)
+    assert catalog.cell_centre(c.x + 0.3 * grid.a, c.y) == pytest.approx((cx, cy))
+    lon, lat = map_to_lonlat([c.x + 0.3 * grid.a, cx], [c.y, cy], json.dumps(catalog.crs))
+    per_cell = catalog.saw(float(lon[0]), float(lat[0]), per_cell=True)["key"].to_pylist()
+    assert per_cell == catalog.saw(float(lon[1]), float(lat[1]))["key"].to_pylist()
+    bare = Catalog(cat, catalog.table, catalog.crs)
+    with pytest.raises(ArgumentError, match="dem_transform"):
+        bare.saw(float(lon[0]), float(lat[0]), per_cell=True)
