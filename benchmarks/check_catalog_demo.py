@@ -106,6 +106,7 @@ def saw_agreement(
     agree = np.zeros(2 * n_points, dtype=bool)
     within_cell = np.zeros(2 * n_points, dtype=bool)
     cell_agree = np.zeros(2 * n_points, dtype=bool)
+    cell_extra = cell_missed = 0
     seen = np.zeros(2 * n_points, dtype=bool)
     worst_extra = worst_missed = 0.0
     for i, (x, y, lon, lat) in enumerate(zip(xs, ys, lons, lats, strict=True)):
@@ -119,6 +120,8 @@ def saw_agreement(
                 truth.add(key)
         agree[i] = got == truth
         cell_agree[i] = cell_got == truth
+        cell_extra += len(cell_got - truth)
+        cell_missed += len(truth - cell_got)
         seen[i] = bool(truth or got)
         near = True
         for key in got ^ truth:  # the distance (cells) to the raster's nearest other verdict
@@ -147,6 +150,8 @@ def saw_agreement(
         "agree_up_to_one_cell": float(within_cell.mean()),
         "per_cell_uniform_agree": float(cell_agree[uni].mean()),
         "per_cell_inside_agree": float(cell_agree[ins].mean()),
+        "per_cell_extra_images": cell_extra,
+        "per_cell_missed_images": cell_missed,
         "worst_extra_cells": worst_extra,
         "worst_missed_cells": worst_missed,
     }

@@ -59,12 +59,12 @@ def geo_crs(schema: pa.Schema, path: Path) -> Any:
     return doc["columns"][doc["primary_column"]]["crs"]
 
 
-def points_in(geometry: np.ndarray, x: float, y: float) -> np.ndarray:
-    """Indices of the (multi)polygons of ``geometry`` that hold map point (x, y) (inside or
-    on the boundary), through an STRtree."""
+def points_in(geometry: np.ndarray, x: float, y: float, edge: bool = True) -> np.ndarray:
+    """Indices of the (multi)polygons of ``geometry`` that hold map point (x, y) (inside, or
+    on the boundary when ``edge``), through an STRtree."""
     valid = np.flatnonzero(~shapely.is_missing(geometry))
     tree = shapely.STRtree(geometry[valid])
-    hits = tree.query(shapely.Point(x, y), predicate="intersects")
+    hits = tree.query(shapely.Point(x, y), predicate="intersects" if edge else "within")
     return np.sort(valid[hits])
 
 
@@ -119,7 +119,8 @@ class Catalog:
         px, py = float(x[0]), float(y[0])
         if per_cell:
             px, py = self.cell_centre(px, py)
-        rows = points_in(self.geometry, px, py)
+        # a cell's centre is a corner of its sub-cells: on the edge, it is out
+        rows = points_in(self.geometry, px, py, edge=not per_cell)
         hits = self.table.take(pa.array(rows, type=pa.int64())).select(list(SAW_COLUMNS))
         cam_lon = hits["camera_lon"].to_numpy(zero_copy_only=False)
         cam_lat = hits["camera_lat"].to_numpy(zero_copy_only=False)
