@@ -21,6 +21,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import shapely
+from affine import Affine
 
 from mars_pairs.errors import ArgumentError, DatasetError
 from mars_pairs.geometry.body import MARS_RADIUS_M
@@ -58,12 +59,12 @@ def geo_crs(schema: pa.Schema, path: Path) -> Any:
     return doc["columns"][doc["primary_column"]]["crs"]
 
 
-def points_in(geometry: np.ndarray, x: float, y: float) -> np.ndarray:
-    """Indices of the (multi)polygons of ``geometry`` that hold map point (x, y) (inside or
-    on the boundary), through an STRtree."""
+def points_in(geometry: np.ndarray, x: float, y: float, edge: bool = True) -> np.ndarray:
+    """Indices of the (multi)polygons of ``geometry`` that hold map point (x, y) (inside, or
+    on the boundary when ``edge``), through an STRtree."""
     valid = np.flatnonzero(~shapely.is_missing(geometry))
     tree = shapely.STRtree(geometry[valid])
-    hits = tree.query(shapely.Point(x, y), predicate="intersects")
+    hits = tree.query(shapely.Point(x, y), predicate="intersects" if edge else "within")
     return np.sort(valid[hits])
 
 
@@ -71,10 +72,14 @@ class Catalog:
     """A footprint catalogue folder (``mars-pairs catalog``): ``table`` its catalog.parquet,
     ``crs`` the map CRS (PROJJSON), ``folder`` where it is."""
 
-    def __init__(self, folder: Path, table: pa.Table, crs: Any) -> None:
+    def __init__(
+        self, folder: Path, table: pa.Table, crs: Any, dem_transform: Sequence[float] | None = None
+    ) -> None:
         self.folder = folder
         self.table = table
         self.crs = crs
+        #: the DEM's affine transform (6 numbers, map units; catalog.json), None when unknown
+        self.dem_transform = dem_transform
         self._geometry: np.ndarray | None = None
 
     @classmethod
@@ -85,7 +90,11 @@ class Catalog:
         if not path.is_file():
             raise DatasetError(root, None, "no catalog.parquet (not a footprint catalogue folder)")
         table = pq.read_table(path)
-        return cls(root, table, geo_crs(table.schema, path))
+        info = root / "catalog.json"
+        dem = None
+        if info.is_file():
+            dem = json.loads(info.read_text()).get("footprint", {}).get("dem_transform")
+        return cls(root, table, geo_crs(table.schema, path), dem)
 
     def __len__(self) -> int:
         return int(self.table.num_rows)
@@ -99,13 +108,19 @@ class Catalog:
             )
         return self._geometry
 
-    def saw(self, lon: float, lat: float) -> pa.Table:
+    def saw(self, lon: float, lat: float, per_cell: bool = False) -> pa.Table:
         """The images whose visible footprint holds the point (``lon``, ``lat``: degrees
         east/north, Mars sphere), nearest first: ``SAW_COLUMNS`` and ``range_m`` (horizontal
-        true metres from the camera centre). ArgumentError for a malformed point."""
+        true metres from the camera centre). ``per_cell``: test the centre of the DEM cell
+        holding the point instead (the verdict ``viewshed --label`` gives the whole cell).
+        ArgumentError for a malformed point, or ``per_cell`` without the DEM's grid."""
         lon, lat = checked_point((lon, lat), "saw")
         x, y = lonlat_to_map([lon], [lat], json.dumps(self.crs))
-        rows = points_in(self.geometry, float(x[0]), float(y[0]))
+        px, py = float(x[0]), float(y[0])
+        if per_cell:
+            px, py = self.cell_centre(px, py)
+        # a cell's centre is a corner of its sub-cells: on the edge, it is out
+        rows = points_in(self.geometry, px, py, edge=not per_cell)
         hits = self.table.take(pa.array(rows, type=pa.int64())).select(list(SAW_COLUMNS))
         cam_lon = hits["camera_lon"].to_numpy(zero_copy_only=False)
         cam_lat = hits["camera_lat"].to_numpy(zero_copy_only=False)
@@ -119,6 +134,18 @@ class Catalog:
         )
         hits = hits.append_column("range_m", pa.array(ranges, type=pa.float64()))
         return hits.sort_by([("range_m", "ascending"), ("key", "ascending")])
+
+    def cell_centre(self, x: float, y: float) -> tuple[float, float]:
+        """The centre (map x, y, map units) of the DEM cell holding map point (x, y);
+        ArgumentError when the catalogue does not name the DEM's grid."""
+        if self.dem_transform is None:
+            raise ArgumentError(
+                f"per-cell: {self.folder / 'catalog.json'} has no footprint.dem_transform"
+            )
+        grid = Affine(*self.dem_transform)
+        col, row = ~grid * (x, y)
+        cx, cy = grid * (math.floor(col) + 0.5, math.floor(row) + 0.5)
+        return float(cx), float(cy)
 
     def overlaps(self, key: str) -> pa.Table:
         """The images that saw the same ground as image ``key`` (pairs.parquet), highest IoU

@@ -26,7 +26,7 @@ from mars_pairs.errors import ArgumentError, ConfigError
 from mars_pairs.geometry.frames import map_to_lonlat
 from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.catalog.run import run_catalog
-from mars_pairs.store.catalog import Catalog
+from mars_pairs.store.catalog import Catalog, points_in
 from mars_pairs.store.pairs import Footprints, pairs_table
 from mars_pairs.store.query import Manifest
 from support.configs import build_config
@@ -138,7 +138,7 @@ def test_saw_agrees_with_the_viewshed_geotiffs(
     footprints' box) against the set of images whose ``mars-pairs viewshed --label`` GeoTIFF
     (read with rasterio) marks the point's cell visible: >= 99 % equal; and at 500 points
     inside footprints (where the image edges are) no returned image whose raster is more
-    than one cell from a visible cell there (the footprint is drawn on quarter cells, the
+    than one cell from a visible cell there (the footprint is drawn on eighth cells, the
     GeoTIFF on whole cells: they differ inside the cells an image edge cuts)."""
     cat, _ = built
     catalog = Catalog.open(cat)
@@ -339,3 +339,23 @@ def test_pairs_on_synthetic_footprints_match_brute_force() -> None:
     assert found == brute
     iou = table["iou"].to_numpy()
     assert np.all((iou > 0) & (iou <= 1))
+
+
+def test_saw_per_cell_tests_the_dem_cells_centre(built: tuple[Path, Path]) -> None:
+    """``saw(per_cell=True)`` answers for the centre of the DEM cell holding the point (the
+    grid catalog.json names; a centre on a footprint's edge is out); without the grid it is
+    refused."""
+    cat, _ = built
+    catalog = Catalog.open(cat)
+    grid = Affine(*json.loads((cat / "catalog.json").read_text())["footprint"]["dem_transform"])
+    c = catalog.geometry[0].representative_point()
+    col, row = ~grid * (c.x + 0.3 * grid.a, c.y)
+    cx, cy = grid * (np.floor(col) + 0.5, np.floor(row) + 0.5)
+    assert catalog.cell_centre(c.x + 0.3 * grid.a, c.y) == pytest.approx((cx, cy))
+    lon, lat = map_to_lonlat([c.x + 0.3 * grid.a, cx], [c.y, cy], json.dumps(catalog.crs))
+    per_cell = catalog.saw(float(lon[0]), float(lat[0]), per_cell=True)["key"].to_pylist()
+    inside = points_in(catalog.geometry, float(cx), float(cy), edge=False)
+    assert per_cell and sorted(per_cell) == sorted(catalog.table["key"].take(inside).to_pylist())
+    bare = Catalog(cat, catalog.table, catalog.crs)
+    with pytest.raises(ArgumentError, match="dem_transform"):
+        bare.saw(float(lon[0]), float(lat[0]), per_cell=True)

@@ -319,6 +319,7 @@ def catalog_doc(
 
     with rasterio.open(config.inputs.dem) as src:
         cell = float(max(abs(src.res[0]), abs(src.res[1])))
+        dem_transform = [float(v) for v in list(src.transform)[:6]]
     wkt = named_wkt(crs)
     return {
         "kind": "mars-pairs footprint catalogue",
@@ -338,6 +339,7 @@ def catalog_doc(
             "source": "the view vectorized: line of sight per DEM cell, the exact view test "
             f"per 1/{SUBCELLS} sub-cell",
             "dem_cell": cell,
+            "dem_transform": dem_transform,
             "simplify_tolerance": SIMPLIFY_CELLS * cell / SUBCELLS,
             "unit": "map units of the CRS",
             "radius_m": config.geometry.radius,
