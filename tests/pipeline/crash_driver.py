@@ -1,4 +1,4 @@
-"""Kill a rebuild over an old dataset at every kind of file operation; resume; compare to a clean build.
+"""Kill a rebuild over an old dataset at every kind of file operation; resume; compare.
 
 Run by tests/pipeline/test_build_crash.py as ``python crash_driver.py NEW.yaml OLD.yaml``
 (both configs write the same output folder). This process only imports; every build runs in
