@@ -8,7 +8,9 @@ uint8 [1, h, w] in {0, 1}; with ``image_dtype=torch.float32`` they are float32 i
 [2, H/k, W/k] and ``corr_ground`` float32 [2, H/k, W/k], the keypoints (chip pixel and
 ground pixel of each strided ray, NaN for no hit); ``crs``, ``bounds``, ``transform`` and
 ``rotation`` place the chips on the map (:mod:`mars_pairs.torch.georef`); ``meta`` holds
-plain Python values of the manifest row.
+plain Python values of the manifest row, a missing one NaN (floats), -1 (integers) or ``""``
+(strings), never None, so torch's ``default_collate`` batches samples
+(:mod:`mars_pairs.torch.collate`).
 
 Datasets built with ``output.members`` also give the dense fields (``store.members``, see
 :mod:`mars_pairs.pipeline.sample.dense`): ``range``, ``depth`` and ``dem_view`` float32
@@ -63,6 +65,7 @@ from mars_pairs.store.member_index import MemberIndex
 from mars_pairs.store.members import DENSE_GROUND_FIELDS, MEMBERS
 from mars_pairs.store.query import Manifest
 from mars_pairs.store.seal import require_sealed
+from mars_pairs.torch.collate import fill_missing_meta
 from mars_pairs.torch.decode import (
     ALL_FIELDS,  # noqa: F401  (re-exported)
     DEFAULT_FIELDS,  # noqa: F401  (re-exported)
@@ -192,7 +195,8 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
         table = manifest.to_table(columns=list(dict.fromkeys(columns)))
         if self.verify:
             _refuse_duplicate_keys(self.root, table)
-        self._index = MemberIndex(table, self._located, META_COLUMNS)
+        meta = fill_missing_meta(table, META_COLUMNS)  # default_collate takes no None
+        self._index = MemberIndex(meta, self._located, META_COLUMNS)
         self._geo = np.column_stack(
             [table[c].fill_null(np.nan).to_numpy().astype(np.float64) for c in GEO_COLUMNS]
         ).reshape(table.num_rows, len(GEO_COLUMNS))
