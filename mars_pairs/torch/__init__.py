@@ -3,7 +3,7 @@ transforms."""
 
 from typing import TYPE_CHECKING, Any
 
-from mars_pairs.torch.collate import collate_samples, unbind_samples
+from mars_pairs.torch.collate import MISSING_INT, collate_samples, unbind_samples
 from mars_pairs.torch.datasets import MarsPairsDataset
 from mars_pairs.torch.decode import ALL_FIELDS, DEFAULT_FIELDS, decode_member
 from mars_pairs.torch.loader import MarsPairsLoader
@@ -17,6 +17,7 @@ if TYPE_CHECKING:
 __all__ = [
     "ALL_FIELDS",
     "DEFAULT_FIELDS",
+    "MISSING_INT",
     "DatasetOptions",
     "MarsPairsDataModule",
     "MarsPairsDataset",

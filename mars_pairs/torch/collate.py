@@ -1,14 +1,46 @@
-"""Batching samples: tensors stacked (or handed on as the buffer they view), meta as lists."""
+"""Batching samples: tensors stacked (or handed on as the buffer they view), meta as lists.
+
+A sample's ``meta`` never holds None, so torch's ``default_collate`` batches it (numbers to
+[B] tensors, strings to lists): a value the manifest lacks (a label without a sol, a site or
+drive, a sample with nothing visible) is NaN in a float column, :data:`MISSING_INT` (-1) in
+an integer column (sol, site, drive, visible_cells) and ``""`` in a string column."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+import pyarrow as pa
 import torch
 from torch.utils.data import default_collate
 
 from mars_pairs.torch.transport import stacked_base
+
+#: a missing integer meta value (sol, site, drive and counts are never negative)
+MISSING_INT = -1
+
+
+def fill_missing_meta(table: pa.Table, columns: Sequence[str]) -> pa.Table:
+    """``table`` with the nulls of its meta ``columns`` replaced by the sentinels a ``meta``
+    value has for a missing value (NaN for floats, :data:`MISSING_INT` for integers, ``""``
+    for strings), so every sample's meta collates with ``default_collate``; columns of other
+    types stay as they are."""
+    for name in columns:
+        k = table.schema.get_field_index(name)
+        column = table.column(k)
+        if column.null_count == 0:
+            continue
+        kind = column.type
+        if pa.types.is_floating(kind):
+            fill: Any = float("nan")
+        elif pa.types.is_integer(kind):
+            fill = MISSING_INT
+        elif pa.types.is_string(kind) or pa.types.is_large_string(kind):
+            fill = ""
+        else:
+            continue
+        table = table.set_column(k, name, column.fill_null(pa.scalar(fill, kind)))
+    return table
 
 
 def batch_layout(batch: Sequence[dict[str, Any]]) -> dict[str, tuple[tuple[int, ...], torch.dtype]]:

@@ -1,7 +1,12 @@
 """Member bytes -> arrays -> tensors: the two decoding stages of every dataset read.
 
 Stage 1 decodes a member to its compact array (uint8 images channels last, float32 DEM and
-correspondence); stage 2 writes its [C, H, W] tensor in one pass."""
+correspondence); stage 2 writes its [C, H, W] tensor in one pass.
+
+JPEG members are decoded by simplejpeg (libjpeg-turbo, accurate DCT and fancy upsampling:
+the pixels Pillow gives), 0.43 ms against Pillow's 0.84 ms for the demo's 384 px ground
+images; PNG members, and JPEGs simplejpeg does not take as they are (CMYK, a colour JPEG read
+as grey), by Pillow."""
 
 from __future__ import annotations
 
@@ -13,6 +18,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+import simplejpeg
 import torch
 from PIL import Image
 
@@ -71,6 +77,15 @@ def _image_u8(
     """Decode an image to uint8 [H, W] or [H, W, C] (resized to ``size`` (H, W) if given);
     ValueError for an image of more than MAX_MEMBER_PIXELS pixels, before its pixels are
     decoded."""
+    if data[:2] == b"\xff\xd8":  # JPEG start of image
+        fast = _jpeg_u8(data, mode)
+        if fast is not None:
+            if size is not None and fast.shape[:2] != tuple(size):
+                resized = Image.fromarray(fast).resize(
+                    (size[1], size[0]), Image.Resampling.BILINEAR
+                )
+                return _pil_array(resized)
+            return fast
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # checked below
@@ -78,16 +93,47 @@ def _image_u8(
     except Image.DecompressionBombError as exc:
         raise ValueError(f"image over the pixel limit: {exc}") from None
     with opened as im:
-        if im.width * im.height > MAX_MEMBER_PIXELS:
-            raise ValueError(
-                f"{im.width} x {im.height} pixels: over the limit of {MAX_MEMBER_PIXELS} "
-                "pixels an image member may have"
-            )
+        _check_pixels(im.width, im.height)
         if im.mode != mode:
             im = im.convert(mode)
         if size is not None and (im.height, im.width) != tuple(size):
             im = im.resize((size[1], size[0]), Image.Resampling.BILINEAR)
         return _pil_array(im)
+
+
+def _check_pixels(width: int, height: int) -> None:
+    """ValueError for an image of more than MAX_MEMBER_PIXELS pixels."""
+    if width * height > MAX_MEMBER_PIXELS:
+        raise ValueError(
+            f"{width} x {height} pixels: over the limit of {MAX_MEMBER_PIXELS} "
+            "pixels an image member may have"
+        )
+
+
+#: simplejpeg's output colourspace for a Pillow mode, by the JPEG's own colourspace (those
+#: for which libjpeg-turbo's conversion is Pillow's: grey to RGB repeats the grey value;
+#: Pillow's RGB to L is its own luma formula, not libjpeg's Y, so that one goes to Pillow)
+_JPEG_COLOURSPACES = {
+    "RGB": {"YCbCr": "RGB", "RGB": "RGB", "Gray": "RGB"},
+    "L": {"Gray": "GRAY"},
+}
+
+
+def _jpeg_u8(data: bytes | bytearray, mode: str) -> np.ndarray | None:
+    """A JPEG's uint8 pixels in ``mode`` ("RGB" [H, W, 3] or "L" [H, W]) by simplejpeg, None
+    where Pillow should decode it (a colourspace simplejpeg would convert differently, a
+    header it cannot read: Pillow then names the fault); ValueError over MAX_MEMBER_PIXELS
+    pixels, from the header, before any pixel is decoded."""
+    try:
+        height, width, colourspace, _ = simplejpeg.decode_jpeg_header(data)
+    except ValueError:
+        return None
+    target = _JPEG_COLOURSPACES.get(mode, {}).get(colourspace)
+    if target is None:
+        return None
+    _check_pixels(width, height)
+    pixels = np.asarray(simplejpeg.decode_jpeg(data, colorspace=target))
+    return pixels[..., 0] if target == "GRAY" else pixels
 
 
 def _pil_array(im: Image.Image) -> np.ndarray:

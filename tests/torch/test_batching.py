@@ -12,6 +12,7 @@ from torch.utils.data import DataLoader
 
 from mars_pairs.torch import (
     ALL_FIELDS,
+    MISSING_INT,
     MarsPairsDataset,
     MarsPairsIterableDataset,
     MarsPairsLoader,
@@ -119,3 +120,46 @@ def test_ground_transforms_move_the_mask_with_the_image() -> None:
     # the mask stays where the image's own (bright) pixels went
     for out in (Flip("horizontal", target="ground")(sample), Resize(ground=(20, 40))(sample)):
         assert torch.equal(out["ground_mask"][0], out["ground"][0] > 100)
+
+
+def test_meta_with_missing_values_batches_with_the_default_collate(
+    dataset_dir: Path, tmp_path: Path
+) -> None:
+    import math
+    import shutil
+
+    import pyarrow as pa
+
+    root = Path(shutil.copytree(dataset_dir, tmp_path / "ds"))
+    table = pq.read_table(root / "manifest.parquet")
+    missing = [j % 2 == 0 for j in range(table.num_rows)]  # every other row lacks them
+    for name in ("sol", "site", "max_visible_range_m", "localization"):
+        column = table[name].combine_chunks()
+        nulls = pa.array([None] * table.num_rows, type=column.type)
+        k = table.schema.get_field_index(name)
+        table = table.set_column(k, name, pa.compute.if_else(pa.array(missing), nulls, column))
+    pq.write_table(table, root / "manifest.parquet")
+    truth = {r["key"]: r for r in table.to_pylist()}  # the manifest, nulls as None
+    with MarsPairsDataset(root) as ds, MarsPairsIterableDataset(root) as stream:
+        seen = 0
+        for batch in DataLoader(ds, batch_size=4):  # torch's default_collate
+            meta = batch["meta"]
+            assert meta["sol"].dtype == torch.int64 and meta["site"].dtype == torch.int64
+            assert meta["max_visible_range_m"].dtype == torch.float64
+            for j, key in enumerate(meta["key"]):
+                row = truth[key]
+                if row["sol"] is None:
+                    assert int(meta["sol"][j]) == MISSING_INT == int(meta["site"][j])
+                    assert math.isnan(float(meta["max_visible_range_m"][j]))
+                    assert meta["localization"][j] == ""
+                else:
+                    assert int(meta["sol"][j]) == row["sol"]
+                    assert int(meta["site"][j]) == row["site"]
+                    assert float(meta["max_visible_range_m"][j]) == row["max_visible_range_m"]
+                    assert meta["localization"][j] == row["localization"]
+                seen += 1
+            assert [s["meta"]["key"] for s in unbind_samples(batch)] == meta["key"]
+        assert seen == len(ds) == table.num_rows
+        assert sum(len(b["meta"]["key"]) for b in DataLoader(stream, batch_size=4)) == seen
+        lacking = ds[ds.index_of(next(k for k, r in truth.items() if r["sol"] is None))]
+        assert lacking["meta"]["sol"] == MISSING_INT and lacking["meta"]["localization"] == ""
