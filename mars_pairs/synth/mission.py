@@ -21,6 +21,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from pathlib import Path
@@ -35,7 +36,7 @@ from PIL import Image
 from rasterio.crs import CRS as RioCRS
 from tqdm import tqdm
 
-from mars_pairs.errors import ArgumentError
+from mars_pairs.errors import ArgumentError, WorkerDiedError
 from mars_pairs.geometry.frames import M2020_PLACES_CRS, MSL_PLACES_CRS, quaternion_to_matrix
 from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.geometry.places import Pose
@@ -537,8 +538,14 @@ def _render_all(scene: Scene, shots: list[Shot], cams: list[MapCamera],
                              initargs=(scene, runtime.build_settings())) as pool:  # fmt: skip
         futures = [pool.submit(_render_one, shot, mc) for shot, mc in zip(shots, cams, strict=True)]
         try:
-            for future in futures:
-                future.result()
+            for shot, future in zip(shots, futures, strict=True):
+                try:
+                    future.result()
+                except BrokenProcessPool:
+                    raise WorkerDiedError(
+                        f"a render worker process died (killed, out of memory or crashed) "
+                        f"while {shot.obs.image_path} or an image near it was in flight"
+                    ) from None
                 yield
         except BaseException:
             for future in futures:
