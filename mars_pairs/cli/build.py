@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 import warnings
 from typing import TYPE_CHECKING, Any
 
@@ -87,8 +88,9 @@ def run(args: argparse.Namespace) -> int:
         plan = plan_build(config, resume=args.resume, limit=args.limit, generate=True)
         print(plan.format())
         return 0
-    _ensure_synthetic(config)
+    mission_seconds = _ensure_synthetic(config, workers=args.workers)
     engine = _engine(args)
+    started = time.perf_counter()
     try:
         with warnings.catch_warnings():  # printed below, from dataset.json, with the summary
             warnings.simplefilter("ignore", EmptySplitWarning)
@@ -106,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"mars-pairs build: --strict: {exc}", file=sys.stderr)
         return 2
     print(summary.format())
+    print(phase_line(mission_seconds, summary.seconds, time.perf_counter() - started))
     for text in split_warnings(summary.out_dir):
         print(f"warning: {text}")
     return 0
@@ -122,21 +125,32 @@ def _engine(args: argparse.Namespace) -> Engine | None:
     return DaskEngine(scheduler=args.scheduler, workers=args.workers)
 
 
-def _ensure_synthetic(config: BuildConfig) -> None:
-    """Generate the config's synthetic mission when its files are absent (the demo)."""
+def phase_line(mission_seconds: float | None, build_seconds: float, total_seconds: float) -> str:
+    """The build's line of each phase's own time: the mission's generation (when this run
+    generated it: ``mission_seconds``), the build (``BuildSummary.seconds``) and its finish
+    (the rest of ``total_seconds``, the build's whole call: the dataset's card, index and
+    record)."""
+    mission = "" if mission_seconds is None else f"mission generation {mission_seconds:.1f} s, "
+    finish = max(0.0, total_seconds - build_seconds)
+    return f"phases: {mission}build {build_seconds:.1f} s, finish {finish:.1f} s"
+
+
+def _ensure_synthetic(config: BuildConfig, workers: int = 1) -> float | None:
+    """Generate the config's synthetic mission when its files are absent (the demo), its
+    images rendered by ``workers`` processes; the seconds it took (with the wait for the
+    kernels' compile), None when the mission was there."""
     from mars_pairs.pipeline.builder.label_list import iter_matches
 
     spec = config.inputs.synthetic
     inputs = config.inputs
     if spec is None:
-        return
+        return None
     from pathlib import Path
 
     dem_there = not isinstance(inputs.dem, Path) or inputs.dem.exists()  # (a str: remote)
     if dem_there and inputs.places.exists() and next(iter_matches(inputs.labels), None):
-        return
+        return None
     import subprocess
-    import time
 
     from mars_pairs.synth import generate_mission
 
@@ -169,6 +183,7 @@ def _ensure_synthetic(config: BuildConfig) -> None:
             # terrain labels read from inside the mission: its AI4Mars-layout truth
             terrain_labels=inputs.terrain_labels is not None
             and inputs.terrain_labels.root.is_relative_to(spec.root),
+            workers=workers,
         )
     except BaseException:
         warm.kill()
@@ -186,3 +201,4 @@ def _ensure_synthetic(config: BuildConfig) -> None:
             "waited after it); building ...",
             flush=True,
         )
+    return time.perf_counter() - t0

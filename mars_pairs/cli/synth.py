@@ -24,6 +24,12 @@ def register(sub: Any) -> None:
         action="store_true",
         help="also write the true terrain classes and AI4Mars-layout masks",
     )
+    p.add_argument(
+        "--workers",
+        type=count(1),
+        default=1,
+        help="processes rendering the images (default 1: this one); the same bytes for any",
+    )
     p.set_defaults(func=run)
 
 
@@ -39,6 +45,7 @@ def run(args: argparse.Namespace) -> int:
         images_per_stop=args.images_per_stop,
         size=args.size,
         terrain_labels=args.terrain_labels,
+        workers=args.workers,
     )
     print(json.dumps(result, indent=2, default=str))
     return 0

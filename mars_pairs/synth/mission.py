@@ -19,8 +19,9 @@ The same seed gives the same bytes in every file.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from pathlib import Path
@@ -35,7 +36,7 @@ from PIL import Image
 from rasterio.crs import CRS as RioCRS
 from tqdm import tqdm
 
-from mars_pairs.errors import ArgumentError
+from mars_pairs.errors import ArgumentError, WorkerDiedError
 from mars_pairs.geometry.frames import M2020_PLACES_CRS, MSL_PLACES_CRS, quaternion_to_matrix
 from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.geometry.places import Pose
@@ -143,6 +144,7 @@ def generate_mission(
     size: str = "small",
     log: Callable[[str], None] | None = None,
     terrain_labels: bool = False,
+    workers: int = 1,
 ) -> dict[str, Any]:
     """Generate a synthetic mission ("m2020", "msl" or "both") under ``out_dir``.
 
@@ -153,6 +155,8 @@ def generate_mission(
     ``stops`` / ``images_per_stop`` default to the size preset (small: 3 x 4, default:
     8 x 4, demo: 90 x 3). ``log``: called with a line per phase (terrain, traverse,
     rendering), and a tqdm bar counts the rendered images; None: silent.
+    ``workers``: processes rendering the images (1: this process); the files' bytes are the
+    same for any number.
     Returns {"out_dir", "missions": {name: {paths..., counts...}}, "images"}.
     """
     if mission not in (*MISSIONS, "both"):
@@ -164,6 +168,8 @@ def generate_mission(
     m = preset.images_per_stop if images_per_stop is None else int(images_per_stop)
     if k < 1 or m < 1:
         raise ArgumentError("stops and images_per_stop must be >= 1")
+    if workers < 1:
+        raise ArgumentError(f"workers must be >= 1, got {workers}")
     out = Path(out_dir)
     names = MISSIONS if mission == "both" else (mission,)
     result: dict[str, Any] = {"out_dir": str(out), "missions": {}}
@@ -171,7 +177,7 @@ def generate_mission(
         target = out / name if mission == "both" else out
         rng = np.random.default_rng([int(seed), MISSIONS.index(name)])
         result["missions"][name] = _generate_one(target, rng, SPECS[name], size, k, m, log,
-                                                 terrain_labels)  # fmt: skip
+                                                 terrain_labels, workers)  # fmt: skip
     result["images"] = sum(v["images"] for v in result["missions"].values())
     return result
 
@@ -473,10 +479,99 @@ def mission_traverse(seed: int, mission: str, size: str, stops: int | None = Non
     return _traverse(rng, SPECS[mission], preset, k, dem32.astype(np.float64), dem_tr)
 
 
+# -- rendering ----------------------------------------------------------------------------------
+class Scene:
+    """What every image of a mission is rendered from: the DEM (``dem32``: float32, NaN
+    nodata; map CRS, transform ``dem_tr``), its ortho (``factor`` pixels per DEM cell), the
+    true classes on the ortho's grid (or None), the render window (``SizeSpec``) and the
+    folder of the AI4Mars-layout truth. Pickled as its inputs (a render worker's copy)."""
+
+    def __init__(self, dem32: np.ndarray, dem_tr: Affine, ortho: np.ndarray,
+                 classes: np.ndarray | None, factor: int, window_m: float | None,
+                 ai4mars_dir: Path) -> None:  # fmt: skip
+        self._args = (dem32, dem_tr, ortho, classes, factor, window_m, ai4mars_dir)
+        dem64 = dem32.astype(np.float64)
+        self.grid = DemGrid(dem64, dem_tr)
+        self.blocks = block_ranges(dem64)
+        self.ortho, self.classes, self.factor = ortho, classes, factor
+        self.window_m, self.ai4mars_dir = window_m, ai4mars_dir
+
+    def __reduce__(self) -> tuple[type[Scene], tuple[Any, ...]]:
+        return Scene, self._args
+
+    def render(self, mc: MapCamera) -> tuple[np.ndarray, TruthMasks | None]:
+        """``mc``'s image (height, width, 3 uint8) and, with classes, its truth masks."""
+        g, b, o, c = self.grid, self.blocks, self.ortho, self.classes
+        if self.window_m is not None:
+            g, b, o, c = _window(g, b, o, self.factor, mc.origin_map, self.window_m, c)
+        if c is None:
+            return render_view(mc, g, b, o, self.factor)[0], None
+        rgb, zbuf, hc, hr = render_view_hits(mc, g, b, o, self.factor)
+        return rgb, truth_masks(hc, hr, zbuf, c, self.factor)
+
+    def save(self, shot: Shot, rgb: np.ndarray, masks: TruthMasks | None) -> None:
+        """Write ``shot``'s image, label and (with masks) AI4Mars-layout truth."""
+        _save_shot(shot, rgb)
+        if masks is not None:
+            write_ai4mars_truth(self.ai4mars_dir, shot.obs.mission, shot.obs.product_id, masks,
+                                shot.obs.instrument)  # fmt: skip
+
+
+def _render_all(scene: Scene, shots: list[Shot], cams: list[MapCamera],
+                workers: int) -> Iterator[None]:  # fmt: skip
+    """Render and write every shot (``cams[i]`` is ``shots[i]``'s camera); yields once per
+    image, in order. ``workers`` 1: in this process, ``RENDER_THREADS`` threads rendering
+    (the numba kernels release the GIL) and this one writing; more: that many processes,
+    each rendering and writing its images, forked from the build's fork server (never from
+    this process, which may run numba's OpenMP threads)."""
+    if workers <= 1:
+        with ThreadPoolExecutor(max_workers=RENDER_THREADS) as threads:
+            for shot, (rgb, masks) in zip(shots, threads.map(scene.render, cams), strict=True):
+                scene.save(shot, rgb, masks)
+                yield
+        return
+    from mars_pairs import runtime
+    from mars_pairs.pipeline.builder.local_pool import started_context
+
+    ctx = started_context(preload=[__name__])
+    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_start_render_worker,
+                             initargs=(scene, runtime.build_settings())) as pool:  # fmt: skip
+        futures = [pool.submit(_render_one, shot, mc) for shot, mc in zip(shots, cams, strict=True)]
+        try:
+            for shot, future in zip(shots, futures, strict=True):
+                try:
+                    future.result()
+                except BrokenProcessPool:
+                    raise WorkerDiedError(
+                        f"a render worker process died (killed, out of memory or crashed) "
+                        f"while {shot.obs.image_path} or an image near it was in flight"
+                    ) from None
+                yield
+        except BaseException:
+            for future in futures:
+                future.cancel()
+            raise
+
+
+_WORKER_SCENE: list[Scene] = []  # a render worker's scene (set once, when it starts)
+
+
+def _start_render_worker(scene: Scene, settings: dict[str, str]) -> None:
+    from mars_pairs.pipeline.builder.local_pool import start_worker_process
+
+    start_worker_process(settings)
+    _WORKER_SCENE.append(scene)
+
+
+def _render_one(shot: Shot, mc: MapCamera) -> None:
+    scene = _WORKER_SCENE[0]
+    scene.save(shot, *scene.render(mc))
+
+
 # -- one mission ---------------------------------------------------------------------------------
 def _generate_one(out: Path, rng: np.random.Generator, spec: MissionSpec, size: str,
                   stops: int, per_stop: int, log: Callable[[str], None] | None = None,
-                  terrain_labels: bool = False) -> dict[str, Any]:  # fmt: skip
+                  terrain_labels: bool = False, workers: int = 1) -> dict[str, Any]:  # fmt: skip
     preset = SIZES[size]
     say = log or (lambda _line: None)
     t0 = time.perf_counter()
@@ -507,43 +602,26 @@ def _generate_one(out: Path, rng: np.random.Generator, spec: MissionSpec, size: 
     label_dir = out / "labels"
     label_dir.mkdir(parents=True, exist_ok=True)
     shots = _plan_shots(rng, spec, size, trav, per_stop, label_dir)
-    grid = DemGrid(dem64, dem_tr)
-    blocks = block_ranges(dem64)
-    # cameras are placed here (pyproj is not thread-safe); the numba kernels release the GIL,
-    # so two images render at once; files are written in order, so bytes do not depend on it
+    # cameras are placed here (pyproj is not thread-safe); each image's files are its own,
+    # so their bytes do not depend on the order, the threads or the processes rendering them
     cams = [MapCamera.from_observation(s.obs, s.pose, spec.crs) for s in shots]
-
-    def render(mc: MapCamera) -> tuple[np.ndarray, TruthMasks | None]:
-        g, b, o, c = grid, blocks, ortho, classes
-        if preset.render_window_m is not None:
-            g, b, o, c = _window(grid, blocks, ortho, preset.ortho_factor, mc.origin_map,
-                                 preset.render_window_m, classes)  # fmt: skip
-        if c is None:
-            return render_view(mc, g, b, o, preset.ortho_factor)[0], None
-        rgb, zbuf, hc, hr = render_view_hits(mc, g, b, o, preset.ortho_factor)
-        return rgb, truth_masks(hc, hr, zbuf, c, preset.ortho_factor)
-
+    scene = Scene(dem32, dem_tr, ortho, classes, preset.ortho_factor, preset.render_window_m,
+                  out / AI4MARS_DIR)  # fmt: skip
     # the bar opens after the first image: that one's time is mostly the renderer's compile
     # (numba, first run), and a rate measured on it gives an ETA of hours
     t_render = time.perf_counter()
-    with ThreadPoolExecutor(max_workers=RENDER_THREADS) as pool:
-        images = pool.map(render, cams)
-        bar = None
-        try:
-            for shot, (rgb, masks) in zip(shots, images, strict=True):
-                _save_shot(shot, rgb)
-                if masks is not None:
-                    write_ai4mars_truth(out / AI4MARS_DIR, shot.obs.mission, shot.obs.product_id,
-                                        masks, shot.obs.instrument)  # fmt: skip
-                if bar is None:
-                    first = time.perf_counter() - t_render
-                    say(f"{spec.name}: first image rendered ({first:.1f} s)")
-                    bar = render_bar(len(shots), spec.name, disable=log is None)
-                else:
-                    bar.update()
-        finally:
-            if bar is not None:
-                bar.close()
+    bar = None
+    try:
+        for _ in _render_all(scene, shots, cams, workers):
+            if bar is None:
+                first = time.perf_counter() - t_render
+                say(f"{spec.name}: first image rendered ({first:.1f} s)")
+                bar = render_bar(len(shots), spec.name, disable=log is None)
+            else:
+                bar.update()
+    finally:
+        if bar is not None:
+            bar.close()
     truth_path = out / "truth.parquet"
     pq.write_table(_truth_table(shots, out, spec.crs), truth_path, compression="zstd")
     return {

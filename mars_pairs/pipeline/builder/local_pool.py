@@ -34,7 +34,7 @@ import signal
 import sys
 import threading
 from collections import deque
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from itertools import islice
@@ -57,6 +57,16 @@ def worker_context() -> BaseContext:
         return mp.get_context("spawn")
     ctx = mp.get_context("forkserver")
     ctx.set_forkserver_preload(_PRELOAD)  # used when this process starts its server
+    return ctx
+
+
+def started_context(preload: Sequence[str] = ()) -> BaseContext:
+    """:func:`worker_context` with its fork server running: started now if it is not yet,
+    preloading the build's modules and ``preload`` (modules a caller's workers run)."""
+    ctx = worker_context()
+    if preload and ctx.get_start_method() == "forkserver":
+        ctx.set_forkserver_preload([*_PRELOAD, *preload])
+    _start_server(ctx)
     return ctx
 
 
@@ -147,14 +157,20 @@ def _anonymous_locks() -> None:
         mp.set_start_method("fork", force=True)
 
 
-def _start_worker(config: BuildConfig, settings: dict[str, str]) -> None:
-    """A worker's initializer: watch the driver, take the driver's build ``settings``
-    (``runtime.build_settings``: a fork server's workers inherit the server's environment,
-    from when it started), set the process defaults, then open the build context."""
+def start_worker_process(settings: dict[str, str]) -> None:
+    """The start of a worker of :func:`started_context`: watch the driver, take the driver's
+    build ``settings`` (``runtime.build_settings``: a fork server's workers inherit the
+    server's environment, from when it started) and set the process defaults."""
     _exit_with_driver()
     _anonymous_locks()
     runtime.take_build_settings(settings)
     runtime.configure_process()
+
+
+def _start_worker(config: BuildConfig, settings: dict[str, str]) -> None:
+    """A build worker's initializer: :func:`start_worker_process`, then open the build
+    context."""
+    start_worker_process(settings)
     worker.open_context(config)
 
 
@@ -169,8 +185,7 @@ class LocalPool:
     def __init__(self, config: BuildConfig, workers: int, window: int = 0) -> None:
         self.workers = workers
         self.window = window or 4 * workers
-        ctx = worker_context()
-        _start_server(ctx)
+        ctx = started_context()
         self._pool = ProcessPoolExecutor(
             workers,
             mp_context=ctx,
