@@ -14,7 +14,7 @@ from typing import Any
 import pyarrow.parquet as pq
 
 from mars_pairs.errors import DatasetError
-from mars_pairs.report.page import (
+from mars_pairs.report.markup import (
     CSS,
     esc,
     failures_section,

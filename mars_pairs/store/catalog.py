@@ -161,3 +161,14 @@ class Catalog:
         keep = ["iou", "intersection_m2", "distance_m", "heading_diff_deg", "same_position"]
         out = pairs.select(keep).add_column(0, "key", other)
         return out.sort_by([("iou", "descending"), ("key", "ascending")])
+
+
+def catalog_ortho(root: Path) -> Path | None:
+    """The ortho of the catalogue's config (catalog.json ``config.inputs.ortho``, relative to
+    the folder), or None."""
+    try:
+        doc = json.loads((root / "catalog.json").read_text())
+    except (OSError, ValueError):
+        return None
+    value = doc.get("config", {}).get("inputs", {}).get("ortho")
+    return root / value if isinstance(value, str) else None

@@ -530,7 +530,7 @@ def _render_all(scene: Scene, shots: list[Shot], cams: list[MapCamera],
                 scene.save(shot, rgb, masks)
                 yield
         return
-    from mars_pairs import runtime
+    import mars_pairs.runtime as runtime
     from mars_pairs.pipeline.builder.local_pool import started_context
 
     ctx = started_context(preload=[__name__])

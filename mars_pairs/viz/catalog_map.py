@@ -14,6 +14,7 @@ import pyarrow.parquet as pq
 import shapely
 
 from mars_pairs.errors import DatasetError, MarsPairsError
+from mars_pairs.store.catalog import catalog_ortho
 from mars_pairs.store.geoparquet import describe_crs
 from mars_pairs.viz.common import OVERVIEW_SIZE, pyplot, split_colours
 from mars_pairs.viz.map import draw_background, frame_panel, mark_zoom, quiet_corner, square
@@ -26,17 +27,6 @@ PAIR_RGB = (1.0, 0.9, 0.0)  # the pair lines: yellow, apart from the sol and ins
 def is_catalog(root: str | Path) -> bool:
     """Whether ``root`` is a footprint catalogue folder (it holds catalog.parquet)."""
     return (Path(root) / "catalog.parquet").is_file()
-
-
-def catalog_ortho(root: Path) -> Path | None:
-    """The ortho of the catalogue's config (catalog.json ``config.inputs.ortho``, relative to
-    the folder), or None."""
-    try:
-        doc = json.loads((root / "catalog.json").read_text())
-    except (OSError, ValueError):
-        return None
-    value = doc.get("config", {}).get("inputs", {}).get("ortho")
-    return root / value if isinstance(value, str) else None
 
 
 def _pair_lines(root: Path, index: dict[str, int], xy: np.ndarray) -> tuple[np.ndarray, Any]:

@@ -129,9 +129,11 @@ def test_no_module_reads_dataset_json_by_hand() -> None:
     found = [
         f"{path.relative_to(package)}:{n}"
         for path in package.rglob("*.py")
-        # (the card renders the build's config; the catalogue reads its own catalog.json)
+        # (the card renders the build's config; the catalogue writes and reads its own
+        # catalog.json)
         if path.name not in ("dataset_info.py", "card.py")
-        and path.relative_to(package).as_posix() != "pipeline/catalog/run.py"
+        and path.relative_to(package).as_posix()
+        not in ("pipeline/catalog/run.py", "store/catalog.py")
         for n, line in enumerate(path.read_text().splitlines(), 1)
         if pattern.search(line)
     ]
