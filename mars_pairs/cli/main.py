@@ -27,14 +27,14 @@ import mars_pairs.cli.synth as synth
 import mars_pairs.cli.terrain_map as terrain_map
 import mars_pairs.cli.verify as verify
 import mars_pairs.cli.viewshed as viewshed
-from mars_pairs.cli.arguments import VersionAction
+from mars_pairs.cli.arguments import OneLineParser, VersionAction
 from mars_pairs.errors import MarsPairsError
 from mars_pairs.runtime import configure_process
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with every sub-command."""
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="mars-pairs",
         description="Paired aerial/ground ML datasets from Mars rover images and orbital maps.",
     )

@@ -110,6 +110,12 @@ def register(sub: Any) -> None:
         help="the images whose footprint holds the point, longitude first (a catalogue: its "
         "visible footprint, nearest first, with the range; a dataset: the manifest's footprint)",
     )
+    p.add_argument(
+        "--per-cell",
+        action="store_true",
+        help="with --saw on a catalogue: test the centre of the DEM cell holding the point (the "
+        "verdict `viewshed --label` gives the whole cell) instead of the point itself",
+    )
     where.add_argument(
         "--overlaps",
         metavar="KEY",
@@ -141,7 +147,11 @@ def register(sub: Any) -> None:
 def run(args: Any) -> int:
     """``mars-pairs query``: the rows matching the options, printed or written."""
     if args.saw is not None or args.overlaps is not None:
-        return footprint_query(args.dataset, args.saw, args.overlaps, args.format, args.out)
+        return footprint_query(
+            args.dataset, args.saw, args.overlaps, args.format, args.out, args.per_cell
+        )
+    if args.per_cell:
+        raise MarsPairsError("--per-cell: only with --saw")
     filters = filter_arguments(
         bbox=args.bbox,
         bbox_map=args.bbox_map,
@@ -319,9 +329,11 @@ def footprint_query(
     overlaps: str | None,
     fmt: str = "table",
     out: str | None = None,
+    per_cell: bool = False,
 ) -> int:
     """``query --saw LON LAT`` / ``--overlaps KEY`` on a catalogue folder (catalog.parquet:
-    ``store.catalog.Catalog``) or a dataset (``--saw``: ``Manifest.filter(saw=...)``)."""
+    ``store.catalog.Catalog``) or a dataset (``--saw``: ``Manifest.filter(saw=...)``);
+    ``per_cell``: ``Catalog.saw(..., per_cell=True)`` (a catalogue and ``--saw`` only)."""
     from mars_pairs.store.catalog import Catalog, checked_point
 
     root = Path(folder)
@@ -329,7 +341,14 @@ def footprint_query(
         lon, lat = checked_point(saw, "--saw")
     if (root / "catalog.parquet").is_file():
         catalog = Catalog.open(root)
-        table = catalog.saw(lon, lat) if saw is not None else catalog.overlaps(str(overlaps))
+        if saw is not None:
+            table = catalog.saw(lon, lat, per_cell=per_cell)
+        elif per_cell:
+            raise MarsPairsError("--per-cell: only with --saw")
+        else:
+            table = catalog.overlaps(str(overlaps))
+    elif per_cell:
+        raise MarsPairsError(f"--per-cell: {root} holds no catalog.parquet (a footprint catalogue)")
     elif saw is not None:
         table = Manifest.open(root).filter(saw=(lon, lat)).to_table(columns=list(SHOWN))
     else:

@@ -219,6 +219,41 @@ def test_cli_refuses_a_malformed_point_in_one_line(
     assert err.count("\n") == 1 and "latitude 95.0 outside [-90, 90]" in err
 
 
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["--saw", "77.4", "x"],
+        ["--saw", "77.4"],
+        ["--bbox", "1", "2", "3"],
+        ["--near", "a", "b", "c"],
+    ],
+    ids=["not-a-number", "one-number", "three-numbers", "words"],
+)
+def test_cli_refuses_a_malformed_argument_in_one_line(
+    built: tuple[Path, Path], capsys: pytest.CaptureFixture[str], argv: list[str]
+) -> None:
+    cat, _ = built
+    with pytest.raises(SystemExit) as exit_:
+        main(["query", str(cat), *argv])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("mars-pairs query: error: argument --"), err
+
+
+def test_cli_saw_per_cell_gives_the_api_answer(built: tuple[Path, Path], tmp_path: Path) -> None:
+    cat, _ = built
+    catalog = Catalog.open(cat)
+    c = catalog.geometry[0].representative_point()
+    lon, lat = map_to_lonlat([c.x], [c.y], json.dumps(catalog.crs))
+    point = [f"{float(lon[0])!r}", f"{float(lat[0])!r}"]
+    want = catalog.saw(float(lon[0]), float(lat[0]), per_cell=True)["key"].to_pylist()
+    out = tmp_path / "saw.parquet"
+    argv = ["query", str(cat), "--saw", *point, "--per-cell", "--format", "parquet", "--out"]
+    assert main([*argv, str(out)]) == 0
+    assert want and pq.read_table(out)["key"].to_pylist() == want
+    assert main(["query", str(cat), "--overlaps", want[0], "--per-cell"]) == 2  # --saw only
+
+
 def test_overlaps_ranked_by_iou_and_pairs_equal_brute_force(built: tuple[Path, Path]) -> None:
     cat, _ = built
     catalog = Catalog.open(cat)
