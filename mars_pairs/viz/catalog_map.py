@@ -16,7 +16,7 @@ import shapely
 from mars_pairs.errors import DatasetError, MarsPairsError
 from mars_pairs.store.catalog import catalog_ortho
 from mars_pairs.store.geoparquet import describe_crs
-from mars_pairs.viz.common import OVERVIEW_SIZE, pyplot, split_colours
+from mars_pairs.viz.common import OVERVIEW_SIZE, pyplot, sol_colours, split_colours
 from mars_pairs.viz.map import draw_background, frame_panel, mark_zoom, quiet_corner, square
 
 COLOUR_BY = ("sol", "instrument")
@@ -132,21 +132,7 @@ def _colours(plt: Any, values: list[Any], colour_by: str) -> tuple[list[Any], An
     """A colour per image and a function drawing the key (colour bar for sol, legend for
     instrument) on the first axes, beside the second."""
     if colour_by == "sol":
-        from matplotlib.colors import Normalize
-        from matplotlib.ticker import MaxNLocator
-
-        sols = [int(v) if v is not None else 0 for v in values]
-        norm = Normalize(min(sols), max(max(sols), min(sols) + 1))
-        cmap = plt.get_cmap("viridis")
-
-        def bar(ax: Any, other: Any) -> None:
-            sm = plt.cm.ScalarMappable(norm=norm, cmap=cmap)
-            cb = ax.figure.colorbar(sm, ax=other, fraction=0.04, pad=0.02)
-            cb.set_label("sol", fontsize=9)
-            cb.ax.yaxis.set_major_locator(MaxNLocator(integer=True))
-            cb.ax.tick_params(labelsize=7)
-
-        return [cmap(norm(s)) for s in sols], bar
+        return sol_colours(plt, values)
     names = [str(v) for v in values]
     palette = split_colours(names)
 

@@ -151,3 +151,23 @@ def map_axes(
     ax.set_xlabel(f"easting ({unit})", fontsize=9)
     ax.set_ylabel(f"northing ({unit})", fontsize=9)
     scale_bar(ax, box, unit=unit, corner=corner)
+
+
+def sol_colours(plt: Any, sols: Sequence[int | None]) -> tuple[list[Any], Any]:
+    """A viridis colour per sol (None as sol 0) and a function ``bar(ax, other)`` drawing the
+    sol colour bar of ``ax``'s figure beside the axes ``other``."""
+    from matplotlib.colors import Normalize
+    from matplotlib.ticker import MaxNLocator
+
+    whole = [int(s) if s is not None else 0 for s in sols]
+    norm = Normalize(min(whole), max(max(whole), min(whole) + 1))
+    cmap = plt.get_cmap("viridis")
+
+    def bar(ax: Any, other: Any) -> None:
+        sm = plt.cm.ScalarMappable(norm=norm, cmap=cmap)
+        cb = ax.figure.colorbar(sm, ax=other, fraction=0.04, pad=0.02)
+        cb.set_label("sol", fontsize=9)
+        cb.ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+        cb.ax.tick_params(labelsize=7)
+
+    return [cmap(norm(s)) for s in whole], bar

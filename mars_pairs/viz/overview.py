@@ -20,6 +20,7 @@ from mars_pairs.viz.common import (
     SPLIT_COLOURS,
     manifest_rows,
     pyplot,
+    sol_colours,
     split_colours,
 )
 from mars_pairs.viz.map import (
@@ -177,21 +178,7 @@ def _few_regions(regions: dict[str, list[Any]], box: tuple[float, float, float, 
 def _colours(plt: Any, rows: list[dict[str, Any]], colour_by: str) -> tuple[list[Any], Any]:
     """A colour per row and a function drawing the key (colour bar or legend)."""
     if colour_by == "sol":
-        from matplotlib.colors import Normalize
-        from matplotlib.ticker import MaxNLocator
-
-        sols = [int(r["sol"]) if r["sol"] is not None else 0 for r in rows]
-        norm = Normalize(min(sols), max(max(sols), min(sols) + 1))
-        cmap = plt.get_cmap("viridis")
-
-        def key(ax: Any, other: Any) -> None:
-            sm = plt.cm.ScalarMappable(norm=norm, cmap=cmap)
-            bar = ax.figure.colorbar(sm, ax=other, fraction=0.04, pad=0.02)
-            bar.set_label("sol", fontsize=9)
-            bar.ax.yaxis.set_major_locator(MaxNLocator(integer=True))
-            bar.ax.tick_params(labelsize=7)
-
-        return [cmap(norm(s)) for s in sols], key
+        return sol_colours(plt, [r["sol"] for r in rows])
     values = [str(r["split"]) for r in rows]
     palette = split_colours(values)
 
