@@ -82,7 +82,8 @@ def register(sub: Any) -> None:
         nargs=4,
         type=finite,
         metavar=("W", "S", "E", "N"),
-        help="longitude/latitude box, degrees east/north (W > E crosses the 180th meridian)",
+        help="longitude/latitude box, degrees east/north (W > E crosses the 180th meridian); "
+        "on a catalogue: the images whose visible footprint polygon meets the box",
     )
     where.add_argument(
         "--bbox-map",
@@ -146,9 +147,20 @@ def register(sub: Any) -> None:
 
 def run(args: Any) -> int:
     """``mars-pairs query``: the rows matching the options, printed or written."""
-    if args.saw is not None or args.overlaps is not None:
+    catalogue = (Path(args.dataset) / "catalog.parquet").is_file()
+    named = [o for o in ("mission", "instrument", "split", "sol") if getattr(args, o)]
+    if catalogue and named:
+        raise MarsPairsError(
+            f"--{named[0]}: {args.dataset} is a footprint catalogue, queried by --bbox, --saw "
+            "or --overlaps only"
+        )
+    if args.saw is not None or args.overlaps is not None or (catalogue and args.bbox):
         return footprint_query(
-            args.dataset, args.saw, args.overlaps, args.format, args.out, args.per_cell
+            args.dataset, args.saw, args.overlaps, args.format, args.out, args.per_cell, args.bbox
+        )
+    if catalogue:
+        raise MarsPairsError(
+            f"{args.dataset}: a footprint catalogue: query it with --bbox, --saw or --overlaps"
         )
     if args.per_cell:
         raise MarsPairsError("--per-cell: only with --saw")
@@ -330,9 +342,11 @@ def footprint_query(
     fmt: str = "table",
     out: str | None = None,
     per_cell: bool = False,
+    bbox: Sequence[float] | None = None,
 ) -> int:
-    """``query --saw LON LAT`` / ``--overlaps KEY`` on a catalogue folder (catalog.parquet:
-    ``store.catalog.Catalog``) or a dataset (``--saw``: ``Manifest.filter(saw=...)``);
+    """``query --saw LON LAT`` / ``--overlaps KEY`` / ``--bbox W S E N`` on a catalogue folder
+    (catalog.parquet: ``store.catalog.Catalog``; ``--bbox``: ``Catalog.bbox``, the visible
+    footprint meets the box) or a dataset (``--saw``: ``Manifest.filter(saw=...)``);
     ``per_cell``: ``Catalog.saw(..., per_cell=True)`` (a catalogue and ``--saw`` only)."""
     from mars_pairs.store.catalog import Catalog, checked_point
 
@@ -345,6 +359,11 @@ def footprint_query(
             table = catalog.saw(lon, lat, per_cell=per_cell)
         elif per_cell:
             raise MarsPairsError("--per-cell: only with --saw")
+        elif bbox is not None:
+            try:
+                table = catalog.bbox(*bbox)
+            except ArgumentError as exc:
+                raise ArgumentError(f"--{exc}") from None
         else:
             table = catalog.overlaps(str(overlaps))
     elif per_cell:

@@ -1,11 +1,15 @@
 """Reading a footprint catalogue folder (``Catalog.open``): which images saw a point
-(``saw``: exact polygon containment, with the range at which each saw it) and which images
-saw the same ground as one image (``overlaps``, ranked by IoU).
+(``saw``: exact polygon containment, with the range at which each saw it), which images saw
+ground in a longitude/latitude box (``bbox``: the visible footprint polygon meets the box) and
+which images saw the same ground as one image (``overlaps``, ranked by IoU).
 
-Points are longitude first: (lon, lat) planetocentric degrees east/north on the Mars sphere,
-turned into the catalogue's map CRS (named in its GeoParquet metadata) for the test; a point
-on a footprint's edge counts as inside. Ranges are horizontal true metres on the Mars sphere
-from the camera centre (great circle at the camera's height).
+Points and boxes are longitude first: (lon, lat) planetocentric degrees east/north on the
+Mars sphere, turned into the catalogue's map CRS (named in its GeoParquet metadata) for the
+test; a point on a footprint's edge counts as inside. A box (W, S, E, N) is the lon/lat box
+of ``ManifestFilter.bbox_lonlat`` (W > E crosses the 180th meridian), its edges densified and
+projected (``store.filter.map_shapes``); a footprint touching it counts. Ranges are
+horizontal true metres on the Mars sphere from the camera centre (great circle at the
+camera's height).
 """
 
 from __future__ import annotations
@@ -134,6 +138,26 @@ class Catalog:
         )
         hits = hits.append_column("range_m", pa.array(ranges, type=pa.float64()))
         return hits.sort_by([("range_m", "ascending"), ("key", "ascending")])
+
+    def bbox(self, west: float, south: float, east: float, north: float) -> pa.Table:
+        """The images whose visible footprint polygon meets the box (``west``, ``south``,
+        ``east``, ``north``: degrees east/north, Mars sphere; longitude first), in the
+        catalogue's order: ``SAW_COLUMNS`` and ``visible_area_m2``. ArgumentError in one line
+        for a malformed box (not 4 finite numbers, a latitude outside [-90, 90], S north of
+        N)."""
+        from mars_pairs.store.filter import ManifestFilter, map_shapes
+
+        try:
+            spec = ManifestFilter(bbox_lonlat=(west, south, east, north), by="footprint")
+        except ArgumentError as exc:
+            raise ArgumentError(str(exc).replace("bbox_lonlat:", "bbox:", 1)) from None
+        (shape,) = map_shapes(spec, json.dumps(self.crs))
+        geometry = self.geometry
+        valid = np.flatnonzero(~shapely.is_missing(geometry))
+        hits = shapely.STRtree(geometry[valid]).query(shape, predicate="intersects")
+        rows = np.sort(valid[hits])
+        columns = [*SAW_COLUMNS, "visible_area_m2"]
+        return self.table.take(pa.array(rows, type=pa.int64())).select(columns)
 
     def cell_centre(self, x: float, y: float) -> tuple[float, float]:
         """The centre (map x, y, map units) of the DEM cell holding map point (x, y);

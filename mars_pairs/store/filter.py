@@ -483,7 +483,7 @@ def predicates(spec: ManifestFilter, crs: str | None) -> Predicates:
             exact.append(PointPredicate(_wkb(spec.polygon_map), ("easting", "northing")))
     else:
         cols = _BOX_COLUMNS[spec.by]
-        for shape in _map_shapes(spec, crs):
+        for shape in map_shapes(spec, crs):
             x0, y0, x1, y1 = shape.bounds  # boxes that meet the shape's bounds
             terms.append(
                 (f(*_path(cols[2])) >= x0)
@@ -520,7 +520,7 @@ def _wkb(geom: Any) -> bytes:
     return bytes(shapely.to_wkb(geom))
 
 
-def _map_shapes(spec: ManifestFilter, crs: str | None) -> list[Any]:
+def map_shapes(spec: ManifestFilter, crs: str | None) -> list[Any]:
     """Each place filter of ``spec`` as a shapely geometry in the dataset CRS (map units):
     lon/lat boxes and polygons densified (edges of at most :data:`DENSIFY_DEG`) and projected,
     a ``near`` circle as the polygon of :data:`CIRCLE_VERTICES` points at the radius along

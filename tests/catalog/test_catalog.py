@@ -394,3 +394,96 @@ def test_saw_per_cell_tests_the_dem_cells_centre(built: tuple[Path, Path]) -> No
     bare = Catalog(cat, catalog.table, catalog.crs)
     with pytest.raises(ArgumentError, match="dem_transform"):
         bare.saw(float(lon[0]), float(lat[0]), per_cell=True)
+
+
+def _lonlat_box_on_map(
+    catalog: Catalog, box: tuple[float, float, float, float]
+) -> shapely.Geometry:
+    """The lon/lat box as a map polygon, projected here with pyproj (edges of 200 points)."""
+    from pyproj import CRS, Transformer
+
+    w, s, e, n = box
+    t = np.linspace(0.0, 1.0, 200)
+    lon = np.concatenate([w + (e - w) * t, np.full(200, e), e + (w - e) * t, np.full(200, w)])
+    lat = np.concatenate([np.full(200, s), s + (n - s) * t, np.full(200, n), n + (s - n) * t])
+    crs = CRS.from_json_dict(catalog.crs)
+    to_map = Transformer.from_crs(crs.geodetic_crs, crs, always_xy=True)
+    x, y = to_map.transform(lon, lat)
+    return shapely.Polygon(np.column_stack([x, y]))
+
+
+def _boxes(catalog: Catalog) -> list[tuple[float, float, float, float]]:
+    """Boxes around pieces of the catalogue: one around a footprint's representative point,
+    one crossing a footprint's edge between its bbox and the polygon, one off the data."""
+    crs = json.dumps(catalog.crs)
+    boxes = []
+    for g in catalog.geometry[:4]:
+        if g is None:
+            continue
+        c = g.representative_point()
+        lon, lat = map_to_lonlat([c.x], [c.y], crs)
+        d = 2e-5
+        boxes.append((float(lon[0]) - d, float(lat[0]) - d, float(lon[0]) + d, float(lat[0]) + d))
+        x0, y0, x1, y1 = g.bounds  # a corner of the bbox: often outside the polygon
+        (lo0, lo1), (la0, la1) = map_to_lonlat(
+            [x0, x0 + (x1 - x0) / 4], [y0, y0 + (y1 - y0) / 4], crs
+        )
+        boxes.append((float(lo0), float(la0), float(lo1), float(la1)))
+    lon, lat = map_to_lonlat([catalog.geometry[0].centroid.x], [0.0], crs)
+    boxes.append((float(lon[0]) + 5, -10.0, float(lon[0]) + 6, -9.0))
+    return boxes
+
+
+def test_bbox_equals_an_independent_polygon_test(built: tuple[Path, Path]) -> None:
+    cat, _ = built
+    catalog = Catalog.open(cat)
+    keys = catalog.table["key"].to_pylist()
+    total = 0
+    for box in _boxes(catalog):
+        shape = _lonlat_box_on_map(catalog, box)
+        want = [
+            k
+            for k, g in zip(keys, catalog.geometry, strict=True)
+            if g is not None and g.intersects(shape)
+        ]
+        got = catalog.bbox(*box)["key"].to_pylist()
+        assert got == want, box
+        total += len(want)
+    assert total > 0
+    # the polygon, not its bbox: a box meeting a footprint's bbox only is no hit
+    corner_only = [
+        box
+        for box in _boxes(catalog)
+        if not catalog.bbox(*box).num_rows
+        and any(
+            g is not None and shapely.box(*g.bounds).intersects(_lonlat_box_on_map(catalog, box))
+            for g in catalog.geometry
+        )
+    ]
+    assert corner_only, "no test box meets a footprint's bbox but not the footprint"
+
+
+def test_cli_bbox_gives_the_api_answer_and_refuses_bad_boxes(
+    built: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    cat, _ = built
+    catalog = Catalog.open(cat)
+    box = _boxes(catalog)[0]
+    want = catalog.bbox(*box)["key"].to_pylist()
+    out = tmp_path / "box.parquet"
+    argv = ["query", str(cat), "--bbox", *(repr(v) for v in box), "--format", "parquet"]
+    assert main([*argv, "--out", str(out)]) == 0
+    assert want and pq.read_table(out)["key"].to_pylist() == want
+    capsys.readouterr()
+    for bad, message in [
+        (["1", "10", "2", "5"], "--bbox: S (10) is north of N (5)"),
+        (["1", "-95", "2", "5"], "--bbox: S: latitude -95 is outside [-90, 90]"),
+    ]:
+        assert main(["query", str(cat), "--bbox", *bad]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err, err
+    with pytest.raises(ArgumentError, match=r"^bbox: S"):
+        catalog.bbox(0.0, 10.0, 1.0, 5.0)
+    with pytest.raises(ArgumentError, match=r"^bbox:"):
+        catalog.bbox(float("nan"), 0.0, 1.0, 5.0)
+    assert main(["query", str(cat), "--bbox", *map(str, box), "--sol", "1", "2"]) == 2
