@@ -20,6 +20,10 @@ def register(sub: Any) -> None:
     p.add_argument("--out", required=True, help="catalogue folder")
     p.add_argument("--workers", type=count(1), default=1, help="worker processes (default 1)")
     p.add_argument("--resume", action="store_true", help="keep the chunks of a killed run")
+    p.add_argument("--append", action="store_true",
+                   help="add the labels the catalogue does not hold yet (a new release); the "
+                   "existing rows are kept, pairs recomputed over all; a killed append reruns "
+                   "with --append")  # fmt: skip
     p.add_argument("--no-pairs", action="store_true", help="do not write pairs.parquet")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--engine", choices=("local", "dask"), default="local",
@@ -52,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
         engine=engine,
         progress=not args.quiet,
         pairs=not args.no_pairs,
+        append=args.append,
     )
     print(
         f"{summary.out_dir}: {summary.images} images, {summary.failures} failures, "

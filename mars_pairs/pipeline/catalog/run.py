@@ -12,7 +12,9 @@ chunks of ``output.shard_size`` as the build cuts them; the chunks run on the bu
 each written atomically). A killed catalogue rerun with ``resume`` keeps the committed
 chunks when its stamp (``parts/stamp.json``: the build's fingerprint of config, labels and
 inputs) matches, and writes the same bytes as an uninterrupted run: nothing written depends
-on timing, worker count or engine. The folder is local (object storage is the build's only).
+on timing, worker count or engine. ``append``: the labels a finished catalogue does not
+hold yet become chunks after its own, then the union is merged (``pipeline.catalog.append``).
+The folder is local (object storage is the build's only).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import platform
 import re
 import time
 from collections import Counter
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -43,6 +46,13 @@ from mars_pairs.pipeline.builder.stamp import (
     read_stamp,
     stamp_difference,
     stamp_digest,
+)
+from mars_pairs.pipeline.catalog.append import (
+    APPEND_KIND,
+    APPENDS_KEY,
+    BASE_FILES,
+    plan_catalog_append,
+    snapshot_base,
 )
 from mars_pairs.pipeline.catalog.chunk import catalog_chunk
 from mars_pairs.pipeline.catalog.entry import SUBCELLS
@@ -69,7 +79,9 @@ CATALOG_FILES = (
 #: the files catalog.json's ``files`` record covers (SHA-256 and size)
 CATALOG_SEALED = tuple(n for n in CATALOG_FILES if n != "catalog.json")
 STAMP = "parts/stamp.json"
-_PART = re.compile(r"parts/(catalog|failures)-[0-9]{6,}\.parquet")
+_PART = re.compile(
+    r"parts/(catalog|failures)-[0-9]{6,}\.parquet|parts/base-catalog\.(parquet|json)|parts/base-failures\.parquet"
+)
 
 
 @dataclass(frozen=True)
@@ -124,12 +136,15 @@ def run_catalog(
     engine: Engine | None = None,
     progress: bool = True,
     pairs: bool = True,
+    append: bool = False,
 ) -> CatalogSummary:
     """The footprint catalogue of ``config``'s labels in ``out`` (default ``output.dir``).
 
     ``engine``: None for this machine's pool of ``workers`` processes (this process when 1)
     or another build engine (``DaskEngine``). ``resume``: keep the chunks an interrupted run
-    with the same stamp committed. ``pairs``: also write pairs.parquet.
+    with the same stamp committed. ``pairs``: also write pairs.parquet. ``append``: add the
+    labels the finished catalogue in the folder does not hold yet (``pipeline.catalog.append``;
+    an interrupted append of the same release is continued).
     """
     start = time.perf_counter()
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
@@ -142,6 +157,10 @@ def run_catalog(
     check_input_files(config)
     check_inputs(config)
     files = check_folder(folder)
+    if append:
+        if resume:
+            raise ConfigError("--resume: not with --append (a killed append reruns with --append)")
+        return _run_append(config, folder, engine, workers, progress, pairs, start)
     stamp = {"kind": "catalog", **fingerprint(config, labels_of(config))}
     if resume:
         previous = read_stamp(folder / STAMP)
@@ -149,6 +168,8 @@ def run_catalog(
         if finished is not None:
             return replace(finished, seconds=time.perf_counter() - start)
         why = None if previous is None else stamp_difference(previous, stamp)
+        if previous is not None and previous.get("kind") == APPEND_KIND:
+            why = "it holds an interrupted --append (rerun that append with --append)"
         if why is not None:
             raise ConfigError(f"--resume: {folder}: {why}; rerun without --resume")
         if previous is None:
@@ -167,10 +188,33 @@ def run_catalog(
         for k, labels in enumerate(chunks_of(labels_of(config), chunk_size))
         if k not in done
     )
+    seen = _keys_of(folder, sorted(done))
+    total = int(stamp["count"])
+    built = _run_chunks(config, folder, todo, seen, engine, workers, progress, total, done)
+    catalog, failures = _merged(folder, range(n_chunks))
+    return _finish(
+        config, folder, catalog, failures, stamp, n_chunks, built, len(done), start, pairs
+    )
+
+
+def _run_chunks(
+    config: BuildConfig,
+    folder: Path,
+    todo: Iterable[ChunkTask],
+    seen: dict[str, str],
+    engine: Engine | None,
+    workers: int,
+    progress: bool,
+    total: int,
+    done: set[int],
+) -> int:
+    """Run the chunks ``todo`` on ``engine`` (None: a pool of ``workers``, this process when
+    1), committing each; returns how many were built. ``done``: the chunks already committed
+    (their labels counted on the bar of ``total``)."""
     pool = LocalPool(config, workers) if engine is None and workers > 1 else None
     chosen: Engine = engine if engine is not None else (pool or _InProcessCatalog())
-    seen = _keys_of(folder, sorted(done))
-    bar = tqdm(total=int(stamp["count"]), unit="img", disable=not progress, desc="catalog")
+    bar = tqdm(total=total, unit="img", disable=not progress, desc="catalog")
+    bar.update(sum(pq.read_metadata(part_paths(folder, k)[1]).num_rows for k in done))
     bar.update(sum(pq.read_metadata(part_paths(folder, k)[0]).num_rows for k in done))
     built = 0
     try:
@@ -182,7 +226,59 @@ def run_catalog(
         bar.close()
         if pool is not None:
             pool.close()
-    return _finish(config, folder, n_chunks, stamp, built, len(done), start, pairs)
+    return built
+
+
+def _run_append(
+    config: BuildConfig,
+    folder: Path,
+    engine: Engine | None,
+    workers: int,
+    progress: bool,
+    pairs: bool,
+    start: float,
+) -> CatalogSummary:
+    """run_catalog's work for ``append`` (``pipeline.catalog.append``): planned, the base
+    snapshot and the stamp written, the new chunks built and committed after the
+    catalogue's, the union merged and described; parts/ removed (the stamp first)."""
+    plan = plan_catalog_append(config, folder, STAMP)
+    full = {"kind": "catalog", **fingerprint(config, labels_of(config))}
+    if not plan.labels:  # nothing written (a killed append's leftover base snapshot removed)
+        for rel in BASE_FILES.values():
+            (folder / rel).unlink(missing_ok=True)
+        if (folder / "parts").is_dir() and not any((folder / "parts").iterdir()):
+            (folder / "parts").rmdir()
+        summary = _finished_doc(folder, plan.base)
+        return replace(summary, chunks_resumed=0, seconds=time.perf_counter() - start)
+    if not plan.resumed:
+        snapshot_base(folder)
+        atomic_write_bytes(folder / STAMP, json.dumps(plan.stamp).encode())
+    first, end = plan.base_chunks, plan.base_chunks + plan.chunks
+    size = config.output.shard_size
+    done = {k for k in range(first, end) if part_paths(folder, k)[0].exists()}
+    todo = (
+        ChunkTask(first + i, tuple(labels), job=catalog_chunk)
+        for i, labels in enumerate(chunks_of(iter(plan.labels), size))
+        if first + i not in done
+    )
+    seen = dict(plan.keys)
+    seen.update(_keys_of(folder, sorted(done)))
+    built = _run_chunks(
+        config, folder, todo, seen, engine, workers, progress, len(plan.labels), done
+    )
+    new_rows, new_failures = _merged(folder, range(first, end))
+    base_rows = pq.read_table(plan.base_path("catalog.parquet")).replace_schema_metadata(None)
+    base_failures = pq.read_table(plan.base_path("failures.parquet"))
+    catalog = pa.concat_tables([base_rows, new_rows.replace_schema_metadata(None)])
+    failures = pa.concat_tables(
+        [base_failures.replace_schema_metadata(None), new_failures.replace_schema_metadata(None)]
+    )
+    appends = list(plan.base.get(APPENDS_KEY) or [])
+    appends.append(plan.record(config, new_rows.num_rows, new_failures.num_rows))
+    return _finish(
+        config, folder, catalog, failures, full, end, built, len(done), start, pairs,
+        chunks=range(first, end), extra={APPENDS_KEY: appends},
+    )  # fmt: skip
 
 
 class _InProcessCatalog(InProcess):
@@ -228,6 +324,11 @@ def _finished(out: Path, stamp: dict[str, Any]) -> CatalogSummary | None:
         return None
     if doc.get("stamp") != stamp_digest(stamp) or (out / STAMP).exists():
         return None
+    return _finished_doc(out, doc)
+
+
+def _finished_doc(out: Path, doc: dict[str, Any]) -> CatalogSummary:
+    """The summary of the finished catalogue in ``out`` whose catalog.json is ``doc``."""
     counts = doc.get("counts", {})
     return CatalogSummary(
         out, counts.get("images", 0), counts.get("failures", 0), counts.get("pairs", 0),
@@ -235,23 +336,35 @@ def _finished(out: Path, stamp: dict[str, Any]) -> CatalogSummary | None:
     )  # fmt: skip
 
 
+def _merged(out: Path, chunks: range) -> tuple[pa.Table, pa.Table]:
+    """The catalogue rows and the failure rows of the committed ``chunks``, in chunk order."""
+    parts = [pq.read_table(part_paths(out, k)[0]) for k in chunks]
+    catalog = pa.concat_tables(parts) if parts else CATALOG_SCHEMA.empty_table()
+    failures = pa.concat_tables(
+        [pq.read_table(part_paths(out, k)[1]) for k in chunks]
+    ) if len(chunks) else FAILURE_SCHEMA.empty_table()  # fmt: skip
+    return catalog, failures
+
+
 def _finish(
     config: BuildConfig,
     out: Path,
-    n_chunks: int,
+    catalog: pa.Table,
+    failures: pa.Table,
     stamp: dict[str, Any],
+    n_chunks: int,
     built: int,
     resumed: int,
     start: float,
     pairs: bool,
+    chunks: range | None = None,
+    extra: dict[str, Any] | None = None,
 ) -> CatalogSummary:
-    """Merge the parts into the catalogue's files, describe it, remove parts/ (last)."""
-    parts = [pq.read_table(part_paths(out, k)[0]) for k in range(n_chunks)]
-    catalog = pa.concat_tables(parts) if parts else CATALOG_SCHEMA.empty_table()
+    """Write the catalogue's files from its rows (``catalog``: sorted here) and failure rows,
+    describe it (``extra``: more keys of catalog.json), remove the parts of ``chunks`` (default
+    all ``n_chunks``), the stamp, then the append's base (last), then parts/."""
+    catalog = catalog.replace_schema_metadata(None)
     catalog = catalog.sort_by([("hilbert", "ascending"), ("key", "ascending")])
-    failures = pa.concat_tables(
-        [pq.read_table(part_paths(out, k)[1]) for k in range(n_chunks)]
-    ) if n_chunks else FAILURE_SCHEMA.empty_table()  # fmt: skip
     crs = dataset_crs(config)
     catalog = catalog.replace_schema_metadata(catalog_geo_metadata(crs, _bbox(catalog)))
     write_parquet_atomic(catalog, out / "catalog.parquet", row_group_size=1024)
@@ -267,16 +380,19 @@ def _finish(
     )
     doc = catalog_doc(config, catalog, failures.num_rows, n_pairs, dict(reasons), stamp, crs)
     doc["chunks"] = n_chunks
+    doc.update(extra or {})
     from mars_pairs.store.catalog_card import catalog_card
 
     atomic_write_bytes(out / "README.md", catalog_card(doc).encode())
     write_stac(out, catalog, crs, doc, Path(labels_root(config.inputs.labels)))
     doc[FILES_KEY] = files_record(out, CATALOG_SEALED)
     atomic_write_bytes(out / "catalog.json", json.dumps(doc, indent=2).encode())
-    for k in range(n_chunks):
+    for k in range(n_chunks) if chunks is None else chunks:
         for path in part_paths(out, k):
             path.unlink(missing_ok=True)
     (out / STAMP).unlink(missing_ok=True)
+    for rel in BASE_FILES.values():  # after the stamp: see pipeline.catalog.append
+        (out / rel).unlink(missing_ok=True)
     (out / "parts").rmdir()
     return CatalogSummary(
         out, catalog.num_rows, failures.num_rows, n_pairs, built, resumed,
