@@ -17,7 +17,9 @@ def register(sub: Any) -> None:
         help="every image's visible footprint and the pairs that saw the same ground (no chips)",
     )
     p.add_argument("--config", required=True, help="build configuration (YAML): its inputs")
-    p.add_argument("--out", required=True, help="catalogue folder")
+    p.add_argument("--out", required=True,
+                   help="catalogue folder, or a URL (s3://bucket/prefix: made locally, then "
+                   "uploaded, catalog.json last)")  # fmt: skip
     p.add_argument("--workers", type=count(1), default=1, help="worker processes (default 1)")
     p.add_argument("--resume", action="store_true", help="keep the chunks of a killed run")
     p.add_argument("--append", action="store_true",
@@ -39,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
 
     from mars_pairs.pipeline.catalog.run import run_catalog
     from mars_pairs.pipeline.config import load_config
+    from mars_pairs.store.fs import is_url
 
     config = load_config(args.config)
     engine = None
@@ -50,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--scheduler needs --engine dask")
     summary = run_catalog(
         config,
-        Path(args.out),
+        args.out if is_url(args.out) else Path(args.out),
         workers=args.workers,
         resume=args.resume,
         engine=engine,

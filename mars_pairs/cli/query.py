@@ -15,7 +15,7 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import shapely
 
-from mars_pairs.errors import ArgumentError, MarsPairsError
+from mars_pairs.errors import ArgumentError, MarsPairsError, UsageError
 from mars_pairs.geometry.body import MARS_LONLAT_AUTHORITY
 from mars_pairs.geometry.frames import map_to_lonlat
 from mars_pairs.store.atomic import write_parquet_atomic
@@ -69,13 +69,16 @@ DESCRIPTION = (
 
 def register(sub: Any) -> None:
     """Add the ``query`` sub-command to ``sub`` (an argparse sub-parsers action)."""
-    from mars_pairs.cli.arguments import finite, local_dataset
+    from mars_pairs.cli.arguments import finite
     from mars_pairs.store.filter import BY
 
     p = sub.add_parser(
         "query", help="filter a dataset's manifest by place and attributes", description=DESCRIPTION
     )
-    p.add_argument("dataset", type=local_dataset, help="dataset folder")
+    p.add_argument(
+        "dataset",
+        help="dataset folder, or footprint catalogue (a folder or a URL: s3://bucket/prefix)",
+    )
     where = p.add_mutually_exclusive_group()
     where.add_argument(
         "--bbox",
@@ -147,7 +150,24 @@ def register(sub: Any) -> None:
 
 def run(args: Any) -> int:
     """``mars-pairs query``: the rows matching the options, printed or written."""
-    catalogue = (Path(args.dataset) / "catalog.parquet").is_file()
+    from mars_pairs.store import fs
+    from mars_pairs.store.catalog import is_catalog
+
+    footprint = args.bbox is not None or args.saw is not None or args.overlaps is not None
+    url = fs.is_url(args.dataset)
+    catalogue = (not url or footprint) and is_catalog(fs.dataset_root(args.dataset))
+    if url and not catalogue:
+        import argparse
+
+        from mars_pairs.cli.arguments import local_dataset
+
+        try:
+            local_dataset(args.dataset)
+        except argparse.ArgumentTypeError as exc:
+            raise UsageError(
+                f"{exc}; a footprint catalogue on object storage is queried with --bbox, "
+                "--saw or --overlaps"
+            ) from None
     named = [o for o in ("mission", "instrument", "split", "sol") if getattr(args, o)]
     if catalogue and named:
         raise MarsPairsError(
@@ -348,12 +368,13 @@ def footprint_query(
     (catalog.parquet: ``store.catalog.Catalog``; ``--bbox``: ``Catalog.bbox``, the visible
     footprint meets the box) or a dataset (``--saw``: ``Manifest.filter(saw=...)``);
     ``per_cell``: ``Catalog.saw(..., per_cell=True)`` (a catalogue and ``--saw`` only)."""
-    from mars_pairs.store.catalog import Catalog, checked_point
+    from mars_pairs.store import fs
+    from mars_pairs.store.catalog import Catalog, checked_point, is_catalog
 
-    root = Path(folder)
+    root = fs.dataset_root(folder)
     if saw is not None:
         lon, lat = checked_point(saw, "--saw")
-    if (root / "catalog.parquet").is_file():
+    if is_catalog(root):
         catalog = Catalog.open(root)
         if saw is not None:
             table = catalog.saw(lon, lat, per_cell=per_cell)

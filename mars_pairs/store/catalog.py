@@ -30,6 +30,7 @@ from affine import Affine
 from mars_pairs.errors import ArgumentError, DatasetError
 from mars_pairs.geometry.body import MARS_RADIUS_M
 from mars_pairs.geometry.frames import lonlat_to_map
+from mars_pairs.store import fs
 from mars_pairs.store.pairs import great_circle_m
 
 SAW_COLUMNS = ("key", "product_id", "mission", "instrument", "sol", "camera_lon", "camera_lat")
@@ -54,7 +55,7 @@ def checked_point(point: Sequence[Any], what: str = "point") -> tuple[float, flo
     return lon, lat
 
 
-def geo_crs(schema: pa.Schema, path: Path) -> Any:
+def geo_crs(schema: pa.Schema, path: fs.Location) -> Any:
     """The primary geometry column's CRS (PROJJSON) of a GeoParquet file's ``schema``."""
     meta = (schema.metadata or {}).get(b"geo")
     if meta is None:
@@ -74,10 +75,15 @@ def points_in(geometry: np.ndarray, x: float, y: float, edge: bool = True) -> np
 
 class Catalog:
     """A footprint catalogue folder (``mars-pairs catalog``): ``table`` its catalog.parquet,
-    ``crs`` the map CRS (PROJJSON), ``folder`` where it is."""
+    ``crs`` the map CRS (PROJJSON), ``folder`` where it is (a local folder, or an fsspec URL:
+    ``s3://bucket/prefix``)."""
 
     def __init__(
-        self, folder: Path, table: pa.Table, crs: Any, dem_transform: Sequence[float] | None = None
+        self,
+        folder: fs.Location,
+        table: pa.Table,
+        crs: Any,
+        dem_transform: Sequence[float] | None = None,
     ) -> None:
         self.folder = folder
         self.table = table
@@ -88,16 +94,24 @@ class Catalog:
 
     @classmethod
     def open(cls, folder: str | Path) -> Catalog:
-        """The catalogue in ``folder``; DatasetError naming the file when it is not one."""
-        root = Path(folder)
-        path = root / "catalog.parquet"
-        if not path.is_file():
+        """The catalogue in ``folder`` (a local folder or an fsspec URL, whose catalogue is
+        read only once its catalog.json, published last, is there); DatasetError naming the
+        file when it is not one."""
+        root = fs.dataset_root(folder)
+        if not is_catalog(root):
             raise DatasetError(root, None, "no catalog.parquet (not a footprint catalogue folder)")
-        table = pq.read_table(path)
-        info = root / "catalog.json"
-        dem = None
-        if info.is_file():
-            dem = json.loads(info.read_text()).get("footprint", {}).get("dem_transform")
+        info = fs.join(root, "catalog.json")
+        doc: dict[str, Any] = {}
+        if fs.is_url(root) or fs.is_file(info):
+            try:
+                doc = json.loads(fs.read_bytes(info))
+            except FileNotFoundError:
+                raise DatasetError(
+                    root, None, "no catalog.json (a catalogue being published, or not one)"
+                ) from None
+        path = fs.join(root, "catalog.parquet")
+        table = fs.read_parquet(path)
+        dem = doc.get("footprint", {}).get("dem_transform")
         return cls(root, table, geo_crs(table.schema, path), dem)
 
     def __len__(self) -> int:
@@ -164,7 +178,7 @@ class Catalog:
         ArgumentError when the catalogue does not name the DEM's grid."""
         if self.dem_transform is None:
             raise ArgumentError(
-                f"per-cell: {self.folder / 'catalog.json'} has no footprint.dem_transform"
+                f"per-cell: {fs.join(self.folder, 'catalog.json')} has no footprint.dem_transform"
             )
         grid = Affine(*self.dem_transform)
         col, row = ~grid * (x, y)
@@ -176,15 +190,24 @@ class Catalog:
         first: ``key``, ``iou``, ``intersection_m2``, ``distance_m``, ``heading_diff_deg``,
         ``same_position``. ArgumentError for a key the catalogue does not hold."""
         if not pc.any(pc.equal(self.table["key"], key)).as_py():
-            raise ArgumentError(f"overlaps: no image {key!r} in {self.folder / 'catalog.parquet'}")
-        path = self.folder / "pairs.parquet"
-        if not path.is_file():
+            where = fs.join(self.folder, "catalog.parquet")
+            raise ArgumentError(f"overlaps: no image {key!r} in {where}")
+        path = fs.join(self.folder, "pairs.parquet")
+        if not fs.is_file(path):
             raise DatasetError(self.folder, None, "no pairs.parquet (made without pairs)")
-        pairs = pq.read_table(path, filters=(pc.field("key_a") == key) | (pc.field("key_b") == key))
+        source, filesystem = fs.parquet_source(path)
+        keyed = (pc.field("key_a") == key) | (pc.field("key_b") == key)
+        pairs = pq.read_table(source, filesystem=filesystem, filters=keyed)
         other = pc.if_else(pc.equal(pairs["key_a"], key), pairs["key_b"], pairs["key_a"])
         keep = ["iou", "intersection_m2", "distance_m", "heading_diff_deg", "same_position"]
         out = pairs.select(keep).add_column(0, "key", other)
         return out.sort_by([("iou", "descending"), ("key", "ascending")])
+
+
+def is_catalog(root: fs.Location) -> bool:
+    """Whether ``root`` (a folder or an fsspec URL) holds a footprint catalogue's
+    catalog.parquet."""
+    return fs.is_file(fs.join(root, "catalog.parquet"))
 
 
 def catalog_ortho(root: Path) -> Path | None:

@@ -31,7 +31,8 @@ def catalog_card(doc: dict[str, Any]) -> str:
         f"- license: {doc['license']}",
         "",
         "Read it with `geopandas.read_parquet('catalog.parquet')` or "
-        "`mars_pairs.store.catalog.Catalog.open('.')` (`.saw(lon, lat)`, `.overlaps(key)`).",
+        "`mars_pairs.store.catalog.Catalog.open('.')` (`.saw(lon, lat)`, "
+        "`.bbox(west, south, east, north)`, `.overlaps(key)`).",
         "",
         "## catalog.parquet",
         "",

@@ -102,8 +102,11 @@ def _clean(value: Any) -> Any:
     return value
 
 
-def _asset(href_of: Path, folder: Path, roles: list[str], title: str) -> dict[str, Any]:
-    href = Path(os.path.relpath(href_of, folder)).as_posix()
+def _asset(href_of: Path, folder: Path | None, roles: list[str], title: str) -> dict[str, Any]:
+    """An asset of the file ``href_of``: its href relative to ``folder`` (None: absolute)."""
+    href = (
+        href_of.as_posix() if folder is None else Path(os.path.relpath(href_of, folder)).as_posix()
+    )
     asset: dict[str, Any] = {"href": href, "title": title, "roles": roles}
     media = _MEDIA.get(href_of.suffix.lower())
     if media is not None:
@@ -112,11 +115,12 @@ def _asset(href_of: Path, folder: Path, roles: list[str], title: str) -> dict[st
 
 
 def stac_items(
-    catalog: pa.Table, crs: str, folder: Path, labels_root: Path
+    catalog: pa.Table, crs: str, folder: Path | None, labels_root: Path
 ) -> Iterator[dict[str, Any]]:
     """The Items of ``catalog`` (catalog.parquet's rows, map CRS ``crs``) in row order;
-    assets' hrefs relative to ``folder``, the catalogue's ``label_path``/``image_path``
-    relative to ``labels_root``. Rows without a time are skipped."""
+    assets' hrefs relative to ``folder`` (None: absolute paths), the catalogue's
+    ``label_path``/``image_path`` relative to ``labels_root``. Rows without a time are
+    skipped."""
     projjson = named_crs(crs)
     from pyproj import CRS
 
@@ -232,14 +236,22 @@ def stac_collection(
 
 
 def write_stac(
-    folder: Path, catalog: pa.Table, crs: str, doc: dict[str, Any], labels_root: Path
+    folder: Path,
+    catalog: pa.Table,
+    crs: str,
+    doc: dict[str, Any],
+    labels_root: Path,
+    *,
+    relative: bool = True,
 ) -> int:
     """Write ``STAC_FILES`` of ``catalog`` into ``folder``, each atomically; returns the
-    number of Items. ``doc``: catalog.json's document (license, versions). ``items.parquet``
-    needs stac-geoparquet (the ``stac`` extra, ``pip install 'mars-pairs[stac]'``): without
+    number of Items. ``relative``: assets' hrefs relative to ``folder``; else absolute (a
+    catalogue published to object storage, from which no relative path leads to the labels).
+    ``doc``: catalog.json's document (license, versions). ``items.parquet`` needs
+    stac-geoparquet (the ``stac`` extra, ``pip install 'mars-pairs[stac]'``): without
     it that file is not written (and an old one removed), and ``doc["stac_parquet"]`` says
     why; the JSON files need nothing more."""
-    items = list(stac_items(catalog, crs, folder, labels_root))
+    items = list(stac_items(catalog, crs, folder if relative else None, labels_root))
     collection = stac_collection(items, doc, catalog.num_rows - len(items))
     lines = "".join(json.dumps(item, separators=(",", ":")) + "\n" for item in items)
     atomic_write_bytes(folder / "items.ndjson", lines.encode())

@@ -14,7 +14,15 @@ chunks when its stamp (``parts/stamp.json``: the build's fingerprint of config, 
 inputs) matches, and writes the same bytes as an uninterrupted run: nothing written depends
 on timing, worker count or engine. ``append``: the labels a finished catalogue does not
 hold yet become chunks after its own, then the union is merged (``pipeline.catalog.append``).
-The folder is local (object storage is the build's only).
+
+On object storage (``out`` an fsspec URL, ``s3://bucket/prefix``: ``store.fs``) the catalogue is
+made in a local staging folder (``fs.local_staging``; an append first downloads the
+catalogue there) and published when finished (``publish``): the old catalog.json removed, every
+other file uploaded whole, catalog.json (the catalogue's commit marker, which
+``Catalog.open`` needs) last. A killed run leaves the old catalogue's files without its
+catalog.json, or the new ones without theirs, never a mix a reader takes for a catalogue; it
+reruns from scratch (``resume`` is refused: its chunks were in the lost staging folder). Its
+catalog.json names the local inputs by absolute paths, as a build on object storage does.
 """
 
 from __future__ import annotations
@@ -59,6 +67,7 @@ from mars_pairs.pipeline.catalog.entry import SUBCELLS
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.sample.record import labels_root
 from mars_pairs.raster.outline import SIMPLIFY_CELLS
+from mars_pairs.store import fs
 from mars_pairs.store.atomic import atomic_write_bytes, temporary_target, write_parquet_atomic
 from mars_pairs.store.catalog_schema import CATALOG_SCHEMA, catalog_geo_metadata
 from mars_pairs.store.geoparquet import crs_name
@@ -86,9 +95,10 @@ _PART = re.compile(
 
 @dataclass(frozen=True)
 class CatalogSummary:
-    """What a catalogue run wrote: counts, chunks built and kept, seconds, failure reasons."""
+    """What a catalogue run wrote: counts, chunks built and kept, seconds, failure reasons;
+    ``out_dir`` the folder, or the URL on object storage."""
 
-    out_dir: Path
+    out_dir: Path | str
     images: int
     failures: int
     pairs: int
@@ -138,22 +148,104 @@ def run_catalog(
     pairs: bool = True,
     append: bool = False,
 ) -> CatalogSummary:
-    """The footprint catalogue of ``config``'s labels in ``out`` (default ``output.dir``).
+    """The footprint catalogue of ``config``'s labels in ``out`` (default ``output.dir``): a
+    local folder, or an fsspec URL (``s3://bucket/prefix``: made locally, then published).
 
-    ``engine``: None for this machine's pool of ``workers`` processes (this process when 1)
-    or another build engine (``DaskEngine``). ``resume``: keep the chunks an interrupted run
-    with the same stamp committed. ``pairs``: also write pairs.parquet. ``append``: add the
-    labels the finished catalogue in the folder does not hold yet (``pipeline.catalog.append``;
-    an interrupted append of the same release is continued).
+        ``engine``: None for this machine's pool of ``workers`` processes (this process when 1)
+        or another build engine (``DaskEngine``). ``resume``: keep the chunks an interrupted run
+        with the same stamp committed. ``pairs``: also write pairs.parquet. ``append``: add the
+        labels the finished catalogue in the folder does not hold yet (``pipeline.catalog.append``;
+        an interrupted append of the same release is continued).
     """
     start = time.perf_counter()
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ConfigError(f"--workers: expected an integer >= 1, got {workers!r}")
-    folder = Path(out) if out is not None else config.output.dir
-    if not isinstance(folder, Path):
-        raise ConfigError(f"--out: {folder}: the catalogue is written to a local folder")
-    folder = folder.resolve()
+    target = out if out is not None else config.output.dir
+    if fs.is_url(str(target)):
+        return _run_to_url(
+            config, str(fs.dataset_root(str(target))), workers, resume, engine, progress,
+            pairs, append, start,
+        )  # fmt: skip
+    folder = Path(target).resolve()
     config = replace(config, output=replace(config.output, dir=folder))
+    return _run_in(config, folder, workers, resume, engine, progress, pairs, append, start)
+
+
+def _run_to_url(
+    config: BuildConfig,
+    url: str,
+    workers: int,
+    resume: bool,
+    engine: Engine | None,
+    progress: bool,
+    pairs: bool,
+    append: bool,
+    start: float,
+) -> CatalogSummary:
+    """run_catalog into the URL ``url``: made in a local staging folder (an append's base
+    downloaded there first), then published (``publish``)."""
+    if resume:
+        raise ConfigError(
+            f"--resume: {url}: a catalogue on object storage is made in a local temporary "
+            "folder and uploaded when finished, so a killed run left nothing to resume; "
+            "rerun without --resume"
+        )
+    held = fs.list_files(url)
+    foreign = [rel for rel in held if rel not in CATALOG_FILES]
+    if foreign:
+        raise ConfigError(
+            f"--out: {url} holds {foreign[0]}, which a catalogue does not write; refusing to "
+            "replace the prefix (nothing was removed): use a new or empty prefix"
+        )
+    if append and "catalog.json" not in held:
+        raise ConfigError(
+            f"{url}: cannot --append: no catalog.json there (no finished catalogue); "
+            "--append adds to a finished catalogue (make it first)"
+        )
+    config = replace(config, output=replace(config.output, dir=url))
+    fs.remove_stale_staging()
+    with fs.local_staging() as staging:
+        local = staging / "catalog"
+        local.mkdir()
+        if append:
+            for rel in held:
+                (local / rel).write_bytes(fs.read_bytes(fs.join(url, rel)))
+        summary = _run_in(config, local, workers, False, engine, progress, pairs, append, start)
+        if not (append and summary.chunks_built == 0):  # an append of nothing writes nothing
+            publish(local, url, held)
+    return replace(summary, out_dir=url, seconds=time.perf_counter() - start)
+
+
+def publish(local: Path, url: str, held: list[str]) -> None:
+    """Upload the finished catalogue folder ``local`` to ``url``, which holds the files
+    ``held`` (an older catalogue's): its catalog.json removed first, every other file
+    uploaded whole, the old files the new catalogue does not have removed, catalog.json
+    last (while it is absent, no reader takes the prefix for a catalogue)."""
+    names = [name for name in CATALOG_FILES if (local / name).is_file()]
+    if "catalog.json" in held:
+        fs.remove(fs.join(url, "catalog.json"))
+    for name in names:
+        if name != "catalog.json":
+            fs.upload(local / name, fs.join(url, name))
+    for rel in held:
+        if rel not in names:
+            fs.remove(fs.join(url, rel))
+    fs.upload(local / "catalog.json", fs.join(url, "catalog.json"))
+
+
+def _run_in(
+    config: BuildConfig,
+    folder: Path,
+    workers: int,
+    resume: bool,
+    engine: Engine | None,
+    progress: bool,
+    pairs: bool,
+    append: bool,
+    start: float,
+) -> CatalogSummary:
+    """run_catalog writing into the local ``folder`` (``config.output.dir``, or the staging
+    folder of the URL ``config.output.dir``, which catalog.json and the STAC hrefs name)."""
     check_input_files(config)
     check_inputs(config)
     files = check_folder(folder)
@@ -384,7 +476,8 @@ def _finish(
     from mars_pairs.store.catalog_card import catalog_card
 
     atomic_write_bytes(out / "README.md", catalog_card(doc).encode())
-    write_stac(out, catalog, crs, doc, Path(labels_root(config.inputs.labels)))
+    root = Path(labels_root(config.inputs.labels))
+    write_stac(out, catalog, crs, doc, root, relative=isinstance(config.output.dir, Path))
     doc[FILES_KEY] = files_record(out, CATALOG_SEALED)
     atomic_write_bytes(out / "catalog.json", json.dumps(doc, indent=2).encode())
     for k in range(n_chunks) if chunks is None else chunks:
