@@ -133,7 +133,7 @@ def test_no_module_reads_dataset_json_by_hand() -> None:
         # catalog.json)
         if path.name not in ("dataset_info.py", "card.py")
         and path.relative_to(package).as_posix()
-        not in ("pipeline/catalog/run.py", "store/catalog.py")
+        not in ("pipeline/catalog/run.py", "pipeline/catalog/append.py", "store/catalog.py")
         for n, line in enumerate(path.read_text().splitlines(), 1)
         if pattern.search(line)
     ]

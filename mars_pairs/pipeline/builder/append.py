@@ -208,19 +208,30 @@ def check_append_config(config: BuildConfig, base: dict[str, Any]) -> None:
             f"{why}: its dataset.json records no input_files (built by an older mars-pairs); "
             "rebuild it"
         )
-    now = input_files(config)
-    for name in FIXED_INPUTS:
-        if recorded.get(name) != now[name]:
-            raise ConfigError(
-                f"inputs.{name}: {getattr(config.inputs, name)} changed since the dataset was "
-                f"built: {input_change(recorded.get(name), now[name])}; {why}: the samples "
-                "built would not match the new ones"
-            )
+    check_fixed_inputs(
+        config, recorded, "the dataset was built", f"{why}: the samples built would not match "
+        "the new ones",
+    )  # fmt: skip
     if config.splits.buffer_policy == "drop":
         raise ConfigError(
             f"splits.buffer_policy: drop: {why}: a dropped sample's label is in neither "
             "manifest.parquet nor failures.parquet, so an append could not tell it was seen"
         )
+
+
+def check_fixed_inputs(
+    config: BuildConfig, recorded: dict[str, Any], since: str, consequence: str
+) -> None:
+    """ConfigError naming the input when a ``FIXED_INPUTS`` file of ``config`` is not the one
+    ``recorded`` (an ``input_files`` record) fingerprints: ``inputs.NAME: PATH changed since
+    SINCE: what changed; CONSEQUENCE``."""
+    now = input_files(config)
+    for name in FIXED_INPUTS:
+        if recorded.get(name) != now[name]:
+            raise ConfigError(
+                f"inputs.{name}: {getattr(config.inputs, name)} changed since {since}: "
+                f"{input_change(recorded.get(name), now[name])}; {consequence}"
+            )
 
 
 def known_labels(

@@ -36,13 +36,13 @@ from typing import Any
 
 from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.builder.append import (
-    FIXED_INPUTS,
     MAY_CHANGE,
+    check_fixed_inputs,
     config_difference,
     known_labels,
     new_labels,
 )
-from mars_pairs.pipeline.builder.fingerprints import LabelDigest, input_change, input_files
+from mars_pairs.pipeline.builder.fingerprints import LabelDigest
 from mars_pairs.pipeline.builder.finish import relative_config
 from mars_pairs.pipeline.builder.stamp import read_stamp, stamp_difference, stamp_of
 from mars_pairs.pipeline.config import BuildConfig
@@ -139,14 +139,10 @@ def check_catalog_append(config: BuildConfig, out: Path, base: dict[str, Any]) -
     recorded = base.get("input_files")
     if not isinstance(recorded, dict):
         raise ConfigError(f"{why}: its catalog.json records no input_files; rebuild it")
-    files = input_files(config)
-    for name in FIXED_INPUTS:
-        if recorded.get(name) != files[name]:
-            raise ConfigError(
-                f"inputs.{name}: {getattr(config.inputs, name)} changed since the catalogue "
-                f"was made: {input_change(recorded.get(name), files[name])}; {why}: its "
-                "footprints would not match the new ones"
-            )
+    check_fixed_inputs(
+        config, recorded, "the catalogue was made", f"{why}: its footprints would not match "
+        "the new ones",
+    )  # fmt: skip
 
 
 def plan_catalog_append(config: BuildConfig, out: Path, stamp_rel: str) -> CatalogAppend:

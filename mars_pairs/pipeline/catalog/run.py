@@ -151,36 +151,38 @@ def run_catalog(
     """The footprint catalogue of ``config``'s labels in ``out`` (default ``output.dir``): a
     local folder, or an fsspec URL (``s3://bucket/prefix``: made locally, then published).
 
-        ``engine``: None for this machine's pool of ``workers`` processes (this process when 1)
-        or another build engine (``DaskEngine``). ``resume``: keep the chunks an interrupted run
-        with the same stamp committed. ``pairs``: also write pairs.parquet. ``append``: add the
-        labels the finished catalogue in the folder does not hold yet (``pipeline.catalog.append``;
-        an interrupted append of the same release is continued).
+    ``engine``: None for this machine's pool of ``workers`` processes (this process when 1)
+    or another build engine (``DaskEngine``). ``resume``: keep the chunks an interrupted run
+    with the same stamp committed. ``pairs``: also write pairs.parquet. ``append``: add the
+    labels the finished catalogue in the folder does not hold yet (``pipeline.catalog.append``;
+    an interrupted append of the same release is continued).
     """
     start = time.perf_counter()
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ConfigError(f"--workers: expected an integer >= 1, got {workers!r}")
+    run = _Run(workers, engine, progress, pairs, start)
     target = out if out is not None else config.output.dir
     if fs.is_url(str(target)):
-        return _run_to_url(
-            config, str(fs.dataset_root(str(target))), workers, resume, engine, progress,
-            pairs, append, start,
-        )  # fmt: skip
+        return _run_to_url(config, str(fs.dataset_root(str(target))), run, resume, append)
     folder = Path(target).resolve()
     config = replace(config, output=replace(config.output, dir=folder))
-    return _run_in(config, folder, workers, resume, engine, progress, pairs, append, start)
+    return _run_in(config, folder, run, resume, append)
+
+
+@dataclass(frozen=True)
+class _Run:
+    """How a catalogue runs: its engine (None: a pool of ``workers``, this process when 1),
+    the progress bar, whether pairs.parquet is written, when it started (perf_counter s)."""
+
+    workers: int
+    engine: Engine | None
+    progress: bool
+    pairs: bool
+    start: float
 
 
 def _run_to_url(
-    config: BuildConfig,
-    url: str,
-    workers: int,
-    resume: bool,
-    engine: Engine | None,
-    progress: bool,
-    pairs: bool,
-    append: bool,
-    start: float,
+    config: BuildConfig, url: str, run: _Run, resume: bool, append: bool
 ) -> CatalogSummary:
     """run_catalog into the URL ``url``: made in a local staging folder (an append's base
     downloaded there first), then published (``publish``)."""
@@ -210,10 +212,10 @@ def _run_to_url(
         if append:
             for rel in held:
                 (local / rel).write_bytes(fs.read_bytes(fs.join(url, rel)))
-        summary = _run_in(config, local, workers, False, engine, progress, pairs, append, start)
+        summary = _run_in(config, local, run, False, append)
         if not (append and summary.chunks_built == 0):  # an append of nothing writes nothing
             publish(local, url, held)
-    return replace(summary, out_dir=url, seconds=time.perf_counter() - start)
+    return replace(summary, out_dir=url, seconds=time.perf_counter() - run.start)
 
 
 def publish(local: Path, url: str, held: list[str]) -> None:
@@ -234,15 +236,7 @@ def publish(local: Path, url: str, held: list[str]) -> None:
 
 
 def _run_in(
-    config: BuildConfig,
-    folder: Path,
-    workers: int,
-    resume: bool,
-    engine: Engine | None,
-    progress: bool,
-    pairs: bool,
-    append: bool,
-    start: float,
+    config: BuildConfig, folder: Path, run: _Run, resume: bool, append: bool
 ) -> CatalogSummary:
     """run_catalog writing into the local ``folder`` (``config.output.dir``, or the staging
     folder of the URL ``config.output.dir``, which catalog.json and the STAC hrefs name)."""
@@ -252,13 +246,13 @@ def _run_in(
     if append:
         if resume:
             raise ConfigError("--resume: not with --append (a killed append reruns with --append)")
-        return _run_append(config, folder, engine, workers, progress, pairs, start)
+        return _run_append(config, folder, run)
     stamp = {"kind": "catalog", **fingerprint(config, labels_of(config))}
     if resume:
         previous = read_stamp(folder / STAMP)
         finished = _finished(folder, stamp)
         if finished is not None:
-            return replace(finished, seconds=time.perf_counter() - start)
+            return replace(finished, seconds=time.perf_counter() - run.start)
         why = None if previous is None else stamp_difference(previous, stamp)
         if previous is not None and previous.get("kind") == APPEND_KIND:
             why = "it holds an interrupted --append (rerun that append with --append)"
@@ -282,11 +276,9 @@ def _run_in(
     )
     seen = _keys_of(folder, sorted(done))
     total = int(stamp["count"])
-    built = _run_chunks(config, folder, todo, seen, engine, workers, progress, total, done)
+    built = _run_chunks(config, folder, todo, seen, run, total, done)
     catalog, failures = _merged(folder, range(n_chunks))
-    return _finish(
-        config, folder, catalog, failures, stamp, n_chunks, built, len(done), start, pairs
-    )
+    return _finish(config, folder, catalog, failures, stamp, n_chunks, built, len(done), run)
 
 
 def _run_chunks(
@@ -294,18 +286,17 @@ def _run_chunks(
     folder: Path,
     todo: Iterable[ChunkTask],
     seen: dict[str, str],
-    engine: Engine | None,
-    workers: int,
-    progress: bool,
+    run: _Run,
     total: int,
     done: set[int],
 ) -> int:
-    """Run the chunks ``todo`` on ``engine`` (None: a pool of ``workers``, this process when
-    1), committing each; returns how many were built. ``done``: the chunks already committed
-    (their labels counted on the bar of ``total``)."""
+    """Run the chunks ``todo`` on ``run``'s engine, committing each; returns how many were
+    built. ``done``: the chunks already committed (their labels counted on the bar of
+    ``total``)."""
+    engine, workers = run.engine, run.workers
     pool = LocalPool(config, workers) if engine is None and workers > 1 else None
     chosen: Engine = engine if engine is not None else (pool or _InProcessCatalog())
-    bar = tqdm(total=total, unit="img", disable=not progress, desc="catalog")
+    bar = tqdm(total=total, unit="img", disable=not run.progress, desc="catalog")
     bar.update(sum(pq.read_metadata(part_paths(folder, k)[1]).num_rows for k in done))
     bar.update(sum(pq.read_metadata(part_paths(folder, k)[0]).num_rows for k in done))
     built = 0
@@ -321,15 +312,7 @@ def _run_chunks(
     return built
 
 
-def _run_append(
-    config: BuildConfig,
-    folder: Path,
-    engine: Engine | None,
-    workers: int,
-    progress: bool,
-    pairs: bool,
-    start: float,
-) -> CatalogSummary:
+def _run_append(config: BuildConfig, folder: Path, run: _Run) -> CatalogSummary:
     """run_catalog's work for ``append`` (``pipeline.catalog.append``): planned, the base
     snapshot and the stamp written, the new chunks built and committed after the
     catalogue's, the union merged and described; parts/ removed (the stamp first)."""
@@ -341,7 +324,7 @@ def _run_append(
         if (folder / "parts").is_dir() and not any((folder / "parts").iterdir()):
             (folder / "parts").rmdir()
         summary = _finished_doc(folder, plan.base)
-        return replace(summary, chunks_resumed=0, seconds=time.perf_counter() - start)
+        return replace(summary, chunks_resumed=0, seconds=time.perf_counter() - run.start)
     if not plan.resumed:
         snapshot_base(folder)
         atomic_write_bytes(folder / STAMP, json.dumps(plan.stamp).encode())
@@ -355,9 +338,7 @@ def _run_append(
     )
     seen = dict(plan.keys)
     seen.update(_keys_of(folder, sorted(done)))
-    built = _run_chunks(
-        config, folder, todo, seen, engine, workers, progress, len(plan.labels), done
-    )
+    built = _run_chunks(config, folder, todo, seen, run, len(plan.labels), done)
     new_rows, new_failures = _merged(folder, range(first, end))
     base_rows = pq.read_table(plan.base_path("catalog.parquet")).replace_schema_metadata(None)
     base_failures = pq.read_table(plan.base_path("failures.parquet"))
@@ -368,7 +349,7 @@ def _run_append(
     appends = list(plan.base.get(APPENDS_KEY) or [])
     appends.append(plan.record(config, new_rows.num_rows, new_failures.num_rows))
     return _finish(
-        config, folder, catalog, failures, full, end, built, len(done), start, pairs,
+        config, folder, catalog, failures, full, end, built, len(done), run,
         chunks=range(first, end), extra={APPENDS_KEY: appends},
     )  # fmt: skip
 
@@ -447,8 +428,7 @@ def _finish(
     n_chunks: int,
     built: int,
     resumed: int,
-    start: float,
-    pairs: bool,
+    run: _Run,
     chunks: range | None = None,
     extra: dict[str, Any] | None = None,
 ) -> CatalogSummary:
@@ -462,7 +442,7 @@ def _finish(
     write_parquet_atomic(catalog, out / "catalog.parquet", row_group_size=1024)
     write_parquet_atomic(failures, out / "failures.parquet")
     n_pairs = 0
-    if pairs:
+    if run.pairs:
         n_pairs = write_pairs(out / "pairs.parquet", Footprints.from_table(catalog))
     reasons = Counter(
         f"{s} ({e})"
@@ -489,7 +469,7 @@ def _finish(
     (out / "parts").rmdir()
     return CatalogSummary(
         out, catalog.num_rows, failures.num_rows, n_pairs, built, resumed,
-        time.perf_counter() - start, dict(reasons),
+        time.perf_counter() - run.start, dict(reasons),
     )  # fmt: skip
 
 
