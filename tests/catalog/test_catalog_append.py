@@ -179,3 +179,9 @@ def test_cli_append(releases: Releases, appended: Folders, tmp_path: Path) -> No
     assert main(argv) == 0
     assert pq.read_table(out / "catalog.parquet").equals(pq.read_table(ab / "catalog.parquet"))
     assert main([*argv, "--resume"]) == 2
+    unpaired = tmp_path / "unpaired"
+    shutil.copytree(a, unpaired)
+    argv = ["catalog", "--config", str(config), "--out", str(unpaired), "--append", "--quiet"]
+    assert main([*argv, "--no-pairs"]) == 0
+    assert not (unpaired / "pairs.parquet").exists()  # the old pairs lack the new images
+    assert json.loads((unpaired / "catalog.json").read_text())["counts"]["pairs"] == 0

@@ -444,6 +444,8 @@ def _finish(
     n_pairs = 0
     if run.pairs:
         n_pairs = write_pairs(out / "pairs.parquet", Footprints.from_table(catalog))
+    else:  # an appended catalogue's old pairs would not hold the new images
+        (out / "pairs.parquet").unlink(missing_ok=True)
     reasons = Counter(
         f"{s} ({e})"
         for s, e in zip(
