@@ -21,8 +21,10 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
+import pyproj
 import shapely
 
+from mars_pairs.errors import ArgumentError
 from mars_pairs.geometry.body import MARS_RADIUS_M
 from mars_pairs.kernels.overlap import intersection_areas
 from mars_pairs.store.atomic import atomic_path
@@ -61,10 +63,13 @@ class Footprints:
     split: np.ndarray | None = None
 
     @classmethod
-    def from_table(cls, table: pa.Table, geometry: str = "footprint") -> Footprints:
+    def from_table(
+        cls, table: pa.Table, geometry: str = "footprint", crs: str | None = None
+    ) -> Footprints:
         """The footprints of a catalogue table (``catalog.parquet``'s columns) or of a dataset
         manifest (``footprint``, ``longitude``/``latitude``/``elevation_m`` of the rover,
-        ``viewshed_area_m2``, ``split``)."""
+        ``split``), whose true areas are the map areas over the areal scale of ``crs`` (the
+        dataset's, WKT or PROJJSON; required for a manifest) at the rover's position."""
         names = table.column_names
 
         def col(name: str) -> np.ndarray:
@@ -73,7 +78,16 @@ class Footprints:
 
         geoms = np.asarray(shapely.from_wkb(col(geometry)), dtype=object)
         catalog = "camera_lon" in names
-        area = col("visible_area_m2" if catalog else "viewshed_area_m2").astype(np.float64)
+        if catalog:
+            area = col("visible_area_m2").astype(np.float64)
+        elif crs is None:
+            raise ArgumentError("Footprints.from_table: a manifest needs its CRS (crs=...)")
+        else:
+            factors = pyproj.Proj(crs).get_factors(
+                col("longitude").astype(np.float64), col("latitude").astype(np.float64)
+            )
+            with np.errstate(invalid="ignore", divide="ignore"):
+                area = shapely.area(geoms) / np.asarray(factors.areal_scale, dtype=np.float64)
         position = np.asarray(
             [
                 f"{m}|{s}|{d}|{p}"

@@ -4,7 +4,8 @@
   (:mod:`mars_pairs.store.integrity`);
 - dataset.json's ``files`` record (:data:`FILES_KEY`) holds the SHA-256 and size of every
   other file that describes the folder (:data:`SEALED`: the manifest, the failures, the card
-  ``README.md``, ``croissant.json`` and the shard index ``shardindex.json``);
+  ``README.md``, ``croissant.json``, the shard index ``shardindex.json`` and, with
+  ``output.pairs``, ``pairs.parquet``);
 - the sidecar ``SHA256SUMS`` (:data:`SUMS`, the coreutils format: ``sha256sum -c SHA256SUMS``
   in the folder checks it) holds the SHA-256 of dataset.json, closing the chain.
 
@@ -36,7 +37,14 @@ FILES_KEY = "files"
 #: the sidecar holding dataset.json's SHA-256
 SUMS = "SHA256SUMS"
 #: the files dataset.json's record covers, relative to the dataset folder
-SEALED = ("manifest.parquet", "failures.parquet", "README.md", "croissant.json", WIDS_INDEX)
+SEALED = (
+    "manifest.parquet",
+    "failures.parquet",
+    "README.md",
+    "croissant.json",
+    WIDS_INDEX,
+    "pairs.parquet",  # with output.pairs only
+)
 #: what a reader says of a dataset without the chain (built before it)
 NO_RECORD = (
     "no integrity record (dataset.json has no 'files' and there is no SHA256SUMS: built "
