@@ -62,13 +62,22 @@ def rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def pairs_once(n: int, threads: int) -> dict[str, float]:
+def pairs_once(n: int, threads: int, kernel: bool = True) -> dict[str, float]:
     """Pair ``n`` synthetic footprints into a temporary pairs.parquet (this process: run
     it in a fresh one for its peak RSS); seconds, pairs, peak RSS before and after, and the
     largest relative difference of 2,000 sampled rows' ``intersection_m2`` from GEOS's
-    (``shapely.intersection`` of the two footprints)."""
+    (``shapely.intersection`` of the two footprints). ``kernel`` False: every area from
+    GEOS (the anchor: ``KERNEL_VERTICES`` below any pair's). The kernel is loaded first
+    (numba's cached code, a constant ~100 MB), outside the measure."""
     import pyarrow.parquet as pq
 
+    from mars_pairs.store import pairs
+
+    if not kernel:
+        pairs.KERNEL_VERTICES = -1
+    warm = Path(tempfile.mkdtemp(prefix="warm-"))
+    write_pairs(warm / "p.parquet", synthetic_footprints(30))
+    shutil.rmtree(warm)
     fp = synthetic_footprints(n)
     out = Path(tempfile.mkdtemp(prefix="pairs-")) / "pairs.parquet"
     before = rss_mb()
@@ -91,7 +100,8 @@ def pairs_once(n: int, threads: int) -> dict[str, float]:
 
 
 def bench_pairs(sizes: list[int], threads: list[int]) -> None:
-    """Each size and thread count in a fresh process (its own peak RSS), interleaved."""
+    """Each size and thread count in a fresh process (its own peak RSS), interleaved with
+    the anchor: GEOS for every area, on the most threads."""
     import json
     import os
     import subprocess
@@ -102,17 +112,19 @@ def bench_pairs(sizes: list[int], threads: list[int]) -> None:
         "| footprints | threads | seconds | us / image | pairs | peak RSS (MB) |"
         " peak RSS growth while pairing (MB) | max rel. diff. from GEOS (2,000 rows) |"
     )
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|")  # fmt: skip
+    print("|---:|---|---:|---:|---:|---:|---:|---:|---:|")  # fmt: skip
     for n in sizes:
-        for t in threads:
-            code = f"import json, bench_catalog as b; print(json.dumps(b.pairs_once({n}, {t})))"
+        for t, kernel in [*((t, True) for t in threads), (max(threads), False)]:
+            call = f"b.pairs_once({n}, {t}, {kernel})"
+            code = f"import json, bench_catalog as b; print(json.dumps({call}))"
             env = dict(os.environ, PYTHONPATH=str(Path(__file__).parent))
             done = subprocess.run(
                 [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
             )
             r = json.loads(done.stdout.strip().splitlines()[-1])
             print(
-                f"| {n:,} | {t} | {r['seconds']:.2f} | {r['seconds'] / n * 1e6:.1f} | "
+                f"| {n:,} | {'kernel' if kernel else 'GEOS'} | {t} | {r['seconds']:.2f} | "
+                f"{r['seconds'] / n * 1e6:.1f} | "
                 f"{r['pairs']:,} | {r['peak']:.0f} | {r['peak'] - r['before']:.0f} | "
                 f"{r['rel']:.1e} |",
                 flush=True,

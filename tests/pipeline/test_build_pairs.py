@@ -109,3 +109,14 @@ def test_no_pairs_without_the_key(mission: Path, tmp_path: Path) -> None:
     assert not (out / "pairs.parquet").exists()
     doc = json.loads((out / "dataset.json").read_text())
     assert "pairs.parquet" not in doc["files"] and "pairs" not in doc["counts"]
+
+
+def test_the_format_pages_within_train_example_runs(
+    with_pairs: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """docs/format.md's pyarrow/pandas example of within-train positives, as written."""
+    page = (Path(__file__).resolve().parents[2] / "docs" / "format.md").read_text()
+    code = page.split("## `pairs.parquet`", 1)[1].split("```python\n", 1)[1].split("```", 1)[0]
+    exec(compile(code.replace("out/demo/dataset", str(with_pairs)), "format.md", "exec"), {})
+    arrow, pandas = capsys.readouterr().out.split()
+    assert arrow == pandas
