@@ -109,7 +109,7 @@ def bench_pairs(sizes: list[int], threads: list[int]) -> None:
 
     print(f"load average {os.getloadavg()[0]:.1f} {os.getloadavg()[1]:.1f}")
     print(
-        "| footprints | threads | seconds | us / image | pairs | peak RSS (MB) |"
+        "| footprints | areas | threads | seconds | us / image | pairs | peak RSS (MB) |"
         " peak RSS growth while pairing (MB) | max rel. diff. from GEOS (2,000 rows) |"
     )
     print("|---:|---|---:|---:|---:|---:|---:|---:|---:|")  # fmt: skip

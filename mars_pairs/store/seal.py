@@ -37,14 +37,9 @@ FILES_KEY = "files"
 #: the sidecar holding dataset.json's SHA-256
 SUMS = "SHA256SUMS"
 #: the files dataset.json's record covers, relative to the dataset folder
-SEALED = (
-    "manifest.parquet",
-    "failures.parquet",
-    "README.md",
-    "croissant.json",
-    WIDS_INDEX,
-    "pairs.parquet",  # with output.pairs only
-)
+SEALED = ("manifest.parquet", "failures.parquet", "README.md", "croissant.json", WIDS_INDEX)
+#: the files the record covers when the build wrote them (``output.pairs``)
+OPTIONAL_SEALED = ("pairs.parquet",)
 #: what a reader says of a dataset without the chain (built before it)
 NO_RECORD = (
     "no integrity record (dataset.json has no 'files' and there is no SHA256SUMS: built "
@@ -80,9 +75,11 @@ SPLIT_LISTS = re.compile(r"shards-[a-z][a-z0-9_]*\.txt|shardindex-[a-z][a-z0-9_]
 
 
 def sealed_names(root: fs.Location) -> list[str]:
-    """The files of ``root`` the record covers: ``SEALED`` and the per-split shard lists."""
-    lists = sorted(n for n in fs.list_files(root) if "/" not in n and SPLIT_LISTS.fullmatch(n))
-    return [*SEALED, *lists]
+    """The files of ``root`` the record covers: ``SEALED``, those of ``OPTIONAL_SEALED``
+    present and the per-split shard lists."""
+    names = [n for n in fs.list_files(root) if "/" not in n]
+    lists = sorted(n for n in names if SPLIT_LISTS.fullmatch(n))
+    return [*SEALED, *(n for n in OPTIONAL_SEALED if n in names), *lists]
 
 
 def files_record(
