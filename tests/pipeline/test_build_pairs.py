@@ -109,6 +109,7 @@ def test_no_pairs_without_the_key(mission: Path, tmp_path: Path) -> None:
     assert not (out / "pairs.parquet").exists()
     doc = json.loads((out / "dataset.json").read_text())
     assert "pairs.parquet" not in doc["files"] and "pairs" not in doc["counts"]
+    assert "pairs.parquet" not in (out / "README.md").read_text()
 
 
 def test_the_format_pages_within_train_example_runs(
@@ -120,3 +121,8 @@ def test_the_format_pages_within_train_example_runs(
     exec(compile(code.replace("out/demo/dataset", str(with_pairs)), "format.md", "exec"), {})
     arrow, pandas = capsys.readouterr().out.split()
     assert arrow == pandas
+
+
+def test_the_card_names_pairs_parquet(with_pairs: Path) -> None:
+    count = pq.read_metadata(with_pairs / "pairs.parquet").num_rows
+    assert f"- `pairs.parquet`: the {count} pairs" in (with_pairs / "README.md").read_text()
