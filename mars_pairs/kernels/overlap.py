@@ -16,9 +16,14 @@ relative to the first vertex of A, so map offsets in millions do not cost digits
 
 Frames and units: one planar CRS for both polygons, areas in its units squared.
 
-Measured (``benchmarks/bench_catalog.py``, 30,000 synthetic 11-vertex wedges, 525,960
-pairs, one thread, load ~10): ``shapely.intersection`` then ``shapely.area`` 20 s; this
-kernel with the GEOS fallback under 2 s, the areas equal to 1e-12 relative.
+Measured against ``shapely.area(shapely.intersection(a, b))`` (GEOS 3.14, one thread, load
+8-11 on 2 cores): 100,000 synthetic 11-vertex wedges (``benchmarks/bench_catalog.py``,
+1,722,060 pairs) pair in 45 s against 158 s with every area from GEOS, the areas equal to
+2.1e-12 relative; random star polygons of 12 / 48 / 192 vertices, 3 / 84 / 830 us a pair
+against GEOS's 108 / 283 / 2243. The kernel is O(n m) in the two vertex counts where GEOS is
+near O(n + m): on the demo catalogue's footprints (drawn on eighth cells, a median of 1,210
+vertices) a pair of 10 x 1,600 vertices takes it 0.15 ms against GEOS's 0.09 ms, so callers
+keep it to small pairs (``store.pairs.KERNEL_VERTICES``).
 """
 
 from __future__ import annotations

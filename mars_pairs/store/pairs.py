@@ -1,9 +1,15 @@
 """Pairs of images that saw the same ground: every pair whose footprints overlap, found
-through a spatial index (``shapely.STRtree``: O(N log N + pairs), never all N^2 pairs), and
-streamed in batches of query rows, so memory holds one batch of pairs at a time.
+through a spatial index (``shapely.STRtree``: O(N log N + pairs), never all N^2 pairs), in
+blocks of query rows taken in the table's order (a catalogue's and a manifest's rows are in
+Hilbert order: spatial blocks), paired on a few threads and streamed out in order, so memory
+holds a few blocks' pairs at a time. Each box candidate's intersection area comes from the
+compiled kernel ``kernels.overlap`` when the pair is small and in general position, from
+GEOS otherwise (``intersection_map_areas``): the pairs and areas (to 1e-9 relative) of
+``shapely.area(shapely.intersection(a, b)) > 0`` over every pair.
 
 Frames and units: footprints in one map CRS (map units); areas are turned into true square
-metres by each footprint's own scale (its true visible area over its map area), distances
+metres by each footprint's own scale (its true area over its map area: a catalogue's
+visible area, a manifest's map area over the CRS's areal scale at the rover), distances
 between camera centres are true metres on the Mars sphere (great circle at the mean height,
 then the height difference), headings are the centre rays' azimuths (degrees from true
 north).
@@ -35,8 +41,9 @@ BATCH_ROWS = 4096
 #: an intersection area under this fraction of the smaller footprint's is GEOS's to give
 #: (the kernel's error there may exceed 1e-9 relative)
 SLIVER = 1e-4
-#: pairs whose vertex counts multiply to more go to GEOS (the kernel is O(n m))
-KERNEL_VERTICES = 65_536
+#: pairs whose vertex counts multiply to more go to GEOS (the kernel is O(n m), GEOS near
+#: O(n + m): measured in ``kernels.overlap``)
+KERNEL_VERTICES = 4096
 #: threads pairing blocks at once (shapely's vectorised operations release the GIL)
 THREADS = 2
 
