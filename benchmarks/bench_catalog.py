@@ -4,10 +4,13 @@
    images per second of ``run_catalog`` and of ``run_build`` (the anchor), and their ratio.
 2. Pairs of a large synthetic catalogue: N footprints (view wedges of 30-100 m, 3 images a
    stop, stops 8 m apart along a winding traverse) paired by ``store.pairs.write_pairs``, at
-   N = 10k, 30k, 100k: seconds, microseconds per image, pairs, and the peak RSS growth
-   during pairing (flat: the pairs are streamed to disk in batches).
+   N = 10k, 30k, 100k, on 1 and 2 threads, each in a fresh process: seconds, microseconds
+   per image, pairs, peak RSS and its growth during pairing (flat: the pairs are streamed
+   to disk block by block), and beside them the largest relative difference of 2,000
+   sampled rows' areas from GEOS's own intersection.
 
 usage: python benchmarks/bench_catalog.py [--config C] [--skip-build] [--sizes N ...]
+       [--threads T ...]
 """
 
 from __future__ import annotations
@@ -59,19 +62,74 @@ def rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def bench_pairs(sizes: list[int]) -> None:
-    print("| footprints | seconds | us / image | pairs | peak RSS growth while pairing (MB) |")
-    print("|---:|---:|---:|---:|---:|")
+def pairs_once(n: int, threads: int, kernel: bool = True) -> dict[str, float]:
+    """Pair ``n`` synthetic footprints into a temporary pairs.parquet (this process: run
+    it in a fresh one for its peak RSS); seconds, pairs, peak RSS before and after, and the
+    largest relative difference of 2,000 sampled rows' ``intersection_m2`` from GEOS's
+    (``shapely.intersection`` of the two footprints). ``kernel`` False: every area from
+    GEOS (the anchor: ``KERNEL_VERTICES`` below any pair's). The kernel is loaded first
+    (numba's cached code, a constant ~100 MB), outside the measure."""
+    import pyarrow.parquet as pq
+
+    from mars_pairs.store import pairs
+
+    if not kernel:
+        pairs.KERNEL_VERTICES = -1
+    warm = Path(tempfile.mkdtemp(prefix="warm-"))
+    write_pairs(warm / "p.parquet", synthetic_footprints(30))
+    shutil.rmtree(warm)
+    fp = synthetic_footprints(n)
+    out = Path(tempfile.mkdtemp(prefix="pairs-")) / "pairs.parquet"
+    before = rss_mb()
+    start = time.perf_counter()
+    count = write_pairs(out, fp, threads=threads)
+    seconds = time.perf_counter() - start
+    peak = rss_mb()
+    table = pq.read_table(out, columns=["key_a", "key_b", "intersection_m2"])
+    rows = np.random.default_rng(1).choice(table.num_rows, min(2000, table.num_rows), False)
+    row_of = {k: i for i, k in enumerate(fp.keys)}
+    a = np.array([row_of[k] for k in table["key_a"].take(rows).to_pylist()])
+    b = np.array([row_of[k] for k in table["key_b"].take(rows).to_pylist()])
+    geos = shapely.area(shapely.intersection(fp.geometry[a], fp.geometry[b]))
+    got = table["intersection_m2"].take(rows).to_numpy()
+    shutil.rmtree(out.parent)
+    return {
+        "seconds": seconds, "pairs": count, "before": before, "peak": peak,
+        "rel": float(np.max(np.abs(got - geos) / geos)),
+    }  # fmt: skip
+
+
+def bench_pairs(sizes: list[int], threads: list[int]) -> None:
+    """Each size and thread count in a fresh process (its own peak RSS), interleaved with
+    the anchor: GEOS for every area, on the most threads."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    print(f"load average {os.getloadavg()[0]:.1f} {os.getloadavg()[1]:.1f}")
+    print(
+        "| footprints | areas | threads | seconds | us / image | pairs | peak RSS (MB) |"
+        " peak RSS growth while pairing (MB) | max rel. diff. from GEOS (2,000 rows) |"
+    )
+    print("|---:|---|---:|---:|---:|---:|---:|---:|---:|")  # fmt: skip
     for n in sizes:
-        fp = synthetic_footprints(n)
-        out = Path(tempfile.mkdtemp(prefix="pairs-")) / "pairs.parquet"
-        before = rss_mb()
-        start = time.perf_counter()
-        count = write_pairs(out, fp)
-        seconds = time.perf_counter() - start
-        grow = rss_mb() - before
-        print(f"| {n:,} | {seconds:.2f} | {seconds / n * 1e6:.1f} | {count:,} | {grow:.0f} |")
-        shutil.rmtree(out.parent)
+        for t, kernel in [*((t, True) for t in threads), (max(threads), False)]:
+            call = f"b.pairs_once({n}, {t}, {kernel})"
+            code = f"import json, bench_catalog as b; print(json.dumps({call}))"
+            env = dict(os.environ, PYTHONPATH=str(Path(__file__).parent))
+            done = subprocess.run(
+                [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+            )
+            r = json.loads(done.stdout.strip().splitlines()[-1])
+            print(
+                f"| {n:,} | {'kernel' if kernel else 'GEOS'} | {t} | {r['seconds']:.2f} | "
+                f"{r['seconds'] / n * 1e6:.1f} | "
+                f"{r['pairs']:,} | {r['peak']:.0f} | {r['peak'] - r['before']:.0f} | "
+                f"{r['rel']:.1e} |",
+                flush=True,
+            )
+    print(f"load average {os.getloadavg()[0]:.1f} {os.getloadavg()[1]:.1f}")
 
 
 def bench_engines(config_path: str, workers: int) -> None:
@@ -108,13 +166,14 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--skip-build", action="store_true")
     parser.add_argument("--sizes", type=int, nargs="*", default=[10_000, 30_000, 100_000])
+    parser.add_argument("--threads", type=int, nargs="*", default=[1, 2])
     args = parser.parse_args()
     if not args.skip_build:
         bench_engines(args.config, args.workers)
         print()
         bench_per_image(args.config)
         print()
-    bench_pairs(args.sizes)
+    bench_pairs(args.sizes, args.threads)
 
 
 def bench_per_image(config_path: str, count: int = 60) -> None:

@@ -348,6 +348,9 @@ class OutputConfig:
     keep_parts: Flag = False
     """Keep ``parts/`` (the chunk parts and the build stamp) after a finished build, so that
     deleting a chunk's part and resuming redoes that chunk alone."""
+    pairs: Flag = False
+    """Also write ``pairs.parquet``: every pair of samples whose footprints overlap, with the
+    two samples' splits and ``cross_split`` (the pair spans a split boundary)."""
     members: Annotated[
         tuple[str, ...],
         PlainValidator(_members),

@@ -228,6 +228,14 @@ def dataset_card(facts: CardFacts) -> str:
         "split's",
         "- `dataset.json`: config, versions, CRS, chip spec, counts, split report",
         "- `croissant.json`: Croissant 1.0 metadata (MLCommons)",
+        *(
+            [
+                f"- `pairs.parquet`: the {counts['pairs']} pairs of samples whose footprints "
+                "overlap, with both splits and `cross_split` (positives: within one split)"
+            ]
+            if "pairs" in counts
+            else []
+        ),
         "",
         "## Columns (manifest.parquet)",
         "",

@@ -4,7 +4,8 @@
   (:mod:`mars_pairs.store.integrity`);
 - dataset.json's ``files`` record (:data:`FILES_KEY`) holds the SHA-256 and size of every
   other file that describes the folder (:data:`SEALED`: the manifest, the failures, the card
-  ``README.md``, ``croissant.json`` and the shard index ``shardindex.json``);
+  ``README.md``, ``croissant.json``, the shard index ``shardindex.json`` and, with
+  ``output.pairs``, ``pairs.parquet``);
 - the sidecar ``SHA256SUMS`` (:data:`SUMS`, the coreutils format: ``sha256sum -c SHA256SUMS``
   in the folder checks it) holds the SHA-256 of dataset.json, closing the chain.
 
@@ -37,6 +38,8 @@ FILES_KEY = "files"
 SUMS = "SHA256SUMS"
 #: the files dataset.json's record covers, relative to the dataset folder
 SEALED = ("manifest.parquet", "failures.parquet", "README.md", "croissant.json", WIDS_INDEX)
+#: the files the record covers when the build wrote them (``output.pairs``)
+OPTIONAL_SEALED = ("pairs.parquet",)
 #: what a reader says of a dataset without the chain (built before it)
 NO_RECORD = (
     "no integrity record (dataset.json has no 'files' and there is no SHA256SUMS: built "
@@ -72,9 +75,11 @@ SPLIT_LISTS = re.compile(r"shards-[a-z][a-z0-9_]*\.txt|shardindex-[a-z][a-z0-9_]
 
 
 def sealed_names(root: fs.Location) -> list[str]:
-    """The files of ``root`` the record covers: ``SEALED`` and the per-split shard lists."""
-    lists = sorted(n for n in fs.list_files(root) if "/" not in n and SPLIT_LISTS.fullmatch(n))
-    return [*SEALED, *lists]
+    """The files of ``root`` the record covers: ``SEALED``, those of ``OPTIONAL_SEALED``
+    present and the per-split shard lists."""
+    names = [n for n in fs.list_files(root) if "/" not in n]
+    lists = sorted(n for n in names if SPLIT_LISTS.fullmatch(n))
+    return [*SEALED, *(n for n in OPTIONAL_SEALED if n in names), *lists]
 
 
 def files_record(

@@ -1,5 +1,6 @@
-"""The end of a build: chunk parts merged into manifest.parquet and failures.parquet, then the
-files that explain the folder (the shard index, README.md, croissant.json), then dataset.json
+"""The end of a build: chunk parts merged into manifest.parquet and failures.parquet, then
+pairs.parquet (``output.pairs``) and the files that explain the folder (the shard index,
+README.md, croissant.json), then dataset.json
 recording their digests and SHA256SUMS over it (``store.seal``: the folder's integrity chain),
 then ``parts/`` goes (``hygiene.remove_parts``).
 
@@ -39,7 +40,11 @@ from mars_pairs.store.croissant import croissant_metadata, dataset_description, 
 from mars_pairs.store.dataset_info import DatasetInfo, dataset_document
 from mars_pairs.store.geoparquet import crs_name, named_crs, table_geo_metadata
 from mars_pairs.store.manifest import FAILURE_SCHEMA, MANIFEST_SCHEMA
+from mars_pairs.store.pairs import Footprints, write_pairs
 from mars_pairs.store.seal import seal
+
+#: the dataset's pairs of overlapping samples (``output.pairs``)
+PAIRS = "pairs.parquet"
 
 #: What dataset.json says of its paths: a dataset on disk, one on object storage.
 PATHS_NOTE = (
@@ -108,6 +113,26 @@ def write_merged(
     fs.write_parquet(manifest, fs.join(out, "manifest.parquet"), row_group_size=1024)
     fs.write_parquet(failures, fs.join(out, "failures.parquet"))
     return manifest, failures
+
+
+def write_dataset_pairs(config: BuildConfig, manifest: pa.Table) -> int | None:
+    """With ``output.pairs``, write ``pairs.parquet`` (``store.pairs`` over the manifest's
+    footprints: every pair of samples whose footprints overlap, with their splits and
+    ``cross_split``) and return the count of pairs; without it, remove a ``pairs.parquet``
+    an earlier build left and return None. Before the card and dataset.json, which seal it."""
+    out = config.output.dir
+    path = fs.join(out, PAIRS)
+    if not config.output.pairs:
+        if fs.exists(path):
+            fs.remove(path)
+        return None
+    footprints = Footprints.from_table(manifest, crs=dataset_crs(config))
+    if isinstance(out, Path):
+        return write_pairs(out / PAIRS, footprints)
+    with fs.local_staging() as tmp:
+        count = write_pairs(tmp / PAIRS, footprints)
+        fs.upload(tmp / PAIRS, path)
+    return count
 
 
 def dataset_crs(config: BuildConfig) -> str:
@@ -196,13 +221,17 @@ def dataset_doc(
     dropped: int,
     fingerprint: dict[str, Any] | None = None,
     extra: dict[str, Any] | None = None,
+    pairs: int | None = None,
 ) -> dict[str, Any]:
     """The dataset.json document (with the finished build's ``build_stamp`` when
     ``fingerprint``, the build's stamp, is given; ``extra``'s keys over the document's: an
     append's ``appends`` and ``build_stamp``), written last by :func:`write_dataset_json`.
     ``input_files`` holds the fingerprints of the PLACES table, DEM and ortho without their paths
-    (``fingerprints.input_files``), which ``--append`` checks."""
+    (``fingerprints.input_files``), which ``--append`` checks. ``pairs``: the count of
+    pairs.parquet's rows (``counts.pairs``; None: no pairs.parquet)."""
     counts: dict[str, Any] = {"samples": summary.samples, "failures": summary.failures}
+    if pairs is not None:
+        counts["pairs"] = pairs
     if manifest.num_rows:
         counts["by_split"] = dict(Counter(manifest.column("split").to_pylist()))
         counts["by_mission"] = dict(Counter(manifest.column("mission").to_pylist()))

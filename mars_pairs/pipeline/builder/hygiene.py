@@ -167,6 +167,7 @@ _CLEARED = (
     "dataset.json",
     "README.md",
     "croissant.json",
+    "pairs.parquet",
     WIDS_INDEX,
     "shardindex-*.json",
     "shards-*.txt",

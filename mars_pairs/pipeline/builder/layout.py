@@ -50,6 +50,7 @@ BUILD_FILES = (
     WIDS_INDEX,
     "README.md",
     "croissant.json",
+    "pairs.parquet",  # output.pairs
     # an append's snapshot of the dataset it appends to (``pipeline.builder.append``)
     "parts/base-manifest.parquet",
     "parts/base-failures.parquet",

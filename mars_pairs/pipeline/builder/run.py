@@ -54,6 +54,7 @@ from mars_pairs.pipeline.builder.finish import (
     merge_parts,
     write_card,
     write_dataset_json,
+    write_dataset_pairs,
 )
 from mars_pairs.pipeline.builder.hygiene import (
     clear_outputs,
@@ -228,7 +229,9 @@ def _run(
         seconds=time.perf_counter() - start,
         stage_seconds=dict(stage_seconds),
     )
-    doc = dataset_doc(config, summary, manifest, dropped_count(out, plan.chunks), plan.fingerprint)
+    pairs = write_dataset_pairs(config, manifest)
+    dropped = dropped_count(out, plan.chunks)
+    doc = dataset_doc(config, summary, manifest, dropped, plan.fingerprint, pairs=pairs)
     write_wids_index(out, manifest)
     write_card(config, manifest, doc)
     write_dataset_json(config, doc)  # the record of the files above: after them
@@ -338,7 +341,8 @@ def _run_append(
         plan.summary_line(),
     )
     extra = dataset_extra(config, plan, added, failures.num_rows - base_failures)
-    doc = dataset_doc(config, summary, manifest, dropped, extra=extra)
+    pairs = write_dataset_pairs(config, manifest)
+    doc = dataset_doc(config, summary, manifest, dropped, extra=extra, pairs=pairs)
     write_wids_index(out, manifest)
     write_card(config, manifest, doc)
     write_dataset_json(config, doc)  # the record of the files above: after them
