@@ -35,6 +35,7 @@ from mars_pairs.pipeline.sample.key import sample_key
 from mars_pairs.pipeline.sample.record import relative_label_path
 from mars_pairs.pipeline.sample.stages import Stages
 from mars_pairs.pipeline.sample.view import View, anchor_view, line_of_sight
+from mars_pairs.raster.cellmask import pack_cells
 from mars_pairs.raster.outline import mask_outline, outline_parts
 from mars_pairs.store.geoparquet import footprint_bounds
 from mars_pairs.store.splits import hilbert_index
@@ -241,6 +242,7 @@ def _row(obs: Observation, view: View, ctx: SampleContext, quat: np.ndarray) -> 
         "footprint": None if outline is None else shapely.to_wkb(outline),
         "wedge": shapely.to_wkb(wedge_polygon(view)),
         "camera_point": shapely.to_wkb(shapely.Point(cx, cy)),
+        "view_cells": pack_cells(view.mask, view.window.transform),
         "bbox": footprint_bounds(outline),
         "hilbert": int(hilbert_index([cx], [cy], ctx.terrain.bounds)[0]),
     }  # fmt: skip
