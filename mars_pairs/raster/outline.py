@@ -33,12 +33,13 @@ def mask_outline(
     c0, c1 = int(cols[0]), int(cols[-1]) + 1
     sub = np.ascontiguousarray(data[r0:r1, c0:c1])
     sub_transform = transform * Affine.translation(c0, r0)
-    parts = [
-        shapely.geometry.shape(geom)
+    polygons = [
+        shapely.Polygon(
+            np.asarray(geom["coordinates"][0]), [np.asarray(h) for h in geom["coordinates"][1:]]
+        )
         for geom, value in features.shapes(sub, mask=sub > 0, transform=sub_transform)
         if value > 0
     ]
-    polygons = [p for p in parts if isinstance(p, shapely.Polygon) and not p.is_empty]
     if tolerance is None:
         tolerance = SIMPLIFY_CELLS * max(abs(transform.a), abs(transform.e))
     shape: shapely.Polygon | shapely.MultiPolygon = (
