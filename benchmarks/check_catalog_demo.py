@@ -34,10 +34,11 @@ from mars_pairs.raster.terrain import Terrain
 from mars_pairs.store.catalog import Catalog
 
 
-def chip_ious(catalog: Catalog, dataset: Path) -> dict[str, float]:
-    """key -> IoU of the footprint rasterized on the chip grid and the viewshed chip."""
+def chip_ious(catalog: Catalog, dataset: Path) -> dict[str, tuple[float, int]]:
+    """key -> (IoU of the footprint rasterized on the chip grid and the viewshed chip, the
+    chip's pixels in view)."""
     geoms = dict(zip(catalog.table["key"].to_pylist(), catalog.geometry, strict=True))
-    out: dict[str, float] = {}
+    out: dict[str, tuple[float, int]] = {}
     for shard in sorted((dataset / "shards").glob("*.tar")):
         with tarfile.open(shard) as tar:
             members = {m.name: m for m in tar.getmembers()}
@@ -60,7 +61,8 @@ def chip_ious(catalog: Catalog, dataset: Path) -> dict[str, float]:
                 if geom is not None:
                     mine = features.rasterize([geom], out_shape=chip.shape, transform=transform) > 0
                 union = (mine | chip).sum()
-                out[key] = 1.0 if union == 0 else float((mine & chip).sum() / union)
+                iou = 1.0 if union == 0 else float((mine & chip).sum() / union)
+                out[key] = (iou, int(chip.sum()))
     return out
 
 
@@ -182,10 +184,12 @@ def main() -> int:
         f"all accounted: {len(labels) == len(catalog) + failures.num_rows}"
     )
     ious = chip_ious(catalog, Path(a.dataset))
-    v = np.array(list(ious.values()))
+    v = np.array([iou for iou, _ in ious.values()])
+    big = np.array([iou for iou, pixels in ious.values() if pixels >= 37])
     print(
         f"chip IoU over {len(v)} images: min {v.min():.4f}, median {np.median(v):.4f}, "
-        f"below 0.95: {int((v < 0.95).sum())}"
+        f"below 0.95: {int((v < 0.95).sum())}; over the {len(big)} with >= 37 chip pixels in "
+        f"view: min {big.min():.4f}"
     )
     for name, value in saw_agreement(Path(a.config), catalog, a.points).items():
         print(f"saw {name}: {value:.4f}" if isinstance(value, float) else f"saw {name}: {value}")

@@ -32,17 +32,26 @@ CELLS_TYPE = pa.struct(
 )
 
 
+def set_box(mask: np.ndarray) -> tuple[int, int, int, int] | None:
+    """(row0, row1, col0, col1), the half-open bounding box of the set cells of ``mask``
+    (rows, cols; nonzero = set); None when no cell is set."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    if not rows.size:
+        return None
+    r0, r1 = int(rows[0]), int(rows[-1]) + 1
+    cols = np.flatnonzero(mask[r0:r1].any(axis=0))
+    return r0, r1, int(cols[0]), int(cols[-1]) + 1
+
+
 def pack_cells(mask: np.ndarray, transform: Affine) -> dict[str, Any] | None:
     """The set cells of ``mask`` (rows, cols; nonzero = set) on the axis-aligned grid of
     ``transform`` (pixel corners -> map x, y) as a ``CELLS_TYPE`` record; None when no cell
     is set."""
     data = np.asarray(mask) != 0
-    rows = np.flatnonzero(data.any(axis=1))
-    if not rows.size:
+    found = set_box(data)
+    if found is None:
         return None
-    r0, r1 = int(rows[0]), int(rows[-1]) + 1
-    cols = np.flatnonzero(data[r0:r1].any(axis=0))
-    c0, c1 = int(cols[0]), int(cols[-1]) + 1
+    r0, r1, c0, c1 = found
     box = data[r0:r1, c0:c1]
     x0, y0 = transform * (c0, r0)
     return {

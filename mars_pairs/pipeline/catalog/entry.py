@@ -171,7 +171,10 @@ def _any_around(mask: np.ndarray) -> np.ndarray:
     a set cell."""
     padded = np.pad(mask, 1)
     h, w = mask.shape
-    return np.logical_or.reduce([padded[i : i + h, j : j + w] for i in range(3) for j in range(3)])
+    out: np.ndarray = np.logical_or.reduce(
+        [padded[i : i + h, j : j + w] for i in range(3) for j in range(3)]
+    )
+    return out
 
 
 def bilinear(data: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
