@@ -16,6 +16,7 @@ usage: python benchmarks/bench_catalog.py [--config C] [--skip-build] [--sizes N
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import shutil
 import tempfile
@@ -152,6 +153,7 @@ def bench_engines(config_path: str, workers: int) -> None:
         seconds = time.perf_counter() - start
         rows.append((name, n, seconds))
     anchor = rows[0][1] / rows[0][2]
+    print(f"load average {os.getloadavg()[0]:.2f}")
     print(f"| run ({workers} workers) | images | seconds | images/s | ratio to build |")
     print("|---|---:|---:|---:|---:|")
     for name, n, seconds in rows:
@@ -161,6 +163,9 @@ def bench_engines(config_path: str, workers: int) -> None:
 
 
 def main() -> None:
+    from mars_pairs import runtime
+
+    runtime.configure_process()  # as a worker runs: no OpenMP busy-wait in this process
     parser = argparse.ArgumentParser()
     parser.add_argument("--config", default="configs/demo.yaml")
     parser.add_argument("--workers", type=int, default=2)

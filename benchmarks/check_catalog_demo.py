@@ -34,10 +34,11 @@ from mars_pairs.raster.terrain import Terrain
 from mars_pairs.store.catalog import Catalog
 
 
-def chip_ious(catalog: Catalog, dataset: Path) -> dict[str, float]:
-    """key -> IoU of the footprint rasterized on the chip grid and the viewshed chip."""
+def chip_ious(catalog: Catalog, dataset: Path) -> dict[str, tuple[float, int]]:
+    """key -> (IoU of the footprint rasterized on the chip grid and the viewshed chip, the
+    chip's pixels in view)."""
     geoms = dict(zip(catalog.table["key"].to_pylist(), catalog.geometry, strict=True))
-    out: dict[str, float] = {}
+    out: dict[str, tuple[float, int]] = {}
     for shard in sorted((dataset / "shards").glob("*.tar")):
         with tarfile.open(shard) as tar:
             members = {m.name: m for m in tar.getmembers()}
@@ -60,7 +61,8 @@ def chip_ious(catalog: Catalog, dataset: Path) -> dict[str, float]:
                 if geom is not None:
                     mine = features.rasterize([geom], out_shape=chip.shape, transform=transform) > 0
                 union = (mine | chip).sum()
-                out[key] = 1.0 if union == 0 else float((mine & chip).sum() / union)
+                iou = 1.0 if union == 0 else float((mine & chip).sum() / union)
+                out[key] = (iou, int(chip.sum()))
     return out
 
 
@@ -107,6 +109,7 @@ def saw_agreement(
     within_cell = np.zeros(2 * n_points, dtype=bool)
     cell_agree = np.zeros(2 * n_points, dtype=bool)
     cell_extra = cell_missed = 0
+    cell_worst = 0.0  # cells from a returned image's visible cell, over per_cell's extras
     seen = np.zeros(2 * n_points, dtype=bool)
     worst_extra = worst_missed = 0.0
     for i, (x, y, lon, lat) in enumerate(zip(xs, ys, lons, lats, strict=True)):
@@ -122,17 +125,12 @@ def saw_agreement(
         cell_agree[i] = cell_got == truth
         cell_extra += len(cell_got - truth)
         cell_missed += len(truth - cell_got)
+        for key in cell_got - truth:
+            cell_worst = max(cell_worst, _cells_to(rasters[key], x, y, visible=True))
         seen[i] = bool(truth or got)
         near = True
         for key in got ^ truth:  # the distance (cells) to the raster's nearest other verdict
-            codes, transform, _ = rasters[key]
-            col, row = ~transform * (x, y)
-            rr, cc = np.nonzero(codes == 1) if key in got else np.nonzero(codes != 1)
-            d = (
-                float(np.min(np.maximum(np.abs(cc + 0.5 - col), np.abs(rr + 0.5 - row)) - 0.5))
-                if len(rr)
-                else np.inf
-            )
+            d = _cells_to(rasters[key], x, y, visible=key in got)
             near &= d <= 1.0
             if key in got:
                 worst_extra = max(worst_extra, d)
@@ -152,9 +150,21 @@ def saw_agreement(
         "per_cell_inside_agree": float(cell_agree[ins].mean()),
         "per_cell_extra_images": cell_extra,
         "per_cell_missed_images": cell_missed,
+        "per_cell_worst_extra_cells": cell_worst,
         "worst_extra_cells": worst_extra,
         "worst_missed_cells": worst_missed,
     }
+
+
+def _cells_to(raster: tuple[np.ndarray, Affine, float], x: float, y: float, visible: bool) -> float:
+    """Cells (Chebyshev, from the cell's edge) from map point (x, y) to the nearest cell of
+    the raster marked visible (``visible``) or not; inf when there is none."""
+    codes, transform, _ = raster
+    col, row = ~transform * (x, y)
+    rr, cc = np.nonzero(codes == 1) if visible else np.nonzero(codes != 1)
+    if not len(rr):
+        return float(np.inf)
+    return float(np.min(np.maximum(np.abs(cc + 0.5 - col), np.abs(rr + 0.5 - row)) - 0.5))
 
 
 def main() -> int:
@@ -174,10 +184,12 @@ def main() -> int:
         f"all accounted: {len(labels) == len(catalog) + failures.num_rows}"
     )
     ious = chip_ious(catalog, Path(a.dataset))
-    v = np.array(list(ious.values()))
+    v = np.array([iou for iou, _ in ious.values()])
+    big = np.array([iou for iou, pixels in ious.values() if pixels >= 37])
     print(
         f"chip IoU over {len(v)} images: min {v.min():.4f}, median {np.median(v):.4f}, "
-        f"below 0.95: {int((v < 0.95).sum())}"
+        f"below 0.95: {int((v < 0.95).sum())}; over the {len(big)} with >= 37 chip pixels in "
+        f"view: min {big.min():.4f}"
     )
     for name, value in saw_agreement(Path(a.config), catalog, a.points).items():
         print(f"saw {name}: {value:.4f}" if isinstance(value, float) else f"saw {name}: {value}")

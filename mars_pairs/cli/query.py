@@ -117,8 +117,8 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--per-cell",
         action="store_true",
-        help="with --saw on a catalogue: test the centre of the DEM cell holding the point (the "
-        "verdict `viewshed --label` gives the whole cell) instead of the point itself",
+        help="with --saw on a catalogue: the images whose view holds the DEM cell the point lies "
+        "in (the cell's verdict `viewshed --label` writes) instead of the footprint polygon",
     )
     where.add_argument(
         "--overlaps",

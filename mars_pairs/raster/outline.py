@@ -9,6 +9,8 @@ from affine import Affine
 from rasterio import features
 from shapely.geometry.base import BaseGeometry
 
+from mars_pairs.raster.cellmask import set_box
+
 #: The simplification tolerance as a fraction of the raster's cell (map units): the outline
 #: moves by at most a quarter cell, below the DEM cell the footprint is measured on.
 SIMPLIFY_CELLS = 0.25
@@ -25,20 +27,19 @@ def mask_outline(
     Only the bounding box of the set cells is traced (a view covers a fraction of its window).
     """
     data = np.asarray(mask).astype(np.uint8, copy=False)
-    rows = np.flatnonzero(data.any(axis=1))
-    if not rows.size:
+    found = set_box(data)
+    if found is None:
         return None
-    r0, r1 = int(rows[0]), int(rows[-1]) + 1
-    cols = np.flatnonzero(data[r0:r1].any(axis=0))
-    c0, c1 = int(cols[0]), int(cols[-1]) + 1
+    r0, r1, c0, c1 = found
     sub = np.ascontiguousarray(data[r0:r1, c0:c1])
     sub_transform = transform * Affine.translation(c0, r0)
-    parts = [
-        shapely.geometry.shape(geom)
+    polygons = [
+        shapely.Polygon(
+            np.asarray(geom["coordinates"][0]), [np.asarray(h) for h in geom["coordinates"][1:]]
+        )
         for geom, value in features.shapes(sub, mask=sub > 0, transform=sub_transform)
         if value > 0
     ]
-    polygons = [p for p in parts if isinstance(p, shapely.Polygon) and not p.is_empty]
     if tolerance is None:
         tolerance = SIMPLIFY_CELLS * max(abs(transform.a), abs(transform.e))
     shape: shapely.Polygon | shapely.MultiPolygon = (

@@ -1,5 +1,6 @@
 """Reading a footprint catalogue folder (``Catalog.open``): which images saw a point
-(``saw``: exact polygon containment, with the range at which each saw it), which images saw
+(``saw``: exact polygon containment, or with ``per_cell`` the verdict each image's view gives
+the DEM cell holding the point, with the range at which each saw it), which images saw
 ground in a longitude/latitude box (``bbox``: the visible footprint polygon meets the box) and
 which images saw the same ground as one image (``overlaps``, ranked by IoU).
 
@@ -25,11 +26,11 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import shapely
-from affine import Affine
 
 from mars_pairs.errors import ArgumentError, DatasetError
 from mars_pairs.geometry.body import MARS_RADIUS_M
 from mars_pairs.geometry.frames import lonlat_to_map
+from mars_pairs.raster.cellmask import cells_at
 from mars_pairs.store import fs
 from mars_pairs.store.pairs import great_circle_m
 
@@ -78,18 +79,10 @@ class Catalog:
     ``crs`` the map CRS (PROJJSON), ``folder`` where it is (a local folder, or an fsspec URL:
     ``s3://bucket/prefix``)."""
 
-    def __init__(
-        self,
-        folder: fs.Location,
-        table: pa.Table,
-        crs: Any,
-        dem_transform: Sequence[float] | None = None,
-    ) -> None:
+    def __init__(self, folder: fs.Location, table: pa.Table, crs: Any) -> None:
         self.folder = folder
         self.table = table
         self.crs = crs
-        #: the DEM's affine transform (6 numbers, map units; catalog.json), None when unknown
-        self.dem_transform = dem_transform
         self._geometry: np.ndarray | None = None
 
     @classmethod
@@ -100,19 +93,13 @@ class Catalog:
         root = fs.dataset_root(folder)
         if not is_catalog(root):
             raise DatasetError(root, None, "no catalog.parquet (not a footprint catalogue folder)")
-        info = fs.join(root, "catalog.json")
-        doc: dict[str, Any] = {}
-        if fs.is_url(root) or fs.is_file(info):
-            try:
-                doc = json.loads(fs.read_bytes(info))
-            except FileNotFoundError:
-                raise DatasetError(
-                    root, None, "no catalog.json (a catalogue being published, or not one)"
-                ) from None
         path = fs.join(root, "catalog.parquet")
+        if fs.is_url(root) and not fs.is_file(fs.join(root, "catalog.json")):
+            raise DatasetError(
+                root, None, "no catalog.json (a catalogue being published, or not one)"
+            )
         table = fs.read_parquet(path)
-        dem = doc.get("footprint", {}).get("dem_transform")
-        return cls(root, table, geo_crs(table.schema, path), dem)
+        return cls(root, table, geo_crs(table.schema, path))
 
     def __len__(self) -> int:
         return int(self.table.num_rows)
@@ -129,16 +116,22 @@ class Catalog:
     def saw(self, lon: float, lat: float, per_cell: bool = False) -> pa.Table:
         """The images whose visible footprint holds the point (``lon``, ``lat``: degrees
         east/north, Mars sphere), nearest first: ``SAW_COLUMNS`` and ``range_m`` (horizontal
-        true metres from the camera centre). ``per_cell``: test the centre of the DEM cell
-        holding the point instead (the verdict ``viewshed --label`` gives the whole cell).
-        ArgumentError for a malformed point, or ``per_cell`` without the DEM's grid."""
+        true metres from the camera centre). ``per_cell``: the images whose view holds the
+        DEM cell the point lies in (``view_cells``: each cell's verdict is its centre's, as
+        ``viewshed --label`` writes it) instead of the footprint polygon. ArgumentError for
+        a malformed point, or ``per_cell`` on a catalogue without ``view_cells``."""
         lon, lat = checked_point((lon, lat), "saw")
         x, y = lonlat_to_map([lon], [lat], json.dumps(self.crs))
         px, py = float(x[0]), float(y[0])
         if per_cell:
-            px, py = self.cell_centre(px, py)
-        # a cell's centre is a corner of its sub-cells: on the edge, it is out
-        rows = points_in(self.geometry, px, py, edge=not per_cell)
+            if "view_cells" not in self.table.column_names:
+                raise ArgumentError(
+                    f"per-cell: {fs.join(self.folder, 'catalog.parquet')} has no view_cells column "
+                    "(made by an older mars-pairs: rerun mars-pairs catalog)"
+                )
+            rows = cells_at(self.table["view_cells"], px, py)
+        else:
+            rows = points_in(self.geometry, px, py)
         hits = self.table.take(pa.array(rows, type=pa.int64())).select(list(SAW_COLUMNS))
         cam_lon = hits["camera_lon"].to_numpy(zero_copy_only=False)
         cam_lat = hits["camera_lat"].to_numpy(zero_copy_only=False)
@@ -172,18 +165,6 @@ class Catalog:
         rows = np.sort(valid[hits])
         columns = [*SAW_COLUMNS, "visible_area_m2"]
         return self.table.take(pa.array(rows, type=pa.int64())).select(columns)
-
-    def cell_centre(self, x: float, y: float) -> tuple[float, float]:
-        """The centre (map x, y, map units) of the DEM cell holding map point (x, y);
-        ArgumentError when the catalogue does not name the DEM's grid."""
-        if self.dem_transform is None:
-            raise ArgumentError(
-                f"per-cell: {fs.join(self.folder, 'catalog.json')} has no footprint.dem_transform"
-            )
-        grid = Affine(*self.dem_transform)
-        col, row = ~grid * (x, y)
-        cx, cy = grid * (math.floor(col) + 0.5, math.floor(row) + 0.5)
-        return float(cx), float(cy)
 
     def overlaps(self, key: str) -> pa.Table:
         """The images that saw the same ground as image ``key`` (pairs.parquet), highest IoU

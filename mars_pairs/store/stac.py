@@ -272,9 +272,37 @@ def _write_items_parquet(
 
     with atomic_path(path) as tmp:
         if items:
-            reader = stac_geoparquet.arrow.parse_stac_items_to_arrow(items)
+            reader = stac_geoparquet.arrow.parse_stac_items_to_arrow([_frozen(i) for i in items])
             stac_geoparquet.arrow.to_parquet(
                 reader, tmp, collections={COLLECTION_ID: collection}, compression="zstd"
             )
         else:
             pa.parquet.write_table(pa.table({"id": pa.array([], pa.string())}), tmp)
+
+
+class _Geometry:
+    """A GeoJSON geometry handed to stac-geoparquet as it is: ``copy.deepcopy`` returns it and
+    its ``__geo_interface__`` holds the rings as arrays. stac-geoparquet deep-copies every
+    Item before turning its geometries into WKB through shapely: on the demo catalogue's
+    270 Items (~1,100 vertices a footprint) that copy and the per-vertex rebuild were 13.4 s
+    of the 20 s STAC writing (load 19); with this, a copy is free and shapely builds each
+    ring from its array."""
+
+    def __init__(self, doc: dict[str, Any]) -> None:
+        coords: Any = doc["coordinates"]
+        if doc["type"] == "Polygon":
+            coords = [np.asarray(ring, dtype=np.float64) for ring in coords]
+        elif doc["type"] == "MultiPolygon":
+            coords = [[np.asarray(ring, dtype=np.float64) for ring in poly] for poly in coords]
+        self.__geo_interface__ = {"type": doc["type"], "coordinates": coords}
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> _Geometry:
+        return self
+
+
+def _frozen(item: dict[str, Any]) -> dict[str, Any]:
+    """``item`` (not changed) with its geometry and ``proj:geometry`` as ``_Geometry``."""
+    props = dict(item["properties"])
+    if "proj:geometry" in props:
+        props["proj:geometry"] = _Geometry(props["proj:geometry"])
+    return {**item, "geometry": _Geometry(item["geometry"]), "properties": props}

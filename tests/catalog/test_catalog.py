@@ -26,7 +26,7 @@ from mars_pairs.errors import ArgumentError, ConfigError
 from mars_pairs.geometry.frames import map_to_lonlat
 from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.catalog.run import run_catalog
-from mars_pairs.store.catalog import Catalog, points_in
+from mars_pairs.store.catalog import Catalog
 from mars_pairs.store.pairs import Footprints, pairs_table
 from mars_pairs.store.query import Manifest
 from support.configs import build_config
@@ -139,7 +139,8 @@ def test_saw_agrees_with_the_viewshed_geotiffs(
     (read with rasterio) marks the point's cell visible: >= 99 % equal; and at 500 points
     inside footprints (where the image edges are) no returned image whose raster is more
     than one cell from a visible cell there (the footprint is drawn on eighth cells, the
-    GeoTIFF on whole cells: they differ inside the cells an image edge cuts)."""
+    GeoTIFF on whole cells: they differ inside the cells an image edge cuts); with
+    ``per_cell`` (the view's own cells) the sets are equal at every point of both."""
     cat, _ = built
     catalog = Catalog.open(cat)
     rasters = {}
@@ -175,9 +176,10 @@ def test_saw_agrees_with_the_viewshed_geotiffs(
             points.append(p)
     xs, ys = np.array(points).T
     lons, lats = map_to_lonlat(xs, ys, json.dumps(catalog.crs))
-    agree, worst = 0, 0.0
+    agree, worst, cell_differ = 0, 0.0, []
     for i, (x, y, lon, lat) in enumerate(zip(xs, ys, lons, lats, strict=True)):
         got = set(catalog.saw(float(lon), float(lat))["key"].to_pylist())
+        per_cell = set(catalog.saw(float(lon), float(lat), per_cell=True)["key"].to_pylist())
         truth = set()
         for key, (codes, transform) in rasters.items():
             col, row = ~transform * (x, y)
@@ -185,6 +187,8 @@ def test_saw_agrees_with_the_viewshed_geotiffs(
             if 0 <= r < codes.shape[0] and 0 <= c < codes.shape[1] and codes[r, c] == 1:
                 truth.add(key)
         agree += i < 1000 and got == truth
+        if per_cell != truth:
+            cell_differ.append((i, sorted(per_cell ^ truth)))
         for key in got - truth:
             codes, transform = rasters[key]
             rr, cc = np.nonzero(codes == 1)
@@ -193,6 +197,7 @@ def test_saw_agrees_with_the_viewshed_geotiffs(
             worst = max(worst, float(d.min()) if len(d) else np.inf)
     assert agree / 1000 >= 0.99
     assert worst <= 1.0
+    assert not cell_differ, cell_differ[:3]
 
 
 def test_saw_gives_the_range_and_refuses_bad_points(built: tuple[Path, Path]) -> None:
@@ -376,23 +381,28 @@ def test_pairs_on_synthetic_footprints_match_brute_force() -> None:
     assert np.all((iou > 0) & (iou <= 1))
 
 
-def test_saw_per_cell_tests_the_dem_cells_centre(built: tuple[Path, Path]) -> None:
-    """``saw(per_cell=True)`` answers for the centre of the DEM cell holding the point (the
-    grid catalog.json names; a centre on a footprint's edge is out); without the grid it is
-    refused."""
+def test_saw_per_cell_reads_the_views_cells(built: tuple[Path, Path]) -> None:
+    """``saw(per_cell=True)`` answers from ``view_cells``: an image is returned at every point
+    of a cell its record sets, whatever the point's place in the cell, and a catalogue
+    without the column is refused."""
     cat, _ = built
     catalog = Catalog.open(cat)
-    grid = Affine(*json.loads((cat / "catalog.json").read_text())["footprint"]["dem_transform"])
-    c = catalog.geometry[0].representative_point()
-    col, row = ~grid * (c.x + 0.3 * grid.a, c.y)
-    cx, cy = grid * (np.floor(col) + 0.5, np.floor(row) + 0.5)
-    assert catalog.cell_centre(c.x + 0.3 * grid.a, c.y) == pytest.approx((cx, cy))
-    lon, lat = map_to_lonlat([c.x + 0.3 * grid.a, cx], [c.y, cy], json.dumps(catalog.crs))
-    per_cell = catalog.saw(float(lon[0]), float(lat[0]), per_cell=True)["key"].to_pylist()
-    inside = points_in(catalog.geometry, float(cx), float(cy), edge=False)
-    assert per_cell and sorted(per_cell) == sorted(catalog.table["key"].take(inside).to_pylist())
-    bare = Catalog(cat, catalog.table, catalog.crs)
-    with pytest.raises(ArgumentError, match="dem_transform"):
+    record = catalog.table["view_cells"][0].as_py()
+    box = np.unpackbits(np.frombuffer(record["bits"], dtype=np.uint8))
+    box = box[: record["rows"] * record["cols"]].reshape(record["rows"], record["cols"])
+    grid = Affine(record["dx"], 0.0, record["x0"], 0.0, record["dy"], record["y0"])
+    key = catalog.table["key"][0].as_py()
+    r, c = (int(v[0]) for v in np.nonzero(box))
+    for fx, fy in ((0.02, 0.03), (0.97, 0.5), (0.5, 0.98)):
+        x, y = grid * (c + fx, r + fy)
+        lon, lat = map_to_lonlat([x], [y], json.dumps(catalog.crs))
+        assert key in catalog.saw(float(lon[0]), float(lat[0]), per_cell=True)["key"].to_pylist()
+    r, c = (int(v[0]) for v in np.nonzero(box == 0))
+    x, y = grid * (c + 0.5, r + 0.5)
+    lon, lat = map_to_lonlat([x], [y], json.dumps(catalog.crs))
+    assert key not in catalog.saw(float(lon[0]), float(lat[0]), per_cell=True)["key"].to_pylist()
+    bare = Catalog(cat, catalog.table.drop_columns(["view_cells"]), catalog.crs)
+    with pytest.raises(ArgumentError, match="view_cells"):
         bare.saw(float(lon[0]), float(lat[0]), per_cell=True)
 
 

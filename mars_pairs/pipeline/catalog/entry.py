@@ -35,6 +35,7 @@ from mars_pairs.pipeline.sample.key import sample_key
 from mars_pairs.pipeline.sample.record import relative_label_path
 from mars_pairs.pipeline.sample.stages import Stages
 from mars_pairs.pipeline.sample.view import View, anchor_view, line_of_sight
+from mars_pairs.raster.cellmask import pack_cells
 from mars_pairs.raster.outline import mask_outline, outline_parts
 from mars_pairs.store.geoparquet import footprint_bounds
 from mars_pairs.store.splits import hilbert_index
@@ -118,10 +119,12 @@ def fine_mask(view: View, sub: int = SUBCELLS) -> tuple[np.ndarray, Any]:
     """The view on a grid ``sub`` times finer than the DEM window's (uint8, 1 = in view) and
     its transform: a sub-cell is in view when its DEM cell is in line of sight
     (``view.los``) and its centre, at the DEM's bilinear height there, passes the exact view
-    test (``view.in_view``), as a chip pixel is tested (``chips.chip_view``). Only the cells
-    near the image's edges are sub-tested: a cell in view whose 8 neighbours are too is
-    whole, a cell with none in view is out (the image's edges are straight at the cell's
-    scale)."""
+    test (``view.in_view``), as a chip pixel is tested (``chips.chip_view``). Line of sight
+    is one verdict per cell, so only the cells the view test's edge crosses are sub-tested:
+    the cells in line of sight whose 3 x 3 neighbourhood holds a cell centre passing the
+    view test and one failing it (tested at the cells in line of sight and those beside the
+    view; the image's edges are straight at the cell's scale); every other cell in line of
+    sight is whole, in or out as its centre."""
     from affine import Affine
 
     from mars_pairs.pipeline.sample.view import in_view
@@ -135,12 +138,17 @@ def fine_mask(view: View, sub: int = SUBCELLS) -> tuple[np.ndarray, Any]:
     r1, c1 = int(near[0][-1]) + 2, int(near[1][-1]) + 2
     los = full_los[r0:r1, c0:c1]
     mask = view.mask[r0:r1, c0:c1].astype(bool)
-    # whole cells: in view with their 8 neighbours (all sub-cells in), or in line of sight
-    # with no neighbour in view (all out); the rest, along the image's edges, sub-tested
-    grown, inner = _neighbourhood(mask)
-    inner &= los
-    edge = los & grown & ~inner
-    fine = np.kron(inner, np.ones((sub, sub), dtype=bool)).astype(np.uint8)
+    # the view test at the centres of the cells out of sight beside the view, then its
+    # edge: the cells in line of sight with a neighbour passing the test and one failing it
+    passes, tested = mask.copy(), los | _any_around(mask)
+    ring_r, ring_c = np.nonzero(tested & ~los)
+    if len(ring_r):
+        x, y = view.window.colrow_to_xy(ring_c + c0, ring_r + r0)
+        z = view.window.data[ring_r + r0, ring_c + c0].astype(np.float64)
+        passes[ring_r, ring_c] = in_view(np.column_stack([x, y, z]), view) & np.isfinite(z)
+    edge = los & _any_around(passes) & _any_around(tested & ~passes)
+    whole = mask & ~edge
+    fine = np.repeat(np.repeat(whole, sub, axis=0), sub, axis=1).astype(np.uint8)
     rows, cols = np.nonzero(edge)
     if len(rows):
         offsets = (np.arange(sub) + 0.5) / sub - 0.5
@@ -158,12 +166,15 @@ def fine_mask(view: View, sub: int = SUBCELLS) -> tuple[np.ndarray, Any]:
     return fine, view.window.transform * shift
 
 
-def _neighbourhood(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(any, all) of each cell's 3 x 3 neighbourhood in ``mask`` (bool; off the grid: out)."""
+def _any_around(mask: np.ndarray) -> np.ndarray:
+    """Whether each cell's 3 x 3 neighbourhood in ``mask`` (bool; off the grid: out) holds
+    a set cell."""
     padded = np.pad(mask, 1)
     h, w = mask.shape
-    shifts = [padded[i : i + h, j : j + w] for i in range(3) for j in range(3)]
-    return np.logical_or.reduce(shifts), np.logical_and.reduce(shifts)
+    out: np.ndarray = np.logical_or.reduce(
+        [padded[i : i + h, j : j + w] for i in range(3) for j in range(3)]
+    )
+    return out
 
 
 def bilinear(data: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
@@ -241,6 +252,7 @@ def _row(obs: Observation, view: View, ctx: SampleContext, quat: np.ndarray) -> 
         "footprint": None if outline is None else shapely.to_wkb(outline),
         "wedge": shapely.to_wkb(wedge_polygon(view)),
         "camera_point": shapely.to_wkb(shapely.Point(cx, cy)),
+        "view_cells": pack_cells(view.mask, view.window.transform),
         "bbox": footprint_bounds(outline),
         "hilbert": int(hilbert_index([cx], [cy], ctx.terrain.bounds)[0]),
     }  # fmt: skip

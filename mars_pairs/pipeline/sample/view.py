@@ -165,10 +165,11 @@ def in_view(points_map: np.ndarray, view: AnchoredView) -> np.ndarray:
     Line of sight is not tested here (the kernel's mask says that).
     """
     camera = view.camera
-    rel = camera.local_points(points_map, MARS_RADIUS_M) - camera.map_to_local(camera.center_map)
+    local = camera.local_points(points_map, MARS_RADIUS_M)
+    rel = local - camera.map_to_local(camera.center_map)
     keep = np.hypot(rel[:, 0], rel[:, 1]) <= view.radius_m
     if view.mode == "frustum":
-        return keep & camera.in_image(points_map, MARS_RADIUS_M)
+        return keep & camera.local_in_image(local)
     (az0, az1), (el0, el1) = view.bands
     az, el = azimuth_elevation_deg(rel)
     if (az0, az1) != (0.0, 360.0):
