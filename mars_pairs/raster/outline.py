@@ -9,7 +9,7 @@ from affine import Affine
 from rasterio import features
 from shapely.geometry.base import BaseGeometry
 
-from mars_pairs.raster.cellmask import set_box
+from mars_pairs.store.cellmask import set_box
 
 #: The simplification tolerance as a fraction of the raster's cell (map units): the outline
 #: moves by at most a quarter cell, below the DEM cell the footprint is measured on.

@@ -30,8 +30,8 @@ import shapely
 from mars_pairs.errors import ArgumentError, DatasetError
 from mars_pairs.geometry.body import MARS_RADIUS_M
 from mars_pairs.geometry.frames import lonlat_to_map
-from mars_pairs.raster.cellmask import cells_at
 from mars_pairs.store import fs
+from mars_pairs.store.cellmask import cells_at
 from mars_pairs.store.pairs import great_circle_m
 
 SAW_COLUMNS = ("key", "product_id", "mission", "instrument", "sol", "camera_lon", "camera_lat")

@@ -11,7 +11,7 @@ from typing import Any
 
 import pyarrow as pa
 
-from mars_pairs.raster.cellmask import CELLS_TYPE
+from mars_pairs.store.cellmask import CELLS_TYPE
 from mars_pairs.store.geoparquet import BBOX_FIELDS, BBOX_TYPE, named_crs
 
 CATALOG_FIELDS: list[tuple[str, pa.DataType]] = [
@@ -56,7 +56,7 @@ CATALOG_FIELDS: list[tuple[str, pa.DataType]] = [
     ("footprint", pa.binary()),  # WKB (multi)polygon, map CRS: the visible ground
     ("wedge", pa.binary()),  # WKB polygon, map CRS: the frustum's wedge to radius_m
     ("camera_point", pa.binary()),  # WKB point, map CRS: the camera centre
-    ("view_cells", CELLS_TYPE),  # the DEM cells in view, a bitmask (raster.cellmask)
+    ("view_cells", CELLS_TYPE),  # the DEM cells in view, a bitmask (store.cellmask)
     ("bbox", BBOX_TYPE),  # the footprint's bounds (GeoParquet covering)
     ("hilbert", pa.int64()),  # Hilbert index of the camera centre over the DEM: the row order
 ]

@@ -35,8 +35,8 @@ from mars_pairs.pipeline.sample.key import sample_key
 from mars_pairs.pipeline.sample.record import relative_label_path
 from mars_pairs.pipeline.sample.stages import Stages
 from mars_pairs.pipeline.sample.view import View, anchor_view, line_of_sight
-from mars_pairs.raster.cellmask import pack_cells
 from mars_pairs.raster.outline import mask_outline, outline_parts
+from mars_pairs.store.cellmask import pack_cells
 from mars_pairs.store.geoparquet import footprint_bounds
 from mars_pairs.store.splits import hilbert_index
 

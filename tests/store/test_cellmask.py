@@ -8,7 +8,7 @@ import pytest
 from affine import Affine
 from rasterio.transform import rowcol
 
-from mars_pairs.raster.cellmask import CELLS_TYPE, cells_at, pack_cells
+from mars_pairs.store.cellmask import CELLS_TYPE, cells_at, pack_cells
 
 
 @pytest.mark.parametrize(
