@@ -54,11 +54,11 @@ if TYPE_CHECKING:
     from mars_pairs.kernels.viewshed import compute_viewshed
     from mars_pairs.observation import MotionCounter, Observation
     from mars_pairs.pds import read_observation
+    from mars_pairs.pipeline.builder.run import run_build
     from mars_pairs.pipeline.config import BuildConfig, load_config
     from mars_pairs.store.inspect import inspect_dataset
     from mars_pairs.store.query import Manifest
     from mars_pairs.store.verify import verify_dataset
-    from mars_pairs.pipeline.builder.run import run_build
     from mars_pairs.synth import generate_mission
     from mars_pairs.torch import (
         MarsPairsDataset,

@@ -155,15 +155,16 @@ def _ensure_synthetic(config: BuildConfig, workers: int = 1) -> float | None:
     from mars_pairs.synth import generate_mission
 
     t0 = time.perf_counter()
-    # numba compiles the build's kernels once (then loads them from its cache): in a process
-    # of its own, on the other core, while the mission is generated; the workers then load it
+    # numba compiles the kernels once (``python -m mars_pairs.warmup``, which the Makefile runs
+    # at install; then they load from its cache): in a process of its own, on the other core,
+    # while the mission is generated; the render and build workers then load them
     print("compiling the build's kernels in the background (first run: ~20 s of CPU) ...")
     warm = subprocess.Popen(  # it prints its own time (s): the compile's, not the mission's
         [
             sys.executable,
             "-c",
             "import time; t = time.perf_counter(); "
-            "from mars_pairs.kernels.warm import warm_kernels as w; w(); "
+            "from mars_pairs.warmup import warm_all as w; w(); "
             "print(round(time.perf_counter() - t))",
         ],
         stdout=subprocess.PIPE,

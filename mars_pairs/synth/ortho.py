@@ -46,7 +46,7 @@ def upsample_bilinear(a: np.ndarray, factor: int) -> np.ndarray:
 
 
 @njit(cache=True)
-def _compose(
+def compose_ortho(
     coarse: np.ndarray, sand: np.ndarray, grain: np.ndarray, ripple: np.ndarray, factor: int
 ) -> np.ndarray:
     """Ortho-resolution brightness: upsampled ``coarse`` x (1 + grain) x (1 + sand x ripple).
@@ -78,7 +78,7 @@ def _compose(
 
 
 @njit(cache=True)
-def _stamp_rocks(
+def stamp_rocks(
     img: np.ndarray,
     cols: np.ndarray,
     rows: np.ndarray,
@@ -187,7 +187,7 @@ def make_ortho(
     m = n * factor
     grain, ripple = fine_texture(rng, min(m, _TILE), px_m)
     coarse = (200.0 * albedo * shade).astype(np.float32)
-    img = _compose(coarse, sand.astype(np.float32), grain, ripple, factor)
+    img = compose_ortho(coarse, sand.astype(np.float32), grain, ripple, factor)
 
     count = int(90000 * (n * res_m / 1000.0) ** 2)
     cols, rows = rng.uniform(0, m, count), rng.uniform(0, m, count)
@@ -202,7 +202,7 @@ def make_ortho(
     all_g = np.concatenate([gains[keep], np.full(bcols.size, 1.15)])
     az, el = np.radians(SUN_AZIMUTH_DEG), np.radians(SUN_ELEVATION_DEG)
     sun = (np.cos(el) * np.sin(az), -np.cos(el) * np.cos(az), np.sin(el))  # column, row, up
-    _stamp_rocks(img, all_cols, all_rows, np.maximum(all_r, 0.6), all_g, *sun)
+    stamp_rocks(img, all_cols, all_rows, np.maximum(all_r, 0.6), all_g, *sun)
     out = np.clip(np.rint(img), 1, 255).astype(np.uint8)
     bad = ~np.isfinite(dem)
     if bad.any():
