@@ -10,6 +10,7 @@ sand, rocks with their sunlit side and cast shadow), so 0.25-0.5 m pixels show d
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from numba import njit
@@ -153,7 +154,7 @@ def fine_texture(
     theta = rng.uniform(0.0, np.pi)
     cycles = tile * px_m / RIPPLE_WAVELENGTH_M
     kx, ky = round(cycles * np.cos(theta)), round(cycles * np.sin(theta))
-    v, u = np.mgrid[0:tile, 0:tile].astype(np.float64) / tile
+    v, u = (g.astype(np.float64) / tile for g in np.ogrid[0:tile, 0:tile])  # broadcast
     bend = 2.2 * spectral_noise(rng, tile, 4.0, 0.0)  # radians of phase: sinuous crests
     phase = 2.0 * np.pi * (kx * u + ky * v) + bend
     strength = np.clip(0.65 + 0.35 * spectral_noise(rng, tile, 3.0, 0.0), 0.0, 1.0)
@@ -161,31 +162,44 @@ def fine_texture(
     return grain.astype(np.float32), ripple.astype(np.float32)
 
 
+def fill_nodata(dem: F64) -> F64:
+    """``dem`` with its NaN cells set to the mean of the others."""
+    filled: F64 = np.where(np.isfinite(dem), dem, np.nanmean(dem))
+    return filled
+
+
 def make_ortho(
-    rng: np.random.Generator, dem: F64, res_m: float, factor: int, boulders: Boulders
-) -> NDArray[np.uint8]:
+    rng: np.random.Generator, dem: F64, res_m: float, factor: int, boulders: Boulders,
+    *, filled: F64 | None = None,
+) -> NDArray[np.uint8]:  # fmt: skip
     """The orthoimage for ``dem`` (NaN = nodata) at ``res_m / factor`` metres per pixel.
 
     Albedo: fractal patches, dark sand sheets, darker rippled sand in local lows, grain, and
     rocks 0.1..1 m wide (denser in rocky patches) plus the DEM's boulders, each with a sunlit
     side and a cast shadow. Shading: the DEM's hillshade (sun at azimuth 300, elevation 32
-    degrees), computed at the DEM's resolution and upsampled bilinearly.
+    degrees), computed at the DEM's resolution and upsampled bilinearly. ``filled``:
+    ``fill_nodata(dem)`` when the caller has it.
     """
     n = dem.shape[0]
-    filled = np.where(np.isfinite(dem), dem, np.nanmean(dem))
-    shade = hillshade(filled, res_m, SUN_AZIMUTH_DEG, SUN_ELEVATION_DEG)
-    sand = sand_weight(filled, res_m)
-    albedo = 0.52 + 0.09 * spectral_noise(rng, n, 3.2, 3.0 / res_m)
-    albedo += 0.03 * spectral_noise(rng, n, 2.0, 2.0 / res_m)
-    dark = _smoothstep(spectral_noise(rng, n, 3.0, 5.0 / res_m), 0.2, 1.1)
-    albedo *= (1.0 - 0.32 * dark) * (1.0 - 0.22 * sand)
-    sand = np.maximum(sand, 0.8 * dark)  # the dark sheets are rippled sand too
-    rockiness = np.clip(0.45 + 0.55 * spectral_noise(rng, n, 3.0, 4.0 / res_m), 0.03, 1.0)
-    rockiness *= 1.0 - 0.9 * sand  # few rocks on the sand
-
     px_m = res_m / factor
     m = n * factor
-    grain, ripple = fine_texture(rng, min(m, _TILE), px_m)
+    filled = fill_nodata(dem) if filled is None else filled
+    # the DEM's shading and sand (no draw) on a thread beside the noise fields' draws (numpy's
+    # large-array loops release the GIL); the same values as computed one after the other
+    with ThreadPoolExecutor(1) as pool:
+        shading = pool.submit(hillshade, filled, res_m, SUN_AZIMUTH_DEG, SUN_ELEVATION_DEG)
+        sanding = pool.submit(sand_weight, filled, res_m)
+        albedo = 0.52 + 0.09 * spectral_noise(rng, n, 3.2, 3.0 / res_m)
+        albedo += 0.03 * spectral_noise(rng, n, 2.0, 2.0 / res_m)
+        dark = _smoothstep(spectral_noise(rng, n, 3.0, 5.0 / res_m), 0.2, 1.1)
+        rocky = spectral_noise(rng, n, 3.0, 4.0 / res_m)
+        grain, ripple = fine_texture(rng, min(m, _TILE), px_m)
+        shade, sand = shading.result(), sanding.result()
+    albedo *= (1.0 - 0.32 * dark) * (1.0 - 0.22 * sand)
+    sand = np.maximum(sand, 0.8 * dark)  # the dark sheets are rippled sand too
+    rockiness = np.clip(0.45 + 0.55 * rocky, 0.03, 1.0)
+    rockiness *= 1.0 - 0.9 * sand  # few rocks on the sand
+
     coarse = (200.0 * albedo * shade).astype(np.float32)
     img = compose_ortho(coarse, sand.astype(np.float32), grain, ripple, factor)
 
