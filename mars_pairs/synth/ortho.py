@@ -13,7 +13,7 @@ import math
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 from numpy.typing import NDArray
 
 from mars_pairs.synth.terrain import Boulders, hillshade, spectral_noise
@@ -46,19 +46,20 @@ def upsample_bilinear(a: np.ndarray, factor: int) -> np.ndarray:
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def compose_ortho(
     coarse: np.ndarray, sand: np.ndarray, grain: np.ndarray, ripple: np.ndarray, factor: int
 ) -> np.ndarray:
     """Ortho-resolution brightness: upsampled ``coarse`` x (1 + grain) x (1 + sand x ripple).
 
     ``coarse`` and ``sand``: DEM-cell grids (cell centred); ``grain`` and ``ripple``: periodic
-    tiles in ortho pixels, repeated over the output.
+    tiles in ortho pixels, repeated over the output. Rows over numba's threads (each pixel
+    its own: the values of one thread's loop).
     """
     n0, n1 = coarse.shape
     th, tw = grain.shape
     out = np.empty((n0 * factor, n1 * factor), dtype=np.float32)
-    for q in range(n0 * factor):
+    for q in prange(n0 * factor):
         fy = min(max((q + 0.5) / factor - 0.5, 0.0), n0 - 1.0)
         i = min(int(fy), n0 - 2)
         ty = fy - i
