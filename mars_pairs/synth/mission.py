@@ -592,6 +592,10 @@ def _generate_one(out: Path, rng: np.random.Generator, spec: MissionSpec, size: 
     n = preset.dem_cells
     say(f"{spec.name}: terrain: {n} x {n} m DEM at {DEM_RES_M:g} m, ortho at "
         f"{DEM_RES_M / preset.ortho_factor:g} m ...")  # fmt: skip
+    if workers > 1:  # the render workers' fork server imports its modules beside the terrain
+        from mars_pairs.pipeline.builder.local_pool import started_context
+
+        started_context(preload=[__name__])
     dem32, dem_tr, ortho, ortho_tr, boulders, filled = _terrain(rng, spec, preset)
     # the rasters are written on a thread of their own (GDAL compresses without the GIL) while
     # the traverse is drawn and the images rendered; every write is done before this returns
