@@ -160,7 +160,7 @@ def _ensure_synthetic(config: BuildConfig, workers: int = 1) -> float | None:
     # while the mission is generated; the render and build workers then load them
     print(
         "loading the kernels in the background (compiled once: `python -m mars_pairs.warmup`, "
-        "which make demo runs at install; else here, ~60 s of CPU) ..."
+        "which make demo runs at install; else here, ~40 s of CPU) ..."
     )
     warm = subprocess.Popen(  # it prints its own time (s): the loading's, not the mission's
         [
