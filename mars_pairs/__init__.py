@@ -11,10 +11,10 @@ The public API, importable from here (``from mars_pairs import ...``):
   :func:`verify_dataset`, :func:`inspect_dataset`;
 - every exception of :mod:`mars_pairs.errors` (base :class:`MarsPairsError`).
 
-``import mars_pairs`` stays light: the names that need torch, numba or rasterio
-(the torch datasets and loader, :func:`run_build`, :func:`generate_mission`,
-:func:`compute_viewshed`) are imported on first use (``__getattr__``); type checkers and IDEs
-see them through the ``TYPE_CHECKING`` imports below.
+``import mars_pairs`` stays light (every command and worker imports it first): the errors and
+the version are imported with it, every other name on first use (``__getattr__``: torch,
+numba, rasterio, pyarrow, pydantic, lxml load then); type checkers and IDEs see them through
+the ``TYPE_CHECKING`` imports below.
 """
 
 from __future__ import annotations
@@ -46,19 +46,19 @@ from mars_pairs.errors import (
     WorkerDiedError,
     WorkerStartError,
 )
-from mars_pairs.geometry.camera import CameraModel
-from mars_pairs.geometry.places import Places, Pose
-from mars_pairs.observation import MotionCounter, Observation
-from mars_pairs.pds import read_observation
-from mars_pairs.pipeline.config import BuildConfig, load_config
-from mars_pairs.store.inspect import inspect_dataset
-from mars_pairs.store.query import Manifest
-from mars_pairs.store.verify import verify_dataset
 from mars_pairs.version import __version__
 
 if TYPE_CHECKING:
+    from mars_pairs.geometry.camera import CameraModel
+    from mars_pairs.geometry.places import Places, Pose
     from mars_pairs.kernels.viewshed import compute_viewshed
+    from mars_pairs.observation import MotionCounter, Observation
+    from mars_pairs.pds import read_observation
     from mars_pairs.pipeline.builder.run import run_build
+    from mars_pairs.pipeline.config import BuildConfig, load_config
+    from mars_pairs.store.inspect import inspect_dataset
+    from mars_pairs.store.query import Manifest
+    from mars_pairs.store.verify import verify_dataset
     from mars_pairs.synth import generate_mission
     from mars_pairs.torch import (
         MarsPairsDataset,
@@ -114,13 +114,24 @@ __all__ = [
 
 #: The names imported on first use: name -> the module that defines it.
 _LAZY = {
+    "BuildConfig": "mars_pairs.pipeline.config",
+    "CameraModel": "mars_pairs.geometry.camera",
+    "Manifest": "mars_pairs.store.query",
     "MarsPairsDataset": "mars_pairs.torch",
     "MarsPairsIterableDataset": "mars_pairs.torch",
     "MarsPairsLoader": "mars_pairs.torch",
+    "MotionCounter": "mars_pairs.observation",
+    "Observation": "mars_pairs.observation",
+    "Places": "mars_pairs.geometry.places",
+    "Pose": "mars_pairs.geometry.places",
     "collate_samples": "mars_pairs.torch",
     "compute_viewshed": "mars_pairs.kernels.viewshed",
     "generate_mission": "mars_pairs.synth",
+    "inspect_dataset": "mars_pairs.store.inspect",
+    "load_config": "mars_pairs.pipeline.config",
+    "read_observation": "mars_pairs.pds",
     "run_build": "mars_pairs.pipeline.builder.run",
+    "verify_dataset": "mars_pairs.store.verify",
 }
 
 

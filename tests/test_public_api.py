@@ -65,17 +65,30 @@ def test_an_unknown_name_is_an_attribute_error() -> None:
         raise AssertionError("no AttributeError")
 
 
-def test_import_mars_pairs_stays_light() -> None:
-    """Label, build and CLI code imports the package root: it never loads torch or numba."""
-    code = (
-        "import sys, mars_pairs; "
-        "heavy = [m for m in ('torch', 'numba', 'matplotlib') if m in sys.modules]; "
-        "assert not heavy, heavy"
-    )
+HEAVY = ("torch", "numba", "matplotlib", "rasterio", "pyarrow", "shapely", "pydantic", "dask",
+         "lxml", "yaml", "pyproj")  # fmt: skip
+
+
+def _loaded_heavy(module: str) -> list[str]:
+    """The modules of ``HEAVY`` a new process has loaded after importing ``module``."""
+    code = f"import sys, {module}; print(' '.join(m for m in {HEAVY!r} if m in sys.modules))"
     done = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, check=False, timeout=300
     )
     assert done.returncode == 0, done.stderr
+    return done.stdout.split()
+
+
+def test_import_mars_pairs_stays_light() -> None:
+    """Label, build and CLI code imports the package root: it loads none of the heavy
+    libraries (every public name but the errors imports on first use)."""
+    assert _loaded_heavy("mars_pairs") == []
+
+
+def test_the_command_line_parser_stays_light() -> None:
+    """Every ``mars-pairs`` command imports the parser of all: it loads none of the heavy
+    libraries (each command imports what it needs when it runs)."""
+    assert _loaded_heavy("mars_pairs.cli.main") == []
 
 
 def test_type_checkers_see_every_public_name() -> None:

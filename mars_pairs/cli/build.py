@@ -155,15 +155,19 @@ def _ensure_synthetic(config: BuildConfig, workers: int = 1) -> float | None:
     from mars_pairs.synth import generate_mission
 
     t0 = time.perf_counter()
-    # numba compiles the build's kernels once (then loads them from its cache): in a process
-    # of its own, on the other core, while the mission is generated; the workers then load it
-    print("compiling the build's kernels in the background (first run: ~20 s of CPU) ...")
-    warm = subprocess.Popen(  # it prints its own time (s): the compile's, not the mission's
+    # numba compiles the kernels once (``python -m mars_pairs.warmup``, which the Makefile runs
+    # at install; then they load from its cache): in a process of its own, on the other core,
+    # while the mission is generated; the render and build workers then load them
+    print(
+        "loading the kernels in the background (compiled once: `python -m mars_pairs.warmup`, "
+        "which make demo runs at install; else here, ~40 s of CPU) ..."
+    )
+    warm = subprocess.Popen(  # it prints its own time (s): the loading's, not the mission's
         [
             sys.executable,
             "-c",
             "import time; t = time.perf_counter(); "
-            "from mars_pairs.kernels.warm import warm_kernels as w; w(); "
+            "from mars_pairs.warmup import warm_all as w; w(); "
             "print(round(time.perf_counter() - t))",
         ],
         stdout=subprocess.PIPE,
@@ -197,7 +201,7 @@ def _ensure_synthetic(config: BuildConfig, workers: int = 1) -> float | None:
         print(f"compiling the kernels failed ({err.strip()[-300:]}); the workers will retry")
     else:
         print(
-            f"kernels compiled ({own.strip() or '?'} s, beside the mission; {waited:.0f} s "
+            f"kernels ready ({own.strip() or '?'} s, beside the mission; {waited:.0f} s "
             "waited after it); building ...",
             flush=True,
         )

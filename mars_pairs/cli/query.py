@@ -8,23 +8,25 @@ import sys
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
-
-import numpy as np
-import pyarrow as pa
-import pyarrow.csv as pacsv
-import shapely
+from typing import TYPE_CHECKING, Any
 
 from mars_pairs.errors import ArgumentError, MarsPairsError, UsageError
 from mars_pairs.geometry.body import MARS_LONLAT_AUTHORITY
-from mars_pairs.geometry.frames import map_to_lonlat
-from mars_pairs.store.atomic import write_parquet_atomic
-from mars_pairs.store.filter import PLACE_KEYS, FilterWarning
-from mars_pairs.store.geoparquet import GEOMETRY_COLUMNS, table_geo_metadata
-from mars_pairs.store.query import Manifest
 
-#: Columns of WKB or struct values, left out of CSV and GeoJSON properties.
-NOT_PLAIN = (*GEOMETRY_COLUMNS, "bbox")
+# pyarrow, shapely and the manifest load when a query runs, not with every command's parser
+if TYPE_CHECKING:
+    import numpy as np
+    import pyarrow as pa
+
+    from mars_pairs.store.query import Manifest
+
+
+def _not_plain() -> tuple[str, ...]:
+    """Columns of WKB or struct values, left out of CSV and GeoJSON properties."""
+    from mars_pairs.store.geoparquet import GEOMETRY_COLUMNS
+
+    return (*GEOMETRY_COLUMNS, "bbox")
+
 
 SHOWN = (
     "key",
@@ -70,7 +72,7 @@ DESCRIPTION = (
 def register(sub: Any) -> None:
     """Add the ``query`` sub-command to ``sub`` (an argparse sub-parsers action)."""
     from mars_pairs.cli.arguments import finite
-    from mars_pairs.store.filter import BY
+    from mars_pairs.store.filter_args import BY
 
     p = sub.add_parser(
         "query", help="filter a dataset's manifest by place and attributes", description=DESCRIPTION
@@ -228,6 +230,8 @@ def filter_arguments(
         "split": split or None,
         "sol": sol or None,
     }
+    from mars_pairs.store.filter import PLACE_KEYS
+
     out = {k: (tuple(v) if isinstance(v, list) else v) for k, v in given.items() if v is not None}
     if any(k in out for k in OPTIONS if k in PLACE_KEYS) or by != "rover":
         out["by"] = by
@@ -237,6 +241,9 @@ def filter_arguments(
 def filtered(dataset: str | Path, filters: dict[str, Any]) -> Manifest:
     """The dataset's manifest filtered by ``filters``; an ArgumentError names the option
     (``--bbox``, ...), a FilterWarning is printed as ``warning: ...`` on stderr."""
+    from mars_pairs.store.filter import FilterWarning
+    from mars_pairs.store.query import Manifest
+
     manifest = Manifest.open(dataset).require()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", FilterWarning)
@@ -272,13 +279,16 @@ def _geojson(table: pa.Table, crs: str | None) -> str:
     are transformed from the dataset CRS ``crs`` (map units); a row without one is its rover
     point.
     """
+    import shapely
+
+    not_plain = _not_plain()
     features = []
     for row in table.to_pylist():
         wkb = row.get("footprint")
         props = {
             k: (v.isoformat() if hasattr(v, "isoformat") else v)
             for k, v in row.items()
-            if not k.endswith(("_shard", "_offset", "_size", "_crc32c")) and k not in NOT_PLAIN
+            if not k.endswith(("_shard", "_offset", "_size", "_crc32c")) and k not in not_plain
         }
         if wkb and crs is not None:
             geom = shapely.transform(shapely.from_wkb(wkb), lambda xy: _lonlat(xy, crs))
@@ -292,6 +302,10 @@ def _geojson(table: pa.Table, crs: str | None) -> str:
 
 def _lonlat(xy: np.ndarray, crs: str) -> np.ndarray:
     """(N, 2) map x, y in ``crs`` -> (N, 2) longitude, latitude degrees (Mars sphere)."""
+    import numpy as np
+
+    from mars_pairs.geometry.frames import map_to_lonlat
+
     lon, lat = map_to_lonlat(xy[:, 0], xy[:, 1], crs)
     return np.column_stack([lon, lat])
 
@@ -303,6 +317,10 @@ def run_query(
 
     Parquet is GeoParquet 1.1 (``store.geoparquet``: the manifest's geometry columns in the
     dataset CRS, named); GeoJSON is longitude/latitude on the Mars sphere (IAU_2015:49900)."""
+    from mars_pairs.store.atomic import write_parquet_atomic
+    from mars_pairs.store.geoparquet import table_geo_metadata
+    from mars_pairs.store.query import Manifest
+
     manifest = Manifest.open(dataset).require()
     table = filtered(dataset, filters).to_table()
     if fmt == "parquet":
@@ -315,7 +333,7 @@ def run_query(
         print(f"{out}: {table.num_rows} rows")
         return 0
     if fmt == "csv":
-        text = _csv(table.drop_columns([c for c in NOT_PLAIN if c in table.column_names]))
+        text = _csv(table.drop_columns([c for c in _not_plain() if c in table.column_names]))
     elif fmt == "geojson":
         text = _geojson(table, manifest.crs)
     else:
@@ -330,6 +348,8 @@ def run_query(
 
 def _csv(table: pa.Table) -> str:
     import io
+
+    import pyarrow.csv as pacsv
 
     buf = io.BytesIO()
     pacsv.write_csv(table, buf)
@@ -369,7 +389,9 @@ def footprint_query(
     footprint meets the box) or a dataset (``--saw``: ``Manifest.filter(saw=...)``);
     ``per_cell``: ``Catalog.saw(..., per_cell=True)`` (a catalogue and ``--saw`` only)."""
     from mars_pairs.store import fs
+    from mars_pairs.store.atomic import write_parquet_atomic
     from mars_pairs.store.catalog import Catalog, checked_point, is_catalog
+    from mars_pairs.store.query import Manifest
 
     root = fs.dataset_root(folder)
     if saw is not None:

@@ -10,7 +10,7 @@ import numpy as np
 
 from mars_pairs.cli.arguments import band, bounded, finite
 from mars_pairs.errors import UsageError
-from mars_pairs.pipeline.config import MAX_RADIUS_M
+from mars_pairs.geometry.body import MAX_RADIUS_M
 
 if TYPE_CHECKING:
     from mars_pairs.raster.terrain import Terrain

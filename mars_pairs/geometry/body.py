@@ -15,6 +15,8 @@ MARS_RADIUS_M = 3396190.0
 #: the elevations a Mars surface may have, metres above the areoid (Hellas floor ~ -8.2 km,
 #: Olympus Mons ~ +21.9 km), with a margin: a DEM or PLACES value outside is not Mars
 MARS_ELEVATION_M = (-12_000.0, 30_000.0)
+#: the largest viewshed radius (metres) a config or a command takes: ~3.4 degrees of Mars
+MAX_RADIUS_M = 200_000.0
 #: Mars IAU ellipsoid radii (metres): equatorial, polar.
 MARS_EQUATORIAL_RADIUS_M, MARS_POLAR_RADIUS_M = 3396190.0, 3376200.0
 #: Planetocentric longitude/latitude on the Mars sphere, east-positive.

@@ -1,11 +1,15 @@
-"""Load every compiled kernel a build uses, on a tiny grid, before the first sample.
+"""Load every compiled kernel a build and the viewshed command use, on a tiny grid, before
+the first sample.
 
 A new worker process spends ~0.45 s on its first sample loading numba's cached machine
 code (0.3 s of it the viewshed's). Called in a worker's initializer, the loading overlaps
-the driver's planning instead of delaying the first result. The arguments have the dtypes
-of a build's calls, so the same compiled versions are loaded. (Not in the fork server that
-the workers are forked from: loading a kernel that can run in parallel starts numba's
-OpenMP threads, and a process with OpenMP threads must not fork.)
+the driver's planning instead of delaying the first result. The arguments have the types of
+a build's calls (float32 C-ordered DEM windows, float64 rays), so the same compiled versions
+are loaded; on a cold cache they are compiled and saved (``mars_pairs.warmup`` runs this at
+install). One call compiles a kernel's serial and parallel paths both (they are branches of
+one compiled function). (Not in the fork server that the workers are forked from: loading a
+kernel that can run in parallel starts numba's OpenMP threads, and a process with OpenMP
+threads must not fork.)
 """
 
 from __future__ import annotations

@@ -21,6 +21,7 @@ from pydantic import dataclasses as schema
 from pydantic.functional_validators import model_validator
 
 from mars_pairs.errors import ConfigError
+from mars_pairs.geometry.body import MAX_RADIUS_M
 from mars_pairs.pipeline.config_schema import (
     MAX_TEXT,
     SCHEMA,
@@ -51,7 +52,6 @@ BUFFER_POLICIES = ("split", "drop")
 
 MAX_CONFIG_BYTES = 1_000_000
 # Upper bounds that keep one sample within memory and the numbers within meaning (metres).
-MAX_RADIUS_M = 200_000.0  # viewshed radius: ~3.4 degrees of Mars
 MAX_OBSERVER_HEIGHT_M = 10_000.0
 MAX_CHIP_SIZE_M = 200_000.0
 MAX_CHIP_SIZE_PX = 8192  # 8192^2 float32 cells: 256 MB per chip

@@ -52,8 +52,7 @@ def compute_request(terrain: Terrain, req: ViewshedRequest) -> tuple[np.ndarray,
         el_band=req.el_band,
         planet_radius=MARS_RADIUS_M,
     )
-    rows, cols = np.indices(mask.shape)
-    x, y = window.colrow_to_xy(cols, rows)
+    x, y = window.centres_xy()
     outside = (np.hypot(x - req.x, y - req.y) > req.radius) | ~np.isfinite(window.data)
     codes = np.where(outside, NODATA, mask).astype(np.uint8)
     return codes, window

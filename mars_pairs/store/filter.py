@@ -26,18 +26,17 @@ import math
 import warnings
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, fields
-from typing import Any, ClassVar, Literal
+from typing import Any, ClassVar
 
 import numpy as np
 import pyarrow as pa
 
 from mars_pairs.errors import ArgumentError
 from mars_pairs.geometry.body import MARS_RADIUS_M, great_circle_m
+from mars_pairs.store.filter_args import BY as BY
+from mars_pairs.store.filter_args import By as By
 from mars_pairs.store.filter_args import geometry, integers, numbers, strings
 
-By = Literal["rover", "footprint", "chip"]
-#: what a place filter may test, the first the default
-BY: tuple[By, ...] = ("rover", "footprint", "chip")
 #: the place filters, each at most once
 PLACE_KEYS = ("bbox_lonlat", "bbox_map", "near", "polygon_lonlat", "polygon_map")
 #: the manifest columns naming a sample's mission, instrument, split

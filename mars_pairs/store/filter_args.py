@@ -5,9 +5,13 @@ sample is named by its key or product id. (What a filter is: ``store.filter``.)"
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Literal
 
 from mars_pairs.errors import ArgumentError, SampleKeyError
+
+By = Literal["rover", "footprint", "chip"]
+#: what a place filter may test, the first the default
+BY: tuple[By, ...] = ("rover", "footprint", "chip")
 
 
 def sequence(value: Any, n: int, name: str) -> list[Any]:

@@ -24,6 +24,7 @@ from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from datetime import datetime, timedelta
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -62,7 +63,7 @@ from mars_pairs.synth.cameras import (
     zoom_focal_mm,
     zoom_hfov_deg,
 )
-from mars_pairs.synth.ortho import make_ortho
+from mars_pairs.synth.ortho import fill_nodata, make_ortho
 from mars_pairs.synth.render import BLOCK, DemGrid, block_ranges, render_view, render_view_hits
 from mars_pairs.synth.terrain import Boulders, make_dem
 from mars_pairs.synth.terrain_classes import terrain_classes
@@ -198,22 +199,25 @@ def _write_geotiff(path: Path, data: np.ndarray, transform: Affine, crs: str, no
 
 def _terrain(
     rng: np.random.Generator, spec: MissionSpec, size: SizeSpec
-) -> tuple[np.ndarray, Affine, np.ndarray, Affine, Boulders]:
-    """DEM (float32 with NaN nodata), its transform, ortho (uint8), ortho transform and the
-    boulders drawn on it."""
+) -> tuple[np.ndarray, Affine, np.ndarray, Affine, Boulders, np.ndarray]:
+    """DEM (float32 with NaN nodata), its transform, ortho (uint8), ortho transform, the
+    boulders drawn on it and the DEM as float64 with its nodata filled by its mean (what the
+    ortho and the traverse read)."""
     n = size.dem_cells
     z, boulders = make_dem(rng, n, DEM_RES_M, spec.base_elevation_m)
     # a nodata notch at the north-west corner, as real DTMs have ragged edges
-    ii, jj = np.mgrid[0:n, 0:n]
+    ii, jj = np.ogrid[0:n, 0:n]
     z[ii + jj < n // 64] = np.nan
     dem32 = z.astype(np.float32)
     left = round(spec.centre_xy[0] - n * DEM_RES_M / 2)
     top = round(spec.centre_xy[1] + n * DEM_RES_M / 2)
     transform = Affine(DEM_RES_M, 0.0, left, 0.0, -DEM_RES_M, top)
-    ortho = make_ortho(rng, dem32.astype(np.float64), DEM_RES_M, size.ortho_factor, boulders)
+    dem64 = dem32.astype(np.float64)
+    filled = fill_nodata(dem64)
+    ortho = make_ortho(rng, dem64, DEM_RES_M, size.ortho_factor, boulders, filled=filled)
     res_o = DEM_RES_M / size.ortho_factor
     ortho_tr = Affine(res_o, 0.0, left, 0.0, -res_o, top)
-    return dem32, transform, ortho, ortho_tr, boulders
+    return dem32, transform, ortho, ortho_tr, boulders, filled
 
 
 # -- images --------------------------------------------------------------------------------------
@@ -454,10 +458,10 @@ def _window(
 
 
 def _traverse(rng: np.random.Generator, spec: MissionSpec, preset: SizeSpec, stops: int,
-              dem64: np.ndarray, dem_tr: Affine) -> Traverse:  # fmt: skip
-    """The traverse of ``stops`` stops over the DEM (NaN nodata; map CRS, 1 m cells), inside
-    the preset's margin."""
-    sampler = DemSampler(np.where(np.isfinite(dem64), dem64, np.nanmean(dem64)), dem_tr)
+              filled: np.ndarray, dem_tr: Affine) -> Traverse:  # fmt: skip
+    """The traverse of ``stops`` stops over the DEM (``filled``: float64, nodata filled,
+    ``fill_nodata``; map CRS, 1 m cells), inside the preset's margin."""
+    sampler = DemSampler(filled, dem_tr)
     n = preset.dem_cells
     margin = 0.25 * n * DEM_RES_M if preset.margin_m is None else preset.margin_m
     left, top = dem_tr.c, dem_tr.f
@@ -474,9 +478,9 @@ def mission_traverse(seed: int, mission: str, size: str, stops: int | None = Non
     follows it). Map CRS metres."""
     preset = SIZES[size]
     rng = np.random.default_rng([int(seed), MISSIONS.index(mission)])
-    dem32, dem_tr, _, _, _ = _terrain(rng, SPECS[mission], preset)
+    _, dem_tr, _, _, _, filled = _terrain(rng, SPECS[mission], preset)
     k = preset.stops if stops is None else int(stops)
-    return _traverse(rng, SPECS[mission], preset, k, dem32.astype(np.float64), dem_tr)
+    return _traverse(rng, SPECS[mission], preset, k, filled, dem_tr)
 
 
 # -- rendering ----------------------------------------------------------------------------------
@@ -490,11 +494,21 @@ class Scene:
                  classes: np.ndarray | None, factor: int, window_m: float | None,
                  ai4mars_dir: Path) -> None:  # fmt: skip
         self._args = (dem32, dem_tr, ortho, classes, factor, window_m, ai4mars_dir)
-        dem64 = dem32.astype(np.float64)
-        self.grid = DemGrid(dem64, dem_tr)
-        self.blocks = block_ranges(dem64)
         self.ortho, self.classes, self.factor = ortho, classes, factor
         self.window_m, self.ai4mars_dir = window_m, ai4mars_dir
+
+    # made on the first render: the process that only hands the scene to render workers
+    # never spends their ~0.5 s
+    @cached_property
+    def grid(self) -> DemGrid:
+        """The DEM as float64 (``DemGrid``: the renderer's)."""
+        dem32, dem_tr = self._args[0], self._args[1]
+        return DemGrid(dem32.astype(np.float64), dem_tr)
+
+    @cached_property
+    def blocks(self) -> Blocks:
+        """The DEM's culling blocks' z ranges (``block_ranges``)."""
+        return block_ranges(self.grid.z)
 
     def __reduce__(self) -> tuple[type[Scene], tuple[Any, ...]]:
         return Scene, self._args
@@ -578,70 +592,81 @@ def _generate_one(out: Path, rng: np.random.Generator, spec: MissionSpec, size: 
     n = preset.dem_cells
     say(f"{spec.name}: terrain: {n} x {n} m DEM at {DEM_RES_M:g} m, ortho at "
         f"{DEM_RES_M / preset.ortho_factor:g} m ...")  # fmt: skip
-    dem32, dem_tr, ortho, ortho_tr, boulders = _terrain(rng, spec, preset)
-    dem_path, ortho_path = out / "orbital" / "dem.tif", out / "orbital" / "ortho.tif"
-    _write_geotiff(dem_path, np.where(np.isfinite(dem32), dem32, np.float32(DEM_NODATA)),
-                   dem_tr, spec.crs, DEM_NODATA, predictor=3)  # fmt: skip
-    _write_geotiff(ortho_path, ortho, ortho_tr, spec.crs, 0, predictor=2)
-    classes = None
-    if terrain_labels:
-        classes = terrain_classes(dem32.astype(np.float64), DEM_RES_M, preset.ortho_factor,
-                                  boulders)  # fmt: skip
-        _write_geotiff(out / "orbital" / CLASSES_NAME, classes, ortho_tr, spec.crs, 255,
-                       predictor=1)  # fmt: skip
+    if workers > 1:  # the render workers' fork server imports its modules beside the terrain
+        from mars_pairs.pipeline.builder.local_pool import started_context
 
-    dem64 = dem32.astype(np.float64)
-    trav = _traverse(rng, spec, preset, stops, dem64, dem_tr)
-    places_path = out / "places" / spec.places_name
-    write_places_csv(places_path, trav, dem_tr, ortho_tr)
-    xy = np.array([(r.x, r.y) for r in trav.rovers])
-    length_km = float(np.hypot(*np.diff(xy, axis=0).T).sum()) / 1000.0
-    say(f"{spec.name}: traverse: {len(trav.stops)} stops, {len(trav.sites)} sites, "
-        f"{length_km:.1f} km ({time.perf_counter() - t0:.1f} s)")  # fmt: skip
+        started_context(preload=[__name__])
+    dem32, dem_tr, ortho, ortho_tr, boulders, filled = _terrain(rng, spec, preset)
+    # the rasters are written on a thread of their own (GDAL compresses without the GIL) while
+    # the traverse is drawn and the images rendered; every write is done before this returns
+    with ThreadPoolExecutor(1) as writer:
+        dem_path, ortho_path = out / "orbital" / "dem.tif", out / "orbital" / "ortho.tif"
+        writes = [
+            writer.submit(_write_geotiff, dem_path,
+                          np.where(np.isfinite(dem32), dem32, np.float32(DEM_NODATA)), dem_tr,
+                          spec.crs, DEM_NODATA, predictor=3),
+            writer.submit(_write_geotiff, ortho_path, ortho, ortho_tr, spec.crs, 0, predictor=2),
+        ]  # fmt: skip
+        classes = None
+        if terrain_labels:
+            classes = terrain_classes(dem32.astype(np.float64), DEM_RES_M, preset.ortho_factor,
+                                      boulders)  # fmt: skip
+            writes.append(writer.submit(_write_geotiff, out / "orbital" / CLASSES_NAME, classes,
+                                        ortho_tr, spec.crs, 255, predictor=1))  # fmt: skip
 
-    label_dir = out / "labels"
-    label_dir.mkdir(parents=True, exist_ok=True)
-    shots = _plan_shots(rng, spec, size, trav, per_stop, label_dir)
-    # cameras are placed here (pyproj is not thread-safe); each image's files are its own,
-    # so their bytes do not depend on the order, the threads or the processes rendering them
-    cams = [MapCamera.from_observation(s.obs, s.pose, spec.crs) for s in shots]
-    scene = Scene(dem32, dem_tr, ortho, classes, preset.ortho_factor, preset.render_window_m,
-                  out / AI4MARS_DIR)  # fmt: skip
-    # the bar opens after the first image: that one's time is mostly the renderer's compile
-    # (numba, first run), and a rate measured on it gives an ETA of hours
-    t_render = time.perf_counter()
-    bar = None
-    try:
-        for _ in _render_all(scene, shots, cams, workers):
-            if bar is None:
-                first = time.perf_counter() - t_render
-                say(f"{spec.name}: first image rendered ({first:.1f} s)")
-                bar = render_bar(len(shots), spec.name, disable=log is None)
-            else:
-                bar.update()
-    finally:
-        if bar is not None:
-            bar.close()
-    truth_path = out / "truth.parquet"
-    pq.write_table(_truth_table(shots, out, spec.crs), truth_path, compression="zstd")
-    return {
-        "dir": str(out),
-        "dem": str(dem_path),
-        "ortho": str(ortho_path),
-        "places": str(places_path),
-        "truth": str(truth_path),
-        "labels": [str(s.obs.label_path) for s in shots],
-        "image_files": [str(s.obs.image_path) for s in shots],
-        "stops": len(trav.stops),
-        "sites": len(trav.sites),
-        "places_rows": len(trav.sites) + len(trav.rovers),
-        "images": len(shots),
-        **(
-            {
-                "terrain_classes": str(out / "orbital" / CLASSES_NAME),
-                "ai4mars": str(out / AI4MARS_DIR),
-            }
-            if terrain_labels
-            else {}
-        ),
-    }
+        trav = _traverse(rng, spec, preset, stops, filled, dem_tr)
+        places_path = out / "places" / spec.places_name
+        write_places_csv(places_path, trav, dem_tr, ortho_tr)
+        xy = np.array([(r.x, r.y) for r in trav.rovers])
+        length_km = float(np.hypot(*np.diff(xy, axis=0).T).sum()) / 1000.0
+        say(f"{spec.name}: traverse: {len(trav.stops)} stops, {len(trav.sites)} sites, "
+            f"{length_km:.1f} km ({time.perf_counter() - t0:.1f} s)")  # fmt: skip
+
+        label_dir = out / "labels"
+        label_dir.mkdir(parents=True, exist_ok=True)
+        shots = _plan_shots(rng, spec, size, trav, per_stop, label_dir)
+        # cameras are placed here (pyproj is not thread-safe); each image's files are its own,
+        # so their bytes do not depend on the order, the threads or the processes rendering them
+        cams = [MapCamera.from_observation(s.obs, s.pose, spec.crs) for s in shots]
+        scene = Scene(dem32, dem_tr, ortho, classes, preset.ortho_factor, preset.render_window_m,
+                      out / AI4MARS_DIR)  # fmt: skip
+        # the bar opens after the first image: that one's time is mostly the renderer's compile
+        # (numba, first run), and a rate measured on it gives an ETA of hours
+        t_render = time.perf_counter()
+        bar = None
+        try:
+            for _ in _render_all(scene, shots, cams, workers):
+                if bar is None:
+                    first = time.perf_counter() - t_render
+                    say(f"{spec.name}: first image rendered ({first:.1f} s)")
+                    bar = render_bar(len(shots), spec.name, disable=log is None)
+                else:
+                    bar.update()
+        finally:
+            if bar is not None:
+                bar.close()
+        truth_path = out / "truth.parquet"
+        pq.write_table(_truth_table(shots, out, spec.crs), truth_path, compression="zstd")
+        for write in writes:
+            write.result()  # (a failed write raises here)
+        return {
+            "dir": str(out),
+            "dem": str(dem_path),
+            "ortho": str(ortho_path),
+            "places": str(places_path),
+            "truth": str(truth_path),
+            "labels": [str(s.obs.label_path) for s in shots],
+            "image_files": [str(s.obs.image_path) for s in shots],
+            "stops": len(trav.stops),
+            "sites": len(trav.sites),
+            "places_rows": len(trav.sites) + len(trav.rovers),
+            "images": len(shots),
+            **(
+                {
+                    "terrain_classes": str(out / "orbital" / CLASSES_NAME),
+                    "ai4mars": str(out / AI4MARS_DIR),
+                }
+                if terrain_labels
+                else {}
+            ),
+        }

@@ -10,9 +10,10 @@ sand, rocks with their sunlit side and cast shadow), so 0.25-0.5 m pixels show d
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 from numpy.typing import NDArray
 
 from mars_pairs.synth.terrain import Boulders, hillshade, spectral_noise
@@ -45,19 +46,20 @@ def upsample_bilinear(a: np.ndarray, factor: int) -> np.ndarray:
     return out
 
 
-@njit(cache=True)
-def _compose(
+@njit(cache=True, parallel=True)
+def compose_ortho(
     coarse: np.ndarray, sand: np.ndarray, grain: np.ndarray, ripple: np.ndarray, factor: int
 ) -> np.ndarray:
     """Ortho-resolution brightness: upsampled ``coarse`` x (1 + grain) x (1 + sand x ripple).
 
     ``coarse`` and ``sand``: DEM-cell grids (cell centred); ``grain`` and ``ripple``: periodic
-    tiles in ortho pixels, repeated over the output.
+    tiles in ortho pixels, repeated over the output. Rows over numba's threads (each pixel
+    its own: the values of one thread's loop).
     """
     n0, n1 = coarse.shape
     th, tw = grain.shape
     out = np.empty((n0 * factor, n1 * factor), dtype=np.float32)
-    for q in range(n0 * factor):
+    for q in prange(n0 * factor):
         fy = min(max((q + 0.5) / factor - 0.5, 0.0), n0 - 1.0)
         i = min(int(fy), n0 - 2)
         ty = fy - i
@@ -78,7 +80,7 @@ def _compose(
 
 
 @njit(cache=True)
-def _stamp_rocks(
+def stamp_rocks(
     img: np.ndarray,
     cols: np.ndarray,
     rows: np.ndarray,
@@ -153,7 +155,7 @@ def fine_texture(
     theta = rng.uniform(0.0, np.pi)
     cycles = tile * px_m / RIPPLE_WAVELENGTH_M
     kx, ky = round(cycles * np.cos(theta)), round(cycles * np.sin(theta))
-    v, u = np.mgrid[0:tile, 0:tile].astype(np.float64) / tile
+    v, u = (g.astype(np.float64) / tile for g in np.ogrid[0:tile, 0:tile])  # broadcast
     bend = 2.2 * spectral_noise(rng, tile, 4.0, 0.0)  # radians of phase: sinuous crests
     phase = 2.0 * np.pi * (kx * u + ky * v) + bend
     strength = np.clip(0.65 + 0.35 * spectral_noise(rng, tile, 3.0, 0.0), 0.0, 1.0)
@@ -161,33 +163,46 @@ def fine_texture(
     return grain.astype(np.float32), ripple.astype(np.float32)
 
 
+def fill_nodata(dem: F64) -> F64:
+    """``dem`` with its NaN cells set to the mean of the others."""
+    filled: F64 = np.where(np.isfinite(dem), dem, np.nanmean(dem))
+    return filled
+
+
 def make_ortho(
-    rng: np.random.Generator, dem: F64, res_m: float, factor: int, boulders: Boulders
-) -> NDArray[np.uint8]:
+    rng: np.random.Generator, dem: F64, res_m: float, factor: int, boulders: Boulders,
+    *, filled: F64 | None = None,
+) -> NDArray[np.uint8]:  # fmt: skip
     """The orthoimage for ``dem`` (NaN = nodata) at ``res_m / factor`` metres per pixel.
 
     Albedo: fractal patches, dark sand sheets, darker rippled sand in local lows, grain, and
     rocks 0.1..1 m wide (denser in rocky patches) plus the DEM's boulders, each with a sunlit
     side and a cast shadow. Shading: the DEM's hillshade (sun at azimuth 300, elevation 32
-    degrees), computed at the DEM's resolution and upsampled bilinearly.
+    degrees), computed at the DEM's resolution and upsampled bilinearly. ``filled``:
+    ``fill_nodata(dem)`` when the caller has it.
     """
     n = dem.shape[0]
-    filled = np.where(np.isfinite(dem), dem, np.nanmean(dem))
-    shade = hillshade(filled, res_m, SUN_AZIMUTH_DEG, SUN_ELEVATION_DEG)
-    sand = sand_weight(filled, res_m)
-    albedo = 0.52 + 0.09 * spectral_noise(rng, n, 3.2, 3.0 / res_m)
-    albedo += 0.03 * spectral_noise(rng, n, 2.0, 2.0 / res_m)
-    dark = _smoothstep(spectral_noise(rng, n, 3.0, 5.0 / res_m), 0.2, 1.1)
-    albedo *= (1.0 - 0.32 * dark) * (1.0 - 0.22 * sand)
-    sand = np.maximum(sand, 0.8 * dark)  # the dark sheets are rippled sand too
-    rockiness = np.clip(0.45 + 0.55 * spectral_noise(rng, n, 3.0, 4.0 / res_m), 0.03, 1.0)
-    rockiness *= 1.0 - 0.9 * sand  # few rocks on the sand
-
     px_m = res_m / factor
     m = n * factor
-    grain, ripple = fine_texture(rng, min(m, _TILE), px_m)
+    filled = fill_nodata(dem) if filled is None else filled
+    # the DEM's shading and sand (no draw) on a thread beside the noise fields' draws (numpy's
+    # large-array loops release the GIL); the same values as computed one after the other
+    with ThreadPoolExecutor(1) as pool:
+        shading = pool.submit(hillshade, filled, res_m, SUN_AZIMUTH_DEG, SUN_ELEVATION_DEG)
+        sanding = pool.submit(sand_weight, filled, res_m)
+        albedo = 0.52 + 0.09 * spectral_noise(rng, n, 3.2, 3.0 / res_m)
+        albedo += 0.03 * spectral_noise(rng, n, 2.0, 2.0 / res_m)
+        dark = _smoothstep(spectral_noise(rng, n, 3.0, 5.0 / res_m), 0.2, 1.1)
+        rocky = spectral_noise(rng, n, 3.0, 4.0 / res_m)
+        grain, ripple = fine_texture(rng, min(m, _TILE), px_m)
+        shade, sand = shading.result(), sanding.result()
+    albedo *= (1.0 - 0.32 * dark) * (1.0 - 0.22 * sand)
+    sand = np.maximum(sand, 0.8 * dark)  # the dark sheets are rippled sand too
+    rockiness = np.clip(0.45 + 0.55 * rocky, 0.03, 1.0)
+    rockiness *= 1.0 - 0.9 * sand  # few rocks on the sand
+
     coarse = (200.0 * albedo * shade).astype(np.float32)
-    img = _compose(coarse, sand.astype(np.float32), grain, ripple, factor)
+    img = compose_ortho(coarse, sand.astype(np.float32), grain, ripple, factor)
 
     count = int(90000 * (n * res_m / 1000.0) ** 2)
     cols, rows = rng.uniform(0, m, count), rng.uniform(0, m, count)
@@ -202,7 +217,7 @@ def make_ortho(
     all_g = np.concatenate([gains[keep], np.full(bcols.size, 1.15)])
     az, el = np.radians(SUN_AZIMUTH_DEG), np.radians(SUN_ELEVATION_DEG)
     sun = (np.cos(el) * np.sin(az), -np.cos(el) * np.cos(az), np.sin(el))  # column, row, up
-    _stamp_rocks(img, all_cols, all_rows, np.maximum(all_r, 0.6), all_g, *sun)
+    stamp_rocks(img, all_cols, all_rows, np.maximum(all_r, 0.6), all_g, *sun)
     out = np.clip(np.rint(img), 1, 255).astype(np.uint8)
     bad = ~np.isfinite(dem)
     if bad.any():

@@ -1,5 +1,6 @@
-"""The demo's first build names each phase before the build's bar: the kernels compiling in
-the background, the mission's terrain, traverse and rendering, and when each is done."""
+"""The demo's first build names each phase before the build's bar: the kernels loading (or
+compiling) in the background, the mission's terrain, traverse and rendering, and when each is
+done."""
 
 from __future__ import annotations
 
@@ -50,19 +51,19 @@ def test_first_build_prints_a_line_per_phase(
     _ensure_synthetic(config)
     out = capsys.readouterr().out.splitlines()
     expected = [
-        "compiling the build's kernels in the background",
+        "loading the kernels in the background",
         "generating the synthetic m2020 mission in",
         "  m2020: terrain: 1024 x 1024 m DEM at 1 m, ortho at 0.25 m",
         "  m2020: traverse: 1 stops, 1 sites",
         "mission generated (",
-        "kernels compiled (",
+        "kernels ready (",
     ]
     at = [next((i for i, line in enumerate(out) if line.startswith(e)), -1) for e in expected]
     assert -1 not in at and at == sorted(at), out
-    # the kernels' line gives the compile's own time and the wait after the mission
-    (line,) = [ln for ln in out if ln.startswith("kernels compiled (")]
+    # the kernels' line gives the loading's own time and the wait after the mission
+    (line,) = [ln for ln in out if ln.startswith("kernels ready (")]
     assert re.fullmatch(
-        r"kernels compiled \(\d+ s, beside the mission; \d+ s waited after it\); building \.\.\.",
+        r"kernels ready \(\d+ s, beside the mission; \d+ s waited after it\); building \.\.\.",
         line,
     ), line
     assert (tmp_path / "mission" / "truth.parquet").is_file()
