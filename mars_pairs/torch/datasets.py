@@ -56,7 +56,7 @@ from mars_pairs.errors import (
     SampleIndexError,
 )
 from mars_pairs.store.dataset_info import read_dataset_info
-from mars_pairs.store.dem_codec import dem_member
+from mars_pairs.store.dem_codec import version_suffixes
 from mars_pairs.store.filter_args import sample_index
 from mars_pairs.store.fs import Location, dataset_root, join
 from mars_pairs.store.integrity import MemberSpec, check_member, repeated_keys
@@ -173,7 +173,7 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
         self.verify = opts.verify
         self.localization = opts.localization
         self.dense_stride = info.dense_stride
-        self._suffixes = {**MEMBER_SUFFIXES, "dem": dem_member(info.format_version)}
+        self._suffixes = {**MEMBER_SUFFIXES, **version_suffixes(info.format_version)}
         # verify=True checks every member of a sample read, like `mars-pairs verify`
         located = (*MEMBERS, *self.fields) if self.verify else self.fields
         if self.localization:

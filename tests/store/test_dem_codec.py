@@ -16,8 +16,9 @@ from mars_pairs.store.dem_codec import (
     dem_member,
     encode_dem,
 )
+from mars_pairs.store.float_tiff import decode_float_tiff, encode_float_tiff
 from mars_pairs.torch.decode import decode_member, decode_raw
-from support.members import dem_metres
+from support.members import dem_metres, tiff_array
 
 
 def _chip(seed: int = 0, size: int = 64, base: float = -2571.4, relief: float = 40.0) -> np.ndarray:
@@ -92,3 +93,16 @@ def test_bytes_that_are_no_dem_chip_are_a_value_error(damage: object) -> None:
     data, _ = encode_dem(_chip(5))
     with pytest.raises(ValueError):
         decode_dem(damage(data))  # type: ignore[operator]
+
+
+def test_a_float_member_round_trips_bit_for_bit_and_gdal_reads_it() -> None:
+    rng = np.random.default_rng(6)
+    px = rng.uniform(-0.5, 1647.5, (32, 40, 2)).astype(np.float32)
+    px[rng.random((32, 40)) < 0.7] = np.nan
+    data = encode_float_tiff(px)
+    np.testing.assert_array_equal(decode_float_tiff(data), px)  # NaN where NaN, bit for bit
+    np.testing.assert_array_equal(tiff_array(data), px)
+    one = px[..., 0]
+    np.testing.assert_array_equal(decode_float_tiff(encode_float_tiff(one)), one)
+    with pytest.raises(ValueError, match="float32"):
+        decode_float_tiff(encode_dem(_chip(7))[0])

@@ -85,3 +85,12 @@ def dem_metres(data: bytes) -> np.ndarray:
             values = ds.read(1, masked=True)
             scale, offset = ds.scales[0], ds.offsets[0]
     return np.asarray((values.astype(np.float64) * scale + offset).filled(np.nan))
+
+
+def tiff_array(data: bytes) -> np.ndarray:
+    """A TIFF member's pixels as GDAL reads them: (H, W) for one band, (H, W, C) for C."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+        with MemoryFile(data) as mem, mem.open() as ds:
+            bands = ds.read()
+    return bands[0] if len(bands) == 1 else np.moveaxis(bands, 0, -1)
