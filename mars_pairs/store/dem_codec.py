@@ -29,6 +29,7 @@ apart by the member's first bytes.
 
 from __future__ import annotations
 
+import io
 import json
 import math
 from dataclasses import dataclass
@@ -171,6 +172,17 @@ def encode_dem(dem: np.ndarray) -> tuple[bytes, DemEncoding]:
 def is_npy(data: bytes | bytearray) -> bool:
     """Whether member bytes are a ``.npy`` array (a version-1 ``dem.npy``), not a ``dem.tif``."""
     return bytes(data[:6]) == _NPY_MAGIC
+
+
+def dem_chip(data: bytes | bytearray) -> np.ndarray:
+    """A DEM chip member of either format (``dem.tif``, or a version-1 ``dem.npy``) as float32
+    (H, W) metres, NaN no data; ValueError for other bytes."""
+    if is_npy(data):
+        chip = np.load(io.BytesIO(bytes(data)), allow_pickle=False)
+        if chip.ndim != 2:
+            raise ValueError(f"DEM chip .npy: shape {chip.shape}, expected 2-D")
+        return np.asarray(chip, dtype=np.float32)
+    return decode_dem(data)
 
 
 def decode_dem(data: bytes | bytearray) -> np.ndarray:

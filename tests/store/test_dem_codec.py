@@ -13,6 +13,7 @@ from mars_pairs.store.dem_codec import (
     NODATA,
     decode_dem,
     decode_dem_values,
+    dem_chip,
     dem_member,
     encode_dem,
 )
@@ -106,3 +107,11 @@ def test_a_float_member_round_trips_bit_for_bit_and_gdal_reads_it() -> None:
     np.testing.assert_array_equal(decode_float_tiff(encode_float_tiff(one)), one)
     with pytest.raises(ValueError, match="float32"):
         decode_float_tiff(encode_dem(_chip(7))[0])
+
+
+def test_dem_chip_reads_either_format() -> None:
+    chip = _chip(8)
+    buf = io.BytesIO()
+    np.save(buf, chip, allow_pickle=False)
+    np.testing.assert_array_equal(dem_chip(buf.getvalue()), chip)
+    assert _max_error(dem_chip(encode_dem(chip)[0]), chip) <= FINEST_SCALE_M / 2
