@@ -125,14 +125,15 @@ def read_strip_tiff(data: bytes | bytearray) -> tuple[np.ndarray, dict[int, str]
     if strip_at + strip_size > len(view):
         raise ValueError(f"TIFF strip of {strip_size} bytes past the end")
     shape = (height, width) if bands == 1 else (height, width, bands)
-    raw = bytearray(dtype.itemsize * width * height * bands)
+    raw = np.empty(dtype.itemsize * width * height * bands, dtype=np.uint8)  # not zeroed
     try:
-        got = imagecodecs.zstd_decode(bytes(view[strip_at : strip_at + strip_size]), out=raw)
+        strip = bytes(view[strip_at : strip_at + strip_size])
+        got = imagecodecs.zstd_decode(strip, out=raw.data)
     except imagecodecs.ZstdError as exc:
         raise ValueError(f"bad zstd strip: {exc}") from None
     if len(got) != len(raw):
         raise ValueError(f"TIFF strip: {len(got)} bytes for {shape} {dtype}")
-    pixels = np.frombuffer(raw, dtype=dtype).reshape(shape)
+    pixels = raw.view(dtype).reshape(shape)
     if predictor == HORIZONTAL_PREDICTOR and dtype.kind == "u":
         pixels = imagecodecs.delta_decode(pixels, axis=1, out=pixels)
     return pixels, texts
