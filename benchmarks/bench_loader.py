@@ -3,15 +3,21 @@ and against WebDataset's own pipeline over the same shards.
 
     python benchmarks/bench_loader.py                     # out/demo/dataset, or build it
     python benchmarks/bench_loader.py --dataset DIR --epochs 20
+    python benchmarks/bench_loader.py --compare OTHER_DIR   # + rows over another build
 
 Uses ``out/demo/dataset`` when it exists, else builds ``configs/demo.yaml`` into a temp dir.
+``--compare`` adds the anchor, ``MarsPairsDataset[i]`` and the persistent 2-worker loader over
+a second dataset folder (e.g. the same samples built by another version: a format 1 build with
+``dem.npy`` against ``dem.tif``) to the same rounds, so their ratios come from one run.
+
 Prints a markdown table of samples/s (best of --repeats rounds in which the loops take turns,
 after a warm-up epoch each) for the default fields (ground, ortho, dem, viewshed):
 
 - decode only (the anchor): one process reads each member by its manifest offset and
   decodes it to a numpy array with the fastest decoder at hand (simplejpeg for the ground
   JPEG, ``np.asarray`` of the PIL image for PNGs, converted only where its mode differs;
-  ``np.load`` for the DEM), nothing else;
+  ``store.dem_codec.decode_dem`` for the DEM's TIFF, ``np.load`` for a format 1 ``dem.npy``),
+  nothing else;
 - ``MarsPairsDataset`` indexed in a loop (one process; uint8 images, the default);
 - ``DataLoader(num_workers=0, batch_size=8, collate_fn=collate_samples)`` (one process, the
   batched ``__getitems__`` path);
@@ -23,7 +29,7 @@ after a warm-up epoch each) for the default fields (ground, ortho, dem, viewshed
 - the streaming ``MarsPairsIterableDataset`` through 2 workers;
 - WebDataset's own pipeline over the same shards: ``wds.WebDataset(urls).decode(...)
   .to_tuple(...).batched(8)`` through ``DataLoader(batch_size=None, num_workers=2)``,
-  decoding each member as the anchor does (handlers for .jpg (simplejpeg) and .png,
+  decoding each member as the anchor does (handlers for .jpg (simplejpeg), .png and .tif,
   WebDataset's own .npy).
 
 The ratio column is each row's rate over the decode-only rate (targets: the 2-worker
@@ -57,6 +63,7 @@ import pyarrow.parquet as pq  # noqa: E402
 import torch  # noqa: E402
 from torch.utils.data import DataLoader  # noqa: E402
 
+from mars_pairs.store.dem_codec import decode_dem, is_npy  # noqa: E402
 from mars_pairs.torch import (  # noqa: E402
     DEFAULT_FIELDS,
     MarsPairsDataset,
@@ -111,7 +118,7 @@ def decode_only(root: Path, fields: tuple[str, ...]) -> Callable[[], int]:
                     fh.seek(row[f"{f}_offset"])
                     data = fh.read(row[f"{f}_size"])
                     if f == "dem":
-                        np.load(io.BytesIO(data))
+                        np.load(io.BytesIO(data)) if is_npy(data) else decode_dem(data)
                     elif data[:2] == b"\xff\xd8" and f == "ground":  # a JPEG
                         simplejpeg.decode_jpeg(data, colorspace="RGB")
                     else:
@@ -183,10 +190,15 @@ def webdataset_pipeline(root: Path, batch: int) -> Any:
             return np.asarray(im if im.mode == "L" else im.convert("L"))
 
     urls = [str(p) for p in sorted((root / "shards").glob("*.tar"))]
+    dem = "dem.tif" if MarsPairsDataset(root).member_name(0, "dem").endswith(".tif") else "dem.npy"
     return (
         wds.WebDataset(urls, shardshuffle=False, empty_check=False)
-        .decode(wds.handle_extension("jpg", rgb), wds.handle_extension("png", grey))
-        .to_tuple("ground.jpg", "ortho.png", "dem.npy", "viewshed.png")
+        .decode(
+            wds.handle_extension("jpg", rgb),
+            wds.handle_extension("png", grey),
+            wds.handle_extension("tif", decode_dem),
+        )
+        .to_tuple("ground.jpg", "ortho.png", dem, "viewshed.png")
         .batched(batch, collation_fn=_stack_or_list)
     )
 
@@ -246,6 +258,7 @@ def main() -> int:
     p.add_argument("--repeats", type=int, default=4)
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--batch-size", type=int, default=8)
+    p.add_argument("--compare", type=Path, default=None, help="a second dataset folder")
     args = p.parse_args()
 
     with tempfile.TemporaryDirectory(prefix="bench-loader-") as tmp:
@@ -294,6 +307,12 @@ def main() -> int:
                 webdataset_pipeline(root, bs), w, None, True, collate=None, loader_class=DataLoader
             ),
         }
+        if args.compare is not None:
+            other = MarsPairsDataset(args.compare)
+            tag = f"({args.compare.name})"
+            loops[f"{tag} read + decode only"] = decode_only(args.compare, DEFAULT_FIELDS)
+            loops[f"{tag} `MarsPairsDataset[i]` (1 process)"] = dataset_loop(other)
+            loops[f"{tag} {ours}"] = loader_loop(other, w, bs, True, collate=None)
         rows = list(rates(loops, args.epochs, args.repeats).items())
         load1 = os.getloadavg()[0]
         s = ds[0]

@@ -17,6 +17,7 @@ from mars_pairs.errors import MarsPairsError
 from mars_pairs.store.atomic import atomic_path
 from mars_pairs.store.beside import beside, outside
 from mars_pairs.store.dataset_info import dataset_crs
+from mars_pairs.store.dem_codec import dem_chip
 from mars_pairs.store.manifest import SUMMARY_COLUMNS
 from mars_pairs.store.query import Manifest
 from mars_pairs.store.shards import MemberLocation, read_members
@@ -163,7 +164,7 @@ def export_chips(
         ortho = np.asarray(Image.open(io.BytesIO(data["ortho"])))
         if ortho.ndim == 3:
             ortho = ortho[..., 0]
-        dem = np.load(io.BytesIO(data["dem"]), allow_pickle=False)
+        dem = dem_chip(data["dem"])
         view = np.asarray(Image.open(io.BytesIO(data["viewshed"])))
         key = row["key"]
         for name, array, nodata in (

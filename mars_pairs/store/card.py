@@ -63,7 +63,9 @@ MEMBER_DOCS: dict[str, tuple[str, str, str]] = {
     "ground": ("ground.jpg / ground.png", "the original image bytes (IMG products: PNG)",
                "the product's pixel values"),
     "ortho": ("ortho.png", "uint8 greyscale chip", "ortho values scaled by meta.ortho_range"),
-    "dem": ("dem.npy", "float32 [H, W] chip", "m above the areoid, NaN: no data"),
+    "dem": ("dem.tif", "uint16 [H, W] TIFF (zstd), m = offset_m + scale_m * value",
+            "m above the areoid within meta.dem_encoding.max_error_m (3.9 mm at the finest "
+            "quantum, 2^-7 m); 65535: no data"),
     "viewshed": ("viewshed.png", "uint8 chip, 0 / 255", "visible from the camera"),
     "corr": ("corr.npy", "float32 [2, H/k, W/k]",
              "chip pixel (column, row) of every k-th ground pixel's ray hit; NaN: no hit"),

@@ -60,8 +60,8 @@ CONTEXT: dict[str, Any] = {
 #: Where the project lives (the dataset's ``url`` when it has no home of its own).
 PROJECT_URL = "https://github.com/mars-pairs/mars-pairs"
 
-_MEDIA = {".png": "image/png", ".jpg": "image/jpeg", ".npy": "application/x-npy",
-          ".json": "application/json"}  # fmt: skip
+_MEDIA = {".png": "image/png", ".jpg": "image/jpeg", ".tif": "image/tiff",
+          ".npy": "application/x-npy", ".json": "application/json"}  # fmt: skip
 
 
 def croissant_type(t: pa.DataType) -> str | None:

@@ -25,9 +25,11 @@ DATASET_JSON = "dataset.json"
 #: where dataset.json keeps the ray stride (ground-image pixels between keypoint rays)
 RAY_STRIDE = ("config", "geometry", "ray_stride")
 
-#: the version of the dataset folder's format this mars-pairs writes and reads; a
-#: dataset.json without ``format_version`` (written before it was recorded) is version 1
-FORMAT_VERSION = 1
+#: the version of the dataset folder's format this mars-pairs writes and reads (every older
+#: one too); a dataset.json without ``format_version`` (written before it was recorded) is
+#: version 1. Version 2: the DEM chip is ``dem.tif``, uint16 quantized (``store.dem_codec``;
+#: dataset.json's ``dem_encoding``), where version 1 holds a float32 ``dem.npy``
+FORMAT_VERSION = 2
 
 
 def _mapping(value: Any) -> dict[str, Any]:

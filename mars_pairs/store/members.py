@@ -28,7 +28,7 @@ MEMBER_FILES: dict[str, tuple[str, ...]] = {
     "ortho_view": ("ortho_view.png", "view_valid.png"),
     "dem_view": ("dem_view.npy", "view_valid.png"),
     "ground_on_map": ("ground_on_map.png", "ground_on_map_cover.png"),
-    "ground_px": ("ground_px.npy",),
+    "ground_px": ("ground_px.tif",),  # format version 1: ground_px.npy
 }
 
 #: The terrain-label members (written when ``inputs.terrain_labels`` is set): ``terrain``

@@ -56,6 +56,7 @@ from mars_pairs.errors import (
     SampleIndexError,
 )
 from mars_pairs.store.dataset_info import read_dataset_info
+from mars_pairs.store.dem_codec import version_suffixes
 from mars_pairs.store.filter_args import sample_index
 from mars_pairs.store.fs import Location, dataset_root, join
 from mars_pairs.store.integrity import MemberSpec, check_member, repeated_keys
@@ -172,6 +173,7 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
         self.verify = opts.verify
         self.localization = opts.localization
         self.dense_stride = info.dense_stride
+        self._suffixes = {**MEMBER_SUFFIXES, **version_suffixes(info.format_version)}
         # verify=True checks every member of a sample read, like `mars-pairs verify`
         located = (*MEMBERS, *self.fields) if self.verify else self.fields
         if self.localization:
@@ -271,7 +273,7 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
         if field == "ground" and self._ground_member is not None:
             suffix = self._ground_member[index].as_py() or "ground"
         else:
-            suffix = MEMBER_SUFFIXES[field]
+            suffix = self._suffixes[field]
         return f"{key}.{suffix}"
 
     def _bytes(self, index: int, field: str) -> bytearray:

@@ -66,7 +66,7 @@ def test_verify_names_members_with_damaged_payloads(
 ) -> None:
     row = _row(copy, 0)
     rng = np.random.default_rng(0)
-    # 64 random bytes in the middle of a dem.npy payload (past its header), 300 in ground.jpg
+    # 64 random bytes in the middle of a dem.tif payload (its zstd strip), 300 in ground.jpg
     _poke(copy, row["dem_shard"], row["dem_offset"] + row["dem_size"] // 2, rng.bytes(64))
     _poke(copy, row["ground_shard"], row["ground_offset"] + 200, rng.bytes(300))
     assert main(["verify", str(copy)]) == 2

@@ -17,6 +17,7 @@ from pyproj import CRS
 from mars_pairs.cli import main
 from mars_pairs.store.shards import MemberLocation, read_member
 from support.builds import build_small
+from support.members import dem_metres
 
 #: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
 pytestmark = pytest.mark.slow
@@ -40,7 +41,7 @@ def test_chip_geotiffs_sit_on_the_chip_in_the_dataset_crs(
     assert len(list(folder.glob("*.tif"))) == 3 * len(rows) > 0
     for row in rows:
         meta = json.loads(_member(root, row, "meta"))
-        dem = np.load(io.BytesIO(_member(root, row, "dem")))
+        dem = dem_metres(_member(root, row, "dem")).astype(np.float32)  # GDAL's reading
         ortho = np.asarray(Image.open(io.BytesIO(_member(root, row, "ortho"))))
         for name in ("ortho", "dem", "viewshed"):
             with rasterio.open(folder / f"{row['key']}_{name}.tif") as src:

@@ -93,7 +93,7 @@ def test_every_offset_reads_back_the_tar_member(built: Path) -> None:
                 if name == "ground"
                 else {
                     "ortho": "ortho.png",
-                    "dem": "dem.npy",
+                    "dem": "dem.tif",
                     "viewshed": "viewshed.png",
                     "corr": "corr.npy",
                     "meta": "meta.json",

@@ -21,7 +21,7 @@ from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.store.manifest import MANIFEST_SCHEMA
 from support import independent_truth as truth
 from support.configs import build_config
-from support.members import rows_by_key, sample_members
+from support.members import rows_by_key, sample_members, tiff_array
 
 #: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
 pytestmark = pytest.mark.slow
@@ -78,7 +78,7 @@ def test_members_written_located_and_checksummed(dense: Path) -> None:
         assert _npy(m["range.npy"]).shape == (h, w) and _npy(m["range.npy"]).dtype == np.float32
         assert _npy(m["depth.npy"]).dtype == np.float32
         assert _npy(m["hits.npy"]).shape == (h, w, 3) and _npy(m["hits.npy"]).dtype == np.float64
-        assert _npy(m["ground_px.npy"]).shape == (CHIP["size_px"], CHIP["size_px"], 2)
+        assert tiff_array(m["ground_px.tif"]).shape == (CHIP["size_px"], CHIP["size_px"], 2)
         assert meta["dense_stride"] == STRIDE and set(meta["dense_members"]) >= {"range"}
         # range >= depth > 0 where the ray hit
         r, d = _npy(m["range.npy"]), _npy(m["depth.npy"])
@@ -267,7 +267,7 @@ def test_classes_move_between_image_and_chip(
         chip_cls = np.abs(read_chip(str(path), grid, nearest=True)[..., None] - LEVELS).argmin(-1)
         image_cls = _render_classes(_label(dense, rows[key]), small_mission, codes)
         # image -> chip
-        moved, cover = image_to_chip(image_cls.astype(np.int16), _npy(m["ground_px.npy"]),
+        moved, cover = image_to_chip(image_cls.astype(np.int16), tiff_array(m["ground_px.tif"]),
                                      nearest=True, fill=-1)  # fmt: skip
         cover &= moved >= 0
         if cover.sum() >= 200:

@@ -44,7 +44,7 @@ def test_a_finished_build_leaves_the_card_and_no_parts(built: Path) -> None:
     for f in MANIFEST_SCHEMA:
         if not f.name.endswith(("_shard", "_offset", "_size", "_crc32c")):
             assert f"`{f.name}` | " in card, f.name
-    for member in ("ground.jpg", "ortho.png", "dem.npy", "viewshed.png", "corr.npy", "meta.json"):
+    for member in ("ground.jpg", "ortho.png", "dem.tif", "viewshed.png", "corr.npy", "meta.json"):
         assert member in card
     # sources with their DOIs, the licence (public domain for PDS data), how to load it
     assert "doi:10.17189/bs6b-4782" in card  # the Perseverance samples' data set, alone
@@ -135,7 +135,7 @@ def test_hugging_face_datasets_load_the_shards_and_the_manifest(
     pairs = load_dataset("webdataset", data_files={"train": shards}, split="train", cache_dir=cache)
     keys = pq.read_table(built / "manifest.parquet", columns=["key"])["key"].to_pylist()
     assert sorted(pairs["__key__"]) == sorted(keys)
-    assert {"ground.jpg", "ortho.png", "dem.npy", "viewshed.png", "meta.json"} <= set(
+    assert {"ground.jpg", "ortho.png", "dem.tif", "viewshed.png", "meta.json"} <= set(
         pairs.column_names
     )
     rows = load_dataset(

@@ -1,5 +1,7 @@
 """THE readers of a finished dataset's tar members and manifest keys, independent of the
-package's own readers: members through ``tarfile``, rows through ``pyarrow.parquet``.
+package's own readers: members through ``tarfile``, rows through ``pyarrow.parquet``, the
+DEM chip's TIFF through GDAL (rasterio), which applies the scale, offset and no-data value the
+file carries.
 
 ``root`` is a dataset folder (``shards/*.tar``, ``manifest.parquet``); a member's name is
 ``<key>.<member>`` (e.g. ``<key>.meta.json``).
@@ -9,14 +11,18 @@ from __future__ import annotations
 
 import json
 import tarfile
+import warnings
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pyarrow.parquet as pq
+import rasterio
+from rasterio.io import MemoryFile
 
 SUFFIX = {
     "ortho": "ortho.png",
-    "dem": "dem.npy",
+    "dem": "dem.tif",
     "viewshed": "viewshed.png",
     "corr": "corr.npy",
     "meta": "meta.json",
@@ -68,3 +74,23 @@ def rows_by_key(root: Path) -> dict[str, dict[str, Any]]:
 def manifest_keys(root: Path) -> set[str]:
     """The keys of ``root/manifest.parquet`` (the ``key`` column alone)."""
     return set(pq.read_table(root / "manifest.parquet", columns=["key"])["key"].to_pylist())
+
+
+def dem_metres(data: bytes) -> np.ndarray:
+    """A ``dem.tif`` member's float64 (H, W) metres as GDAL reads it (value * scale + offset
+    from the file's GDAL tags, NaN where its no-data value is)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+        with MemoryFile(data) as mem, mem.open() as ds:
+            values = ds.read(1, masked=True)
+            scale, offset = ds.scales[0], ds.offsets[0]
+    return np.asarray((values.astype(np.float64) * scale + offset).filled(np.nan))
+
+
+def tiff_array(data: bytes) -> np.ndarray:
+    """A TIFF member's pixels as GDAL reads them: (H, W) for one band, (H, W, C) for C."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+        with MemoryFile(data) as mem, mem.open() as ds:
+            bands = ds.read()
+    return bands[0] if len(bands) == 1 else np.moveaxis(bands, 0, -1)

@@ -23,7 +23,7 @@ import mars_pairs.torch.streaming as mps
 from mars_pairs import Manifest
 from mars_pairs.errors import ArgumentError
 from mars_pairs.torch import MarsPairsDataset, MarsPairsIterableDataset, collate_samples
-from support.members import manifest_keys
+from support.members import dem_metres, manifest_keys
 
 pytestmark = pytest.mark.slow  # its tests share a fixture of > 3 s
 
@@ -77,9 +77,9 @@ def test_samples_match_the_tar_members(dataset_dir: Path, members: dict[str, byt
         assert s["ortho"].dtype == torch.float32 and s["ortho"].shape == (1, *ortho.shape)
         np.testing.assert_allclose(s["ortho"][0].numpy(), ortho, atol=1e-6)
 
-        dem = np.load(io.BytesIO(member(members, key, "dem.npy")))
+        dem = dem_metres(member(members, key, "dem.tif"))  # GDAL's reading
         assert s["dem"].dtype == torch.float32 and s["dem"].shape == (1, *dem.shape)
-        np.testing.assert_array_equal(s["dem"][0].numpy(), dem)
+        np.testing.assert_array_equal(s["dem"][0].numpy(), dem)  # exact: powers of two
         finite = dem[np.isfinite(dem)]
         assert finite.size and -9000 < finite.min() < 0  # metres above the areoid (Jezero)
 
@@ -109,7 +109,7 @@ def test_normalized_dem_is_the_chip_minus_its_median(
     ds = MarsPairsDataset(dataset_dir, fields=("dem",), normalize_dem=True)
     for i in range(len(ds)):
         s = ds[i]
-        dem = np.load(io.BytesIO(member(members, s["meta"]["key"], "dem.npy")))
+        dem = dem_metres(member(members, s["meta"]["key"], "dem.tif"))
         finite = np.isfinite(dem)
         expected = np.where(finite, dem - np.median(dem[finite]), 0.0)
         assert s["dem"].dtype == torch.float32 and torch.isfinite(s["dem"]).all()

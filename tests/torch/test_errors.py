@@ -52,7 +52,7 @@ def dataset_index(ds: MarsPairsDataset, key: str) -> int:
 
 
 @pytest.mark.parametrize(
-    ("field", "suffix"), [("ortho", "ortho.png"), ("dem", "dem.npy"), ("ground", "ground")]
+    ("field", "suffix"), [("ortho", "ortho.png"), ("dem", "dem.tif"), ("ground", "ground")]
 )
 def test_a_damaged_member_names_the_shard_and_the_member(
     copy: Path, field: str, suffix: str
@@ -85,15 +85,15 @@ def test_a_truncated_or_missing_shard_names_it(copy: Path) -> None:
 
 def test_verify_finds_a_flipped_byte_that_still_decodes(copy: Path) -> None:
     key, shard, offset, size = location(copy, 5, "dem")
-    with open(copy / shard, "r+b") as fh:  # one byte of the last float: still a valid .npy
-        fh.seek(offset + size - 1)
-        byte = fh.read(1)
-        fh.seek(offset + size - 1)
-        fh.write(bytes([byte[0] ^ 0x01]))
+    with open(copy / shard, "r+b") as fh:  # GDAL's no-data text 65535 -> 65534: still decodes
+        fh.seek(offset)
+        at = offset + fh.read(size).index(b"65535\x00") + 4
+        fh.seek(at)
+        fh.write(b"4")
     with MarsPairsDataset(copy, fields=("dem",)) as ds:
         ds[ds.index_of(key)]  # unverified: decodes (wrong value, silently)
     with MarsPairsDataset(copy, fields=("dem",), verify=True) as ds:
-        with pytest.raises(DatasetError, match=f"{key}.dem.npy: checksum mismatch"):
+        with pytest.raises(DatasetError, match=f"{key}.dem.tif: checksum mismatch"):
             ds[ds.index_of(key)]
         assert ds[(ds.index_of(key) + 1) % len(ds)]["dem"].shape[0] == 1
     stream = MarsPairsIterableDataset(copy, fields=("dem",), verify=True)

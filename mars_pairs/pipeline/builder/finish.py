@@ -38,6 +38,7 @@ from mars_pairs.store import fs
 from mars_pairs.store.card import CardFacts, dataset_card, default_license
 from mars_pairs.store.croissant import croissant_metadata, dataset_description, sha256_of
 from mars_pairs.store.dataset_info import DatasetInfo, dataset_document
+from mars_pairs.store.dem_codec import dataset_dem_encoding
 from mars_pairs.store.geoparquet import crs_name, named_crs, table_geo_metadata
 from mars_pairs.store.manifest import FAILURE_SCHEMA, MANIFEST_SCHEMA
 from mars_pairs.store.pairs import Footprints, write_pairs
@@ -254,6 +255,7 @@ def dataset_doc(
             "size_px": config.chips.size_px,
             "orientation": config.chips.orientation,
         },
+        "dem_encoding": dataset_dem_encoding(),
         "counts": counts,
         "splits": splits_report(config, manifest, dropped),
         "failures_by_reason": summary.failures_by_reason,

@@ -30,6 +30,7 @@ from mars_pairs.pipeline.sample.view import (
     ray_grid_shape,
     ray_hits,
     sight_of_hits,
+    strided_rays,
 )
 
 
@@ -106,15 +107,17 @@ def view_stages(pose: Pose, camera: MapCamera, ctx: SampleContext, stage: Stages
             camera, pose, ctx.terrain, ctx.dem_window, geo.radius, geo.observer_height,
             geo.view_mask,
         )  # fmt: skip
-    sight, hits = None, None
+    sight, hits, rays = None, None, None
     if geo.viewshed in ("wedge", "both"):
         with stage("viewshed"):
             sight = line_of_sight(anchored, max(ctx.terrain.res))
     if geo.viewshed in ("raycast", "both"):
         with stage("raycast"):
-            hits = ray_hits(anchored, geo.ray_stride)
+            rays = strided_rays(anchored.camera, geo.ray_stride)
+            hits = ray_hits(anchored, geo.ray_stride, rays)
             if sight is None:
                 sight = sight_of_hits(hits, anchored.window)
     if sight is None:
         raise ConfigError(f"geometry.viewshed: unknown method {geo.viewshed!r}")
-    return View.seeing(anchored, sight, hits, ray_grid_shape(anchored.camera, geo.ray_stride))
+    shape = ray_grid_shape(anchored.camera, geo.ray_stride)
+    return View.seeing(anchored, sight, hits, shape, rays)

@@ -1,4 +1,5 @@
-"""Member bytes: PNG and NPY encoding, WebDataset field names.
+"""Member bytes: PNG, NPY and the DEM chip's TIFF (``store.dem_codec``), WebDataset field
+names.
 
 PNG chips are written with imagecodecs (libpng) at zlib level 1, run-length strategy and the
 Sub filter on every row. Pillow offers no filter choice and tries all five on every row:
@@ -15,6 +16,8 @@ from typing import Any
 
 import imagecodecs
 import numpy as np
+
+from mars_pairs.store.dem_codec import DEM_MEMBER, encode_dem
 
 _PNG_LEVEL = 1  # zlib speed
 _PNG_STRATEGY = 3  # zlib Z_RLE
@@ -39,10 +42,13 @@ def npy_bytes(arr: np.ndarray) -> bytes:
 def encode_members(
     chips: dict[str, Any], corr: np.ndarray, meta: dict[str, Any]
 ) -> dict[str, bytes]:
-    """Member bytes, WebDataset field names."""
+    """Member bytes, WebDataset field names; ``meta.json`` is ``meta`` with the DEM chip's
+    quantization (``dem_encoding``: ``store.dem_codec.DemEncoding.as_dict``)."""
+    dem, dem_encoding = encode_dem(chips["dem"])
+    meta = {**meta, "dem_encoding": dem_encoding.as_dict()}
     return {
         "ortho.png": png_bytes(chips["ortho"]),
-        "dem.npy": npy_bytes(chips["dem"]),
+        DEM_MEMBER: dem,
         "viewshed.png": png_bytes(chips["viewshed"]),
         "corr.npy": npy_bytes(corr),
         "meta.json": json.dumps(meta, sort_keys=True).encode(),

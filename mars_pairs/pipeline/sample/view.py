@@ -47,6 +47,27 @@ class AnchoredView:
 
 
 @dataclass(frozen=True)
+class StridedRays:
+    """The rays of every ``stride``-th pixel (rows of ``MapCamera.pixel_grid(stride)``):
+    ``o_local``, ``d_local`` (N, 3) origins and unit directions in the camera model's local
+    NED frame (metres); ``origins``, ``dirs`` (N, 3) the same on the map (map x, y in map
+    units, z in metres; a direction is the map image of the unit local vector)."""
+
+    stride: int
+    o_local: np.ndarray
+    d_local: np.ndarray
+    origins: np.ndarray
+    dirs: np.ndarray
+
+
+def strided_rays(camera: MapCamera, stride: int) -> StridedRays:
+    """The rays of ``camera`` through every ``stride``-th pixel (``StridedRays``)."""
+    o_local, d_local = camera.camera.unproject(camera.pixel_grid(stride))
+    origins = camera.origin_map + o_local @ camera.jacobian.T
+    return StridedRays(stride, o_local, d_local, origins, d_local @ camera.jacobian.T)
+
+
+@dataclass(frozen=True)
 class Sight:
     """What the camera sees on ``AnchoredView.window``'s grid (uint8, 1 = yes): ``los`` the line
     of sight alone, ``mask`` the cells that also pass the exact view test (see ``VIEW_MASKS``).
@@ -64,13 +85,15 @@ class View(AnchoredView):
     ``los`` (uint8 on ``window``'s grid) the line of sight alone, before the view test;
     ``mask`` (uint8, same grid) the cells in view (see ``VIEW_MASKS``); ``hits`` (N, 3) the
     ray/terrain intersections of the strided pixels (map x, y in map units, z in metres; NaN
-    for no hit), None when no rays were cast; ``grid_shape`` their (rows, cols) in the image.
+    for no hit), None when no rays were cast; ``grid_shape`` their (rows, cols) in the image;
+    ``rays`` the rays cast (``StridedRays``), None when none were.
     """
 
     los: np.ndarray
     mask: np.ndarray
     hits: np.ndarray | None
     grid_shape: tuple[int, int]
+    rays: StridedRays | None = None
 
     @classmethod
     def seeing(
@@ -79,10 +102,14 @@ class View(AnchoredView):
         sight: Sight,
         hits: np.ndarray | None = None,
         grid_shape: tuple[int, int] = (0, 0),
+        rays: StridedRays | None = None,
     ) -> View:
-        """The view of ``anchored`` with its ``sight`` and ray ``hits`` (``grid_shape``)."""
+        """The view of ``anchored`` with its ``sight`` and ray ``hits`` (``grid_shape``) of
+        ``rays``."""
         parts = {f.name: getattr(anchored, f.name) for f in fields(AnchoredView)}
-        return cls(**parts, los=sight.los, mask=sight.mask, hits=hits, grid_shape=grid_shape)
+        return cls(
+            **parts, los=sight.los, mask=sight.mask, hits=hits, grid_shape=grid_shape, rays=rays
+        )
 
 
 #: reads the DEM window holding everything within a reach (map units) of map point (x, y)
@@ -228,13 +255,16 @@ def ray_grid_shape(camera: MapCamera, stride: int) -> tuple[int, int]:
     return len(range(0, camera.height, stride)), len(range(0, camera.width, stride))
 
 
-def ray_hits(view: AnchoredView, stride: int) -> np.ndarray:
+def ray_hits(view: AnchoredView, stride: int, rays: StridedRays | None = None) -> np.ndarray:
     """The terrain hits (N, 3: map x, y in map units, z in metres; NaN for no hit) of every
-    ``stride``-th pixel's ray, within ``view.radius_m`` (true metres) of the camera centre."""
+    ``stride``-th pixel's ray (``rays`` when given, else ``strided_rays``), within
+    ``view.radius_m`` (true metres) of the camera centre."""
     camera = view.camera
     cx, cy = (float(v) for v in camera.center_map[:2])
-    origins, dirs = camera.pixel_rays(camera.pixel_grid(stride))
-    hits, _ = cast_rays(origins, dirs, view.window, max_range=view.radius_m, observer_xy=(cx, cy))
+    rays = strided_rays(camera, stride) if rays is None else rays
+    hits, _ = cast_rays(
+        rays.origins, rays.dirs, view.window, max_range=view.radius_m, observer_xy=(cx, cy)
+    )
     return hits
 
 
