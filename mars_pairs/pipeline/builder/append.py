@@ -52,8 +52,9 @@ import pyarrow.parquet as pq
 
 from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.builder.fingerprints import LabelDigest, input_change, input_files
-from mars_pairs.pipeline.builder.finish import relative_config, write_merged
+from mars_pairs.pipeline.builder.finish import Merged, relative_config, write_merged
 from mars_pairs.pipeline.builder.hygiene import remove_empty_parts
+from mars_pairs.pipeline.builder.key_index import KeyIndex, scratch_index
 from mars_pairs.pipeline.builder.label_list import iter_matches
 from mars_pairs.pipeline.builder.layout import DROPPED_KEY, part_paths, stamp_path
 from mars_pairs.pipeline.builder.plan import check_clearable, check_inputs, is_done
@@ -82,6 +83,8 @@ BASE_FILES = {
 MAY_CHANGE = ("inputs.labels", "inputs.places", "source")
 #: The inputs whose files must be those the dataset was built from.
 FIXED_INPUTS = ("dem", "ortho")
+#: Rows of the base's files read at a time.
+_BATCH = 16384
 
 
 @dataclass(frozen=True)
@@ -104,8 +107,6 @@ class AppendPlan:
     fingerprint: dict[str, Any] = field(repr=False, compare=False)  # the stamp it writes
     full_digest: dict[str, Any] = field(repr=False, compare=False)  # build_stamp after it
     base: dict[str, Any] = field(repr=False, compare=False)  # the base's dataset.json
-    known: frozenset[str] = field(repr=False, compare=False)  # label paths held (relative)
-    keys: dict[str, str] = field(repr=False, compare=False)  # sample key -> label_path held
 
     def format(self) -> str:
         """The plan as ``mars-pairs build --append --dry-run`` prints it."""
@@ -223,38 +224,43 @@ def check_append_config(config: BuildConfig, base: dict[str, Any]) -> None:
         )
 
 
-def known_labels(
-    manifest: Path, failures: Path, root: str
-) -> tuple[frozenset[str], dict[str, str]]:
-    """The label paths (relative to ``root``, with ``/``) the dataset holds, as a manifest
-    row's ``label_path`` or a failure row's ``path`` (absolute ones made relative to
-    ``root``), and its sample key -> label_path. Memory: linear in the dataset's rows."""
-    table = pq.read_table(manifest, columns=["key", "label_path"])
-    labels = table["label_path"].to_pylist()
-    keys = dict(zip(table["key"].to_pylist(), labels, strict=True))
-    known = set(labels)
-    for path in pq.read_table(failures, columns=["path"])["path"].to_pylist():
-        if path is None:
-            continue
-        known.add(Path(os.path.relpath(path, root)).as_posix() if os.path.isabs(path) else path)
-    return frozenset(known), keys
+def add_base(index: KeyIndex, manifest: Path, failures: Path, root: str) -> None:
+    """Record in ``index`` what the dataset holds: its sample keys (key -> ``label_path``)
+    and, as known label paths (relative to ``root``, with ``/``), every manifest row's
+    ``label_path`` and failure row's ``path`` (absolute ones made relative to ``root``); read
+    a batch of rows at a time."""
+    index.add_table(manifest)
+    for batch in pq.ParquetFile(manifest).iter_batches(_BATCH, columns=["label_path"]):
+        index.add_known(str(p) for p in batch.column(0).to_pylist())
+    for batch in pq.ParquetFile(failures).iter_batches(_BATCH, columns=["path"]):
+        index.add_known(
+            Path(os.path.relpath(p, root)).as_posix() if os.path.isabs(p) else p
+            for p in batch.column(0).to_pylist()
+            if p is not None
+        )
 
 
-def new_labels(config: BuildConfig, known: frozenset[str], every: LabelDigest) -> Iterator[str]:
-    """The labels ``config.inputs.labels`` match that are not ``known`` (relative label
-    paths), in build order, streamed; ``every`` sums every label matched."""
+def new_labels(config: BuildConfig, known: KeyIndex, every: LabelDigest) -> Iterator[str]:
+    """The labels ``config.inputs.labels`` match whose relative path ``known`` does not hold
+    (``KeyIndex.is_known``), in build order, streamed; ``every`` sums every label matched."""
     root = labels_root(config.inputs.labels)
     for label in every.tally(iter_matches(config.inputs.labels)):
-        if Path(os.path.relpath(label, root)).as_posix() not in known:
+        if not known.is_known(Path(os.path.relpath(label, root)).as_posix()):
             yield label
 
 
-def plan_append(config: BuildConfig) -> AppendPlan:
+def plan_append(config: BuildConfig, index: KeyIndex | None = None) -> AppendPlan:
     """Check that ``config`` may append to the finished dataset in ``config.output.dir``, list
     the release's labels and find the new ones (one streaming pass), and find the new chunks
-    an interrupted append of the same release committed; writes nothing. ConfigError naming
-    the key or the file otherwise (see ``check_append_config``; no finished dataset; an
-    interrupted build that is not an append, or an interrupted append of another release)."""
+    an interrupted append of the same release committed; writes nothing in the folder.
+    ``index``: an empty key index (``key_index.scratch_index``) the plan fills with the
+    dataset's keys and label paths (``add_base``) for the append to go on with; without it,
+    one of its own, removed. ConfigError naming the key or the file otherwise (see
+    ``check_append_config``; no finished dataset; an interrupted build that is not an
+    append, or an interrupted append of another release)."""
+    if index is None:
+        with scratch_index() as own:
+            return plan_append(config, own)
     start = time.perf_counter()
     out = local_dir(config)
     if config.output.keep_parts:  # (its finished build's stamp is still in parts/)
@@ -286,13 +292,14 @@ def plan_append(config: BuildConfig) -> AppendPlan:
     base_chunks = stamp_chunks(base)
     if base_chunks is None:
         raise ConfigError(f"{base_paths['dataset.json']}: build_stamp: not a build's stamp")
-    known, keys = known_labels(
+    add_base(
+        index,
         base_paths["manifest.parquet"],
         base_paths["failures.parquet"],
         labels_root(config.inputs.labels),
     )
     every, fresh = LabelDigest(), LabelDigest()
-    for label in new_labels(config, known, every):
+    for label in new_labels(config, index, every):
         fresh.add(label)
     size = config.output.shard_size
     chunks = -(-fresh.count // size)
@@ -338,8 +345,6 @@ def plan_append(config: BuildConfig) -> AppendPlan:
         fingerprint=stamp,
         full_digest=full_digest,
         base=base,
-        known=known,
-        keys=keys,
     )
 
 
@@ -373,23 +378,25 @@ def labels_done(plan: AppendPlan) -> int:
     )
 
 
-def merge_append(config: BuildConfig, plan: AppendPlan) -> tuple[pa.Table, pa.Table, int]:
+def merge_append(config: BuildConfig, plan: AppendPlan) -> tuple[Merged, int]:
     """Write manifest.parquet and failures.parquet as the base's rows and the new chunks'
     (``finish.write_merged``: Hilbert order; failures: the base's, then the new chunks' in
-    chunk order); returns both tables and the count of samples dropped in the split buffer
-    (the base's and the new chunks')."""
+    chunk order), a batch of rows at a time; returns their counts and the count of samples
+    dropped in the split buffer (the base's and the new chunks')."""
     out = local_dir(config)
-    parts = [pq.read_table(out / BASE_FILES["manifest.parquet"])]
-    fails = [pq.read_table(out / BASE_FILES["failures.parquet"])]
     dropped = int(_info(plan.base).splits.get("dropped_in_buffer") or 0)
     for k in new_chunks(plan):
-        _, manifest_part, failures_part = part_paths(out, k)
-        part = pq.read_table(manifest_part)
-        dropped += int((part.schema.metadata or {}).get(DROPPED_KEY, b"0"))
-        parts.append(part)
-        fails.append(pq.read_table(failures_part))
-    manifest, failures = write_merged(config, parts, fails)
-    return manifest, failures, dropped
+        meta = pq.read_schema(part_paths(out, k)[1]).metadata or {}
+        dropped += int(meta.get(DROPPED_KEY, b"0"))
+
+    def tables(base: str, part: int) -> Iterator[pa.Table]:
+        for batch in pq.ParquetFile(out / BASE_FILES[base]).iter_batches(_BATCH):
+            yield pa.Table.from_batches([batch])
+        for k in new_chunks(plan):
+            yield pq.read_table(part_paths(out, k)[part])
+
+    merged = write_merged(config, tables("manifest.parquet", 1), tables("failures.parquet", 2))
+    return merged, dropped
 
 
 def append_record(

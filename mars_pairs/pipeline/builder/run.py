@@ -60,7 +60,7 @@ from mars_pairs.pipeline.builder.hygiene import (
     remove_parts,
     remove_temporaries,
 )
-from mars_pairs.pipeline.builder.key_index import KeyIndex, open_index
+from mars_pairs.pipeline.builder.key_index import KeyIndex, open_index, scratch_index
 from mars_pairs.pipeline.builder.layout import dropped_count, stamp_path
 from mars_pairs.pipeline.builder.local_pool import LocalPool
 from mars_pairs.pipeline.builder.lock import folder_lock
@@ -119,18 +119,22 @@ def run_build(
             fs.remove_stale_staging()  # of a build killed mid-upload (or its key index)
         if not resume and not append:  # refused before any worker starts (else: once planned)
             check_clearable(config.output.dir)
-        if append:  # planned before any worker starts: a refused append starts none
-            plan = plan_append(config)
-            if plan.labels_new == 0:
-                return _nothing_to_append(config, plan, start)
-        # the workers start now: their imports and raster opening overlap the planning
-        pool = LocalPool(config, workers) if engine is None and workers > 1 else None
-        if engine is None:
-            engine = pool if pool is not None else InProcess()
-        with pool if pool is not None else contextlib.nullcontext():
-            if append:
-                return _run_append(config, plan, start, strict, progress, engine)
-            return _run(config, start, resume, limit, strict, progress, engine)
+        with contextlib.ExitStack() as stack:
+            # an append's record of the dataset's keys and label paths, on disk: filled by
+            # its plan, then by its commits
+            seen = stack.enter_context(scratch_index()) if append else None
+            if seen is not None:  # planned before any worker starts: a refused one starts none
+                plan = plan_append(config, seen)
+                if plan.labels_new == 0:
+                    return _nothing_to_append(config, plan, start)
+            # the workers start now: their imports and raster opening overlap the planning
+            pool = LocalPool(config, workers) if engine is None and workers > 1 else None
+            if engine is None:
+                engine = pool if pool is not None else InProcess()
+            with pool if pool is not None else contextlib.nullcontext():
+                if seen is not None:
+                    return _run_append(config, plan, seen, start, strict, progress, engine)
+                return _run(config, start, resume, limit, strict, progress, engine)
 
 
 def _commit_all(
@@ -208,29 +212,20 @@ def _run(
             f"inputs.labels: the matching files changed during the build ({listed['count']} "
             f"labels listed, then {digest.count}); rerun the build without --resume"
         )
-    manifest, failures = merge_parts(config, plan.chunks)
+    merged = merge_parts(config, plan.chunks)
     summary = BuildSummary(
         out_dir=out,
-        samples=manifest.num_rows,
-        failures=failures.num_rows,
-        failures_by_reason=dict(
-            Counter(
-                f"{s} ({e})"
-                for s, e in zip(
-                    failures.column("stage").to_pylist(),
-                    failures.column("error_type").to_pylist(),
-                    strict=False,
-                )
-            )
-        ),
+        samples=merged.samples,
+        failures=merged.failures,
+        failures_by_reason=merged.failures_by_reason,
         chunks_built=built,
         chunks_resumed=plan.chunks - built,
         seconds=time.perf_counter() - start,
         stage_seconds=dict(stage_seconds),
     )
-    doc = dataset_doc(config, summary, manifest, dropped_count(out, plan.chunks), plan.fingerprint)
-    write_wids_index(out, manifest)
-    write_card(config, manifest, doc)
+    doc = dataset_doc(config, summary, merged, dropped_count(out, plan.chunks), plan.fingerprint)
+    write_wids_index(out, merged.shards)
+    write_card(config, doc)
     write_dataset_json(config, doc)  # the record of the files above: after them
     if not config.output.keep_parts:
         remove_parts(out, plan.chunks)  # the last step: a kill before it resumes
@@ -282,6 +277,7 @@ def _nothing_to_append(config: BuildConfig, plan: AppendPlan, start: float) -> B
 def _run_append(
     config: BuildConfig,
     plan: AppendPlan,
+    seen: KeyIndex,
     start: float,
     strict: bool,
     progress: bool,
@@ -298,25 +294,23 @@ def _run_append(
         atomic_write_bytes(stamp_path(out), json.dumps(plan.fingerprint).encode())
     chunks = new_chunks(plan)
     digest = LabelDigest()  # the second pass must list what the first did
-    listed = chunks_of(digest.tally(new_labels(config, plan.known, LabelDigest())), plan.chunk_size)
+    listed = chunks_of(digest.tally(new_labels(config, seen, LabelDigest())), plan.chunk_size)
     todo = (
         ChunkTask(k, tuple(labels))
         for k, labels in zip(chunks, listed, strict=False)
         if not is_done(out, k)
     )
     stage_seconds: Counter[str] = Counter()
-    with open_index(out) as seen:
-        seen.update(plan.keys)
-        seen.add_parts(out, (k for k in chunks if is_done(out, k)))
-        results = engine.run(config, todo)
-        bar = tqdm(
-            total=plan.labels_new,
-            initial=labels_done(plan),
-            unit="img",
-            disable=not progress,
-            desc="append",
-        )
-        built = _commit_all(config, results, bar, strict, stage_seconds, seen)
+    seen.add_parts(out, (k for k in chunks if is_done(out, k)))  # the dataset's: by the plan
+    results = engine.run(config, todo)
+    bar = tqdm(
+        total=plan.labels_new,
+        initial=labels_done(plan),
+        unit="img",
+        disable=not progress,
+        desc="append",
+    )
+    built = _commit_all(config, results, bar, strict, stage_seconds, seen)
     remove_temporaries(out)
     stamp = plan.fingerprint
     if (digest.count, digest.hexdigest()) != (stamp["count"], stamp["labels"]):
@@ -324,23 +318,24 @@ def _run_append(
             f"inputs.labels: the matching files changed during the append ({stamp['count']} "
             f"new labels listed, then {digest.count}); rerun the append"
         )
-    manifest, failures, dropped = merge_append(config, plan)
-    added = manifest.num_rows - pq.read_metadata(out / BASE_FILES["manifest.parquet"]).num_rows
+    merged, dropped = merge_append(config, plan)
+    added = merged.samples - pq.read_metadata(out / BASE_FILES["manifest.parquet"]).num_rows
     base_failures = pq.read_metadata(out / BASE_FILES["failures.parquet"]).num_rows
-    summary = _summary(
-        out,
-        manifest,
-        failures,
-        built,
-        plan.chunks - built,
-        start,
-        dict(stage_seconds),
-        plan.summary_line(),
+    summary = BuildSummary(
+        out_dir=out,
+        samples=merged.samples,
+        failures=merged.failures,
+        failures_by_reason=merged.failures_by_reason,
+        chunks_built=built,
+        chunks_resumed=plan.chunks - built,
+        seconds=time.perf_counter() - start,
+        stage_seconds=dict(stage_seconds),
+        appended=plan.summary_line(),
     )
-    extra = dataset_extra(config, plan, added, failures.num_rows - base_failures)
-    doc = dataset_doc(config, summary, manifest, dropped, extra=extra)
-    write_wids_index(out, manifest)
-    write_card(config, manifest, doc)
+    extra = dataset_extra(config, plan, added, merged.failures - base_failures)
+    doc = dataset_doc(config, summary, merged, dropped, extra=extra)
+    write_wids_index(out, merged.shards)
+    write_card(config, doc)
     write_dataset_json(config, doc)  # the record of the files above: after them
     remove_append_parts(out, plan)  # the stamp before the base: see pipeline.builder.append
     return summary
