@@ -11,11 +11,11 @@ function, so it pickles by name), which builds no sample and returns one tiny ou
 label, so what is measured is the driver: listing, chunking, the duplicate-key check, the
 parts it writes and the finish. Two stubs: ``dropped`` (the sample owns its key, so the key
 check records every key, and no manifest row is written) and ``sample`` (every label a
-manifest row of a few columns, at a pseudo-random Hilbert index, and one empty shard file a
-chunk: the finish sorts and writes a manifest of every label). After the ``sample`` build,
-``labels/100`` new labels are written and an append is planned over the dataset
-(``append.plan_append``: the base's keys and label paths into the on-disk index, the release
-listed).
+manifest row of a few columns, at a pseudo-random Hilbert index, the rovers on a 300 m grid,
+and one empty shard file a chunk: the finish sorts and writes a manifest of every label).
+After the ``sample`` build, ``labels/100`` new labels are written and an append is planned
+over the dataset (``append.plan_append``: the base's keys and label paths into the on-disk
+index, the release listed).
 
 Each case runs in a fresh subprocess, which reports the growth of its peak resident set
 (``VmHWM`` in ``/proc/self/status``, reset through ``/proc/self/clear_refs`` as each phase
@@ -50,7 +50,10 @@ from typing import Any
 from bench_plan import _vm_hwm_kib  # a script beside this one
 
 INDEXES = {"sqlite": "SQLite index (KeyIndex)", "dict": "dict (before)"}
-STUBS = ("dropped", "sample")
+#: ``plan_config``'s chunk size, and the grid of the stubbed samples' rover positions (m:
+#: wider than a 256 m chip).
+SHARD_SIZE = 64
+SPACING_M = 300.0
 
 
 def stub_chunk(config: Any, task: Any, kind: str = "dropped") -> Any:
@@ -70,12 +73,13 @@ def stub_chunk(config: Any, task: Any, kind: str = "dropped") -> Any:
     (out / "shards").mkdir(parents=True, exist_ok=True)
     (out / shard).touch()
     rows = []
-    for label in task.labels:
+    for j, label in enumerate(task.labels):
         key = "k_" + Path(label).stem
-        n = zlib.crc32(key.encode())
+        i = task.index * SHARD_SIZE + j  # on a grid of SPACING_M: no two chips meet
         row = {"key": key, "label_path": os.path.relpath(label, root), "mission": "msl",
-               "split": "train", "hilbert": n, "easting": float(n % 4000),
-               "northing": float(n // 4000 % 4000), "meta_shard": shard}  # fmt: skip
+               "split": "train", "hilbert": zlib.crc32(key.encode()),
+               "easting": float(i % 1000 * SPACING_M), "northing": float(i // 1000 * SPACING_M),
+               "meta_shard": shard}  # fmt: skip
         rows.append(Outcome("ok", label, key, row))
     return ChunkResult(task.index, tuple(rows), (), 0.0, "stub:0")
 

@@ -90,8 +90,8 @@ def sorted_runs(
 ) -> tuple[list[Path], pa.Table | None]:
     """Cut ``tables`` (one schema, metadata ignored) into runs of at least ``run_rows`` rows
     (the last may be shorter), each sorted by ``keys``. When every row fits in one run, the
-    sorted table itself and no file; otherwise the runs as files in ``folder`` (lz4) and
-    None."""
+    sorted table itself (None without a row) and no file; otherwise the runs as files in
+    ``folder`` (lz4) and None."""
     paths: list[Path] = []
     pending: list[pa.Table] = []
     held = 0
@@ -103,6 +103,8 @@ def sorted_runs(
         paths.append(path)
 
     for table in tables:
+        if table.num_rows == 0:  # nothing to hold (a table holds its schema: ~1 KiB a column)
+            continue
         pending.append(table.replace_schema_metadata(None))
         held += table.num_rows
         if held >= run_rows:

@@ -22,7 +22,9 @@ rows: the samples already built are not recomputed). Every other config key, and
 ortho files (dataset.json's ``input_files``), must be those the dataset was built with: an
 append refuses otherwise, naming the key. Splits are a function of each sample's position and
 the config, so an appended sample lands in the split a single build gives it; the leak check
-of dataset.json runs over the whole merged manifest.
+of dataset.json runs over the whole merged manifest. The dataset's sample keys and label paths
+are read a batch at a time into the driver's on-disk key index (``key_index``), which the
+plan and then the commits ask: the append holds none of them.
 
 Crash safety. The append first links (or copies) the dataset's manifest.parquet,
 failures.parquet and dataset.json to ``parts/base-*`` (its base), then writes its stamp

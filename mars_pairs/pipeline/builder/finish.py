@@ -8,7 +8,13 @@ relative to the dataset folder as they were at build time, the manifest's ``labe
 relative to the labels root (``labels_root``), croissant.json's files relative to the folder;
 moving the folder keeps it whole. A dataset on object storage (``output.dir`` an fsspec URL:
 ``store.fs``) names its local inputs and labels root by their absolute paths (no path leads
-from a bucket to them); every file is uploaded whole."""
+from a bucket to them); every file is uploaded whole.
+
+Memory does not grow with the samples but in the leak check: the parts are read one at a time,
+the manifest sorted in runs of ``RUN_ROWS`` rows on local scratch disk and merged
+(``store.parquet_stream``), and what dataset.json, the shard indexes and the summary say is
+counted while the files are written (:class:`Merged`); the leak check
+(``store.leakage.leak_report``) reads its columns of the whole manifest."""
 
 from __future__ import annotations
 
@@ -26,6 +32,7 @@ from typing import Any
 
 import pyarrow as pa
 import pyarrow.compute as pc
+import pyarrow.parquet as pq
 
 from mars_pairs.pipeline.builder.fingerprints import input_files
 from mars_pairs.pipeline.builder.hygiene import remove_empty_parts
@@ -197,6 +204,24 @@ class _ManifestCounts:
             shards[row["meta_shard"]] += row["count_all"]
 
 
+def failure_reasons(path: fs.Location) -> tuple[int, Counter[str]]:
+    """The rows of the failures file ``path`` and their count a ``"stage (error_type)"``, in
+    order, read a batch at a time."""
+    reasons: Counter[str] = Counter()
+    rows = 0
+    with fs.open_input(path) as handle:
+        batches = pq.ParquetFile(handle).iter_batches(65536, columns=["stage", "error_type"])
+        for batch in batches:
+            rows += batch.num_rows
+            _count_reasons(reasons, pa.Table.from_batches([batch]))
+    return rows, reasons
+
+
+def _count_reasons(reasons: Counter[str], failures: pa.Table) -> None:
+    stages, errors = failures["stage"].to_pylist(), failures["error_type"].to_pylist()
+    reasons.update(f"{s} ({e})" for s, e in zip(stages, errors, strict=True))
+
+
 def _write_failures(path: fs.Location, fails: Iterable[pa.Table]) -> tuple[int, Counter[str]]:
     """Write the rows of ``fails`` in order as the failures file ``path`` (row groups of
     ``FAILURES_ROW_GROUP``; ``FAILURE_SCHEMA`` when there is no table); the row count and
@@ -211,8 +236,7 @@ def _write_failures(path: fs.Location, fails: Iterable[pa.Table]) -> tuple[int, 
     ):
         for table in itertools.chain([first] if first is not None else [], tables):
             writer.write(table)
-            stages, errors = table.column("stage").to_pylist(), table["error_type"].to_pylist()
-            reasons.update(f"{s} ({e})" for s, e in zip(stages, errors, strict=True))
+            _count_reasons(reasons, table)
         return writer.rows, reasons
 
 
@@ -400,17 +424,11 @@ def finished_summary(config: BuildConfig, plan: BuildPlan, start: float) -> Buil
     out = config.output.dir
     remove_empty_parts(out)
     samples = fs.parquet_metadata(fs.join(out, "manifest.parquet")).num_rows
-    failures = fs.read_parquet(fs.join(out, "failures.parquet"), columns=["stage", "error_type"])
-    reasons = Counter(
-        f"{s} ({e})"
-        for s, e in zip(
-            failures["stage"].to_pylist(), failures["error_type"].to_pylist(), strict=True
-        )
-    )
+    failures, reasons = failure_reasons(fs.join(out, "failures.parquet"))
     return BuildSummary(
         out_dir=out,
         samples=samples,
-        failures=failures.num_rows,
+        failures=failures,
         failures_by_reason=dict(reasons),
         chunks_built=0,
         chunks_resumed=plan.chunks,

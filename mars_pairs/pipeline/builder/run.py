@@ -25,7 +25,6 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import NoReturn
 
-import pyarrow as pa
 import pyarrow.parquet as pq
 from tqdm import tqdm
 
@@ -50,6 +49,7 @@ from mars_pairs.pipeline.builder.fingerprints import LabelDigest
 from mars_pairs.pipeline.builder.finish import (
     BuildSummary,
     dataset_doc,
+    failure_reasons,
     finished_summary,
     merge_parts,
     write_card,
@@ -232,46 +232,23 @@ def _run(
     return summary
 
 
-def _summary(
-    out: Path,
-    manifest: pa.Table,
-    failures: pa.Table,
-    built: int,
-    resumed: int,
-    start: float,
-    stage_seconds: dict[str, float],
-    appended: str | None = None,
-) -> BuildSummary:
-    """The summary of a build whose merged tables are ``manifest`` and ``failures``."""
-    reasons = Counter(
-        f"{s} ({e})"
-        for s, e in zip(
-            failures.column("stage").to_pylist(),
-            failures.column("error_type").to_pylist(),
-            strict=True,
-        )
-    )
-    return BuildSummary(
-        out_dir=out,
-        samples=manifest.num_rows,
-        failures=failures.num_rows,
-        failures_by_reason=dict(reasons),
-        chunks_built=built,
-        chunks_resumed=resumed,
-        seconds=time.perf_counter() - start,
-        stage_seconds=stage_seconds,
-        appended=appended,
-    )
-
-
 def _nothing_to_append(config: BuildConfig, plan: AppendPlan, start: float) -> BuildSummary:
     """The summary of an append that finds no new label: nothing is built or written (a base
     snapshot left by a killed append's last step is removed)."""
     out = local_dir(config)
     remove_base(out)
-    manifest = pq.read_table(out / "manifest.parquet", columns=["key"])
-    failures = pq.read_table(out / "failures.parquet", columns=["stage", "error_type"])
-    return _summary(out, manifest, failures, 0, 0, start, {}, plan.summary_line())
+    failures, reasons = failure_reasons(out / "failures.parquet")
+    return BuildSummary(
+        out_dir=out,
+        samples=pq.read_metadata(out / "manifest.parquet").num_rows,
+        failures=failures,
+        failures_by_reason=dict(reasons),
+        chunks_built=0,
+        chunks_resumed=0,
+        seconds=time.perf_counter() - start,
+        stage_seconds={},
+        appended=plan.summary_line(),
+    )
 
 
 def _run_append(
