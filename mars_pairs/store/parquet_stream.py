@@ -26,7 +26,7 @@ SortKeys = list[tuple[str, str]]
 #: At most this many runs are merged at once; more are merged in passes.
 FAN_IN = 64
 #: The fewest rows read from a run at a time while merging.
-MIN_BATCH = 512
+MIN_BATCH = 64
 
 
 class RowGroupWriter:

@@ -54,7 +54,7 @@ import pyarrow.parquet as pq
 
 from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.builder.fingerprints import LabelDigest, input_change, input_files
-from mars_pairs.pipeline.builder.finish import Merged, relative_config, write_merged
+from mars_pairs.pipeline.builder.finish import RUN_ROWS, Merged, relative_config, write_merged
 from mars_pairs.pipeline.builder.hygiene import remove_empty_parts
 from mars_pairs.pipeline.builder.key_index import KeyIndex, scratch_index
 from mars_pairs.pipeline.builder.label_list import iter_matches
@@ -86,7 +86,7 @@ MAY_CHANGE = ("inputs.labels", "inputs.places", "source")
 #: The inputs whose files must be those the dataset was built from.
 FIXED_INPUTS = ("dem", "ortho")
 #: Rows of the base's files read at a time.
-_BATCH = 16384
+_BATCH = 8192
 
 
 @dataclass(frozen=True)
@@ -392,7 +392,7 @@ def merge_append(config: BuildConfig, plan: AppendPlan) -> tuple[Merged, int]:
         dropped += int(meta.get(DROPPED_KEY, b"0"))
 
     def tables(base: str, part: int) -> Iterator[pa.Table]:
-        for batch in pq.ParquetFile(out / BASE_FILES[base]).iter_batches(_BATCH):
+        for batch in pq.ParquetFile(out / BASE_FILES[base]).iter_batches(RUN_ROWS):
             yield pa.Table.from_batches([batch])
         for k in new_chunks(plan):
             yield pq.read_table(part_paths(out, k)[part])

@@ -102,7 +102,7 @@ MANIFEST_ROW_GROUP = 1024
 FAILURES_ROW_GROUP = 4096
 #: Manifest rows sorted in memory at a time: a manifest of more rows is sorted on disk (sorted
 #: runs of this many rows, merged: ``store.parquet_stream``), so the finish holds no more.
-RUN_ROWS = 16384
+RUN_ROWS = 4096
 
 
 @dataclass(frozen=True)

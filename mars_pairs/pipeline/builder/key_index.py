@@ -36,7 +36,7 @@ from mars_pairs.store import fs
 #: The SQLite page cache, KiB (``PRAGMA cache_size`` takes a negative count of KiB).
 CACHE_KIB = 8192
 #: Rows of a manifest read at a time when filling the index from one.
-_BATCH = 65536
+_BATCH = 8192
 
 
 class KeyIndex(Mapping[str, str]):
