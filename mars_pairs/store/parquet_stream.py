@@ -1,10 +1,11 @@
-"""Parquet written and sorted a batch at a time: memory bounded by a batch, not by the rows.
+"""Tables written to Parquet and sorted a batch at a time: memory bounded by a batch, not by
+the rows.
 
 :class:`RowGroupWriter` writes tables handed to it one after another as one Parquet file cut
 into row groups of exactly ``row_group_size`` rows (the last one shorter), the bytes
 ``pyarrow.parquet.write_table`` writes for their concatenation with the same options.
 :func:`sorted_runs` cuts a stream of tables into sorted runs of at most ``run_rows`` rows,
-each a scratch Parquet file, and :func:`merge_runs` merges those runs back into one stream in
+each a scratch Arrow IPC file, and :func:`merge_runs` merges those runs back into one stream in
 order, holding a batch of each run: an external merge sort. The sort keys must order the rows
 totally (no two rows equal on every key: the manifest's ``key`` is unique), so the merged order
 is the one ``Table.sort_by`` gives the whole table; keys must hold no null.
@@ -12,6 +13,7 @@ is the one ``Table.sort_by`` gives the whole table; keys must hold no null.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from types import TracebackType
@@ -19,25 +21,35 @@ from typing import Any
 
 import pyarrow as pa
 import pyarrow.compute as pc
+import pyarrow.ipc
 import pyarrow.parquet as pq
 
 #: ``Table.sort_by``'s keys: (column, "ascending").
 SortKeys = list[tuple[str, str]]
 #: At most this many runs are merged at once; more are merged in passes.
-FAN_IN = 64
-#: The fewest rows read from a run at a time while merging.
-MIN_BATCH = 64
+FAN_IN = 16
+#: Rows a record batch of a run file: a run is read a batch at a time while merged, so the
+#: merge holds ``FAN_IN`` of them.
+RUN_ROW_GROUP = 256
+#: Rows the merge puts out at a time (in order: the merge's ``take`` of every column).
+OUT_ROWS = 1024
 
 
 class RowGroupWriter:
     """A Parquet file at ``path`` written from tables of ``schema`` (their metadata ignored:
     ``schema``'s is the file's), in row groups of ``row_group_size`` rows; zstd and
     statistics unless ``compression`` says otherwise. Holds less than a row group of rows
-    between writes. A file without a row written holds one empty row group, as
+    between writes (``statistics``: the columns' statistics written). A file without a row
+    written holds one empty row group, as
     ``pq.write_table`` of an empty table writes it."""
 
     def __init__(
-        self, path: Path, schema: pa.Schema, row_group_size: int, compression: str = "zstd"
+        self,
+        path: Path,
+        schema: pa.Schema,
+        row_group_size: int,
+        compression: str = "zstd",
+        statistics: bool = True,
     ) -> None:
         self.schema = schema
         self.rows = 0
@@ -45,7 +57,7 @@ class RowGroupWriter:
         self._pending: list[pa.Table] = []
         self._held = 0
         self._writer = pq.ParquetWriter(
-            path, schema, compression=compression, write_statistics=True
+            path, schema, compression=compression, write_statistics=statistics
         )
 
     def write(self, table: pa.Table) -> None:
@@ -91,15 +103,16 @@ def sorted_runs(
     """Cut ``tables`` (one schema, metadata ignored) into runs of at least ``run_rows`` rows
     (the last may be shorter), each sorted by ``keys``. When every row fits in one run, the
     sorted table itself (None without a row) and no file; otherwise the runs as files in
-    ``folder`` (lz4) and None."""
+    ``folder`` (Arrow IPC files, :class:`_RunWriter`) and None."""
     paths: list[Path] = []
     pending: list[pa.Table] = []
     held = 0
 
     def spill() -> None:
         run = pa.concat_tables(pending).sort_by(keys)
-        path = folder / f"run-{len(paths):06d}.parquet"
-        pq.write_table(run, path, compression="lz4")
+        path = folder / f"run-{len(paths):06d}.arrow"
+        with _RunWriter(path, run.schema) as out:
+            out.write(run)
         paths.append(path)
 
     for table in tables:
@@ -117,54 +130,63 @@ def sorted_runs(
     return paths, None
 
 
-def merge_runs(
-    runs: list[Path], keys: SortKeys, held_rows: int, folder: Path
-) -> Iterator[pa.Table]:
-    """The rows of the sorted ``runs`` in order, a table at a time, holding about
-    ``held_rows`` rows (a batch of each run, at least ``MIN_BATCH`` rows); more than
-    ``FAN_IN`` runs are first merged in groups into runs in ``folder``. Every key
-    ascending."""
+def merge_runs(runs: list[Path], keys: SortKeys, folder: Path) -> Iterator[pa.Table]:
+    """The rows of the sorted ``runs`` (written by :func:`sorted_runs`) in order, a table at
+    a time, holding a batch of each run (``FAN_IN`` at most); more than ``FAN_IN`` runs
+    are first merged in groups into runs in ``folder``. Every key ascending."""
     runs = list(runs)
-    batch_rows = max(MIN_BATCH, held_rows // max(1, min(len(runs), FAN_IN)))
     rounds = 0
     while len(runs) > FAN_IN:
         merged = []
         for start in range(0, len(runs), FAN_IN):
             group = runs[start : start + FAN_IN]
-            path = folder / f"merged-{rounds:03d}-{start // FAN_IN:06d}.parquet"
-            schema = pq.read_schema(group[0])
-            with RowGroupWriter(path, schema, 65536, compression="lz4") as out:
-                for table in _merge(group, keys, batch_rows):
+            path = folder / f"merged-{rounds:03d}-{start // FAN_IN:06d}.arrow"
+            with pa.OSFile(str(group[0])) as first:
+                schema = pa.ipc.open_file(first).schema
+            with _RunWriter(path, schema) as out:
+                for table in _merge(group, keys):
                     out.write(table)
             for done in group:
                 done.unlink()
             merged.append(path)
         runs, rounds = merged, rounds + 1
-    yield from _merge(runs, keys, batch_rows)
+    yield from _merge(runs, keys)
 
 
-def _merge(runs: list[Path], keys: SortKeys, batch_rows: int) -> Iterator[pa.Table]:
+def _merge(runs: list[Path], keys: SortKeys) -> Iterator[pa.Table]:
     """The k-way merge: every row not after the smallest last row of the runs still being
     read is in order, so those rows of every run's batch go out together, sorted."""
     if any(order != "ascending" for _, order in keys):
         raise ValueError(f"merge_runs: keys {keys}: ascending keys only")
     names = [name for name, _ in keys]
-    files = [pq.ParquetFile(path) for path in runs]
-    batches = [f.iter_batches(batch_rows) for f in files]
-    held: list[pa.Table | None] = [None] * len(runs)
-    reading = [True] * len(runs)
+    with contextlib.ExitStack() as stack:
+        files = [stack.enter_context(pa.OSFile(str(path))) for path in runs]
+        yield from _merge_files([pa.ipc.open_file(f) for f in files], keys, names)
+
+
+def _merge_files(
+    files: list[pa.ipc.RecordBatchFileReader], keys: SortKeys, names: list[str]
+) -> Iterator[pa.Table]:
+    batches = [0] * len(files)  # the next batch of each run
+    held: list[pa.Table | None] = [None] * len(files)
+    # the rows to go out, a block an iteration, and each block's order (indices into the
+    # blocks concatenated): every row of a block is after every row of the blocks before it,
+    # so the blocks are sorted each by its keys alone and taken together (one take of every
+    # column for OUT_ROWS rows, not one an iteration)
+    blocks: list[pa.Table] = []
+    orders: list[pa.Array] = []
+    rows = 0
     while True:
         for i, table in enumerate(held):
-            while reading[i] and (table is None or table.num_rows == 0):
-                batch = next(batches[i], None)
-                if batch is None:
-                    reading[i] = False
-                else:
-                    table = pa.Table.from_batches([batch])
+            while (table is None or table.num_rows == 0) and batches[i] < files[
+                i
+            ].num_record_batches:
+                table = pa.Table.from_batches([files[i].get_batch(batches[i])])
+                batches[i] += 1
             held[i] = table
-        live = [t for t in held if t is not None and t.num_rows]
-        if not live:
-            return
+        reading = [batches[i] < f.num_record_batches for i, f in enumerate(files)]
+        if not any(t is not None and t.num_rows for t in held):
+            break
         lasts = [
             _row(t, names, t.num_rows - 1)
             for t, more in zip(held, reading, strict=True)
@@ -175,10 +197,50 @@ def _merge(runs: list[Path], keys: SortKeys, batch_rows: int) -> Iterator[pa.Tab
         for i, table in enumerate(held):
             if table is None or table.num_rows == 0:
                 continue
-            n = table.num_rows if frontier is None else _not_after(table, names, frontier)
+            if frontier is None or _row(table, names, table.num_rows - 1) <= frontier:
+                n = table.num_rows
+            elif _row(table, names, 0) > frontier:
+                continue
+            else:
+                n = _not_after(table, names, frontier)
             out.append(table.slice(0, n))
             held[i] = table.slice(n)
-        yield pa.concat_tables(out).sort_by(keys)
+        block = pa.concat_tables(out)
+        order = pc.sort_indices(block.select(names), sort_keys=keys)
+        blocks.append(block)
+        orders.append(pc.add(order, pa.scalar(rows, order.type)))
+        rows += block.num_rows
+        if rows >= OUT_ROWS:
+            yield _taken(blocks, orders)
+            blocks, orders, rows = [], [], 0
+    if blocks:
+        yield _taken(blocks, orders)
+
+
+def _taken(blocks: list[pa.Table], orders: list[pa.Array]) -> pa.Table:
+    """The rows of ``blocks`` concatenated, in the order of ``orders`` concatenated."""
+    return pa.concat_tables(blocks).combine_chunks().take(pa.concat_arrays(orders))
+
+
+class _RunWriter:
+    """A run file: Arrow IPC (lz4), record batches of ``RUN_ROW_GROUP`` rows, read back a
+    batch at a time. A Parquet run's footer, parsed, holds ~40 bytes a column a row group
+    (~650 KiB a run of 4096 manifest rows); an IPC file's, a few bytes a batch."""
+
+    def __init__(self, path: Path, schema: pa.Schema) -> None:
+        self._sink = pa.OSFile(str(path), "wb")
+        options = pa.ipc.IpcWriteOptions(compression=None)
+        self._writer = pa.ipc.new_file(self._sink, schema, options=options)
+
+    def write(self, table: pa.Table) -> None:
+        self._writer.write_table(table, max_chunksize=RUN_ROW_GROUP)
+
+    def __enter__(self) -> _RunWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._writer.close()
+        self._sink.close()
 
 
 def _row(table: pa.Table, names: list[str], i: int) -> tuple[Any, ...]:

@@ -72,7 +72,8 @@ def _parts(tmp_path: Path, n: int, seed: int) -> tuple[list[pa.Table], list[pa.T
 def test_merge_equals_the_whole_table_sorted(tmp_path: Path, monkeypatch, run_rows) -> None:
     monkeypatch.setattr(finish, "RUN_ROWS", run_rows)
     monkeypatch.setattr(parquet_stream, "FAN_IN", 4)  # merged in passes too
-    monkeypatch.setattr(parquet_stream, "MIN_BATCH", 5)
+    monkeypatch.setattr(parquet_stream, "RUN_ROW_GROUP", 5)
+    monkeypatch.setattr(parquet_stream, "OUT_ROWS", 40)
     parts, fails = _parts(tmp_path, 1200, seed=5)
     assert sum(t.num_rows for t in fails) > 4096  # more than one failures row group
     config = plan_config(tmp_path / "inputs", "none/*.lbl", tmp_path / "new")

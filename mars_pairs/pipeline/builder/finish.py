@@ -164,7 +164,7 @@ def write_merged(
         if whole is not None:
             rows: Iterable[pa.Table] = [whole]
         else:
-            rows = merge_runs(runs, MANIFEST_ORDER, RUN_ROWS, scratch)
+            rows = merge_runs(runs, MANIFEST_ORDER, scratch)
         with (
             fs.written_file(target) as local,
             RowGroupWriter(local, schema, MANIFEST_ROW_GROUP) as writer,
