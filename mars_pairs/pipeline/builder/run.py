@@ -48,6 +48,7 @@ from mars_pairs.pipeline.builder.engine import ChunkResult, ChunkTask, Engine, I
 from mars_pairs.pipeline.builder.fingerprints import LabelDigest
 from mars_pairs.pipeline.builder.finish import (
     BuildSummary,
+    Merged,
     dataset_doc,
     failure_reasons,
     finished_summary,
@@ -213,16 +214,7 @@ def _run(
             f"labels listed, then {digest.count}); rerun the build without --resume"
         )
     merged = merge_parts(config, plan.chunks)
-    summary = BuildSummary(
-        out_dir=out,
-        samples=merged.samples,
-        failures=merged.failures,
-        failures_by_reason=merged.failures_by_reason,
-        chunks_built=built,
-        chunks_resumed=plan.chunks - built,
-        seconds=time.perf_counter() - start,
-        stage_seconds=dict(stage_seconds),
-    )
+    summary = _summary(out, merged, built, plan.chunks, start, stage_seconds)
     doc = dataset_doc(config, summary, merged, dropped_count(out, plan.chunks), plan.fingerprint)
     write_wids_index(out, merged.shards)
     write_card(config, doc)
@@ -230,6 +222,30 @@ def _run(
     if not config.output.keep_parts:
         remove_parts(out, plan.chunks)  # the last step: a kill before it resumes
     return summary
+
+
+def _summary(
+    out: fs.Location,
+    merged: Merged,
+    built: int,
+    chunks: int,
+    start: float,
+    stage_seconds: Counter[str],
+    appended: str | None = None,
+) -> BuildSummary:
+    """The summary of a build of ``chunks`` chunks, ``built`` of them in this run, whose
+    merged files are ``merged``."""
+    return BuildSummary(
+        out_dir=out,
+        samples=merged.samples,
+        failures=merged.failures,
+        failures_by_reason=merged.failures_by_reason,
+        chunks_built=built,
+        chunks_resumed=chunks - built,
+        seconds=time.perf_counter() - start,
+        stage_seconds=dict(stage_seconds),
+        appended=appended,
+    )
 
 
 def _nothing_to_append(config: BuildConfig, plan: AppendPlan, start: float) -> BuildSummary:
@@ -298,17 +314,7 @@ def _run_append(
     merged, dropped = merge_append(config, plan)
     added = merged.samples - pq.read_metadata(out / BASE_FILES["manifest.parquet"]).num_rows
     base_failures = pq.read_metadata(out / BASE_FILES["failures.parquet"]).num_rows
-    summary = BuildSummary(
-        out_dir=out,
-        samples=merged.samples,
-        failures=merged.failures,
-        failures_by_reason=merged.failures_by_reason,
-        chunks_built=built,
-        chunks_resumed=plan.chunks - built,
-        seconds=time.perf_counter() - start,
-        stage_seconds=dict(stage_seconds),
-        appended=plan.summary_line(),
-    )
+    summary = _summary(out, merged, built, plan.chunks, start, stage_seconds, plan.summary_line())
     extra = dataset_extra(config, plan, added, merged.failures - base_failures)
     doc = dataset_doc(config, summary, merged, dropped, extra=extra)
     write_wids_index(out, merged.shards)
