@@ -9,7 +9,6 @@ from collections.abc import Sequence
 from typing import Any
 
 import pyarrow as pa
-import pyarrow.compute as pc
 
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.store.leakage import leak_report, rounded
@@ -35,17 +34,25 @@ def split_rule(
 
 
 def splits_report(config: BuildConfig, manifest: pa.Table, dropped: int) -> dict[str, Any]:
-    """The split rule's buffer and reach, the buffer's count, the measured leak check and
-    ``warnings``: a sentence per configured split left empty (each also an
-    EmptySplitWarning, see ``store.splits.empty_split_warnings``)."""
+    """:func:`splits_section` of the manifest table ``manifest``."""
+    counts = dict(Counter(manifest["split"].to_pylist()))
+    return splits_section(config, counts, leak_report(manifest, config.chips.size_m), dropped)
+
+
+def splits_section(
+    config: BuildConfig, by_split: dict[str, int], leak: dict[str, Any], dropped: int
+) -> dict[str, Any]:
+    """The split rule's buffer and reach, the buffer's count (``by_split``: the manifest's
+    samples a split, and ``dropped`` in the buffer), the measured leak check ``leak``
+    (``store.leakage.leak_report``) and ``warnings``: a sentence per configured split left
+    empty (each also an EmptySplitWarning, see ``store.splits.empty_split_warnings``)."""
     from mars_pairs.raster.vsi import open_raster
 
     with open_raster(config.inputs.dem) as src:
         rule = split_rule(config, src.crs.to_wkt(), tuple(src.bounds), src.res)
-    in_buffer = int(pc.sum(pc.equal(manifest["split"], BUFFER)).as_py() or 0)
-    counts = Counter(manifest["split"].to_pylist())
+    in_buffer = int(by_split.get(BUFFER, 0))
     cfg = config.splits
-    empty = empty_split_warnings(cfg.style, cfg.ratios, cfg.areas, cfg.block_m, dict(counts))
+    empty = empty_split_warnings(cfg.style, cfg.ratios, cfg.areas, cfg.block_m, dict(by_split))
     for text in empty:
         warnings.warn(f"{config.output.dir}: {text}", EmptySplitWarning, stacklevel=2)
     return {
@@ -57,6 +64,6 @@ def splits_report(config: BuildConfig, manifest: pa.Table, dropped: int) -> dict
         "buffer_policy": config.splits.buffer_policy,
         "in_buffer": in_buffer + dropped,
         "dropped_in_buffer": dropped,
-        **leak_report(manifest, config.chips.size_m),
+        **leak,
         "warnings": empty,
     }

@@ -297,6 +297,25 @@ def remove_stale_staging() -> list[Path]:
     return removed
 
 
+@contextmanager
+def written_file(path: Location) -> Iterator[Path]:
+    """A local file for the caller to write ``path`` through, all or nothing: its temporary
+    name (``store.atomic.atomic_path``: synced and renamed to ``path`` when the block ends
+    cleanly, removed when it raises), or on object storage a file of a local staging folder
+    uploaded whole when the block ends cleanly."""
+    from mars_pairs.store.atomic import atomic_path
+
+    if is_url(path):
+        with local_staging() as tmp:
+            local = tmp / path.rsplit("/", 1)[-1]
+            yield local
+            upload(local, path)
+        return
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(Path(path)) as tmp:
+        yield tmp
+
+
 def write_parquet(table: Any, path: Location, row_group_size: int = 4096) -> None:
     """Write ``table`` as the Parquet file ``path`` all or nothing (the bytes of
     ``store.atomic.write_parquet_atomic``; on object storage written locally, then

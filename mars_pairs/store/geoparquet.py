@@ -123,6 +123,36 @@ def table_geo_metadata(table: pa.Table, crs: Any) -> dict[bytes, bytes]:
     return {b"geo": json.dumps(doc).encode()}
 
 
+#: The columns whose extremes ``table_geo_metadata`` reads (the ``bbox`` struct's fields too).
+_EXTREME_COLUMNS = ("easting", "northing", "chip_xmin", "chip_ymin", "chip_xmax", "chip_ymax")
+
+
+def geo_extremes(table: pa.Table) -> pa.Table:
+    """A table of at most two rows, the columns of ``table`` (types kept, metadata and
+    nullability not), whose :func:`table_geo_metadata` is ``table``'s: the minimum and the
+    maximum of each column (and ``bbox`` field) the bboxes come from, null elsewhere. The
+    extremes of concatenated extremes are those of the concatenated tables, so a manifest
+    written a batch at a time gets its metadata from one small table."""
+    import pyarrow.compute as pc
+
+    schema = pa.schema([(f.name, f.type) for f in table.schema])
+    if table.num_rows == 0:
+        return schema.empty_table()
+    columns = []
+    for field in schema:
+        col = table[field.name]
+        if field.name in _EXTREME_COLUMNS:
+            values = pa.array([pc.min(col).as_py(), pc.max(col).as_py()], field.type)
+        elif field.name == "bbox" and col.null_count < len(col):
+            low = {n: pc.min(pc.struct_field(col, n)).as_py() for n in BBOX_FIELDS}
+            high = {n: pc.max(pc.struct_field(col, n)).as_py() for n in BBOX_FIELDS}
+            values = pa.array([low, high], field.type)
+        else:
+            values = pa.nulls(2, field.type)
+        columns.append(values)
+    return pa.Table.from_arrays(columns, schema=schema)
+
+
 def geometry_bboxes(table: pa.Table) -> dict[str, list[float] | None]:
     """[xmin, ymin, xmax, ymax] (map units) of ``rover_point`` (from easting/northing) and
     ``chip_box`` (from chip_xmin..chip_ymax) over the table's rows; None without rows."""

@@ -53,6 +53,10 @@ def _min_distance(a: np.ndarray, b: np.ndarray) -> float | None:
     return float(dist.min())
 
 
+#: The manifest columns :func:`leak_report` reads.
+LEAK_COLUMNS = ("split", "easting", "northing", "chip_rotation_deg", "footprint")
+
+
 def leak_report(table: pa.Table, size_m: float) -> dict[str, Any]:
     """Intersections between the chips/footprints of samples of different splits, and the
     nearest held-out to train distances (rover to rover, extent to extent), map units."""

@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import json
 from collections import Counter
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import pyarrow as pa
-import pyarrow.compute as pc
 
 from mars_pairs.store import fs
 
@@ -34,13 +34,32 @@ def split_index_name(split: str) -> str:
     return f"shardindex-{split}.json"
 
 
+def shard_counts(manifest: pa.Table) -> dict[str, dict[str, int]]:
+    """split -> shard -> samples of the manifest rows ``manifest``."""
+    counts: dict[str, dict[str, int]] = {}
+    if manifest.num_rows:
+        pairs = zip(manifest["split"].to_pylist(), manifest["meta_shard"].to_pylist(), strict=True)
+        for (split, shard), n in Counter(pairs).items():
+            counts.setdefault(split, {})[shard] = n
+    return counts
+
+
 def wids_index(root: Path | str, manifest: pa.Table, split: str | None = None) -> dict[str, Any]:
     """The index document of a dataset folder's shards (``manifest``: its rows), or of the
     shards of ``split``'s samples."""
+    return shards_index(root, shard_counts(manifest), split)
+
+
+def shards_index(
+    root: Path | str, shards: Mapping[str, Mapping[str, int]], split: str | None = None
+) -> dict[str, Any]:
+    """:func:`wids_index` from the samples a shard of each split (``shards``: split -> shard
+    -> samples, as :func:`shard_counts` counts them)."""
     root = fs.dataset_root(root)
-    if split is not None and manifest.num_rows:
-        manifest = manifest.filter(pc.equal(manifest.column("split"), split))
-    counts = Counter(manifest.column("meta_shard").to_pylist()) if manifest.num_rows else {}
+    counts: Counter[str] = Counter()
+    for name, per_shard in shards.items():
+        if split is None or name == split:
+            counts.update(per_shard)
     shardlist = [
         {"url": shard, "nsamples": n, "filesize": fs.size(fs.join(root, shard))}
         for shard, n in sorted(counts.items())
@@ -56,16 +75,16 @@ def wids_index(root: Path | str, manifest: pa.Table, split: str | None = None) -
     }
 
 
-def write_wids_index(root: Path | str, manifest: pa.Table) -> Path | str:
-    """Write ``root/shardindex.json``, and of each split of ``manifest`` its index and its
-    shard list, each atomically (temp + rename; on object storage one whole upload:
-    ``store.fs``); returns the path of the whole folder's index."""
+def write_wids_index(root: Path | str, shards: Mapping[str, Mapping[str, int]]) -> Path | str:
+    """Write ``root/shardindex.json``, and of each split of ``shards`` (split -> shard ->
+    samples: :func:`shard_counts`) its index and its shard list, each atomically (temp +
+    rename; on object storage one whole upload: ``store.fs``); returns the path of the whole
+    folder's index."""
     root = fs.dataset_root(root)
     path = fs.join(root, WIDS_INDEX)
-    fs.put_bytes(path, json.dumps(wids_index(root, manifest), indent=1).encode())
-    splits = sorted(set(manifest.column("split").to_pylist())) if manifest.num_rows else []
-    for split in splits:
-        doc = wids_index(root, manifest, split)
+    fs.put_bytes(path, json.dumps(shards_index(root, shards), indent=1).encode())
+    for split in sorted(shards):
+        doc = shards_index(root, shards, split)
         fs.put_bytes(fs.join(root, split_index_name(split)), json.dumps(doc, indent=1).encode())
         listing = "".join(f"{entry['url']}\n" for entry in doc["shardlist"])
         fs.put_bytes(fs.join(root, shard_list_name(split)), listing.encode())

@@ -22,7 +22,9 @@ rows: the samples already built are not recomputed). Every other config key, and
 ortho files (dataset.json's ``input_files``), must be those the dataset was built with: an
 append refuses otherwise, naming the key. Splits are a function of each sample's position and
 the config, so an appended sample lands in the split a single build gives it; the leak check
-of dataset.json runs over the whole merged manifest.
+of dataset.json runs over the whole merged manifest. The dataset's sample keys and label paths
+are read a batch at a time into the driver's on-disk key index (``key_index``), which the
+plan and then the commits ask: the append holds none of them.
 
 Crash safety. The append first links (or copies) the dataset's manifest.parquet,
 failures.parquet and dataset.json to ``parts/base-*`` (its base), then writes its stamp
@@ -42,7 +44,7 @@ import json
 import os
 import shutil
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -52,8 +54,9 @@ import pyarrow.parquet as pq
 
 from mars_pairs.errors import ConfigError
 from mars_pairs.pipeline.builder.fingerprints import LabelDigest, input_change, input_files
-from mars_pairs.pipeline.builder.finish import relative_config, write_merged
+from mars_pairs.pipeline.builder.finish import RUN_ROWS, Merged, relative_config, write_merged
 from mars_pairs.pipeline.builder.hygiene import remove_empty_parts
+from mars_pairs.pipeline.builder.key_index import KeyIndex, scratch_index
 from mars_pairs.pipeline.builder.label_list import iter_matches
 from mars_pairs.pipeline.builder.layout import DROPPED_KEY, part_paths, stamp_path
 from mars_pairs.pipeline.builder.plan import check_clearable, check_inputs, is_done
@@ -82,6 +85,8 @@ BASE_FILES = {
 MAY_CHANGE = ("inputs.labels", "inputs.places", "source")
 #: The inputs whose files must be those the dataset was built from.
 FIXED_INPUTS = ("dem", "ortho")
+#: Rows of the base's files read at a time.
+_BATCH = 8192
 
 
 @dataclass(frozen=True)
@@ -104,8 +109,6 @@ class AppendPlan:
     fingerprint: dict[str, Any] = field(repr=False, compare=False)  # the stamp it writes
     full_digest: dict[str, Any] = field(repr=False, compare=False)  # build_stamp after it
     base: dict[str, Any] = field(repr=False, compare=False)  # the base's dataset.json
-    known: frozenset[str] = field(repr=False, compare=False)  # label paths held (relative)
-    keys: dict[str, str] = field(repr=False, compare=False)  # sample key -> label_path held
 
     def format(self) -> str:
         """The plan as ``mars-pairs build --append --dry-run`` prints it."""
@@ -251,21 +254,46 @@ def known_labels(
     return frozenset(known), keys
 
 
-def new_labels(config: BuildConfig, known: frozenset[str], every: LabelDigest) -> Iterator[str]:
-    """The labels ``config.inputs.labels`` match that are not ``known`` (relative label
-    paths), in build order, streamed; ``every`` sums every label matched."""
+def add_base(index: KeyIndex, manifest: Path, failures: Path, root: str) -> None:
+    """Record in ``index`` what the dataset holds: its sample keys (key -> ``label_path``)
+    and, as known label paths (relative to ``root``, with ``/``), every manifest row's
+    ``label_path`` and failure row's ``path`` (absolute ones made relative to ``root``); read
+    a batch of rows at a time."""
+    index.add_table(manifest)
+    for batch in pq.ParquetFile(manifest).iter_batches(_BATCH, columns=["label_path"]):
+        index.add_known(str(p) for p in batch.column(0).to_pylist())
+    for batch in pq.ParquetFile(failures).iter_batches(_BATCH, columns=["path"]):
+        index.add_known(
+            Path(os.path.relpath(p, root)).as_posix() if os.path.isabs(p) else p
+            for p in batch.column(0).to_pylist()
+            if p is not None
+        )
+
+
+def new_labels(
+    config: BuildConfig, is_known: Callable[[str], bool], every: LabelDigest
+) -> Iterator[str]:
+    """The labels ``config.inputs.labels`` match whose relative path (with ``/``) is not
+    ``is_known`` (``KeyIndex.is_known`` of the base's index), in build order, streamed;
+    ``every`` sums every label matched."""
     root = labels_root(config.inputs.labels)
     for label in every.tally(iter_matches(config.inputs.labels)):
-        if Path(os.path.relpath(label, root)).as_posix() not in known:
+        if not is_known(Path(os.path.relpath(label, root)).as_posix()):
             yield label
 
 
-def plan_append(config: BuildConfig) -> AppendPlan:
+def plan_append(config: BuildConfig, index: KeyIndex | None = None) -> AppendPlan:
     """Check that ``config`` may append to the finished dataset in ``config.output.dir``, list
     the release's labels and find the new ones (one streaming pass), and find the new chunks
-    an interrupted append of the same release committed; writes nothing. ConfigError naming
-    the key or the file otherwise (see ``check_append_config``; no finished dataset; an
-    interrupted build that is not an append, or an interrupted append of another release)."""
+    an interrupted append of the same release committed; writes nothing in the folder.
+    ``index``: an empty key index (``key_index.scratch_index``) the plan fills with the
+    dataset's keys and label paths (``add_base``) for the append to go on with; without it,
+    one of its own, removed. ConfigError naming the key or the file otherwise (see
+    ``check_append_config``; no finished dataset; an interrupted build that is not an
+    append, or an interrupted append of another release)."""
+    if index is None:
+        with scratch_index() as own:
+            return plan_append(config, own)
     start = time.perf_counter()
     out = local_dir(config)
     if config.output.keep_parts:  # (its finished build's stamp is still in parts/)
@@ -297,13 +325,14 @@ def plan_append(config: BuildConfig) -> AppendPlan:
     base_chunks = stamp_chunks(base)
     if base_chunks is None:
         raise ConfigError(f"{base_paths['dataset.json']}: build_stamp: not a build's stamp")
-    known, keys = known_labels(
+    add_base(
+        index,
         base_paths["manifest.parquet"],
         base_paths["failures.parquet"],
         labels_root(config.inputs.labels),
     )
     every, fresh = LabelDigest(), LabelDigest()
-    for label in new_labels(config, known, every):
+    for label in new_labels(config, index.is_known, every):
         fresh.add(label)
     size = config.output.shard_size
     chunks = -(-fresh.count // size)
@@ -349,8 +378,6 @@ def plan_append(config: BuildConfig) -> AppendPlan:
         fingerprint=stamp,
         full_digest=full_digest,
         base=base,
-        known=known,
-        keys=keys,
     )
 
 
@@ -384,23 +411,25 @@ def labels_done(plan: AppendPlan) -> int:
     )
 
 
-def merge_append(config: BuildConfig, plan: AppendPlan) -> tuple[pa.Table, pa.Table, int]:
+def merge_append(config: BuildConfig, plan: AppendPlan) -> tuple[Merged, int]:
     """Write manifest.parquet and failures.parquet as the base's rows and the new chunks'
     (``finish.write_merged``: Hilbert order; failures: the base's, then the new chunks' in
-    chunk order); returns both tables and the count of samples dropped in the split buffer
-    (the base's and the new chunks')."""
+    chunk order), a batch of rows at a time; returns their counts and the count of samples
+    dropped in the split buffer (the base's and the new chunks')."""
     out = local_dir(config)
-    parts = [pq.read_table(out / BASE_FILES["manifest.parquet"])]
-    fails = [pq.read_table(out / BASE_FILES["failures.parquet"])]
     dropped = int(_info(plan.base).splits.get("dropped_in_buffer") or 0)
     for k in new_chunks(plan):
-        _, manifest_part, failures_part = part_paths(out, k)
-        part = pq.read_table(manifest_part)
-        dropped += int((part.schema.metadata or {}).get(DROPPED_KEY, b"0"))
-        parts.append(part)
-        fails.append(pq.read_table(failures_part))
-    manifest, failures = write_merged(config, parts, fails)
-    return manifest, failures, dropped
+        meta = pq.read_schema(part_paths(out, k)[1]).metadata or {}
+        dropped += int(meta.get(DROPPED_KEY, b"0"))
+
+    def tables(base: str, part: int) -> Iterator[pa.Table]:
+        for batch in pq.ParquetFile(out / BASE_FILES[base]).iter_batches(RUN_ROWS):
+            yield pa.Table.from_batches([batch])
+        for k in new_chunks(plan):
+            yield pq.read_table(part_paths(out, k)[part])
+
+    merged = write_merged(config, tables("manifest.parquet", 1), tables("failures.parquet", 2))
+    return merged, dropped
 
 
 def append_record(

@@ -9,21 +9,31 @@ relative to the dataset folder as they were at build time, the manifest's ``labe
 relative to the labels root (``labels_root``), croissant.json's files relative to the folder;
 moving the folder keeps it whole. A dataset on object storage (``output.dir`` an fsspec URL:
 ``store.fs``) names its local inputs and labels root by their absolute paths (no path leads
-from a bucket to them); every file is uploaded whole."""
+from a bucket to them); every file is uploaded whole.
+
+Memory does not grow with the samples but in the leak check: the parts are read one at a time,
+the manifest sorted in runs of ``RUN_ROWS`` rows on local scratch disk and merged
+(``store.parquet_stream``), and what dataset.json, the shard indexes and the summary say is
+counted while the files are written (:class:`Merged`); the leak check
+(``store.leakage.leak_report``) reads its columns of the whole manifest."""
 
 from __future__ import annotations
 
 import fnmatch
+import itertools
 import json
 import os
 import platform
 import time
 from collections import Counter
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
 
 from mars_pairs.pipeline.builder.fingerprints import input_files
 from mars_pairs.pipeline.builder.hygiene import remove_empty_parts
@@ -32,16 +42,18 @@ from mars_pairs.pipeline.builder.plan import BuildPlan
 from mars_pairs.pipeline.builder.stamp import FINISHED_KEY, stamp_digest
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.sample.record import labels_root
-from mars_pairs.pipeline.splitting import splits_report
+from mars_pairs.pipeline.splitting import splits_section
 from mars_pairs.raster.vsi import open_raster
 from mars_pairs.store import fs
 from mars_pairs.store.card import CardFacts, dataset_card, default_license
 from mars_pairs.store.croissant import croissant_metadata, dataset_description, sha256_of
 from mars_pairs.store.dataset_info import DatasetInfo, dataset_document
 from mars_pairs.store.dem_codec import dataset_dem_encoding
-from mars_pairs.store.geoparquet import crs_name, named_crs, table_geo_metadata
+from mars_pairs.store.geoparquet import crs_name, geo_extremes, named_crs, table_geo_metadata
+from mars_pairs.store.leakage import LEAK_COLUMNS, leak_report
 from mars_pairs.store.manifest import FAILURE_SCHEMA, MANIFEST_SCHEMA
 from mars_pairs.store.pairs import Footprints, write_pairs
+from mars_pairs.store.parquet_stream import RowGroupWriter, merge_runs, sorted_runs
 from mars_pairs.store.seal import seal
 
 #: the dataset's pairs of overlapping samples (``output.pairs``)
@@ -89,44 +101,171 @@ class BuildSummary:
         return "\n".join(lines)
 
 
-def merge_parts(config: BuildConfig, n_chunks: int) -> tuple[pa.Table, pa.Table]:
-    """Concatenate the chunk parts into manifest.parquet (Hilbert order) and failures.parquet."""
+#: The manifest's order: Hilbert index of the rover position, then sample key (unique).
+MANIFEST_ORDER = [("hilbert", "ascending"), ("key", "ascending")]
+#: Rows a row group of manifest.parquet, and of failures.parquet.
+MANIFEST_ROW_GROUP = 1024
+FAILURES_ROW_GROUP = 4096
+#: Manifest rows sorted in memory at a time: a manifest of more rows is sorted on disk (sorted
+#: runs of this many rows, merged: ``store.parquet_stream``), so the finish holds no more.
+RUN_ROWS = 4096
+
+
+@dataclass(frozen=True)
+class Merged:
+    """What the finish needs of the merged files, counted while they are written.
+
+    ``by_split`` and ``by_mission``: samples a split and a mission, in the order the
+    manifest first holds them; ``shards``: split -> shard -> samples; ``failures_by_reason``:
+    failure rows a ``"stage (error_type)"``, in the order of failures.parquet."""
+
+    manifest: fs.Location  # manifest.parquet, written
+    samples: int
+    failures: int
+    by_split: dict[str, int]
+    by_mission: dict[str, int]
+    shards: dict[str, dict[str, int]]
+    failures_by_reason: dict[str, int]
+
+
+def merge_parts(config: BuildConfig, n_chunks: int) -> Merged:
+    """Merge the chunk parts into manifest.parquet (Hilbert order) and failures.parquet, a
+    part at a time."""
     out = config.output.dir
-    parts = [fs.read_parquet(part_paths(out, k)[1]) for k in range(n_chunks)]
-    fails = [fs.read_parquet(part_paths(out, k)[2]) for k in range(n_chunks)]
+    parts = (fs.read_parquet(part_paths(out, k)[1]) for k in range(n_chunks))
+    fails = (fs.read_parquet(part_paths(out, k)[2]) for k in range(n_chunks))
     return write_merged(config, parts, fails)
 
 
 def write_merged(
-    config: BuildConfig, parts: list[pa.Table], fails: list[pa.Table]
-) -> tuple[pa.Table, pa.Table]:
+    config: BuildConfig, parts: Iterable[pa.Table], fails: Iterable[pa.Table]
+) -> Merged:
     """Write manifest.parquet (the rows of ``parts``, in Hilbert order, then by key, with the
-    GeoParquet metadata) and failures.parquet (the rows of ``fails``, in order); returns
-    both tables. The parts' schemas may differ in their metadata only."""
+    GeoParquet metadata, row groups of ``MANIFEST_ROW_GROUP``) and failures.parquet (the
+    rows of ``fails``, in order), reading one table of each at a time; the tables' schemas
+    may differ in their metadata only. Memory: ``RUN_ROWS`` manifest rows, whatever the
+    count (more are sorted in runs on local scratch disk, ``fs.local_staging``); the bytes
+    are those of the whole table sorted in memory and written at once."""
     out = config.output.dir
-    parts = [t.replace_schema_metadata(None) for t in parts]
-    fails = [t.replace_schema_metadata(None) for t in fails]
-    manifest = pa.concat_tables(parts) if parts else MANIFEST_SCHEMA.empty_table()
-    manifest = manifest.sort_by([("hilbert", "ascending"), ("key", "ascending")])
-    failures = pa.concat_tables(fails) if fails else FAILURE_SCHEMA.empty_table()
     crs = dataset_crs(config)
-    manifest = manifest.replace_schema_metadata(table_geo_metadata(manifest, crs))
-    fs.write_parquet(manifest, fs.join(out, "manifest.parquet"), row_group_size=1024)
-    fs.write_parquet(failures, fs.join(out, "failures.parquet"))
-    return manifest, failures
+    extremes: list[pa.Table] = []  # at most one: the extremes of the rows so far
+    schemas: list[pa.Schema] = []
+
+    def noted(tables: Iterable[pa.Table]) -> Iterator[pa.Table]:
+        for table in tables:
+            table = table.replace_schema_metadata(None)
+            if not schemas:
+                schemas.append(table.schema)
+            both = [*extremes, geo_extremes(table)]
+            extremes[:] = [geo_extremes(pa.concat_tables(both))]
+            yield table
+
+    counts = _ManifestCounts()
+    target = fs.join(out, "manifest.parquet")
+    with fs.local_staging() as scratch:
+        runs, whole = sorted_runs(noted(parts), MANIFEST_ORDER, RUN_ROWS, scratch)
+        schema = schemas[0] if schemas else MANIFEST_SCHEMA
+        seen = extremes[0] if extremes else MANIFEST_SCHEMA.empty_table()
+        schema = schema.with_metadata(table_geo_metadata(seen, crs))
+        if whole is not None:
+            rows: Iterable[pa.Table] = [whole]
+        else:
+            rows = merge_runs(runs, MANIFEST_ORDER, scratch)
+        with (
+            fs.written_file(target) as local,
+            RowGroupWriter(local, schema, MANIFEST_ROW_GROUP) as writer,
+        ):
+            for table in rows:
+                writer.write(table)
+                counts.add(table)
+    failures, reasons = _write_failures(fs.join(out, "failures.parquet"), fails)
+    return Merged(
+        manifest=target,
+        samples=counts.samples,
+        failures=failures,
+        by_split=dict(counts.by_split),
+        by_mission=dict(counts.by_mission),
+        shards={split: dict(n) for split, n in counts.shards.items()},
+        failures_by_reason=dict(reasons),
+    )
 
 
-def write_dataset_pairs(config: BuildConfig, manifest: pa.Table) -> int | None:
-    """With ``output.pairs``, write ``pairs.parquet`` (``store.pairs`` over the manifest's
-    footprints: every pair of samples whose footprints overlap, with their splits and
-    ``cross_split``) and return the count of pairs; without it, remove a ``pairs.parquet``
-    an earlier build left and return None. Before the card and dataset.json, which seal it."""
+class _ManifestCounts:
+    """The counts of :class:`Merged` over the manifest rows added, in their order."""
+
+    def __init__(self) -> None:
+        self.samples = 0
+        self.by_split: Counter[str] = Counter()
+        self.by_mission: Counter[str] = Counter()
+        self.shards: dict[str, Counter[str]] = {}
+
+    def add(self, table: pa.Table) -> None:
+        self.samples += table.num_rows
+        for name, counter in (("split", self.by_split), ("mission", self.by_mission)):
+            for entry in pc.value_counts(table[name]).to_pylist():  # first seen first
+                counter[entry["values"]] += entry["counts"]
+        pairs = table.group_by(["split", "meta_shard"], use_threads=False)
+        for row in pairs.aggregate([([], "count_all")]).to_pylist():
+            shards = self.shards.setdefault(row["split"], Counter())
+            shards[row["meta_shard"]] += row["count_all"]
+
+
+def failure_reasons(path: fs.Location) -> tuple[int, Counter[str]]:
+    """The rows of the failures file ``path`` and their count a ``"stage (error_type)"``, in
+    order, read a batch at a time."""
+    reasons: Counter[str] = Counter()
+    rows = 0
+    with fs.open_input(path) as handle:
+        batches = pq.ParquetFile(handle).iter_batches(65536, columns=["stage", "error_type"])
+        for batch in batches:
+            rows += batch.num_rows
+            _count_reasons(reasons, pa.Table.from_batches([batch]))
+    return rows, reasons
+
+
+def _count_reasons(reasons: Counter[str], failures: pa.Table) -> None:
+    stages, errors = failures["stage"].to_pylist(), failures["error_type"].to_pylist()
+    reasons.update(f"{s} ({e})" for s, e in zip(stages, errors, strict=True))
+
+
+def _write_failures(path: fs.Location, fails: Iterable[pa.Table]) -> tuple[int, Counter[str]]:
+    """Write the rows of ``fails`` in order as the failures file ``path`` (row groups of
+    ``FAILURES_ROW_GROUP``; ``FAILURE_SCHEMA`` when there is no table); the row count and
+    the rows a ``"stage (error_type)"``, in order."""
+    tables = (t.replace_schema_metadata(None) for t in fails)
+    first = next(tables, None)
+    schema = FAILURE_SCHEMA if first is None else first.schema
+    reasons: Counter[str] = Counter()
+    with (
+        fs.written_file(path) as local,
+        RowGroupWriter(local, schema, FAILURES_ROW_GROUP) as writer,
+    ):
+        for table in itertools.chain([first] if first is not None else [], tables):
+            writer.write(table)
+            _count_reasons(reasons, table)
+        return writer.rows, reasons
+
+
+#: the manifest columns the pairs read (``store.pairs.Footprints.from_table``)
+PAIRS_COLUMNS = (
+    "key", "footprint", "longitude", "latitude", "elevation_m", "azimuth_deg",
+    "mission", "site", "drive", "pose", "split",
+)  # fmt: skip
+
+
+def write_dataset_pairs(config: BuildConfig, merged: Merged) -> int | None:
+    """With ``output.pairs``, write ``pairs.parquet`` (``store.pairs`` over the footprints of
+    the manifest written, ``merged.manifest``: every pair of samples whose footprints
+    overlap, with their splits and ``cross_split``) and return the count of pairs; without
+    it, remove a ``pairs.parquet`` an earlier build left and return None. Before the card and
+    dataset.json, which seal it. Memory: the samples' footprints (an opt-in file)."""
     out = config.output.dir
     path = fs.join(out, PAIRS)
     if not config.output.pairs:
         if fs.exists(path):
             fs.remove(path)
         return None
+    manifest = fs.read_parquet(merged.manifest, columns=list(PAIRS_COLUMNS))
     footprints = Footprints.from_table(manifest, crs=dataset_crs(config))
     if isinstance(out, Path):
         return write_pairs(out / PAIRS, footprints)
@@ -218,7 +357,7 @@ def library_versions() -> dict[str, str]:
 def dataset_doc(
     config: BuildConfig,
     summary: BuildSummary,
-    manifest: pa.Table,
+    merged: Merged,
     dropped: int,
     fingerprint: dict[str, Any] | None = None,
     extra: dict[str, Any] | None = None,
@@ -228,14 +367,18 @@ def dataset_doc(
     ``fingerprint``, the build's stamp, is given; ``extra``'s keys over the document's: an
     append's ``appends`` and ``build_stamp``), written last by :func:`write_dataset_json`.
     ``input_files`` holds the fingerprints of the PLACES table, DEM and ortho without their paths
-    (``fingerprints.input_files``), which ``--append`` checks. ``pairs``: the count of
+    (``fingerprints.input_files``), which ``--append`` checks. ``merged``: the merged files'
+    counts; the leak check reads its columns of the manifest written (``store.leakage``: the
+    one step of the finish whose memory grows with the samples). ``pairs``: the count of
     pairs.parquet's rows (``counts.pairs``; None: no pairs.parquet)."""
     counts: dict[str, Any] = {"samples": summary.samples, "failures": summary.failures}
     if pairs is not None:
         counts["pairs"] = pairs
-    if manifest.num_rows:
-        counts["by_split"] = dict(Counter(manifest.column("split").to_pylist()))
-        counts["by_mission"] = dict(Counter(manifest.column("mission").to_pylist()))
+    if merged.samples:
+        counts["by_split"] = dict(merged.by_split)
+        counts["by_mission"] = dict(merged.by_mission)
+    leak_columns = fs.read_parquet(merged.manifest, columns=list(LEAK_COLUMNS))
+    leak = leak_report(leak_columns, config.chips.size_m)
     crs = named_wkt(dataset_crs(config))
     out = config.output.dir
     root = labels_root(config.inputs.labels)
@@ -257,7 +400,7 @@ def dataset_doc(
         },
         "dem_encoding": dataset_dem_encoding(),
         "counts": counts,
-        "splits": splits_report(config, manifest, dropped),
+        "splits": splits_section(config, merged.by_split, leak, dropped),
         "failures_by_reason": summary.failures_by_reason,
         "build_seconds": round(summary.seconds, 3),
     }
@@ -274,7 +417,7 @@ def write_dataset_json(config: BuildConfig, doc: dict[str, Any]) -> None:
     seal(config.output.dir, doc)
 
 
-def write_card(config: BuildConfig, manifest: pa.Table, doc: dict[str, Any]) -> None:
+def write_card(config: BuildConfig, doc: dict[str, Any]) -> None:
     """README.md (the dataset card) and croissant.json, from dataset.json's ``doc`` and the
     manifest written (``manifest.parquet`` must be in place: croissant.json holds its hash)."""
     from mars_pairs.version import __version__
@@ -321,17 +464,11 @@ def finished_summary(config: BuildConfig, plan: BuildPlan, start: float) -> Buil
     out = config.output.dir
     remove_empty_parts(out)
     samples = fs.parquet_metadata(fs.join(out, "manifest.parquet")).num_rows
-    failures = fs.read_parquet(fs.join(out, "failures.parquet"), columns=["stage", "error_type"])
-    reasons = Counter(
-        f"{s} ({e})"
-        for s, e in zip(
-            failures["stage"].to_pylist(), failures["error_type"].to_pylist(), strict=True
-        )
-    )
+    failures, reasons = failure_reasons(fs.join(out, "failures.parquet"))
     return BuildSummary(
         out_dir=out,
         samples=samples,
-        failures=failures.num_rows,
+        failures=failures,
         failures_by_reason=dict(reasons),
         chunks_built=0,
         chunks_resumed=plan.chunks,

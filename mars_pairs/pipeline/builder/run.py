@@ -25,7 +25,6 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import NoReturn
 
-import pyarrow as pa
 import pyarrow.parquet as pq
 from tqdm import tqdm
 
@@ -49,7 +48,9 @@ from mars_pairs.pipeline.builder.engine import ChunkResult, ChunkTask, Engine, I
 from mars_pairs.pipeline.builder.fingerprints import LabelDigest
 from mars_pairs.pipeline.builder.finish import (
     BuildSummary,
+    Merged,
     dataset_doc,
+    failure_reasons,
     finished_summary,
     merge_parts,
     write_card,
@@ -61,7 +62,7 @@ from mars_pairs.pipeline.builder.hygiene import (
     remove_parts,
     remove_temporaries,
 )
-from mars_pairs.pipeline.builder.key_index import KeyIndex, open_index
+from mars_pairs.pipeline.builder.key_index import KeyIndex, open_index, scratch_index
 from mars_pairs.pipeline.builder.layout import dropped_count, stamp_path
 from mars_pairs.pipeline.builder.local_pool import LocalPool
 from mars_pairs.pipeline.builder.lock import folder_lock
@@ -120,18 +121,22 @@ def run_build(
             fs.remove_stale_staging()  # of a build killed mid-upload (or its key index)
         if not resume and not append:  # refused before any worker starts (else: once planned)
             check_clearable(config.output.dir)
-        if append:  # planned before any worker starts: a refused append starts none
-            plan = plan_append(config)
-            if plan.labels_new == 0:
-                return _nothing_to_append(config, plan, start)
-        # the workers start now: their imports and raster opening overlap the planning
-        pool = LocalPool(config, workers) if engine is None and workers > 1 else None
-        if engine is None:
-            engine = pool if pool is not None else InProcess()
-        with pool if pool is not None else contextlib.nullcontext():
-            if append:
-                return _run_append(config, plan, start, strict, progress, engine)
-            return _run(config, start, resume, limit, strict, progress, engine)
+        with contextlib.ExitStack() as stack:
+            # an append's record of the dataset's keys and label paths, on disk: filled by
+            # its plan, then by its commits
+            seen = stack.enter_context(scratch_index()) if append else None
+            if seen is not None:  # planned before any worker starts: a refused one starts none
+                plan = plan_append(config, seen)
+                if plan.labels_new == 0:
+                    return _nothing_to_append(config, plan, start)
+            # the workers start now: their imports and raster opening overlap the planning
+            pool = LocalPool(config, workers) if engine is None and workers > 1 else None
+            if engine is None:
+                engine = pool if pool is not None else InProcess()
+            with pool if pool is not None else contextlib.nullcontext():
+                if seen is not None:
+                    return _run_append(config, plan, seen, start, strict, progress, engine)
+                return _run(config, start, resume, limit, strict, progress, engine)
 
 
 def _commit_all(
@@ -209,31 +214,14 @@ def _run(
             f"inputs.labels: the matching files changed during the build ({listed['count']} "
             f"labels listed, then {digest.count}); rerun the build without --resume"
         )
-    manifest, failures = merge_parts(config, plan.chunks)
-    summary = BuildSummary(
-        out_dir=out,
-        samples=manifest.num_rows,
-        failures=failures.num_rows,
-        failures_by_reason=dict(
-            Counter(
-                f"{s} ({e})"
-                for s, e in zip(
-                    failures.column("stage").to_pylist(),
-                    failures.column("error_type").to_pylist(),
-                    strict=False,
-                )
-            )
-        ),
-        chunks_built=built,
-        chunks_resumed=plan.chunks - built,
-        seconds=time.perf_counter() - start,
-        stage_seconds=dict(stage_seconds),
+    merged = merge_parts(config, plan.chunks)
+    summary = _summary(out, merged, built, plan.chunks, start, stage_seconds)
+    pairs = write_dataset_pairs(config, merged)
+    doc = dataset_doc(
+        config, summary, merged, dropped_count(out, plan.chunks), plan.fingerprint, pairs=pairs
     )
-    pairs = write_dataset_pairs(config, manifest)
-    dropped = dropped_count(out, plan.chunks)
-    doc = dataset_doc(config, summary, manifest, dropped, plan.fingerprint, pairs=pairs)
-    write_wids_index(out, manifest)
-    write_card(config, manifest, doc)
+    write_wids_index(out, merged.shards)
+    write_card(config, doc)
     write_dataset_json(config, doc)  # the record of the files above: after them
     if not config.output.keep_parts:
         remove_parts(out, plan.chunks)  # the last step: a kill before it resumes
@@ -241,33 +229,25 @@ def _run(
 
 
 def _summary(
-    out: Path,
-    manifest: pa.Table,
-    failures: pa.Table,
+    out: fs.Location,
+    merged: Merged,
     built: int,
-    resumed: int,
+    chunks: int,
     start: float,
-    stage_seconds: dict[str, float],
+    stage_seconds: Counter[str],
     appended: str | None = None,
 ) -> BuildSummary:
-    """The summary of a build whose merged tables are ``manifest`` and ``failures``."""
-    reasons = Counter(
-        f"{s} ({e})"
-        for s, e in zip(
-            failures.column("stage").to_pylist(),
-            failures.column("error_type").to_pylist(),
-            strict=True,
-        )
-    )
+    """The summary of a build of ``chunks`` chunks, ``built`` of them in this run, whose
+    merged files are ``merged``."""
     return BuildSummary(
         out_dir=out,
-        samples=manifest.num_rows,
-        failures=failures.num_rows,
-        failures_by_reason=dict(reasons),
+        samples=merged.samples,
+        failures=merged.failures,
+        failures_by_reason=merged.failures_by_reason,
         chunks_built=built,
-        chunks_resumed=resumed,
+        chunks_resumed=chunks - built,
         seconds=time.perf_counter() - start,
-        stage_seconds=stage_seconds,
+        stage_seconds=dict(stage_seconds),
         appended=appended,
     )
 
@@ -277,14 +257,24 @@ def _nothing_to_append(config: BuildConfig, plan: AppendPlan, start: float) -> B
     snapshot left by a killed append's last step is removed)."""
     out = local_dir(config)
     remove_base(out)
-    manifest = pq.read_table(out / "manifest.parquet", columns=["key"])
-    failures = pq.read_table(out / "failures.parquet", columns=["stage", "error_type"])
-    return _summary(out, manifest, failures, 0, 0, start, {}, plan.summary_line())
+    failures, reasons = failure_reasons(out / "failures.parquet")
+    return BuildSummary(
+        out_dir=out,
+        samples=pq.read_metadata(out / "manifest.parquet").num_rows,
+        failures=failures,
+        failures_by_reason=dict(reasons),
+        chunks_built=0,
+        chunks_resumed=0,
+        seconds=time.perf_counter() - start,
+        stage_seconds={},
+        appended=plan.summary_line(),
+    )
 
 
 def _run_append(
     config: BuildConfig,
     plan: AppendPlan,
+    seen: KeyIndex,
     start: float,
     strict: bool,
     progress: bool,
@@ -301,25 +291,24 @@ def _run_append(
         atomic_write_bytes(stamp_path(out), json.dumps(plan.fingerprint).encode())
     chunks = new_chunks(plan)
     digest = LabelDigest()  # the second pass must list what the first did
-    listed = chunks_of(digest.tally(new_labels(config, plan.known, LabelDigest())), plan.chunk_size)
+    fresh = new_labels(config, seen.is_known, LabelDigest())
+    listed = chunks_of(digest.tally(fresh), plan.chunk_size)
     todo = (
         ChunkTask(k, tuple(labels))
         for k, labels in zip(chunks, listed, strict=False)
         if not is_done(out, k)
     )
     stage_seconds: Counter[str] = Counter()
-    with open_index(out) as seen:
-        seen.update(plan.keys)
-        seen.add_parts(out, (k for k in chunks if is_done(out, k)))
-        results = engine.run(config, todo)
-        bar = tqdm(
-            total=plan.labels_new,
-            initial=labels_done(plan),
-            unit="img",
-            disable=not progress,
-            desc="append",
-        )
-        built = _commit_all(config, results, bar, strict, stage_seconds, seen)
+    seen.add_parts(out, (k for k in chunks if is_done(out, k)))  # the dataset's: by the plan
+    results = engine.run(config, todo)
+    bar = tqdm(
+        total=plan.labels_new,
+        initial=labels_done(plan),
+        unit="img",
+        disable=not progress,
+        desc="append",
+    )
+    built = _commit_all(config, results, bar, strict, stage_seconds, seen)
     remove_temporaries(out)
     stamp = plan.fingerprint
     if (digest.count, digest.hexdigest()) != (stamp["count"], stamp["labels"]):
@@ -327,24 +316,15 @@ def _run_append(
             f"inputs.labels: the matching files changed during the append ({stamp['count']} "
             f"new labels listed, then {digest.count}); rerun the append"
         )
-    manifest, failures, dropped = merge_append(config, plan)
-    added = manifest.num_rows - pq.read_metadata(out / BASE_FILES["manifest.parquet"]).num_rows
+    merged, dropped = merge_append(config, plan)
+    added = merged.samples - pq.read_metadata(out / BASE_FILES["manifest.parquet"]).num_rows
     base_failures = pq.read_metadata(out / BASE_FILES["failures.parquet"]).num_rows
-    summary = _summary(
-        out,
-        manifest,
-        failures,
-        built,
-        plan.chunks - built,
-        start,
-        dict(stage_seconds),
-        plan.summary_line(),
-    )
-    extra = dataset_extra(config, plan, added, failures.num_rows - base_failures)
-    pairs = write_dataset_pairs(config, manifest)
-    doc = dataset_doc(config, summary, manifest, dropped, extra=extra, pairs=pairs)
-    write_wids_index(out, manifest)
-    write_card(config, manifest, doc)
+    summary = _summary(out, merged, built, plan.chunks, start, stage_seconds, plan.summary_line())
+    extra = dataset_extra(config, plan, added, merged.failures - base_failures)
+    pairs = write_dataset_pairs(config, merged)
+    doc = dataset_doc(config, summary, merged, dropped, extra=extra, pairs=pairs)
+    write_wids_index(out, merged.shards)
+    write_card(config, doc)
     write_dataset_json(config, doc)  # the record of the files above: after them
     remove_append_parts(out, plan)  # the stamp before the base: see pipeline.builder.append
     return summary

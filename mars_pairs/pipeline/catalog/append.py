@@ -172,7 +172,7 @@ def plan_catalog_append(config: BuildConfig, out: Path, stamp_rel: str) -> Catal
         paths["catalog.parquet"], paths["failures.parquet"], labels_root(config.inputs.labels)
     )
     every, fresh = LabelDigest(), LabelDigest()
-    labels = tuple(fresh.tally(new_labels(config, known, every)))
+    labels = tuple(fresh.tally(new_labels(config, known.__contains__, every)))
     base_chunks = int(base["chunks"])
     chunks = -(-len(labels) // config.output.shard_size)
     stamp = {"kind": APPEND_KIND, **stamp_of(config, fresh), "first_chunk": base_chunks}
