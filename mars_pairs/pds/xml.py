@@ -93,7 +93,7 @@ class XmlLabel:
         self, prefix: str, local: str, under: etree._Element | None = None
     ) -> etree._Element | None:
         """The first such element outside commanded parameters, or None."""
-        for el in self.all(prefix, local, under):
+        for el in (self.root if under is None else under).iter(q(prefix, local)):
             if not is_commanded(el):
                 return el
         return None
@@ -189,10 +189,7 @@ def local_name(el: etree._Element) -> str:
 
 def is_commanded(el: etree._Element) -> bool:
     """True if ``el`` sits inside commanded (requested, not actual) parameters."""
-    return any(
-        isinstance(a.tag, str) and etree.QName(a).localname == "Commanded_Parameters"
-        for a in el.iterancestors()
-    )
+    return next(el.iterancestors("{*}Commanded_Parameters"), None) is not None
 
 
 def frame_from_identifier(ident: str) -> str | None:
