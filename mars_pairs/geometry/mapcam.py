@@ -179,7 +179,11 @@ class MapCamera:
         Inside means within the image's outer pixel edges: sample in [-0.5, width - 0.5] and
         line in [-0.5, height - 0.5] (pixel centres at integers).
         """
-        px = self.camera.project(self.local_points(points_map, planet_radius))
+        return self.local_in_image(self.local_points(points_map, planet_radius))
+
+    def local_in_image(self, local: ArrayLike) -> NDArray[np.bool_]:
+        """``in_image`` of points (..., 3) already in local NED metres (``local_points``)."""
+        px = self.camera.project(local)
         with np.errstate(invalid="ignore"):
             return (
                 np.isfinite(px[..., 0])

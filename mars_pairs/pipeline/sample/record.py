@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import re
 from collections.abc import Sequence
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +17,7 @@ from mars_pairs.geometry.places import Pose
 from mars_pairs.observation import Observation
 from mars_pairs.pipeline.sample.chips import ChipCoverage
 from mars_pairs.pipeline.sample.context import SampleContext
-from mars_pairs.pipeline.sample.footprint import footprint_polygon, view_statistics
+from mars_pairs.pipeline.sample.footprint import footprint_polygon, row_spans, view_statistics
 from mars_pairs.pipeline.sample.key import sample_key
 from mars_pairs.pipeline.sample.view import View
 from mars_pairs.pipeline.splitting import split_rule
@@ -30,6 +31,12 @@ _MAGIC = re.compile(r"[*?[]")
 def labels_root(patterns: Sequence[str]) -> str:
     """The folder the label globs ``patterns`` (absolute) start from: the common folder of
     their leading components without a wildcard. ``label_path`` is relative to it."""
+    return _labels_root(tuple(patterns))
+
+
+@lru_cache(maxsize=16)
+def _labels_root(patterns: tuple[str, ...]) -> str:
+    """``labels_root`` of a build's patterns, worked out once (every sample asks)."""
     heads = []
     for pattern in patterns:
         parts = Path(pattern).parts
@@ -72,7 +79,8 @@ def manifest_row(
         raise PlacesError(f"{obs.label_path}: no rover attitude in the label or PLACES table")
     az, el = image_centre_pointing_deg(obs.camera, obs.width, obs.height, pose.quaternion)
     hfov, vfov = obs.camera.fov_deg(obs.width, obs.height)
-    footprint = footprint_polygon(view)
+    spans = row_spans(view.mask)
+    footprint = footprint_polygon(view, spans)
     xmin, ymin, xmax, ymax = grid.bounds()
     rule = split_rule(cfg, ctx.crs_wkt, ctx.terrain.bounds, ctx.terrain.res)
     split = rule.assign(rover_x, rover_y)
@@ -90,7 +98,7 @@ def manifest_row(
         "width": obs.width, "height": obs.height, "localization": pose.source,
         "places_pose": pose.pose, "places_match": pose.match,
         "dem_offset_m": view.dem_offset_m,
-        **view_statistics(view),
+        **view_statistics(view, spans),
         "footprint": None if footprint is None else shapely.to_wkb(footprint),
         "bbox": footprint_bounds(footprint),
         "rover_point": shapely.to_wkb(shapely.Point(rover_x, rover_y)),

@@ -124,11 +124,14 @@ def anchor_view(
     origin is off the DEM or over nodata (``Terrain.elevation_at``).
     """
     ox, oy = (float(v) for v in camera.origin_map[:2])
-    ground = terrain.elevation_at(ox, oy)
-    camera, offset, height = anchor_camera(camera, pose, ground, observer_height)
+    terrain.require_inside(ox, oy, "point")  # before the window is read around the camera
+    # anchoring moves the camera up or down only: its map x, y and the reach are known now,
+    # and the ground under the rover comes from the window (no read of its own)
     cx, cy = (float(v) for v in camera.center_map[:2])
     reach = radius_m * camera.map_scale_range()[1] + 2.0 * max(terrain.res)
     window = read_window(cx, cy, reach)
+    ground = terrain.elevation_at(ox, oy, within=window)
+    camera, offset, height = anchor_camera(camera, pose, ground, observer_height)
     # the exact band the image covers, from its border rays (true north)
     bands = camera.view_band_deg()
     return AnchoredView(camera, height, offset, window, radius_m, mode, bands)
@@ -165,10 +168,11 @@ def in_view(points_map: np.ndarray, view: AnchoredView) -> np.ndarray:
     Line of sight is not tested here (the kernel's mask says that).
     """
     camera = view.camera
-    rel = camera.local_points(points_map, MARS_RADIUS_M) - camera.map_to_local(camera.center_map)
+    local = camera.local_points(points_map, MARS_RADIUS_M)
+    rel = local - camera.map_to_local(camera.center_map)
     keep = np.hypot(rel[:, 0], rel[:, 1]) <= view.radius_m
     if view.mode == "frustum":
-        return keep & camera.in_image(points_map, MARS_RADIUS_M)
+        return keep & camera.local_in_image(local)
     (az0, az1), (el0, el1) = view.bands
     az, el = azimuth_elevation_deg(rel)
     if (az0, az1) != (0.0, 360.0):
