@@ -29,8 +29,8 @@ labels, the chunk job stubbed.
 ``--slope`` instead measures the build's marginal CPU per sample on the demo's labels
 (``configs/demo.yaml``; its mission in ``out/demo/mission`` unless ``--mission``, generated
 when absent): each build a fresh subprocess (``--workers`` 1: in the process; more: a local
-pool) over the first N and the first 2N labels (``--slope-sizes``), its CPU the
-``getrusage(RUSAGE_CHILDREN)`` growth over it (the driver and its reaped workers). The slope
+pool) over the first N and the first 2N labels (``--slope-sizes``), its CPU the process's
+own (``getrusage``) plus its worker processes' (psutil, polled every 50 ms). The slope
 (CPU(2N) - CPU(N)) / (2N - N samples) leaves out what a build pays once (imports, loading the
 compiled kernels, opening the rasters, the finish). ``--anchor-root DIR``: a checkout of
 another commit (``git worktree add DIR COMMIT``) built the same way, interleaved with this
@@ -177,16 +177,39 @@ class _ExternalCluster:
 
 
 _SLOPE_CHILD = """
-import json, sys
+import json, resource, sys, threading
 from pathlib import Path
 from mars_pairs.runtime import configure_process
 configure_process()
 from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import parse_config
 doc, workers, limit = json.loads(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3])
+seen, done = {}, threading.Event()
+
+def poll():  # the worker processes' CPU (they are not this process's children to reap)
+    import psutil
+    me = psutil.Process()
+    while True:
+        for proc in me.children(recursive=True):
+            try:
+                times = proc.cpu_times()
+                seen[proc.pid] = times.user + times.system
+            except psutil.Error:
+                pass
+        if done.wait(0.05):
+            return
+
+poller = threading.Thread(target=poll, daemon=True)
+if workers > 1:
+    poller.start()
 summary = run_build(parse_config(doc, Path(doc["output"]["dir"]).parent), workers=workers,
                     progress=False, limit=limit)
-print(json.dumps({"samples": summary.samples, "seconds": summary.seconds}))
+done.set()
+if workers > 1:
+    poller.join()
+own = resource.getrusage(resource.RUSAGE_SELF)
+cpu = own.ru_utime + own.ru_stime + sum(seen.values())
+print(json.dumps({"samples": summary.samples, "seconds": summary.seconds, "cpu": cpu}))
 """
 
 
@@ -213,19 +236,17 @@ def _demo_doc(mission: Path) -> dict:
 def _child_build(
     code: Path, doc: dict, out: Path, workers: int, limit: int
 ) -> tuple[int, float, float]:
-    """(samples, seconds, CPU seconds of the process and its reaped workers) of one build of
-    ``doc`` into ``out`` by the package in ``code``, in a fresh subprocess."""
+    """(samples, seconds, CPU seconds of the process and its workers) of one build of ``doc``
+    into ``out`` by the package in ``code``, in a fresh subprocess (the workers' CPU polled
+    every 50 ms while they run: what a worker spends in its last 50 ms may be missed)."""
     doc = {**doc, "output": {**doc["output"], "dir": str(out)}}
     env = {**os.environ, "PYTHONPATH": str(code), "PYTHONWARNINGS": "ignore"}
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     args = [sys.executable, "-c", _SLOPE_CHILD, json.dumps(doc), str(workers), str(limit)]
     proc = subprocess.run(args, env=env, capture_output=True, text=True, cwd=str(out.parent))
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode != 0:
         raise RuntimeError(f"build by {code} failed:\n{proc.stderr[-3000:]}")
     result = json.loads(proc.stdout.strip().splitlines()[-1])
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    return result["samples"], result["seconds"], cpu
+    return result["samples"], result["seconds"], result["cpu"]
 
 
 def slope_table(mission: Path, sizes: list[int], reps: int, workers: int,
