@@ -132,10 +132,9 @@ class XmlLabel:
     def xyz(self, vector: etree._Element, prefix: str, local: str) -> np.ndarray:
         """The x_*, y_*, z_* children of a geom vector element."""
         values = []
+        named = [(local_name(c), c) for c in vector if isinstance(c.tag, str)]
         for axis in ("x", "y", "z"):
-            found = [
-                c for c in vector if isinstance(c.tag, str) and local_name(c).startswith(f"{axis}_")
-            ]
+            found = [c for name, c in named if name.startswith(f"{axis}_")]
             if len(found) != 1:
                 self.f.fail(
                     name_of(prefix, local), f"expected one {axis}_* component, got {len(found)}"

@@ -78,7 +78,11 @@ def manifest_row(
     if pose.quaternion is None:  # MapCamera.from_observation refuses it before this
         raise PlacesError(f"{obs.label_path}: no rover attitude in the label or PLACES table")
     az, el = image_centre_pointing_deg(obs.camera, obs.width, obs.height, pose.quaternion)
-    hfov, vfov = obs.camera.fov_deg(obs.width, obs.height)
+    hfov, vfov = obs.hfov_deg, obs.vfov_deg  # the label's; else the camera model's
+    if hfov is None or vfov is None:
+        model_hfov, model_vfov = obs.camera.fov_deg(obs.width, obs.height)
+        hfov = model_hfov if hfov is None else hfov
+        vfov = model_vfov if vfov is None else vfov
     spans = row_spans(view.mask)
     footprint = footprint_polygon(view, spans)
     xmin, ymin, xmax, ymax = grid.bounds()
@@ -93,8 +97,7 @@ def manifest_row(
         "easting": rover_x, "northing": rover_y, "elevation_m": pose.elevation_m,
         "azimuth_deg": az, "elevation_deg": el,
         "label_azimuth_deg": obs.azimuth_deg, "label_elevation_deg": obs.elevation_deg,
-        "hfov_deg": obs.hfov_deg if obs.hfov_deg is not None else hfov,
-        "vfov_deg": obs.vfov_deg if obs.vfov_deg is not None else vfov,
+        "hfov_deg": hfov, "vfov_deg": vfov,
         "width": obs.width, "height": obs.height, "localization": pose.source,
         "places_pose": pose.pose, "places_match": pose.match,
         "dem_offset_m": view.dem_offset_m,
