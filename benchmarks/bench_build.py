@@ -4,6 +4,8 @@
                                      [--shard-size S] [--mission DIR] [--engines local,dask]
                                      [--dense]
     python benchmarks/bench_build.py --scale [--sizes 10000 100000]
+    python benchmarks/bench_build.py --slope [--anchor-root DIR] [--slope-sizes 135 270]
+                                     [--slope-reps 3] [--workers W] [--mission DIR]
 
 Generates a synthetic mission (64 stops x 8 images = 512 samples by default; generating it
 takes minutes, so ``--mission DIR`` keeps it in DIR and reuses it) and builds it with
@@ -23,11 +25,23 @@ with every dense member on (``output.members: all``) against the same build with
 alternated, best of 2 each, and each dense member's mean size per sample. ``--scale``
 instead runs ``bench_scale.py``: the driver's peak memory and CPU per label at ``--sizes``
 labels, the chunk job stubbed.
+
+``--slope`` instead measures the build's marginal CPU per sample on the demo's labels
+(``configs/demo.yaml``; its mission in ``out/demo/mission`` unless ``--mission``, generated
+when absent): each build a fresh subprocess (``--workers`` 1: in the process; more: a local
+pool) over the first N and the first 2N labels (``--slope-sizes``), its CPU the process's
+own (``getrusage``) plus its worker processes' (psutil, polled every 50 ms). The slope
+(CPU(2N) - CPU(N)) / (2N - N samples), from each size's least CPU over the reps, leaves out
+what a build pays once (imports, loading the compiled kernels, opening the rasters, the
+finish). ``--anchor-root DIR``: a checkout of another commit (``git worktree add DIR
+COMMIT``) built the same way, interleaved with this one in the same run; its kernels are
+compiled (or loaded) in an untimed warm-up build first.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import resource
 import subprocess
@@ -163,6 +177,128 @@ class _ExternalCluster:
                 proc.wait()
 
 
+_SLOPE_CHILD = """
+import json, resource, sys, threading
+from pathlib import Path
+from mars_pairs.runtime import configure_process
+configure_process()
+from mars_pairs.pipeline.builder.run import run_build
+from mars_pairs.pipeline.config import parse_config
+doc, workers, limit = json.loads(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3])
+seen, done = {}, threading.Event()
+
+def poll():  # the worker processes' CPU (they are not this process's children to reap)
+    import psutil
+    me = psutil.Process()
+    while True:
+        for proc in me.children(recursive=True):
+            try:
+                times = proc.cpu_times()
+                seen[proc.pid] = times.user + times.system
+            except psutil.Error:
+                pass
+        if done.wait(0.05):
+            return
+
+poller = threading.Thread(target=poll, daemon=True)
+if workers > 1:
+    poller.start()
+summary = run_build(parse_config(doc, Path(doc["output"]["dir"]).parent), workers=workers,
+                    progress=False, limit=limit)
+done.set()
+if workers > 1:
+    poller.join()
+own = resource.getrusage(resource.RUSAGE_SELF)
+cpu = own.ru_utime + own.ru_stime + sum(seen.values())
+print(json.dumps({"samples": summary.samples, "seconds": summary.seconds, "cpu": cpu}))
+"""
+
+
+def _demo_doc(mission: Path) -> dict:
+    """configs/demo.yaml without its synthetic section, the inputs in ``mission``; the
+    mission generated as the demo generates it when absent."""
+    import yaml
+
+    doc = yaml.safe_load((Path(__file__).parents[1] / "configs" / "demo.yaml").read_text())
+    synth = doc["inputs"].pop("synthetic")
+    if not (mission / "places").is_dir():
+        generate_mission(mission, seed=synth["seed"], mission=synth["mission"],
+                         stops=synth["stops"], images_per_stop=synth["images_per_stop"],
+                         size=synth["size"])  # fmt: skip
+    doc["inputs"].update({
+        "labels": str(mission / "labels" / "*.xml"),
+        "places": str(mission / "places" / "best_interp.csv"),
+        "dem": str(mission / "orbital" / "dem.tif"),
+        "ortho": str(mission / "orbital" / "ortho.tif"),
+    })  # fmt: skip
+    return doc
+
+
+def _child_build(
+    code: Path, doc: dict, out: Path, workers: int, limit: int
+) -> tuple[int, float, float]:
+    """(samples, seconds, CPU seconds of the process and its workers) of one build of ``doc``
+    into ``out`` by the package in ``code``, in a fresh subprocess (the workers' CPU polled
+    every 50 ms while they run: what a worker spends in its last 50 ms may be missed)."""
+    doc = {**doc, "output": {**doc["output"], "dir": str(out)}}
+    env = {**os.environ, "PYTHONPATH": str(code), "PYTHONWARNINGS": "ignore"}
+    args = [sys.executable, "-c", _SLOPE_CHILD, json.dumps(doc), str(workers), str(limit)]
+    proc = subprocess.run(args, env=env, capture_output=True, text=True, cwd=str(out.parent))
+    if proc.returncode != 0:
+        raise RuntimeError(f"build by {code} failed:\n{proc.stderr[-3000:]}")
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    return result["samples"], result["seconds"], result["cpu"]
+
+
+def slope_table(mission: Path, sizes: list[int], reps: int, workers: int,
+                anchor: Path | None) -> None:  # fmt: skip
+    """Print the marginal CPU per sample of this checkout (and ``anchor``'s), interleaved."""
+    here = Path(__file__).resolve().parents[1]
+    codes = ({"anchor": anchor.resolve()} if anchor is not None else {}) | {"this": here}
+    doc = _demo_doc(mission)
+    n1, n2 = sizes
+    loads = [os.getloadavg()[0]]
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        for name, code in codes.items():  # compile or load the kernels, not timed
+            _child_build(code, doc, root / f"warm-{name}", workers, 4)
+        cases: dict[tuple[str, int], list[tuple[int, float, float]]] = {}
+        for rep in range(reps):
+            for n in (n1, n2):
+                for name, code in codes.items():
+                    out = root / f"{name}-{n}-{rep}"
+                    cases.setdefault((name, n), []).append(_child_build(code, doc, out, workers, n))
+                    loads.append(os.getloadavg()[0])
+    print(
+        f"build slope: the demo's labels (configs/demo.yaml), first {n1} and first {n2}; "
+        f"workers {workers}; best of {reps} builds per case, each a fresh process, "
+        f"interleaved; {os.cpu_count()} cores; load (1 min) {min(loads):.2f}-{max(loads):.2f}\n"
+    )
+    print("| code | samples | seconds | samples/s | CPU s | CPU ms/sample "
+          "| marginal CPU ms/sample (slope) | vs anchor |")  # fmt: skip
+    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+    slopes = {}
+    for name in codes:
+        small = min(cases[(name, n1)], key=lambda c: c[2])
+        large = min(cases[(name, n2)], key=lambda c: c[2])
+        # the slope between each size's least-disturbed build (the load only adds CPU);
+        # every rep's own pair beside it, to show the spread
+        slopes[name] = (large[2] - small[2]) / max(large[0] - small[0], 1)
+        pairs = [(b[2] - a[2]) / max(b[0] - a[0], 1) for a, b in
+                 zip(cases[(name, n1)], cases[(name, n2)], strict=True)]  # fmt: skip
+        for n, secs, cpu in (small, large):
+            print(
+                f"| {name} | {n} | {secs:.2f} | {n / secs:.1f} | {cpu:.2f} "
+                f"| {cpu * 1000 / n:.1f} | | |"
+            )
+        spread = ", ".join(f"{p * 1000:.1f}" for p in pairs)
+        ratio = f"{slopes[name] / slopes['anchor']:.2f}x" if "anchor" in slopes else "-"
+        print(
+            f"| **{name}** slope | {n2 - n1} more | | | | | **{slopes[name] * 1000:.1f}** "
+            f"(each rep's: {spread}) | {ratio} |"
+        )
+
+
 def main() -> None:
     configure_process()
     parser = argparse.ArgumentParser(description=__doc__)
@@ -175,7 +311,16 @@ def main() -> None:
     parser.add_argument("--dense", action="store_true", help="add the dense members' cost")
     parser.add_argument("--scale", action="store_true", help="the driver at scale (bench_scale)")
     parser.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000])
+    parser.add_argument("--slope", action="store_true", help="marginal CPU per sample (demo)")
+    parser.add_argument("--anchor-root", type=Path, help="--slope: another commit's checkout")
+    parser.add_argument("--slope-sizes", type=int, nargs=2, default=[135, 270])
+    parser.add_argument("--slope-reps", type=int, default=3)
+    parser.add_argument("--workers", type=int, default=1, help="--slope: build workers")
     args = parser.parse_args()
+    if args.slope:
+        mission = args.mission or Path(__file__).resolve().parents[1] / "out/demo/mission"
+        slope_table(mission, args.slope_sizes, args.slope_reps, args.workers, args.anchor_root)
+        return
     if args.scale:
         from bench_scale import scale_table
 

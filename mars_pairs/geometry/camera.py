@@ -86,12 +86,12 @@ class CameraModel:
     @property
     def hs(self) -> float:
         """Horizontal scale (focal length in pixels): |A x H|."""
-        return float(np.linalg.norm(np.cross(self.a, self.h)))
+        return float(np.linalg.norm(cross3(self.a, self.h)))
 
     @property
     def vs(self) -> float:
         """Vertical scale (focal length in pixels): |A x V|."""
-        return float(np.linalg.norm(np.cross(self.a, self.v)))
+        return float(np.linalg.norm(cross3(self.a, self.v)))
 
     @property
     def hc(self) -> float:
@@ -194,10 +194,19 @@ def _cahv_ray(cam: CameraModel, x: FloatArray, y: FloatArray) -> FloatArray:
     """Unit ray of the pinhole CAHV part: u = (V - yA) x (H - xA), oriented so u.A > 0."""
     f = cam.v[None, :] - np.reshape(y, (-1, 1)) * cam.a[None, :]
     g = cam.h[None, :] - np.reshape(x, (-1, 1)) * cam.a[None, :]
-    u = np.cross(f, g)
-    u /= np.linalg.norm(u, axis=-1, keepdims=True)
+    u = cross3(f, g)
+    u /= np.sqrt(u[:, 0] * u[:, 0] + u[:, 1] * u[:, 1] + u[:, 2] * u[:, 2])[:, None]
     u *= np.sign(u @ cam.a)[:, None]
     return u.reshape((*np.shape(x), 3))
+
+
+def cross3(f: FloatArray, g: FloatArray) -> FloatArray:
+    """Cross product of 3-vectors along the last axis (broadcast), the same operations in the
+    same order as ``np.cross`` (so the same bits) without its axis handling: 5 us against
+    25 us for one vector, which the per-image camera maths calls thousands of times."""
+    f0, f1, f2 = f[..., 0], f[..., 1], f[..., 2]
+    g0, g1, g2 = g[..., 0], g[..., 1], g[..., 2]
+    return np.stack([f1 * g2 - f2 * g1, f2 * g0 - f0 * g2, f0 * g1 - f1 * g0], axis=-1)
 
 
 # -- CAHVOR ------------------------------------------------------------------------------------

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -123,8 +124,14 @@ class MapCamera:
     def map_to_local(self, points_map: ArrayLike) -> FloatArray:
         """Map points (..., 3) -> local NED metres at the rover (inverse of the Jacobian)."""
         rel = np.asarray(points_map, dtype=np.float64) - self.origin_map
-        local: FloatArray = rel @ np.linalg.inv(self.jacobian).T
+        local: FloatArray = rel @ self._inverse_jacobian_t
         return local
+
+    @cached_property
+    def _inverse_jacobian_t(self) -> FloatArray:
+        """The Jacobian's inverse, transposed (map -> local NED), computed once per camera."""
+        inv_t: FloatArray = np.linalg.inv(self.jacobian).T
+        return inv_t
 
     def project_map(self, points_map: ArrayLike) -> FloatArray:
         """Map points (..., 3) -> pixels (..., 2) as (sample, line); NaN behind the camera."""
@@ -175,7 +182,7 @@ class MapCamera:
         return self.local_in_image(self.local_points(points_map, planet_radius))
 
     def local_in_image(self, local: ArrayLike) -> NDArray[np.bool_]:
-        """``in_image`` of points already in the rover's local NED metres (``local_points``)."""
+        """``in_image`` of points (..., 3) already in local NED metres (``local_points``)."""
         px = self.camera.project(local)
         with np.errstate(invalid="ignore"):
             return (

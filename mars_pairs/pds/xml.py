@@ -93,7 +93,7 @@ class XmlLabel:
         self, prefix: str, local: str, under: etree._Element | None = None
     ) -> etree._Element | None:
         """The first such element outside commanded parameters, or None."""
-        for el in self.all(prefix, local, under):
+        for el in (self.root if under is None else under).iter(q(prefix, local)):
             if not is_commanded(el):
                 return el
         return None
@@ -132,10 +132,9 @@ class XmlLabel:
     def xyz(self, vector: etree._Element, prefix: str, local: str) -> np.ndarray:
         """The x_*, y_*, z_* children of a geom vector element."""
         values = []
+        named = [(local_name(c), c) for c in vector if isinstance(c.tag, str)]
         for axis in ("x", "y", "z"):
-            found = [
-                c for c in vector if isinstance(c.tag, str) and local_name(c).startswith(f"{axis}_")
-            ]
+            found = [c for name, c in named if name.startswith(f"{axis}_")]
             if len(found) != 1:
                 self.f.fail(
                     name_of(prefix, local), f"expected one {axis}_* component, got {len(found)}"
@@ -189,10 +188,7 @@ def local_name(el: etree._Element) -> str:
 
 def is_commanded(el: etree._Element) -> bool:
     """True if ``el`` sits inside commanded (requested, not actual) parameters."""
-    return any(
-        isinstance(a.tag, str) and etree.QName(a).localname == "Commanded_Parameters"
-        for a in el.iterancestors()
-    )
+    return next(el.iterancestors("{*}Commanded_Parameters"), None) is not None
 
 
 def frame_from_identifier(ident: str) -> str | None:

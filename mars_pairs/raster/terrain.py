@@ -49,12 +49,14 @@ class DemWindow:
 
     ``data``: float32 (rows, cols) elevations in metres, NaN where the DEM has no data.
     ``transform``: affine map from (col, row) pixel-corner coordinates to raster-CRS x, y.
-    ``crs``: the raster CRS (a ``rasterio.crs.CRS``).
+    ``crs``: the raster CRS (a ``rasterio.crs.CRS``). ``window``: the DEM's north-up pixel
+    window the data was read from (``Terrain.read_dem_window``), None when unknown.
     """
 
     data: NDArray[np.float32]
     transform: Affine
     crs: Any
+    window: Window | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -269,6 +271,17 @@ class Terrain:
             out[~np.isfinite(out)] = np.nan
         return np.asarray(out)
 
+    def _dem_cells(self, win: Window, within: DemWindow | None) -> NDArray[np.float32]:
+        """``_read_dem(win)``, sliced from ``within`` when its pixel window holds ``win``."""
+        held = None if within is None else within.window
+        if held is not None:
+            dc, dr = int(win.col_off - held.col_off), int(win.row_off - held.row_off)
+            if (dc >= 0 and dr >= 0 and dc + win.width <= held.width
+                    and dr + win.height <= held.height):  # fmt: skip
+                assert within is not None
+                return within.data[dr : dr + int(win.height), dc : dc + int(win.width)]
+        return self._read_dem(win)
+
     def _pixel_window(self, left: float, bottom: float, right: float, top: float) -> Window:
         """Integer pixel window covering the box, clipped to the DEM (may be empty)."""
         w = from_bounds(left, bottom, right, top, transform=self.transform)
@@ -295,7 +308,7 @@ class Terrain:
         if win.width == 0 or win.height == 0:
             raise TerrainError(f"{self.dem_path}: window around x={x}, y={y} is empty")
         data = self._read_dem(win)
-        dem = DemWindow(data, window_transform(win, self.transform), self.crs)
+        dem = DemWindow(data, window_transform(win, self.transform), self.crs, win)
         if check_observer:
             self._check_data_under(dem, x, y)
         return dem
@@ -310,11 +323,12 @@ class Terrain:
                 f"{self.dem_path}: DEM has no data under the observer at x={x:.3f}, y={y:.3f}"
             )
 
-    def elevation_at(self, x: float, y: float) -> float:
+    def elevation_at(self, x: float, y: float, within: DemWindow | None = None) -> float:
         """Bilinear DEM elevation (metres) at raster-CRS (x, y); TerrainError off-DEM/nodata.
 
         Interpolates between cell centres; within half a cell of the DEM edge the nearest edge
-        cells are used.
+        cells are used. ``within``: a window this DEM's ``read_dem_window`` read; the cells
+        are taken from it when it holds them (the same values, no read).
         """
         x, y = float(x), float(y)
         self.require_inside(x, y, "point")
@@ -322,7 +336,7 @@ class Terrain:
         col, row = col - 0.5, row - 0.5
         c0 = min(max(math.floor(col), 0), max(self._dem.width - 2, 0))
         r0 = min(max(math.floor(row), 0), max(self._dem.height - 2, 0))
-        patch = self._read_dem(Window(c0, r0, 2, 2))
+        patch = self._dem_cells(Window(c0, r0, 2, 2), within)
         fc = min(max(col - c0, 0.0), 1.0)
         fr = min(max(row - r0, 0.0), 1.0)
         z = _bilinear_patch(patch, fc, fr)

@@ -287,17 +287,23 @@ def hilbert_index(
     span_x, span_y = max(east - west, 1e-9), max(north - south, 1e-9)
     xi = np.clip(((np.asarray(x) - west) / span_x * (n - 1)).astype(np.int64), 0, n - 1)
     yi = np.clip(((np.asarray(y) - south) / span_y * (n - 1)).astype(np.int64), 0, n - 1)
-    d = np.zeros_like(xi)
+    # the bits in Python ints, point by point: the callers index one position at a time,
+    # where numpy's per-call cost over 16 levels made one point 0.5 ms (Python ints: 10 us)
+    pairs = zip(xi.ravel().tolist(), yi.ravel().tolist(), strict=True)
+    return np.array([_hilbert_d(a, b, n) for a, b in pairs], dtype=np.int64).reshape(xi.shape)
+
+
+def _hilbert_d(xi: int, yi: int, n: int) -> int:
+    """Hilbert index of grid cell (xi, yi) on an n x n grid (n a power of 2)."""
+    d = 0
     s = n >> 1
     while s > 0:
-        rx = ((xi & s) > 0).astype(np.int64)
-        ry = ((yi & s) > 0).astype(np.int64)
+        rx = 1 if xi & s else 0
+        ry = 1 if yi & s else 0
         d += s * s * ((3 * rx) ^ ry)
-        # rotate the quadrant
-        flip = ry == 0
-        swap_x = np.where(flip & (rx == 1), s - 1 - xi, xi)
-        swap_y = np.where(flip & (rx == 1), s - 1 - yi, yi)
-        xi = np.where(flip, swap_y, xi)
-        yi = np.where(flip, swap_x, yi)
+        if ry == 0:  # rotate the quadrant
+            if rx == 1:
+                xi, yi = s - 1 - xi, s - 1 - yi
+            xi, yi = yi, xi
         s >>= 1
     return d

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mars_pairs.geometry.camera import CameraModel
+from mars_pairs.geometry.camera import CameraModel, cross3
 from mars_pairs.geometry.frames import quaternion_to_matrix
 
 
@@ -139,3 +139,13 @@ def test_scaled_model_is_the_camera_of_the_resized_image(
     np.testing.assert_allclose(r_small, r_full, atol=1e-10)
     np.testing.assert_allclose(o_small, o_full, atol=1e-10)
     assert small.model_type == cam.model_type and small.frame == cam.frame
+
+
+def test_cross3_is_numpys_cross_bit_for_bit() -> None:
+    """The camera's cross product gives np.cross's bits, broadcast over leading axes."""
+    rng = np.random.default_rng(11)
+    f = rng.normal(size=(500, 3)) * 10.0 ** rng.integers(-6, 6, size=(500, 1))
+    g = rng.normal(size=(500, 3))
+    assert np.array_equal(cross3(f, g), np.cross(f, g))
+    assert np.array_equal(cross3(f[0], g), np.cross(f[0], g))
+    assert np.array_equal(cross3(np.array([1.0, 0, 0]), np.array([0.0, 1, 0])), [0.0, 0, 1])

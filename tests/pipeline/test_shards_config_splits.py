@@ -121,6 +121,14 @@ def test_hilbert_neighbours_are_adjacent_cells() -> None:
     assert np.all(np.abs(np.diff(cells, axis=0)).sum(axis=1) == 1)
 
 
+def test_hilbert_order_1_and_shapes() -> None:
+    """Order 1 visits (0, 0), (0, 1), (1, 1), (1, 0); the index keeps the input's shape."""
+    d = hilbert_index([0, 0, 1, 1], [0, 1, 1, 0], (0, 0, 1, 1), order=1)
+    assert d.tolist() == [0, 1, 2, 3] and d.dtype == np.int64
+    assert hilbert_index(0.0, 1.0, (0, 0, 1, 1), order=1).shape == ()
+    assert hilbert_index(np.zeros((2, 3)), np.zeros((2, 3)), (0, 0, 1, 1)).shape == (2, 3)
+
+
 # -- chips ------------------------------------------------------------------------------------
 @pytest.fixture()
 def ramp(tmp_path: Path) -> tuple[Path, float, float]:

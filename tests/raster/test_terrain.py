@@ -174,3 +174,16 @@ def test_no_ortho_raises_and_context_closes(dem_path):
             t.read_ortho_window((X0, Y0 - 10, X0 + 10, Y0))
         ds = t._dem
     assert ds.closed
+
+
+def test_elevation_from_a_window_is_the_read_value(dem_path):
+    """The ground taken from a window the DEM read equals the DEM's own 2 x 2 read, bit for
+    bit, inside the window, at its edge and off it (where the DEM is read again)."""
+    rng = np.random.default_rng(5)
+    with Terrain.open(dem_path) as t:
+        window = t.read_dem_window(X0 + 200.0, Y0 - 150.0, 40.0)
+        left, bottom, right, top = window.bounds
+        xs = np.concatenate([rng.uniform(left - 30, right + 30, 200), [left + 0.1, right - 0.1]])
+        ys = np.concatenate([rng.uniform(bottom - 30, top + 30, 200), [top - 0.1, bottom + 0.1]])
+        for x, y in zip(xs, ys, strict=True):
+            assert t.elevation_at(x, y, within=window) == t.elevation_at(x, y)

@@ -70,8 +70,7 @@ def cut_chips(
         ctx.crs_wkt,
         rotation_deg=rotation,
     )
-    ortho_values = ctx.ortho.read(grid)  # NaN where the ortho has no data
-    dem = ctx.dem.read(grid)
+    ortho_values, dem = ctx.chip_values(grid)  # NaN where the raster has no data
     cover = ChipCoverage(coverage(ortho_values), coverage(dem))
     check_coverage(cover.ortho, spec.min_coverage, "ortho", ctx.ortho, grid)
     check_coverage(cover.dem, spec.min_coverage, "DEM", ctx.dem, grid)

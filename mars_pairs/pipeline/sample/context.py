@@ -5,9 +5,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from mars_pairs.geometry.places import Places
 from mars_pairs.pipeline.config import BuildConfig
-from mars_pairs.raster.chips import ChipReader
+from mars_pairs.raster.chips import ChipGrid, ChipReader
 from mars_pairs.raster.terrain import DemWindow, Terrain
 
 if TYPE_CHECKING:
@@ -27,6 +29,7 @@ class SampleContext:
     terrain_labels: LabelSource | None = None  # inputs.terrain_labels, indexed once
     _window: DemWindow | None = None
     _window_key: tuple[int, int, float] | None = None
+    _chips: tuple[ChipGrid, np.ndarray, np.ndarray] | None = None
 
     @classmethod
     def open(cls, config: BuildConfig) -> SampleContext:
@@ -61,6 +64,17 @@ class SampleContext:
             self._window = self.terrain.read_dem_window(x0, y0, radius + snap, check_observer=False)
             self._window_key = key
         return self._window
+
+    def chip_values(self, grid: ChipGrid) -> tuple[np.ndarray, np.ndarray]:
+        """The ortho's and the DEM's values on ``grid`` (``ChipReader.read``: float32, NaN
+        where no data), read-only: the last grid's are kept, so the images of one stop (one
+        rover position, one chip grid) share one read of each raster."""
+        if self._chips is None or self._chips[0] != grid:
+            ortho, dem = self.ortho.read(grid), self.dem.read(grid)
+            ortho.flags.writeable = False
+            dem.flags.writeable = False
+            self._chips = (grid, ortho, dem)
+        return self._chips[1], self._chips[2]
 
     def close(self) -> None:
         """Close the rasters."""

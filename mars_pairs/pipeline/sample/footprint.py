@@ -9,8 +9,10 @@ import shapely
 
 from mars_pairs.pipeline.sample.view import View
 
+Spans = tuple[np.ndarray, np.ndarray, np.ndarray]  # row_spans: rows, first and last columns
 
-def row_spans(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+
+def row_spans(mask: np.ndarray) -> Spans:
     """The rows of ``mask`` with a set cell, and each one's first and last set column."""
     rows = np.flatnonzero(mask.any(axis=1))
     sub = mask[rows]
@@ -19,9 +21,10 @@ def row_spans(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return rows, first, last
 
 
-def footprint_polygon(view: View) -> shapely.Polygon | None:
-    """Convex hull of the visible cells (their corners) and the camera position, map CRS."""
-    rows, first, last = row_spans(view.mask)
+def footprint_polygon(view: View, spans: Spans | None = None) -> shapely.Polygon | None:
+    """Convex hull of the visible cells (their corners) and the camera position, map CRS.
+    ``spans``: ``row_spans(view.mask)`` when the caller has it."""
+    rows, first, last = row_spans(view.mask) if spans is None else spans
     if len(rows) == 0:
         return None
     cols = np.concatenate([first - 0.5, last + 0.5, first - 0.5, last + 0.5])
@@ -36,8 +39,9 @@ def footprint_polygon(view: View) -> shapely.Polygon | None:
     return hull if isinstance(hull, shapely.Polygon) else hull.buffer(0.5)
 
 
-def view_statistics(view: View) -> dict[str, Any]:
-    """Visible cell count, area (true m2) and farthest visible range (m), ray hit fraction."""
+def view_statistics(view: View, spans: Spans | None = None) -> dict[str, Any]:
+    """Visible cell count, area (true m2) and farthest visible range (m), ray hit fraction.
+    ``spans``: ``row_spans(view.mask)`` when the caller has it."""
     visible = int(np.count_nonzero(view.mask))
     cam = view.camera
     # map units -> true metres through the local Jacobian (scale factors, R / (R + h))
@@ -47,7 +51,7 @@ def view_statistics(view: View) -> dict[str, Any]:
     if visible:
         # map_to_local is affine, so distance from the camera is convex along a row and the
         # farthest visible cell of a row is one of its visible span's two ends: exact
-        rows, first, last = row_spans(view.mask)
+        rows, first, last = row_spans(view.mask) if spans is None else spans
         x, y = view.window.colrow_to_xy(np.concatenate([first, last]), np.tile(rows, 2))
         local = cam.map_to_local(np.column_stack([x, y, np.full_like(x, cam.center_map[2])]))
         centre = cam.map_to_local(cam.center_map)

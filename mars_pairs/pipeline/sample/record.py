@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import re
 from collections.abc import Sequence
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +17,7 @@ from mars_pairs.geometry.places import Pose
 from mars_pairs.observation import Observation
 from mars_pairs.pipeline.sample.chips import ChipCoverage
 from mars_pairs.pipeline.sample.context import SampleContext
-from mars_pairs.pipeline.sample.footprint import footprint_polygon, view_statistics
+from mars_pairs.pipeline.sample.footprint import footprint_polygon, row_spans, view_statistics
 from mars_pairs.pipeline.sample.key import sample_key
 from mars_pairs.pipeline.sample.view import View
 from mars_pairs.pipeline.splitting import split_rule
@@ -30,6 +31,12 @@ _MAGIC = re.compile(r"[*?[]")
 def labels_root(patterns: Sequence[str]) -> str:
     """The folder the label globs ``patterns`` (absolute) start from: the common folder of
     their leading components without a wildcard. ``label_path`` is relative to it."""
+    return _labels_root(tuple(patterns))
+
+
+@lru_cache(maxsize=16)
+def _labels_root(patterns: tuple[str, ...]) -> str:
+    """``labels_root`` of a build's patterns, worked out once (every sample asks)."""
     heads = []
     for pattern in patterns:
         parts = Path(pattern).parts
@@ -71,8 +78,13 @@ def manifest_row(
     if pose.quaternion is None:  # MapCamera.from_observation refuses it before this
         raise PlacesError(f"{obs.label_path}: no rover attitude in the label or PLACES table")
     az, el = image_centre_pointing_deg(obs.camera, obs.width, obs.height, pose.quaternion)
-    hfov, vfov = obs.camera.fov_deg(obs.width, obs.height)
-    footprint = footprint_polygon(view)
+    hfov, vfov = obs.hfov_deg, obs.vfov_deg  # the label's; else the camera model's
+    if hfov is None or vfov is None:
+        model_hfov, model_vfov = obs.camera.fov_deg(obs.width, obs.height)
+        hfov = model_hfov if hfov is None else hfov
+        vfov = model_vfov if vfov is None else vfov
+    spans = row_spans(view.mask)
+    footprint = footprint_polygon(view, spans)
     xmin, ymin, xmax, ymax = grid.bounds()
     rule = split_rule(cfg, ctx.crs_wkt, ctx.terrain.bounds, ctx.terrain.res)
     split = rule.assign(rover_x, rover_y)
@@ -85,12 +97,11 @@ def manifest_row(
         "easting": rover_x, "northing": rover_y, "elevation_m": pose.elevation_m,
         "azimuth_deg": az, "elevation_deg": el,
         "label_azimuth_deg": obs.azimuth_deg, "label_elevation_deg": obs.elevation_deg,
-        "hfov_deg": obs.hfov_deg if obs.hfov_deg is not None else hfov,
-        "vfov_deg": obs.vfov_deg if obs.vfov_deg is not None else vfov,
+        "hfov_deg": hfov, "vfov_deg": vfov,
         "width": obs.width, "height": obs.height, "localization": pose.source,
         "places_pose": pose.pose, "places_match": pose.match,
         "dem_offset_m": view.dem_offset_m,
-        **view_statistics(view),
+        **view_statistics(view, spans),
         "footprint": None if footprint is None else shapely.to_wkb(footprint),
         "bbox": footprint_bounds(footprint),
         "rover_point": shapely.to_wkb(shapely.Point(rover_x, rover_y)),

@@ -151,11 +151,14 @@ def anchor_view(
     origin is off the DEM or over nodata (``Terrain.elevation_at``).
     """
     ox, oy = (float(v) for v in camera.origin_map[:2])
-    ground = terrain.elevation_at(ox, oy)
-    camera, offset, height = anchor_camera(camera, pose, ground, observer_height)
+    terrain.require_inside(ox, oy, "point")  # before the window is read around the camera
+    # anchoring moves the camera up or down only: its map x, y and the reach are known now,
+    # and the ground under the rover comes from the window (no read of its own)
     cx, cy = (float(v) for v in camera.center_map[:2])
     reach = radius_m * camera.map_scale_range()[1] + 2.0 * max(terrain.res)
     window = read_window(cx, cy, reach)
+    ground = terrain.elevation_at(ox, oy, within=window)
+    camera, offset, height = anchor_camera(camera, pose, ground, observer_height)
     # the exact band the image covers, from its border rays (true north)
     bands = camera.view_band_deg()
     return AnchoredView(camera, height, offset, window, radius_m, mode, bands)
