@@ -374,8 +374,9 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
         meta = verified["meta"] if "meta" in verified else self._bytes(index, "meta")
         return raw, self._localization(index, meta)
 
-    def _chip_size(self, raw: dict[str, np.ndarray]) -> int:
-        """The chip's side in pixels: a decoded chip's, else dataset.json's (0: unknown)."""
+    def _chip_size(self, raw: dict[str, np.ndarray]) -> int | None:
+        """The chip's side in pixels: a decoded chip's, else dataset.json's (None or 0:
+        unknown)."""
         size_px = self.chip_px
         for name in ("ortho", "dem", "viewshed"):
             if name in raw:
@@ -405,11 +406,12 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
         rotation = torch.from_numpy(np.ascontiguousarray(geo[:, 4]))
         out = [{"bounds": bounds[j], "rotation": rotation[j]} for j in range(len(raws))]
         sizes = [self._chip_size(r) for r in raws]
-        if all(sizes):
+        known = [size for size in sizes if size]
+        if len(known) == len(sizes):
             affine = np.array(
                 [
                     chip_transform((g[0], g[1], g[2], g[3]), g[4], size)
-                    for g, size in zip(geo.tolist(), sizes, strict=True)
+                    for g, size in zip(geo.tolist(), known, strict=True)
                 ],
                 dtype=np.float64,
             ).reshape(len(raws), 6)
