@@ -288,13 +288,28 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
             raise DatasetError(join(self.root, shard), name, f"cannot read: {exc}") from None
 
     def _prefetched(self, index: int) -> dict[str, bytes | bytearray]:
-        """On object storage, the bytes of sample ``index``'s fields (and ``meta`` with
-        ``localization``) in one concurrent batch of range requests (not checked); {} for a
-        local dataset (each member is read as it is decoded)."""
-        if not self._files.remote:
-            return {}
+        """The bytes of sample ``index``'s fields (and ``meta`` with ``localization``), not
+        checked: on object storage in one concurrent batch of range requests; in a local
+        shard that holds them side by side (the builder writes a sample's members in a row)
+        in one scatter read (:meth:`ShardFiles.read_adjacent`). {} where that cannot be done
+        (a missing member, members apart): each member is then read as it is decoded."""
         names = [*self.fields, *(["meta"] if self.localization else [])]
-        requests = [self._index.location(index, name) for name in names]
+        try:
+            requests = [self._index.location(index, name) for name in names]
+        except MissingMemberError:
+            return {}
+        if not self._files.remote:
+            if len({shard for shard, _, _ in requests}) != 1:
+                return {}
+            order = sorted(range(len(names)), key=lambda k: requests[k][1])
+            spans = [requests[k][1:] for k in order]
+            try:
+                datas = self._files.read_adjacent(requests[0][0], spans)
+            except (DatasetError, OSError):  # read one by one: the error names the member
+                return {}
+            if datas is None:
+                return {}
+            return {names[k]: data for k, data in zip(order, datas, strict=True)}
         try:
             datas = self._files.read_many(requests)
         except (DatasetError, OSError):  # read one by one: the error names the member
@@ -359,21 +374,66 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
         meta = verified["meta"] if "meta" in verified else self._bytes(index, "meta")
         return raw, self._localization(index, meta)
 
-    def _georef(self, index: int, raw: dict[str, np.ndarray]) -> dict[str, Any]:
-        """crs, bounds, transform, rotation (and corr_ground with corr) of sample ``index``."""
-        xmin, ymin, xmax, ymax, rotation = (float(v) for v in self._geo[index])
+    def _chip_size(self, raw: dict[str, np.ndarray]) -> int | None:
+        """The chip's side in pixels: a decoded chip's, else dataset.json's (None or 0:
+        unknown)."""
         size_px = self.chip_px
         for name in ("ortho", "dem", "viewshed"):
             if name in raw:
                 size_px = raw[name].shape[0]
-        out: dict[str, Any] = {
-            "crs": self.crs,
+        return size_px
+
+    def _placement(self, index: int, raw: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
+        """bounds, rotation and (with a known chip size) transform of sample ``index``."""
+        xmin, ymin, xmax, ymax, rotation = (float(v) for v in self._geo[index])
+        out = {
             "bounds": torch.tensor([xmin, ymin, xmax, ymax], dtype=torch.float64),
             "rotation": torch.tensor(rotation, dtype=torch.float64),
         }
+        size_px = self._chip_size(raw)
         if size_px:
             affine = chip_transform((xmin, ymin, xmax, ymax), rotation, size_px)
             out["transform"] = torch.tensor(affine, dtype=torch.float64)
+        return out
+
+    def _placements(
+        self, indices: Sequence[int], raws: Sequence[dict[str, np.ndarray]]
+    ) -> list[dict[str, torch.Tensor]]:
+        """:meth:`_placement` of several samples, equal to it: each field one [B, ...] tensor
+        whose rows the samples hold (``collate_samples`` hands it on without a copy)."""
+        geo = self._geo[np.asarray(indices, dtype=np.int64)]
+        bounds = torch.from_numpy(np.ascontiguousarray(geo[:, :4]))
+        rotation = torch.from_numpy(np.ascontiguousarray(geo[:, 4]))
+        out = [{"bounds": bounds[j], "rotation": rotation[j]} for j in range(len(raws))]
+        sizes = [self._chip_size(r) for r in raws]
+        known = [size for size in sizes if size]
+        if len(known) == len(sizes):
+            affine = np.array(
+                [
+                    chip_transform((g[0], g[1], g[2], g[3]), g[4], size)
+                    for g, size in zip(geo.tolist(), known, strict=True)
+                ],
+                dtype=np.float64,
+            ).reshape(len(raws), 6)
+            transform = torch.from_numpy(affine)
+            for j, placed in enumerate(out):
+                placed["transform"] = transform[j]
+        else:  # a chip size unknown for some: those have no transform
+            for j, (i, r) in enumerate(zip(indices, raws, strict=True)):
+                if sizes[j]:
+                    out[j]["transform"] = self._placement(i, r)["transform"]
+        return out
+
+    def _georef(
+        self,
+        index: int,
+        raw: dict[str, np.ndarray],
+        placed: dict[str, torch.Tensor] | None = None,
+    ) -> dict[str, Any]:
+        """crs, bounds, transform, rotation (and corr_ground with corr) of sample ``index``;
+        ``placed``: its :meth:`_placement`, made already."""
+        out: dict[str, Any] = {"crs": self.crs}
+        out.update(self._placement(index, raw) if placed is None else placed)
         if "corr" in raw:
             width, height = (int(v) for v in self._size[index])
             if "ground" in raw:
@@ -426,15 +486,19 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
         index: int,
         raw: dict[str, np.ndarray],
         targets: dict[str, torch.Tensor],
+        made: dict[str, Any] | None = None,
     ) -> dict[str, Any]:
+        """The sample's dict; ``made`` (from ``__getitems__``): its ``meta``, its
+        :meth:`_placement` and its ``ground_mask``, made for the whole batch already."""
+        made = made or {}
         sample: dict[str, Any] = dict(tensors)
         if "ground_px" in sample and "ground" in raw:
             sample["ground_px"] = self._scaled_ground_px(index, sample["ground_px"], raw)
-        sample.update(self._georef(index, raw))
+        sample.update(self._georef(index, raw, made.get("placed")))
         if self._pad_hw:
-            self._padded(sample, raw)
+            self._padded(sample, raw, made.get("ground_mask"))
         sample.update(targets)
-        sample["meta"] = self._index.meta(index)
+        sample["meta"] = made["meta"] if "meta" in made else self._index.meta(index)
         return self.transform(sample) if self.transform is not None else sample
 
     def _pad_shapes(self) -> dict[str, tuple[int, int]]:
@@ -486,9 +550,15 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
         self._write(index, field, raw, out)
         return torch.from_numpy(out)
 
-    def _padded(self, sample: dict[str, Any], raw: dict[str, np.ndarray]) -> None:
+    def _padded(
+        self,
+        sample: dict[str, Any],
+        raw: dict[str, np.ndarray],
+        ground_mask: torch.Tensor | None = None,
+    ) -> None:
         """With ``pad``: ``corr_ground`` / ``dense_ground`` padded with NaN to their grids, and
-        ``ground_mask`` (bool [1, H, W], True on the decoded image's own pixels)."""
+        ``ground_mask`` (bool [1, H, W], True on the decoded image's own pixels; the one
+        given, if given)."""
         for name in ("corr_ground", "dense_ground"):
             target = self._pad_hw.get(name)
             value = sample.get(name)
@@ -496,7 +566,9 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
                 grid = np.full((value.shape[0], *target), np.nan, dtype=value.numpy().dtype)
                 grid[:, : value.shape[1], : value.shape[2]] = value.numpy()
                 sample[name] = torch.from_numpy(grid)
-        if "ground" in raw and "ground" in self._pad_hw:
+        if ground_mask is not None:
+            sample["ground_mask"] = ground_mask
+        elif "ground" in raw and "ground" in self._pad_hw:
             # numpy, not torch: torch's fill and slice assignment start intra-op threads in
             # the main process (9 ms of CPU a sample at 2 threads on a busy box, against 0.05)
             h, w = raw["ground"].shape[:2]
@@ -542,10 +614,35 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
             else:  # sizes differ (pad=False, no ground_size): a tensor each
                 for j, (i, r) in enumerate(zip(checked, raws, strict=True)):
                     tensors[j][name] = self._tensor(i, name, r[name])
+        made = self._batch_made(checked, raws)
         return [
-            self._finish_sample(t, i, r, targets)
-            for t, i, (r, targets) in zip(tensors, checked, read, strict=True)
+            self._finish_sample(t, i, r, targets, m)
+            for t, i, (r, targets), m in zip(tensors, checked, read, made, strict=True)
         ]
+
+    def _batch_made(
+        self, indices: Sequence[int], raws: Sequence[dict[str, np.ndarray]]
+    ) -> list[dict[str, Any]]:
+        """Per sample of a batch: its ``meta``, :meth:`_placement` and (with ``pad``) its
+        ``ground_mask``, each made once for the batch (one Arrow ``take`` a meta column, one
+        array a tensor field; the samples' tensors are rows of one [B, ...] tensor)."""
+        made: list[dict[str, Any]] = [
+            {"meta": meta, "placed": placed}
+            for meta, placed in zip(
+                self._index.metas(indices), self._placements(indices, raws), strict=True
+            )
+        ]
+        target = self._pad_hw.get("ground")
+        if target is not None and all("ground" in r for r in raws):
+            # numpy, not torch (see _padded)
+            mask = np.zeros((len(raws), 1, *target), dtype=np.bool_)
+            for j, r in enumerate(raws):
+                h, w = r["ground"].shape[:2]
+                mask[j, :, :h, :w] = True
+            masks = torch.from_numpy(mask)
+            for j, m in enumerate(made):
+                m["ground_mask"] = masks[j]
+        return made
 
     def plot(
         self,

@@ -6,12 +6,17 @@ from __future__ import annotations
 import contextlib
 import os
 from collections import OrderedDict
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from mars_pairs.errors import DatasetError
 from mars_pairs.store import fs
 from mars_pairs.store.integrity import bounds_problem, shard_location, shard_path
+
+#: the most bytes between two members :meth:`ShardFiles.read_adjacent` reads past (a tar
+#: header and the previous member's padding take 512 to 1023)
+MAX_GAP = 4096
 
 
 class ShardFiles:
@@ -80,6 +85,37 @@ class ShardFiles:
                 raise OSError(f"{fs.join(self.root, shard)}: short read at offset {offset}")
             done += n
         return buf
+
+    def read_adjacent(
+        self, shard: str, spans: Sequence[tuple[int, int]], max_gap: int = MAX_GAP
+    ) -> list[bytearray] | None:
+        """``read`` of each ``(offset, size)`` of ``spans`` (one shard's members, in file
+        order) in one positioned scatter read (``preadv``: each member into its own buffer,
+        the tar headers between them into a scratch one); None, having read nothing, where
+        that cannot be done: a remote or Windows shard, spans out of order, a gap over
+        ``max_gap`` bytes, a span outside the shard (``read`` then names the fault)."""
+        if self._remote or not hasattr(os, "preadv") or not spans:
+            return None
+        fd, shard_size = self._fd(shard)
+        end = spans[0][0]
+        gaps = []
+        for offset, size in spans:
+            gap = offset - end
+            if gap < 0 or gap > max_gap or bounds_problem(offset, size, shard_size) is not None:
+                return None
+            gaps.append(gap)
+            end = offset + size
+        scratch = memoryview(bytearray(max(gaps)))
+        out = [bytearray(size) for _, size in spans]
+        buffers: list[memoryview | bytearray] = []
+        for gap, buf in zip(gaps, out, strict=True):
+            if gap:
+                buffers.append(scratch[:gap])
+            buffers.append(buf)
+        start, total = spans[0][0], end - spans[0][0]
+        if os.preadv(fd, buffers, start) != total:  # short (a shard cut meanwhile): one by one
+            return None
+        return out
 
     @property
     def remote(self) -> bool:

@@ -151,6 +151,49 @@ def test_batched_fetch_equals_single_items(dataset_dir: Path) -> None:
     assert batch["ground"].untyped_storage().data_ptr() == ptr
 
 
+def _assert_same_sample(got: dict[str, Any], want: dict[str, Any]) -> None:
+    assert got.keys() == want.keys()
+    for name, value in want.items():
+        if isinstance(value, torch.Tensor):
+            assert got[name].dtype == value.dtype, name
+            np.testing.assert_array_equal(got[name].numpy(), value.numpy(), err_msg=name)
+        elif name == "meta":
+            assert list(got[name]) == list(value)
+            for key, v in value.items():
+                w = got[name][key]
+                assert w == v or (math.isnan(w) and math.isnan(v)), key
+        else:
+            assert got[name] == value, name
+
+
+def test_batched_fetch_gives_every_value_of_single_items(dataset_dir: Path) -> None:
+    # padded mixed frames (ground_mask), the placement and meta made for the batch at once
+    ds = MarsPairsDataset(dataset_dir, fields=mpd.ALL_FIELDS)
+    order = [5, 0, 3, 7, 1]
+    samples = ds.__getitems__(order)
+    for j, i in enumerate(order):
+        _assert_same_sample(samples[j], ds[i])
+    batch = collate_samples(samples)
+    for name in ("bounds", "rotation", "transform", "ground_mask"):
+        # rows of one [B, ...] tensor each, handed on without a copy
+        ptr = samples[0][name].untyped_storage().data_ptr()
+        assert batch[name].untyped_storage().data_ptr() == ptr, name
+        assert torch.equal(batch[name], torch.stack([ds[i][name] for i in order]))
+
+
+def test_members_side_by_side_are_read_in_one_call(dataset_dir: Path) -> None:
+    ds = MarsPairsDataset(dataset_dir, fields=mpd.ALL_FIELDS)
+    spans = [ds._index.location(2, f) for f in mpd.ALL_FIELDS]
+    shard = spans[0][0]
+    spans_in_order = sorted((offset, size) for _, offset, size in spans)
+    got = ds._files.read_adjacent(shard, spans_in_order)
+    assert got == [ds._files.read(shard, offset, size) for offset, size in spans_in_order]
+    assert ds._files.read_adjacent(shard, spans_in_order[::-1]) is None  # out of order
+    assert ds._files.read_adjacent(shard, spans_in_order, max_gap=0) is None  # headers between
+    past = [*spans_in_order[:-1], (spans_in_order[-1][0], 1 << 40)]
+    assert ds._files.read_adjacent(shard, past) is None  # past the end: read() names it
+
+
 def test_open_descriptors_are_capped(dataset_dir: Path) -> None:
     ds = MarsPairsDataset(dataset_dir, fields=("ortho", "dem"))
     reference = [ds[i] for i in range(len(ds))]
