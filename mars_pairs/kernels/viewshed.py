@@ -49,7 +49,9 @@ from mars_pairs.kernels.grid import Transform, as_grid, bilinear, xy_to_uv
 # no 'nnan'/'ninf': NaN nodata and +-inf band limits must compare exactly
 _SAFE_FM = {"arcp", "contract"}
 _AZ_EPS = 1e-9
-_PARALLEL_MIN_STEPS = 4_000_000  # planned ray steps below which one thread is faster
+# planned ray steps below which one thread runs the job: the full circle at 500 m on a 1 m DEM
+# (6 * 501 * 501 steps) takes 13.6 ms on two threads against 22.4 ms on one (idle 2 cores)
+_PARALLEL_MIN_STEPS = 1_000_000
 _HEAVY_STEPS = 8  # rays with at most this many steps go to the cheap second pass
 _TAIL_LINES = 1  # grid lines before a cell always checked on its exact line of sight (fixed)
 _ERR_GAIN = 0.5  # safety factor on the sweep's horizon error estimate
