@@ -103,13 +103,14 @@ def sorted_runs(
     """Cut ``tables`` (one schema, metadata ignored) into runs of at least ``run_rows`` rows
     (the last may be shorter), each sorted by ``keys``. When every row fits in one run, the
     sorted table itself (None without a row) and no file; otherwise the runs as files in
-    ``folder`` (Arrow IPC files, :class:`_RunWriter`) and None."""
+    ``folder`` (Arrow IPC files, :class:`_RunWriter`; the folder made by the first) and None."""
     paths: list[Path] = []
     pending: list[pa.Table] = []
     held = 0
 
     def spill() -> None:
         run = pa.concat_tables(pending).sort_by(keys)
+        folder.mkdir(parents=True, exist_ok=True)  # made on the first run: none when all fit
         path = folder / f"run-{len(paths):06d}.arrow"
         with _RunWriter(path, run.schema) as out:
             out.write(run)

@@ -106,3 +106,49 @@ def test_merge_of_no_part(tmp_path: Path) -> None:
     assert (merged.samples, merged.failures, merged.shards) == (0, 0, {})
     for name in ("manifest.parquet", "failures.parquet"):
         assert (tmp_path / "new" / name).read_bytes() == (tmp_path / "old" / name).read_bytes()
+
+
+def test_the_sorted_runs_are_in_the_output_folder(tmp_path: Path, monkeypatch) -> None:
+    """A local build's runs are written in parts/sort of its output folder (never the
+    system's temporary folder) and removed when the merge ends."""
+    monkeypatch.setattr(finish, "RUN_ROWS", 97)
+    seen: list[Path] = []
+    real = finish.sorted_runs
+
+    def spy(tables, keys, run_rows, folder):
+        runs, whole = real(tables, keys, run_rows, folder)
+        seen.extend(runs)
+        assert all(p.is_file() for p in runs)
+        return runs, whole
+
+    def no_staging():
+        raise AssertionError("a local build staged its runs outside its output folder")
+
+    monkeypatch.setattr(finish, "sorted_runs", spy)
+    monkeypatch.setattr(finish.fs, "local_staging", no_staging)
+    parts, fails = _parts(tmp_path, 400, seed=3)
+    out = tmp_path / "new"
+    config = plan_config(tmp_path / "inputs", "none/*.lbl", out)
+    finish.write_merged(config, iter(parts), iter(fails))
+    assert len(seen) >= 2  # runs on disk, not one table in memory
+    assert {p.parent for p in seen} == {out / "parts" / "sort"}
+    assert not (out / "parts" / "sort").exists()
+
+
+def test_a_killed_finishs_runs_are_build_files(tmp_path: Path) -> None:
+    """Runs a killed finish left do not make the folder foreign; the next build clears them
+    (and a resumed finish replaces them); a file of another name in the folder stays."""
+    from mars_pairs.pipeline.builder.hygiene import clear_outputs, foreign_file
+    from mars_pairs.pipeline.builder.layout import SORT_RUNS
+
+    out = tmp_path / "ds"
+    (out / SORT_RUNS).mkdir(parents=True)
+    (out / "parts/build.json").write_text('{"count": 1, "config": {"output": {"shard_size": 1}}}')
+    for name in ("run-000000.arrow", "run-000001.arrow", "merged-001-000000.arrow"):
+        (out / SORT_RUNS / name).write_bytes(b"x")
+    assert foreign_file(out) is None
+    clear_outputs(out)
+    assert not (out / SORT_RUNS).exists()
+    (out / SORT_RUNS).mkdir(parents=True)
+    (out / SORT_RUNS / "notes.txt").write_text("mine")
+    assert foreign_file(out) == f"{SORT_RUNS}/notes.txt"

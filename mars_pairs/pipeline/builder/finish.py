@@ -12,13 +12,14 @@ moving the folder keeps it whole. A dataset on object storage (``output.dir`` an
 from a bucket to them); every file is uploaded whole.
 
 Memory does not grow with the samples but in the leak check: the parts are read one at a time,
-the manifest sorted in runs of ``RUN_ROWS`` rows on local scratch disk and merged
+the manifest sorted in runs of ``RUN_ROWS`` rows on scratch disk (``layout.SORT_RUNS``) and merged
 (``store.parquet_stream``), and what dataset.json, the shard indexes and the summary say is
 counted while the files are written (:class:`Merged`); the leak check
 (``store.leakage.leak_report``) reads its columns of the whole manifest."""
 
 from __future__ import annotations
 
+import contextlib
 import fnmatch
 import itertools
 import json
@@ -36,8 +37,8 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from mars_pairs.pipeline.builder.fingerprints import input_files
-from mars_pairs.pipeline.builder.hygiene import remove_empty_parts
-from mars_pairs.pipeline.builder.layout import part_paths
+from mars_pairs.pipeline.builder.hygiene import remove_empty_parts, remove_sort_runs
+from mars_pairs.pipeline.builder.layout import SORT_RUNS, part_paths
 from mars_pairs.pipeline.builder.plan import BuildPlan
 from mars_pairs.pipeline.builder.stamp import FINISHED_KEY, stamp_digest
 from mars_pairs.pipeline.config import BuildConfig
@@ -144,7 +145,8 @@ def write_merged(
     GeoParquet metadata, row groups of ``MANIFEST_ROW_GROUP``) and failures.parquet (the
     rows of ``fails``, in order), reading one table of each at a time; the tables' schemas
     may differ in their metadata only. Memory: ``RUN_ROWS`` manifest rows, whatever the
-    count (more are sorted in runs on local scratch disk, ``fs.local_staging``); the bytes
+    count (more are sorted in runs on scratch disk: ``SORT_RUNS`` in a local output folder,
+    ``fs.local_staging`` for object storage); the bytes
     are those of the whole table sorted in memory and written at once."""
     out = config.output.dir
     crs = dataset_crs(config)
@@ -162,7 +164,7 @@ def write_merged(
 
     counts = _ManifestCounts()
     target = fs.join(out, "manifest.parquet")
-    with fs.local_staging() as scratch:
+    with _sort_scratch(out) as scratch:
         runs, whole = sorted_runs(noted(parts), MANIFEST_ORDER, RUN_ROWS, scratch)
         schema = schemas[0] if schemas else MANIFEST_SCHEMA
         seen = extremes[0] if extremes else MANIFEST_SCHEMA.empty_table()
@@ -188,6 +190,22 @@ def write_merged(
         shards={split: dict(n) for split, n in counts.shards.items()},
         failures_by_reason=dict(reasons),
     )
+
+
+@contextlib.contextmanager
+def _sort_scratch(out: fs.Location) -> Iterator[Path]:
+    """The folder of the manifest's sorted runs: ``SORT_RUNS`` of a local output folder (one a
+    killed build left removed first; made by the first run written, removed at the end), a
+    local staging folder for object storage (``fs.local_staging``)."""
+    if not isinstance(out, Path):
+        with fs.local_staging() as staging:
+            yield staging
+        return
+    remove_sort_runs(out)
+    try:
+        yield out / SORT_RUNS
+    finally:
+        remove_sort_runs(out)
 
 
 class _ManifestCounts:

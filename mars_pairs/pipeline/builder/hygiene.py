@@ -12,6 +12,7 @@ and there are no folders (nor links) to find.
 
 from __future__ import annotations
 
+import contextlib
 import fnmatch
 import os
 import re
@@ -22,6 +23,8 @@ from mars_pairs.pipeline.builder.layout import (
     CHUNK_FILE,
     CLEARING,
     KEY_INDEX,
+    SORT_RUNS,
+    is_sort_run,
     is_temporary,
     part_paths,
     stamp_path,
@@ -63,16 +66,15 @@ def foreign_file(out: fs.Location) -> str | None:
             path = os.path.join(folder, name)
             if os.path.islink(path) or not os.path.isfile(path):
                 return rel
+            if is_sort_run(rel):  # a killed finish's scratch: cleared by the next build
+                continue
             if not (written_by(chunks, rel) or is_temporary(rel)):
                 return rel
             if not _as_built(out, rel, vouched):
                 return rel
         for name in dirs:
-            if (
-                prefix
-                or name not in ("shards", "parts")
-                or os.path.islink(os.path.join(folder, name))
-            ):
+            allowed = name in ("shards", "parts") if not prefix else prefix + name == SORT_RUNS
+            if not allowed or os.path.islink(os.path.join(folder, name)):
                 return prefix + name + "/"
     return None
 
@@ -151,6 +153,19 @@ def remove_parts(out: fs.Location, chunks: int) -> None:
     remove_empty_parts(out)
 
 
+def remove_sort_runs(out: Path) -> None:
+    """Remove the finish's sorted runs (``SORT_RUNS``: its run files, then the folder) from
+    the local output folder ``out``, if there."""
+    folder = out / SORT_RUNS
+    if folder.is_symlink() or not folder.is_dir():
+        return
+    for name in sorted(os.listdir(folder)):
+        if is_sort_run(f"{SORT_RUNS}/{name}") and not (folder / name).is_symlink():
+            (folder / name).unlink()
+    with contextlib.suppress(OSError):  # not empty: a file no build writes, left for the user
+        folder.rmdir()
+
+
 def remove_empty_parts(out: fs.Location) -> None:
     """Remove ``parts/`` when it is an empty folder (object storage has no folders)."""
     if not isinstance(out, Path):
@@ -201,6 +216,7 @@ def clear_outputs(out: fs.Location) -> None:
     elif finished_stamp(out) is not None and not (out / CLEARING).is_file():
         (out / "parts").mkdir(exist_ok=True)
         os.replace(finished, out / CLEARING)
+    remove_sort_runs(out)
     for pattern in _CLEARED:
         for stale in sorted(out.glob(pattern)):
             rel = stale.relative_to(out).as_posix()

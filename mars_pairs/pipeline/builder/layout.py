@@ -38,6 +38,19 @@ CLEARING = "parts/clearing.json"
 KEY_INDEX = "parts/keys.sqlite"
 
 
+#: The folder of the finish's sorted runs of manifest rows (``finish.write_merged``), a local
+#: build's scratch while the manifest is merged: made on the first run written, removed when
+#: the merge ends; one a killed build left is cleared or replaced by the next build.
+SORT_RUNS = "parts/sort"
+SORT_RUN_FILE = re.compile(r"parts/sort/(run|merged)-[0-9]{3,}(-[0-9]{6,})?\.arrow")
+
+
+def is_sort_run(rel: str) -> bool:
+    """Whether ``rel`` (relative to the output folder, with ``/``) is a file of
+    ``SORT_RUNS`` as the finish names them."""
+    return SORT_RUN_FILE.fullmatch(rel) is not None
+
+
 #: The files of a build besides its chunks', relative to the output folder.
 BUILD_FILES = (
     "parts/build.json",
