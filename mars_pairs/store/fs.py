@@ -34,6 +34,20 @@ from typing import Any, TypeGuard, overload
 Location = Path | str
 
 _URL = re.compile(r"[A-Za-z][A-Za-z0-9+.\-]*://")
+#: What ``Path`` makes of a URL: its ``//`` collapsed (``s3:/bucket/prefix``); a scheme of one
+#: letter is a Windows drive (``C:/``), not a URL
+_COLLAPSED_URL = re.compile(r"[A-Za-z][A-Za-z0-9+.\-]+:/(?!/)")
+
+
+def collapsed_url(value: str | os.PathLike[str]) -> str | None:
+    """The URL ``value`` was made from when it is a local path that reads as one whose ``//``
+    was collapsed (``Path("s3://b/p")`` is ``s3:/b/p``), else None: a dataset written there
+    would go to a folder ``s3:`` of the working directory."""
+    text = os.fspath(value)
+    if not isinstance(text, str) or not _COLLAPSED_URL.match(text):
+        return None
+    scheme, rest = text.split(":/", 1)
+    return f"{scheme}://{rest}"
 
 
 def is_url(value: object) -> TypeGuard[str]:
@@ -43,9 +57,18 @@ def is_url(value: object) -> TypeGuard[str]:
 
 def dataset_root(value: str | os.PathLike[str]) -> Location:
     """A dataset root from what a user gives: a URL (its trailing ``/`` removed) as text,
-    ``file://PATH`` and anything else as a local ``Path``."""
+    ``file://PATH`` and anything else as a local ``Path``; ConfigError for a URL that was made
+    into a ``Path`` (``collapsed_url``), which would otherwise name a local folder ``s3:``."""
     if is_url(value):
         return str(value).rstrip("/")
+    url = collapsed_url(value)
+    if url is not None:
+        from mars_pairs.errors import ConfigError
+
+        raise ConfigError(
+            f"{os.fspath(value)!s}: a URL made into a local path (its // collapsed); pass the "
+            f"URL as text ({url}), not as a Path"
+        )
     text = os.fspath(value)
     if isinstance(text, str) and text.startswith("file://"):
         text = text.removeprefix("file://")

@@ -162,9 +162,10 @@ def run_catalog(
         raise ConfigError(f"--workers: expected an integer >= 1, got {workers!r}")
     run = _Run(workers, engine, progress, pairs, start)
     target = out if out is not None else config.output.dir
-    if fs.is_url(str(target)):
-        return _run_to_url(config, str(fs.dataset_root(str(target))), run, resume, append)
-    folder = Path(target).resolve()
+    root = fs.dataset_root(target)
+    if isinstance(root, str):
+        return _run_to_url(config, root, run, resume, append)
+    folder = root.resolve()
     config = replace(config, output=replace(config.output, dir=folder))
     return _run_in(config, folder, run, resume, append)
 
