@@ -115,17 +115,15 @@ def _raster(value: Any, info: ValidationInfo) -> Path | str:
 
 def _output_dir(value: Any, info: ValidationInfo) -> Path | str:
     """An fsspec URL (``s3://bucket/prefix``, its trailing ``/`` removed) or a local folder."""
-    from mars_pairs.store.fs import collapsed_url, dataset_root, is_url
+    from mars_pairs.store.fs import collapsed_url_problem, dataset_root, is_url
 
     if is_url(value):
         root = dataset_root(value)
         assert isinstance(root, str)
         return root
-    if isinstance(value, (str, Path)) and collapsed_url(value) is not None:
-        raise KeyProblem(
-            f"{value}: a URL made into a local path (its // collapsed); give the URL as text "
-            f"({collapsed_url(value)})"
-        )
+    problem = collapsed_url_problem(value) if isinstance(value, (str, Path)) else None
+    if problem is not None:
+        raise KeyProblem(problem)
     return _path(value, info, folder=True)
 
 

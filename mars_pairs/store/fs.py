@@ -50,6 +50,18 @@ def collapsed_url(value: str | os.PathLike[str]) -> str | None:
     return f"{scheme}://{rest}"
 
 
+def collapsed_url_problem(value: str | os.PathLike[str]) -> str | None:
+    """The one-line refusal of ``value`` when it is a collapsed URL (``collapsed_url``), else
+    None."""
+    url = collapsed_url(value)
+    if url is None:
+        return None
+    return (
+        f"{os.fspath(value)!s}: a URL made into a local path (its // collapsed); pass the URL "
+        f"as text ({url}), not as a Path"
+    )
+
+
 def is_url(value: object) -> TypeGuard[str]:
     """Whether ``value`` is the text of a URL (``scheme://...``) other than ``file://``."""
     return isinstance(value, str) and bool(_URL.match(value)) and not value.startswith("file://")
@@ -61,14 +73,11 @@ def dataset_root(value: str | os.PathLike[str]) -> Location:
     into a ``Path`` (``collapsed_url``), which would otherwise name a local folder ``s3:``."""
     if is_url(value):
         return str(value).rstrip("/")
-    url = collapsed_url(value)
-    if url is not None:
+    problem = collapsed_url_problem(value)
+    if problem is not None:
         from mars_pairs.errors import ConfigError
 
-        raise ConfigError(
-            f"{os.fspath(value)!s}: a URL made into a local path (its // collapsed); pass the "
-            f"URL as text ({url}), not as a Path"
-        )
+        raise ConfigError(problem)
     text = os.fspath(value)
     if isinstance(text, str) and text.startswith("file://"):
         text = text.removeprefix("file://")
