@@ -29,13 +29,13 @@ from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.observation import Observation
 from mars_pairs.pds import read_observation
 from mars_pairs.pipeline.sample.context import SampleContext
-from mars_pairs.pipeline.sample.footprint import view_statistics
+from mars_pairs.pipeline.sample.footprint import footprint_outline, view_statistics
 from mars_pairs.pipeline.sample.ground import fit_to_label
 from mars_pairs.pipeline.sample.key import sample_key
 from mars_pairs.pipeline.sample.record import relative_label_path
 from mars_pairs.pipeline.sample.stages import Stages
 from mars_pairs.pipeline.sample.view import View, anchor_view, line_of_sight
-from mars_pairs.raster.outline import mask_outline, outline_parts
+from mars_pairs.raster.outline import outline_parts
 from mars_pairs.store.cellmask import pack_cells
 from mars_pairs.store.geoparquet import footprint_bounds
 from mars_pairs.store.splits import hilbert_index
@@ -43,13 +43,6 @@ from mars_pairs.store.splits import hilbert_index
 _BROWSE = (".jpg", ".jpeg", ".png")
 #: vertices of the wedge's arc per degree of azimuth
 _ARC_STEP_DEG = 1.0
-#: sub-cells per DEM cell side on which the view test draws the footprint's outline: the
-#: image's edges cut DEM cells, and a whole-cell outline misses half a cell along them (IoU
-#: 0.25 against the chip for a narrow view); line of sight stays the DEM cell's. 8, not 4:
-#: at a grazing view the far edge (the image's top edge on the ground) wanders with the
-#: relief inside a cell, and on quarter cells the demo's grazing Mastcam-Z frames met their
-#: chips at IoU 0.918-0.941 (>= 0.99 on eighth cells); the catalogue takes ~2x the time
-SUBCELLS = 8
 
 
 def checked_size(obs: Observation) -> Observation:
@@ -115,85 +108,6 @@ def visible_ranges(view: View) -> tuple[float | None, float | None]:
     return float(np.median(dist)), float(dist.max())
 
 
-def fine_mask(view: View, sub: int = SUBCELLS) -> tuple[np.ndarray, Any]:
-    """The view on a grid ``sub`` times finer than the DEM window's (uint8, 1 = in view) and
-    its transform: a sub-cell is in view when its DEM cell is in line of sight
-    (``view.los``) and its centre, at the DEM's bilinear height there, passes the exact view
-    test (``view.in_view``), as a chip pixel is tested (``chips.chip_view``). Line of sight
-    is one verdict per cell, so only the cells the view test's edge crosses are sub-tested:
-    the cells in line of sight whose 3 x 3 neighbourhood holds a cell centre passing the
-    view test and one failing it (tested at the cells in line of sight and those beside the
-    view; the image's edges are straight at the cell's scale); every other cell in line of
-    sight is whole, in or out as its centre."""
-    from affine import Affine
-
-    from mars_pairs.pipeline.sample.view import in_view
-
-    full_los = view.los.astype(bool)
-    near = np.flatnonzero(full_los.any(axis=1)), np.flatnonzero(full_los.any(axis=0))
-    if not len(near[0]):
-        return np.zeros((sub, sub), dtype=np.uint8), view.window.transform * Affine.scale(1 / sub)
-    # the bounding box of the line of sight (one cell more), on which the rest works
-    r0, c0 = max(int(near[0][0]) - 1, 0), max(int(near[1][0]) - 1, 0)
-    r1, c1 = int(near[0][-1]) + 2, int(near[1][-1]) + 2
-    los = full_los[r0:r1, c0:c1]
-    mask = view.mask[r0:r1, c0:c1].astype(bool)
-    # the view test at the centres of the cells out of sight beside the view, then its
-    # edge: the cells in line of sight with a neighbour passing the test and one failing it
-    passes, tested = mask.copy(), los | _any_around(mask)
-    ring_r, ring_c = np.nonzero(tested & ~los)
-    if len(ring_r):
-        x, y = view.window.colrow_to_xy(ring_c + c0, ring_r + r0)
-        z = view.window.data[ring_r + r0, ring_c + c0].astype(np.float64)
-        passes[ring_r, ring_c] = in_view(np.column_stack([x, y, z]), view) & np.isfinite(z)
-    edge = los & _any_around(passes) & _any_around(tested & ~passes)
-    whole = mask & ~edge
-    fine = np.repeat(np.repeat(whole, sub, axis=0), sub, axis=1).astype(np.uint8)
-    rows, cols = np.nonzero(edge)
-    if len(rows):
-        offsets = (np.arange(sub) + 0.5) / sub - 0.5
-        dy, dx = (a.ravel() for a in np.meshgrid(offsets, offsets, indexing="ij"))
-        rr = np.repeat(rows, sub * sub)
-        cc = np.repeat(cols, sub * sub)
-        fr = rr * sub + np.tile(np.repeat(np.arange(sub), sub), len(rows))
-        fc = cc * sub + np.tile(np.tile(np.arange(sub), sub), len(rows))
-        fx, fy = cc + c0 + np.tile(dx, len(rows)), rr + r0 + np.tile(dy, len(rows))
-        x, y = view.window.colrow_to_xy(fx, fy)
-        z = bilinear(view.window.data, fx, fy)
-        keep = in_view(np.column_stack([x, y, z]), view) & np.isfinite(z)
-        fine[fr[keep], fc[keep]] = 1
-    shift = Affine.translation(c0, r0) * Affine.scale(1.0 / sub)
-    return fine, view.window.transform * shift
-
-
-def _any_around(mask: np.ndarray) -> np.ndarray:
-    """Whether each cell's 3 x 3 neighbourhood in ``mask`` (bool; off the grid: out) holds
-    a set cell."""
-    padded = np.pad(mask, 1)
-    h, w = mask.shape
-    out: np.ndarray = np.logical_or.reduce(
-        [padded[i : i + h, j : j + w] for i in range(3) for j in range(3)]
-    )
-    return out
-
-
-def bilinear(data: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
-    """``data`` (rows, cols; cell centres at integers) at fractional (col, row), bilinear,
-    clamped at the edges; NaN where a neighbour is NaN (as the chips' DEM reads)."""
-    h, w = data.shape
-    c = np.clip(col, 0.0, w - 1.0)
-    r = np.clip(row, 0.0, h - 1.0)
-    c0 = np.minimum(np.floor(c).astype(np.intp), max(w - 2, 0))
-    r0 = np.minimum(np.floor(r).astype(np.intp), max(h - 2, 0))
-    c1, r1 = np.minimum(c0 + 1, w - 1), np.minimum(r0 + 1, h - 1)
-    fc, fr = c - c0, r - r0
-    d = data.astype(np.float64, copy=False)
-    top = d[r0, c0] * (1 - fc) + d[r0, c1] * fc
-    bottom = d[r1, c0] * (1 - fc) + d[r1, c1] * fc
-    out: np.ndarray = top * (1 - fr) + bottom * fr
-    return out
-
-
 def _true_area(outline: Any, cam: MapCamera) -> float:
     """The outline's area in true square metres (map area through the local Jacobian)."""
     if outline is None:
@@ -226,8 +140,7 @@ def _row(obs: Observation, view: View, ctx: SampleContext, quat: np.ndarray) -> 
     lon, lat = map_to_lonlat([cx], [cy], ctx.crs_wkt)
     az, el = image_centre_pointing_deg(obs.camera, obs.width, obs.height, quat)
     hfov, vfov = obs.camera.fov_deg(obs.width, obs.height)
-    fine, transform = fine_mask(view)
-    outline = mask_outline(fine, transform)
+    outline = footprint_outline(view)
     median, far = visible_ranges(view)
     stats = view_statistics(view)
     image = relative_label_path(obs.image_path, cfg.inputs.labels) if obs.image_path else None

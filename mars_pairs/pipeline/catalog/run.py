@@ -63,10 +63,9 @@ from mars_pairs.pipeline.catalog.append import (
     snapshot_base,
 )
 from mars_pairs.pipeline.catalog.chunk import catalog_chunk
-from mars_pairs.pipeline.catalog.entry import SUBCELLS
 from mars_pairs.pipeline.config import BuildConfig
+from mars_pairs.pipeline.sample.footprint import SIMPLIFY_CELLS
 from mars_pairs.pipeline.sample.record import labels_root
-from mars_pairs.raster.outline import SIMPLIFY_CELLS
 from mars_pairs.store import fs
 from mars_pairs.store.atomic import atomic_write_bytes, temporary_target, write_parquet_atomic
 from mars_pairs.store.catalog_schema import CATALOG_SCHEMA, catalog_geo_metadata
@@ -528,11 +527,11 @@ def catalog_doc(
         "crs": wkt,
         "crs_name": crs_name(crs),
         "footprint": {
-            "source": "the view vectorized: line of sight per DEM cell, the exact view test "
-            f"per 1/{SUBCELLS} sub-cell",
+            "source": "the DEM cells in line of sight cut by the edge of the exact view test "
+            "(traced on a sub-cell lattice, crossings found by root finding)",
             "dem_cell": cell,
             "dem_transform": dem_transform,
-            "simplify_tolerance": SIMPLIFY_CELLS * cell / SUBCELLS,
+            "simplify_tolerance": SIMPLIFY_CELLS * cell,
             "unit": "map units of the CRS",
             "radius_m": config.geometry.radius,
             "view_mask": config.geometry.view_mask,
