@@ -21,9 +21,9 @@ Measured against ``shapely.area(shapely.intersection(a, b))`` (GEOS 3.14, one th
 1,722,060 pairs) pair in 45 s against 158 s with every area from GEOS, the areas equal to
 2.1e-12 relative; random star polygons of 12 / 48 / 192 vertices, 3 / 84 / 830 us a pair
 against GEOS's 108 / 283 / 2243. The kernel is O(n m) in the two vertex counts where GEOS is
-near O(n + m): on the demo catalogue's footprints (drawn on eighth cells, a median of 1,210
-vertices) a pair of 10 x 1,600 vertices takes it 0.15 ms against GEOS's 0.09 ms, so callers
-keep it to small pairs (``store.pairs.KERNEL_VERTICES``).
+near O(n + m): on footprints drawn on eighth cells (a median of 1,210 vertices) a pair of
+10 x 1,600 vertices takes it 0.15 ms against GEOS's 0.09 ms, so callers keep it to small
+pairs (``store.pairs.KERNEL_VERTICES``).
 """
 
 from __future__ import annotations

@@ -119,15 +119,15 @@ def chip_comparison(cat: Path, ds: Path) -> dict[str, tuple[float, int, float]]:
 
 def test_footprint_matches_the_builds_viewshed_chip(built: tuple[Path, Path]) -> None:
     """Against the chip the build cut for the same image: IoU >= 0.95 over the chip's extent
-    for every image with at least 200 chip pixels in view (a footprint that only grazes the
-    chip is a few pixels, where one pixel is 5 % of the union), and for every image each
-    pixel where the two disagree lies within one DEM cell of the footprint's boundary."""
+    for every image with a chip pixel in view (a view of a few pixels too: the footprint's
+    edge is the view test's, traced to a few mm), and for every image each pixel where the
+    two disagree lies within one DEM cell of the footprint's boundary."""
     cat, ds = built
     found = chip_comparison(cat, ds)
     cell = json.loads((cat / "catalog.json").read_text())["footprint"]["dem_cell"]
     assert len(found) == len(Catalog.open(cat))
-    large = {k: v[0] for k, v in found.items() if v[1] >= 200}
-    assert large and min(large.values()) >= 0.95, sorted(large.items(), key=lambda kv: kv[1])[:3]
+    seen = {k: v[0] for k, v in found.items() if v[1] > 0}
+    assert seen and min(seen.values()) >= 0.95, sorted(seen.items(), key=lambda kv: kv[1])[:3]
     assert max(v[2] for v in found.values()) <= cell
 
 
@@ -138,8 +138,9 @@ def test_saw_agrees_with_the_viewshed_geotiffs(
     footprints' box) against the set of images whose ``mars-pairs viewshed --label`` GeoTIFF
     (read with rasterio) marks the point's cell visible: >= 99 % equal; and at 500 points
     inside footprints (where the image edges are) no returned image whose raster is more
-    than one cell from a visible cell there (the footprint is drawn on eighth cells, the
-    GeoTIFF on whole cells: they differ inside the cells an image edge cuts); with
+    than one cell from a visible cell there (the footprint follows the view test's edge
+    inside a cell, the GeoTIFF gives each cell its centre's verdict: they differ inside the
+    cells an image edge cuts); with
     ``per_cell`` (the view's own cells) the sets are equal at every point of both."""
     cat, _ = built
     catalog = Catalog.open(cat)
