@@ -7,9 +7,11 @@ import math
 
 import numpy as np
 import pyarrow as pa
+import pytest
 import shapely
 
 from mars_pairs.kernels.overlap import intersection_areas
+from mars_pairs.store import pairs
 from mars_pairs.store.pairs import Footprints, pairs_table
 
 
@@ -97,10 +99,14 @@ def _footprints() -> tuple[Footprints, list[shapely.Geometry | None]]:
     return fp, geoms
 
 
-def test_pairs_equal_an_all_pairs_geos_loop() -> None:
+@pytest.mark.parametrize("kernel", [True, False])
+def test_pairs_equal_an_all_pairs_geos_loop(kernel: bool, monkeypatch: pytest.MonkeyPatch) -> None:
     """Every pair i < j with a positive GEOS intersection area, none other; the areas (true:
     times each footprint's scale, here 1.01), IoU and splits as the loop computes them; the
-    same table whatever the block size and thread count."""
+    same table whatever the block size and thread count. With the kernel answering the
+    small pairs, and with every area from GEOS (fewer footprints than
+    ``KERNEL_MIN_FOOTPRINTS``)."""
+    monkeypatch.setattr(pairs, "KERNEL_MIN_FOOTPRINTS", 0 if kernel else 10**9)
     fp, geoms = _footprints()
     table = pairs_table(fp, batch_rows=17, threads=1)
     brute: dict[tuple[str, str], tuple[float, float, str, str]] = {}
