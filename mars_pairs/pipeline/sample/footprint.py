@@ -84,7 +84,8 @@ SIMPLIFY_CELLS = 0.005
 _SAG_M = 0.002
 _MAX_SUB = 8
 _LATTICE_CELLS = 24.0
-_ROOT_STEPS = (2, 4)  # bisection steps, then regula falsi (Illinois) steps, per crossing
+_ROOT_STEPS = (2, 3)  # bisection steps, then regula falsi (Illinois) steps, per crossing
+_NEWTON_STEPS = 4  # per image corner, from the middle of the chord it cuts
 
 
 def bilinear(data: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
@@ -341,7 +342,7 @@ def _corners(
     x = 0.5 * (p + q)
     k = np.arange(len(x))
     step = 1e-3
-    for _ in range(6):
+    for _ in range(_NEWTON_STEPS):
         col, row = x[:, 0] / s + c0 - 0.5, x[:, 1] / s + r0 - 0.5
         f = view_terms(view, np.concatenate([col, col + step / s, col]),
                        np.concatenate([row, row, row + step / s]))  # fmt: skip
