@@ -73,7 +73,7 @@ def view_statistics(view: View, spans: Spans | None = None) -> dict[str, Any]:
 # ---- traced (sub-cell lattice, crossings refined by root finding) -------------------------
 
 #: how far simplification may move the outline, as a fraction of the DEM cell (5 mm on a 1 m
-#: DEM): the traced edge lies within ~2 mm of the view test's edge, and a view of a few
+#: DEM): the traced edge lies within a few mm of the view test's edge, and a view of a few
 #: square metres (a targeted frame at the rover's feet) meets its chip at IoU >= 0.95 only
 #: with its edges kept to a few mm; the cells' staircase along the line of sight's edge
 #: keeps its corners at any tolerance below half a cell
@@ -84,7 +84,7 @@ SIMPLIFY_CELLS = 0.005
 _SAG_M = 0.002
 _MAX_SUB = 8
 _LATTICE_CELLS = 24.0
-_ROOT_STEPS = (2, 3)  # bisection steps, then regula falsi (Illinois) steps, per crossing
+_ROOT_STEPS = (4, 6)  # bisection steps, then regula falsi (Illinois) steps, per crossing
 _NEWTON_STEPS = 4  # per image corner, from the middle of the chord it cuts
 
 
@@ -165,20 +165,26 @@ def lattice_of(view: View) -> int:
 
 
 def _crossings(view: View, col0: np.ndarray, row0: np.ndarray, dcol: np.ndarray,
-               drow: np.ndarray, m0: np.ndarray, m1: np.ndarray) -> np.ndarray:  # fmt: skip
+               drow: np.ndarray) -> np.ndarray:  # fmt: skip
     """Where the margin changes sign on each lattice edge from (col0, row0) to (col0 + dcol,
-    row0 + drow): the fraction t in (0, 1) along it (``m0``, ``m1``: the margins at its
-    ends, of opposite signs). Bisection first (the margin may be -1e9 at an end), then
-    regula falsi with the Illinois rule."""
-    lo, hi = np.zeros(len(col0)), np.ones(len(col0))
-    mlo, mhi = m0.copy(), m1.copy()
+    row0 + drow) (its ends on either side of the view test's edge): the fraction t in
+    (0, 1) along it. The margins at both ends first, then bisection steps, then regula
+    falsi with the Illinois rule, bisecting where an end has no margin (-1e9: behind the
+    camera or over no data)."""
+    n = len(col0)
+    ends = view_margin(
+        view, np.concatenate([col0, col0 + dcol]), np.concatenate([row0, row0 + drow])
+    )
+    lo, hi = np.zeros(n), np.ones(n)
+    mlo, mhi = ends[:n], ends[n:]
     bisect, falsi = _ROOT_STEPS
     for step in range(bisect + falsi):
-        if step < bisect:
-            t = 0.5 * (lo + hi)
-        else:
-            t = (lo * mhi - hi * mlo) / (mhi - mlo)
-            t = np.where(np.isfinite(t) & (t > lo) & (t < hi), t, 0.5 * (lo + hi))
+        t = 0.5 * (lo + hi)
+        if step >= bisect:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                rf = (lo * mhi - hi * mlo) / (mhi - mlo)
+            usable = np.isfinite(rf) & (rf > lo) & (rf < hi) & (np.minimum(mlo, mhi) > -1e8)
+            t = np.where(usable, rf, t)
         m = view_margin(view, col0 + t * dcol, row0 + t * drow)
         same = (m >= 0) == (mlo >= 0)
         if step >= bisect:  # Illinois: halve the end kept twice in a row
@@ -186,8 +192,10 @@ def _crossings(view: View, col0: np.ndarray, row0: np.ndarray, dcol: np.ndarray,
             mlo = np.where(same, mlo, mlo * 0.5)
         lo, mlo = np.where(same, t, lo), np.where(same, m, mlo)
         hi, mhi = np.where(same, hi, t), np.where(same, mhi, m)
-    t = (lo * mhi - hi * mlo) / (mhi - mlo)
-    out: np.ndarray = np.where(np.isfinite(t) & (t >= lo) & (t <= hi), t, 0.5 * (lo + hi))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (lo * mhi - hi * mlo) / (mhi - mlo)
+    ok = np.isfinite(t) & (t >= lo) & (t <= hi) & (np.minimum(mlo, mhi) > -1e8)
+    out: np.ndarray = np.where(ok, t, 0.5 * (lo + hi))
     return out
 
 
@@ -207,8 +215,9 @@ def footprint_outline(view: View) -> shapely.Polygon | shapely.MultiPolygon | No
     test (``view_margin`` >= 0 on the DEM's bilinear surface, as ``chips.chip_view`` tests a
     chip pixel). The edge is traced on a lattice of 1 / ``lattice_of(view)`` cell over the
     cells in line of sight beside a cell in view (marching squares, each crossing of a
-    lattice line found to ~1e-4 of its length); cells in line of sight whose corners and
-    centre all pass are whole. Simplified (topology kept) by ``SIMPLIFY_CELLS`` of the DEM
+    lattice line found by root finding: on the demo all but 5 of 56,822 within 1 mm of
+    the converged root); cells in line of sight whose corners and centre all pass are
+    whole. Simplified (topology kept) by ``SIMPLIFY_CELLS`` of the DEM
     cell. None when nothing is in view. A sliver of the view narrower than a cell that holds
     no cell centre nor lattice node in view, away from every cell in view, is not drawn."""
     los = view.los.astype(bool)
@@ -323,7 +332,7 @@ def _edge_crossings(
     a_v = np.full(beside_v.shape, -1, dtype=np.intp)
     if len(ii):
         col, row = jj / s + c0 - 0.5, ii / s + r0 - 0.5
-        root = _crossings(view, col, row, dj / s, di / s, margin[ii, jj], margin[ii + di, jj + dj])
+        root = _crossings(view, col, row, dj / s, di / s)
         which = np.argmin(view_terms(view, col + root * dj / s, row + root * di / s), axis=0)
         n = len(hi_)
         t_h[hi_, hj], t_v[vi, vj] = root[:n], root[n:]
