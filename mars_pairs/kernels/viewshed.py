@@ -199,6 +199,30 @@ def _segment_clear(
 
 
 @njit(cache=True, fastmath=_SAFE_FM)
+def _tail_clear(
+    flat: Dem, h: int, w: int, u0: float, v0: float, col: int, row: int, a: float, e: float,
+    eye: float, zt: float, inv2r: float, dc2: float, umaj: bool, inv_n: float,
+) -> bool:  # fmt: skip
+    """``_segment_clear`` over the sight line's last gap between major grid lines: t in
+    [1 - ``inv_n``, 1], ``inv_n`` = 1 / the target's major distance from the observer (cells;
+    major axis u when ``umaj``), ``dc2`` its squared map distance. There the line crosses at
+    most one minor grid line: one quad, when the minor run across the gap is within a cell."""
+    du = col - u0
+    dv = row - v0
+    r = (dv if umaj else du) * inv_n  # the minor run over the gap, cells
+    if not -1.0 <= r <= 1.0:
+        return _segment_clear(flat, h, w, u0, v0, col, row, a, e, eye, zt, inv2r, 1.0 - inv_n, 1.0)
+    if umaj:
+        i = col - 1 if du > 0.0 else col
+        j = row - 1 if r > 0.0 else min(row, h - 2)
+    else:
+        j = row - 1 if dv > 0.0 else row
+        i = col - 1 if r > 0.0 else min(col, w - 2)
+    rise = _quad_rise(flat, w, i, j, u0, v0, du, dv, 1.0 - inv_n, 1.0, dc2 * inv2r, eye, zt - eye)
+    return rise <= _TOL_M
+
+
+@njit(cache=True, fastmath=_SAFE_FM)
 def _march(
     flat: Dem, out: Mask, geo: Geo, umaj: bool, sgn: int, k: int, big_p: int, s0: int, s1: int,
     off_m: float, st: RayState, s_hi: Scratch, s_j: Lines,
@@ -278,8 +302,8 @@ def _march(
                 # exact on the last lines, where the sight line runs over the cell's own
                 # slope; then exact near every sample whose error bar reaches the sight line
                 t_tail = max(0.0, 1.0 - (_TAIL_LINES + 1) * inv_n)
-                vis = _segment_clear(
-                    flat, h, w, u0, v0, col, row, a, e, eye, zc, inv2r, t_tail, 1.0
+                vis = _tail_clear(
+                    flat, h, w, u0, v0, col, row, a, e, eye, zc, inv2r, dc2, umaj, inv_n
                 )
                 if vis and sl < max(hi, hi1):  # (hi1: the sample on line s - 1)
                     vis = _head_clear(
@@ -309,10 +333,10 @@ def _march(
             lo1 = sl - de if de == de else sl
         else:
             hi1 = lo1 = -np.inf
-        if hi1 >= lo:  # (below the horizon a sample never matters again)
-            s_j[n_c] = s
-            s_hi[n_c] = hi1
-            n_c += 1
+        # kept unless below the horizon, where a sample never matters again (branch-free)
+        s_j[n_c] = s
+        s_hi[n_c] = hi1
+        n_c += hi1 >= lo
     return (q, rem, hi, lo, hi1, lo1, n_c), done
 
 
