@@ -198,6 +198,19 @@ def _segment_clear(
     return True
 
 
+@njit(cache=True)
+def _compact(s_hi: Scratch, s_j: Lines, n_c: int, lo: float) -> int:
+    """Drop the kept samples whose upper bound lies below the horizon's lower bound ``lo``
+    (no sight line tested from then on runs below ``lo``); order kept; the new count."""
+    n = 0
+    for i in range(n_c):
+        if s_hi[i] >= lo:
+            s_hi[n] = s_hi[i]
+            s_j[n] = s_j[i]
+            n += 1
+    return n
+
+
 @njit(cache=True, fastmath=_SAFE_FM)
 def _tail_clear(
     flat: Dem, h: int, w: int, u0: float, v0: float, col: int, row: int, a: float, e: float,
@@ -262,6 +275,7 @@ def _march(
     else:
         room = (n_min - 1 - c_min) if k > 0 else c_min
         s_in = min(last, (room * big_p - 1) // abs(k))
+    n_cap = 2 * n_c + 32
     for s in range(s0 + 1, last + 1):
         major = c_maj + sgn * s
         dmaj = (major - o_maj) * sc_maj
@@ -313,6 +327,9 @@ def _march(
             out[major * st_maj + cm * st_min] = vis
         hi = max(hi, hi1)  # the sample on line s - 1 joins the horizon
         lo = max(lo, lo1)
+        if n_c >= n_cap:  # (amortised: the list at least doubled since the last compaction)
+            n_c = _compact(s_hi, s_j, n_c, lo)
+            n_cap = 2 * n_c + 32
         if lo > tmax:  # the horizon rose above the elevation band: nothing further is seen
             done = True
             break
@@ -429,6 +446,7 @@ def _tree_ray(
         st, done = _march(flat, out, geo, umaj, sgn, k, p_l, s0, s1, off_m, st, s_hi, s_j)
         if not done and lev > 0 and s1 < s_max:
             q, rem, hi, lo, hi1, lo1, n_c = st
+            n_c = _compact(s_hi, s_j, n_c, lo)
             # the new rays beside this one: 2k + 1, and 2k - 1 at the low end of a v side
             for kk in (2 * k + 1, 2 * k - 1):
                 if kk == 2 * k + 1:
