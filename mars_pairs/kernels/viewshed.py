@@ -40,7 +40,10 @@ from typing import Any
 
 import numpy as np
 from affine import Affine
-from numba import njit, prange
+from llvmlite import ir
+from numba import njit, prange, types
+from numba.core import cgutils
+from numba.extending import intrinsic, overload
 from numpy.typing import NDArray
 
 from mars_pairs.errors import ArgumentError
@@ -61,6 +64,7 @@ _ERR_GAIN = 0.5  # safety factor on the sweep's horizon error estimate
 _TREE_BARS = 0.5
 _TREE_MIN_RAYS = 16  # rays per side at the root of the full circle's tree of rays
 _CHUNK = 64  # rays per parallel work item (one scratch buffer each)
+_AHEAD = 32
 _TOL_M = 1e-6  # metres the terrain may rise above a sight line (rounding at the target)
 
 Dem = NDArray[np.float32]  # the DEM window (``as_grid``), or its raveled ``flat`` view
@@ -75,6 +79,37 @@ Geo = tuple[
 ]  # fmt: skip
 # (q, rem, hi, lo, hi1, lo1, n_c): one ray's stepping state (``_march``)
 RayState = tuple[int, int, float, float, float, float, int]
+
+
+def _prefetch(arr: Dem, idx: int) -> None:
+    """Hint the CPU to fetch the cache line of ``arr[idx]`` (1-d, C order) for reading: no
+    effect on any result, no bounds check (a prefetch never faults). Plain Python: nothing."""
+
+
+@overload(_prefetch, inline="always")
+def _prefetch_jit(arr: Any, idx: Any) -> Any:
+    """``_prefetch`` in compiled code: LLVM's prefetch intrinsic."""
+
+    def impl(arr: Any, idx: Any) -> Any:  # (numba: the overload's very signature)
+        _prefetch_line(arr, idx)
+
+    return impl
+
+
+@intrinsic
+def _prefetch_line(typingctx: Any, arr: Any, idx: Any) -> Any:
+    """llvm.prefetch of ``arr[idx]``'s address (read, keep in every cache level)."""
+
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> None:
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        ptr = builder.gep(ary.data, [args[1]])
+        i8p = builder.bitcast(ptr, ir.IntType(8).as_pointer())
+        i32 = ir.IntType(32)
+        fnty = ir.FunctionType(ir.VoidType(), [i8p.type, i32, i32, i32])
+        fn = cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0")
+        builder.call(fn, [i8p, i32(0), i32(3), i32(1)])  # read, keep in all cache levels
+
+    return types.void(arr, idx), codegen
 
 
 # ---------------------------------------------------------------------------------------------
@@ -276,8 +311,22 @@ def _march(
         room = (n_min - 1 - c_min) if k > 0 else c_min
         s_in = min(last, (room * big_p - 1) // abs(k))
     n_cap = 2 * n_c + 32
+    # the sample _AHEAD steps on, prefetched (a ray crosses a new cache line at most steps)
+    rem_a = rem + k * _AHEAD
+    q_a = q + rem_a // big_p
+    rem_a %= big_p
     for s in range(s0 + 1, last + 1):
         major = c_maj + sgn * s
+        rem_a += k
+        if rem_a >= big_p:
+            rem_a -= big_p
+            q_a += 1
+        elif rem_a < 0:
+            rem_a += big_p
+            q_a -= 1
+        i_a = (major + sgn * _AHEAD) * st_maj + (c_min + q_a) * st_min
+        _prefetch(flat, i_a)
+        _prefetch(flat, i_a + st_min)
         dmaj = (major - o_maj) * sc_maj
         dmaj2 = dmaj * dmaj
         rem += k
