@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 from affine import Affine
-from llvmlite import ir
+from llvmlite import ir  # type: ignore[import-untyped]  # llvmlite ships no types
 from numba import njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic, overload
@@ -91,7 +91,7 @@ def _prefetch_jit(arr: Any, idx: Any) -> Any:
     """``_prefetch`` in compiled code: LLVM's prefetch intrinsic."""
 
     def impl(arr: Any, idx: Any) -> Any:  # (numba: the overload's very signature)
-        _prefetch_line(arr, idx)
+        _prefetch_line(arr, idx)  # type: ignore[call-arg]  # numba passes the typing context
 
     return impl
 
@@ -106,7 +106,9 @@ def _prefetch_line(typingctx: Any, arr: Any, idx: Any) -> Any:
         i8p = builder.bitcast(ptr, ir.IntType(8).as_pointer())
         i32 = ir.IntType(32)
         fnty = ir.FunctionType(ir.VoidType(), [i8p.type, i32, i32, i32])
-        fn = cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0")
+        fn = cgutils.get_or_insert_function(  # type: ignore[no-untyped-call]  # numba's untyped
+            builder.module, fnty, "llvm.prefetch.p0"
+        )
         builder.call(fn, [i8p, i32(0), i32(3), i32(1)])  # read, keep in all cache levels
 
     return types.void(arr, idx), codegen
