@@ -57,7 +57,6 @@ _AZ_EPS = 1e-9
 # (6 * 501 * 501 steps) takes 13.6 ms on two threads against 22.4 ms on one (idle 2 cores)
 _PARALLEL_MIN_STEPS = 1_000_000
 _HEAVY_STEPS = 8  # rays with at most this many steps go to the cheap second pass
-_TAIL_LINES = 0  # grid lines before a cell's own always checked on its exact line of sight
 _ERR_GAIN = 0.5  # safety factor on the sweep's horizon error estimate
 # the tree's error bars are narrowed: with full-width bars the exact checks cost 1.15x the run
 # time for an IoU 0.9997 instead of 0.9985 (fractal, 1000 m); wedges keep the full width
@@ -251,24 +250,26 @@ def _compact(s_hi: Scratch, s_j: Lines, n_c: int, lo: float) -> int:
 @njit(cache=True, fastmath=_SAFE_FM)
 def _tail_clear(
     flat: Dem, h: int, w: int, u0: float, v0: float, col: int, row: int, a: float, e: float,
-    eye: float, zt: float, inv2r: float, dc2: float, umaj: bool, inv_n: float,
+    eye: float, zt: float, inv2r: float, dc2: float, umaj: bool, t0: float,
 ) -> bool:  # fmt: skip
-    """``_segment_clear`` over the sight line's last gap between major grid lines: t in
-    [1 - ``inv_n``, 1], ``inv_n`` = 1 / the target's major distance from the observer (cells;
-    major axis u when ``umaj``), ``dc2`` its squared map distance. There the line crosses at
-    most one minor grid line: one quad, when the minor run across the gap is within a cell."""
+    """``_segment_clear`` over t in [``t0``, 1], the sight line's last gap between major
+    grid lines (major axis u when ``umaj``; t0 = 0 when the observer lies in the gap); ``dc2``:
+    the target's squared map distance. There the line crosses at most one minor grid line: one
+    quad, when the minor run across the gap is within a cell and the gap inside the grid."""
     du = col - u0
     dv = row - v0
-    r = (dv if umaj else du) * inv_n  # the minor run over the gap, cells
-    if not -1.0 <= r <= 1.0:
-        return _segment_clear(flat, h, w, u0, v0, col, row, a, e, eye, zt, inv2r, 1.0 - inv_n, 1.0)
+    r = (dv if umaj else du) * (1.0 - t0)  # the minor run over the gap, cells
+    ua = u0 + t0 * du
+    va = v0 + t0 * dv
+    if not (-1.0 <= r <= 1.0 and 0.0 <= ua <= w - 1 and 0.0 <= va <= h - 1):
+        return _segment_clear(flat, h, w, u0, v0, col, row, a, e, eye, zt, inv2r, t0, 1.0)
     if umaj:
         i = col - 1 if du > 0.0 else col
         j = row - 1 if r > 0.0 else min(row, h - 2)
     else:
         j = row - 1 if dv > 0.0 else row
         i = col - 1 if r > 0.0 else min(col, w - 2)
-    rise = _quad_rise(flat, w, i, j, u0, v0, du, dv, 1.0 - inv_n, 1.0, dc2 * inv2r, eye, zt - eye)
+    rise = _quad_rise(flat, w, i, j, u0, v0, du, dv, t0, 1.0, dc2 * inv2r, eye, zt - eye)
     return rise <= _TOL_M
 
 
@@ -366,14 +367,14 @@ def _march(
                 inv_n = 1.0 / abs(major - o_maj)
                 # exact on the last lines, where the sight line runs over the cell's own
                 # slope; then exact near every sample whose error bar reaches the sight line
-                t_tail = max(0.0, 1.0 - (_TAIL_LINES + 1) * inv_n)
+                t_tail = max(0.0, 1.0 - inv_n)  # from the grid line before the cell's
                 vis = _tail_clear(
-                    flat, h, w, u0, v0, col, row, a, e, eye, zc, inv2r, dc2, umaj, inv_n
+                    flat, h, w, u0, v0, col, row, a, e, eye, zc, inv2r, dc2, umaj, t_tail
                 )
                 if vis and sl < max(hi, hi1):  # (hi1: the sample on line s - 1)
                     vis = _head_clear(
                         flat, h, w, u0, v0, col, row, a, e, eye, zc, inv2r, sl, s_hi, s_j,
-                        n_c, s - 1 - _TAIL_LINES, o_off, inv_n, t_tail,
+                        n_c, s - 1, o_off, inv_n, t_tail,
                     )  # fmt: skip
             out[major * st_maj + cm * st_min] = vis
         hi = max(hi, hi1)  # the sample on line s - 1 joins the horizon
