@@ -260,3 +260,33 @@ def test_observer_near_window_edge():
     tr = grid(64)
     mask = compute_viewshed((dem, tr), *centre_xy(tr, 1, 62), height=2.0, radius=100.0)
     assert mask[62, 1] == 1 and mask.sum() > 50
+
+
+def test_tail_quad_test_agrees_with_the_general_segment_test():
+    # the kernel's one-quad test of a sight line's last grid-line gap against the general
+    # piecewise test over the same stretch: observers anywhere (edges included), any target
+    from mars_pairs.kernels.viewshed import _segment_clear, _tail_clear
+
+    rng = np.random.default_rng(5)
+    n = 24
+    flat = (rng.normal(0.0, 1.0, (n, n)).cumsum(axis=1) * 0.4).astype(np.float32).reshape(-1)
+    inv2r = 0.5 / 3396190.0
+    a, e = 1.0, -1.0
+    blocked = 0
+    for _ in range(4000):
+        u0, v0 = rng.uniform(-0.5, n - 0.5, 2)
+        col, row = (int(c) for c in rng.integers(0, n, 2))
+        du, dv = col - u0, row - v0
+        umaj = abs(du) >= abs(dv)
+        n_maj = abs(du) if umaj else abs(dv)
+        if n_maj < 0.5:
+            continue
+        t0 = max(0.0, 1.0 - 1.0 / n_maj)
+        eye = float(flat[math.floor(v0 + 0.5) * n + math.floor(u0 + 0.5)]) + rng.uniform(0, 2)
+        dc2 = (du * a) ** 2 + (dv * e) ** 2
+        zt = float(flat[row * n + col]) - dc2 * inv2r
+        args = (flat, n, n, u0, v0, col, row, a, e, eye, zt, inv2r)
+        tail = _tail_clear(*args, dc2, umaj, t0)
+        assert tail == _segment_clear(*args, t0, 1.0), (u0, v0, col, row)
+        blocked += not tail
+    assert blocked > 100  # the cases include blocked tails
