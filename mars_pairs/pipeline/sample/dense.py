@@ -146,7 +146,9 @@ def chip_ground_points(
 ) -> ChipGroundPoints:
     """:func:`ground_pixels_of_chip` with the covered chip pixels (one scan of the chip)."""
     out = np.full((*visible.shape, 2), np.nan, dtype=np.float32)
-    rows, cols = np.nonzero(visible & np.isfinite(dem))
+    seen = np.flatnonzero(visible)  # (np.nonzero of a 2-D mask: 20x the time)
+    seen = seen[np.isfinite(np.ravel(dem)[seen])]
+    rows, cols = np.divmod(seen, visible.shape[1])
     px32 = np.empty((0, 2), dtype=np.float32)
     if len(rows):
         points = chip_points(grid, dem, rows, cols)
@@ -174,7 +176,7 @@ def project_inside(camera: MapCamera, local: np.ndarray) -> tuple[np.ndarray, np
 def ground_on_map(pixels: np.ndarray, ground_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(colours uint8 (S, S[, C]), cover bool (S, S)): the ground image ``pixels`` (H, W[, C]
     uint8) sampled bilinearly at ``ground_px``; 0 where not covered."""
-    rows, cols = np.nonzero(np.isfinite(ground_px[..., 0]))
+    rows, cols = np.divmod(np.flatnonzero(np.isfinite(ground_px[..., 0])), ground_px.shape[1])
     return colours_on_map(pixels, ground_px.shape[:2], rows, cols, ground_px[rows, cols])
 
 
