@@ -184,9 +184,13 @@ def colours_on_map(
     pixels: np.ndarray, shape: tuple[int, ...], rows: np.ndarray, cols: np.ndarray, px: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`ground_on_map` from the covered chip pixels (``rows``, ``cols``) of a chip of
-    ``shape`` (S, S) and their image pixels ``px`` (N, 2): ``ChipGroundPoints``."""
+    ``shape`` (S, S) and their image pixels ``px`` (N, 2): ``ChipGroundPoints``. ``pixels``
+    (H, W, 4) are RGB and padding (``GroundImage.pixels``): the colours have 3 bands."""
     values, ok = sample_at(pixels, px[:, 0], px[:, 1], nearest=False, fill=0)
-    colours = np.zeros(tuple(shape) + pixels.shape[2:], dtype=np.uint8)
+    bands = pixels.shape[2:]
+    if bands == (4,):  # RGBX
+        values, bands = values[:, :3], (3,)
+    colours = np.zeros(tuple(shape) + bands, dtype=np.uint8)
     cover = np.zeros(tuple(shape), dtype=bool)
     colours[rows, cols] = np.rint(values).clip(0, 255).astype(np.uint8)
     cover[rows, cols] = ok
