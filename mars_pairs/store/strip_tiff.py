@@ -32,13 +32,13 @@ _ZSTD_COMPRESSION = 50000
 _STRIP_OFFSETS, _STRIP_BYTES = 273, 279
 _BLACK_IS_ZERO, _RGB = 1, 2
 #: (bits, SampleFormat) of each pixel type: 1 unsigned integer, 3 IEEE float
-_SAMPLE_FORMATS = {
+_SAMPLE_FORMATS: dict[np.dtype, tuple[int, int]] = {
     np.dtype("<u1"): (8, 1),
     np.dtype("<u2"): (16, 1),
     np.dtype("<f4"): (32, 3),
     np.dtype("<f8"): (64, 3),
 }
-_DTYPES = {fmt: dtype for dtype, fmt in _SAMPLE_FORMATS.items()}
+_DTYPES: dict[tuple[int, int], np.dtype] = {fmt: dtype for dtype, fmt in _SAMPLE_FORMATS.items()}
 _MAX_BANDS = 4
 
 
@@ -76,7 +76,8 @@ def write_strip_tiff(
         values = imagecodecs.delta_encode(values, axis=1)
     elif predictor == FLOAT_PREDICTOR:
         values = imagecodecs.floatpred_encode(values.reshape(height, width, bands), axis=-2)
-    strip = bytes(imagecodecs.zstd_encode(values, level))  # the array's buffer: no copy
+    # the array's buffer, not a copy of it
+    strip = bytes(imagecodecs.zstd_encode(values, level))  # type: ignore[arg-type]  # any buffer
     bits, fmt = _SAMPLE_FORMATS[dtype]
     rgb = bands == 3 and dtype.kind == "u" and bits == 8
     entries: list[tuple[int, int, int, int | bytes]] = [
@@ -172,7 +173,8 @@ def read_strip_tiff(
     shape = (height, width) if bands == 1 else (height, width, bands)
     raw = np.empty(dtype.itemsize * width * height * bands, dtype=np.uint8)  # not zeroed
     try:
-        got = imagecodecs.zstd_decode(view[strip_at : strip_at + strip_size], out=raw.data)
+        strip = view[strip_at : strip_at + strip_size]  # not copied
+        got = imagecodecs.zstd_decode(strip, out=raw.data)  # type: ignore[arg-type]  # any buffer
     except imagecodecs.ZstdError as exc:
         raise ValueError(f"bad zstd strip: {exc}") from None
     if len(got) != len(raw):
