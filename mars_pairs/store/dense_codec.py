@@ -8,7 +8,7 @@ after horizontal differencing (predictor 2); the masks (``view_valid``,
 ``ground_on_map_cover``, uint8 0/255), the colours laid on the map (``ground_on_map``, uint8,
 RGB when the ground image is) and ``ground_px`` (float32 (S, S, 2), ``store.float_tiff``'s
 file) without a predictor: on the chip grid most of each is empty, which zstd takes alone.
-All at zstd level 1. GDAL, rasterio, QGIS and tifffile open them.
+All at zstd level 1. GDAL (so rasterio and QGIS) reads each as written.
 
 Against the members of format version 2 (``.npy`` arrays and PNG images: :data:`V2_MEMBERS`),
 on the 512 px chips of ``benchmarks/bench_build.py --dense`` (thread CPU, best of 5, 48
