@@ -22,7 +22,8 @@ workers: the projection column, with the worker cost taken from the 1-worker bui
 times. Prints markdown tables with the load average; the other anchor is the study's QGIS
 tool: tens of seconds per image. ``--dense`` adds, in the same run, the local 1-worker build
 with every dense member on (``output.members: all``) against the same build without them,
-alternated, best of 2 each, and each dense member's mean size per sample. ``--scale``
+alternated, best of 2 each: samples/s and this process's CPU ms per sample (all its
+threads: numba's too), and each member's mean size per sample. ``--scale``
 instead runs ``bench_scale.py``: the driver's peak memory and CPU per label at ``--sizes``
 labels, the chunk job stubbed.
 
@@ -80,26 +81,34 @@ def _config(
 
 
 def dense_rows(mission: Path, root: Path, size_px: int) -> list[str]:
-    """The lines of samples/s without and with every dense member (local, 1 worker, alternated,
-    best of 2) and the dense members' mean sizes."""
+    """The lines of samples/s and CPU ms a sample (this process's, all its threads) without
+    and with every dense member (local, 1 worker, alternated, best of 2 each) and the
+    dense members' mean sizes."""
     import pyarrow.parquet as pq
 
     from mars_pairs.store.members import DENSE_FIELDS
 
     best = {"off": 0.0, "on": 0.0}
+    cpu_ms = {"off": float("inf"), "on": float("inf")}
     n = 0
     for rep in range(2):
         for mode in ("off", "on"):
             out = root / f"dense-{mode}{rep}"
             members = "all" if mode == "on" else None
             cfg = parse_config(_config(mission, out, size_px, members=members), root)
+            start = _cpu()
             summary = run_build(cfg, workers=1, progress=False)
             n = summary.samples
             best[mode] = max(best[mode], summary.samples / summary.seconds)
-    lines = [f"\n| dense members ({n} samples, local, 1 worker) | samples/s | vs off |",
-             "|---|---:|---:|"]  # fmt: skip
+            cpu_ms[mode] = min(cpu_ms[mode], 1000 * (_cpu() - start) / summary.samples)
+    lines = [f"\n| dense members ({n} samples, local, 1 worker) | samples/s | vs off "
+             "| CPU ms/sample | vs off (by CPU) |",
+             "|---|---:|---:|---:|---:|"]  # fmt: skip
     for mode in ("off", "on"):
-        lines.append(f"| {mode} | {best[mode]:.1f} | {best[mode] / best['off']:.2f}x |")
+        lines.append(
+            f"| {mode} | {best[mode]:.1f} | {best[mode] / best['off']:.2f}x "
+            f"| {cpu_ms[mode]:.1f} | {cpu_ms['off'] / cpu_ms[mode]:.2f}x |"
+        )
     table = pq.read_table(root / "dense-on0" / "manifest.parquet")
     lines += ["\n| member | mean KiB per sample |", "|---|---:|"]
     for field in ("ground", "ortho", "dem", "viewshed", "corr", *DENSE_FIELDS):

@@ -19,7 +19,7 @@ import rasterio.errors
 from affine import Affine
 from numpy.typing import ArrayLike, NDArray
 from rasterio.crs import CRS
-from rasterio.enums import Resampling
+from rasterio.enums import MaskFlags, Resampling
 from rasterio.warp import reproject, transform_bounds
 from rasterio.warp import transform as warp_points
 from rasterio.windows import Window, from_bounds
@@ -297,9 +297,7 @@ class ChipReader:
                 if not len(sel):
                     continue
                 strip = Window(win.col_off, win.row_off + r0, win.width, r1 - r0)
-                data = self.grid.read(self.dataset, band, strip, masked=True)
-                data = data.astype(np.float32).filled(np.nan)
-                values[sel] = sample_at(data, u[sel], v[sel] - r0, nearest=False)[0]
+                values[sel] = self._strip_points(band, strip, u[sel], v[sel] - r0)
         except rasterio.errors.RasterioError as exc:
             raise TerrainError(
                 f"{self.path}: band {band}: cannot read points: {gdal_reason(exc)}"
@@ -309,6 +307,57 @@ class ChipReader:
             values = values * np.float32(scale) + np.float32(offset)
         out[ok] = values
         return out
+
+    def _strip_points(
+        self, band: int, strip: Window, u: NDArray[np.float64], v: NDArray[np.float64]
+    ) -> NDArray[np.float32]:
+        """``read_points``' bilinear values at the strip's grid points (u, v) (column, row;
+        centres at integers): NaN next to a pixel without data.
+
+        A band whose only mask is its nodata value (or that has none) is read as it is and
+        the value compared at the four neighbours of each point alone; any other mask (an
+        alpha band, an internal mask) is read and the strip converted to float32 with NaN
+        where it masks. The same values either way: the kernel weighs the pixels in float64
+        from any dtype, and a masked neighbour makes the point NaN, whatever its weight."""
+        nodata = self._plain_nodata(band)
+        if nodata is None:
+            data = self.grid.read(self.dataset, band, strip, masked=True)
+            values = sample_at(data.astype(np.float32).filled(np.nan), u, v, nearest=False)[0]
+            return np.asarray(values, dtype=np.float32)
+        data = self.grid.read(self.dataset, band, strip)
+        values = sample_at(data, u, v, nearest=False)[0]
+        if nodata.size:  # the kernel's 2 x 2 of each point (it makes the off-grid ones NaN)
+            h, w = data.shape
+            x = np.clip(np.nan_to_num(u), 0.0, w - 1.0)
+            y = np.clip(np.nan_to_num(v), 0.0, h - 1.0)
+            c0 = np.minimum(x.astype(np.intp), w - 2) if w > 1 else np.zeros(len(x), np.intp)
+            r0 = np.minimum(y.astype(np.intp), h - 2) if h > 1 else np.zeros(len(y), np.intp)
+            c1, r1 = np.minimum(c0 + 1, w - 1), np.minimum(r0 + 1, h - 1)
+            value = nodata[0]
+            masked = np.zeros(len(x), dtype=bool)
+            for rr, cc in ((r0, c0), (r0, c1), (r1, c0), (r1, c1)):
+                pixel = data[rr, cc]
+                masked |= np.isnan(pixel) if np.isnan(value) else pixel == value
+            values[masked] = np.nan
+        return np.asarray(values, dtype=np.float32)
+
+    def _plain_nodata(self, band: int) -> NDArray[Any] | None:
+        """The band's nodata value as one value of its dtype when that value is its only
+        mask (an empty array: no mask at all); None for any other mask, or a nodata value
+        the dtype cannot hold exactly (GDAL's mask then decides)."""
+        flags = self.dataset.mask_flag_enums[band - 1]
+        if flags == [MaskFlags.all_valid]:
+            return np.empty(0)
+        nodata = self.dataset.nodatavals[band - 1]
+        if flags != [MaskFlags.nodata] or nodata is None:
+            return None
+        dtype = np.dtype(self.dataset.dtypes[band - 1])
+        if dtype.kind not in "uif":
+            return None
+        with np.errstate(invalid="ignore", over="ignore"):
+            value = np.array([nodata]).astype(dtype)
+        same = float(value[0]) == nodata or (math.isnan(nodata) and np.isnan(value[0]))
+        return value if same else None
 
     def _window(self, box: tuple[float, float, float, float]) -> Window | None:
         """The north-up pixel window covering map ``box`` (raster CRS) and two pixels more,

@@ -28,8 +28,10 @@ RAY_STRIDE = ("config", "geometry", "ray_stride")
 #: the version of the dataset folder's format this mars-pairs writes and reads (every older
 #: one too); a dataset.json without ``format_version`` (written before it was recorded) is
 #: version 1. Version 2: the DEM chip is ``dem.tif``, uint16 quantized (``store.dem_codec``;
-#: dataset.json's ``dem_encoding``), where version 1 holds a float32 ``dem.npy``
-FORMAT_VERSION = 2
+#: dataset.json's ``dem_encoding``), where version 1 holds a float32 ``dem.npy``. Version 3:
+#: every dense member is a one-strip zstd TIFF ``<field>.tif`` (``store.dense_codec``), where
+#: version 2 holds ``.npy`` arrays and PNG images
+FORMAT_VERSION = 3
 
 
 def _mapping(value: Any) -> dict[str, Any]:

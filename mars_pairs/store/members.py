@@ -20,14 +20,16 @@ DENSE_MEMBERS = (
     "range", "depth", "hits", "ortho_view", "dem_view", "ground_on_map", "ground_px",
 )  # fmt: skip
 
-#: The tar members each written member name brings (companions: validity and pixel maps).
+#: The tar members each written member name brings (companions: validity and pixel maps);
+#: each a one-strip zstd TIFF (``store.dense_codec``; format version 2 wrote ``.npy`` arrays
+#: and PNG images: ``store.dense_codec.V2_MEMBERS``).
 MEMBER_FILES: dict[str, tuple[str, ...]] = {
-    "range": ("range.npy",),
-    "depth": ("depth.npy",),
-    "hits": ("hits.npy",),
-    "ortho_view": ("ortho_view.png", "view_valid.png"),
-    "dem_view": ("dem_view.npy", "view_valid.png"),
-    "ground_on_map": ("ground_on_map.png", "ground_on_map_cover.png"),
+    "range": ("range.tif",),
+    "depth": ("depth.tif",),
+    "hits": ("hits.tif",),
+    "ortho_view": ("ortho_view.tif", "view_valid.tif"),
+    "dem_view": ("dem_view.tif", "view_valid.tif"),
+    "ground_on_map": ("ground_on_map.tif", "ground_on_map_cover.tif"),
     "ground_px": ("ground_px.tif",),  # format version 1: ground_px.npy
 }
 

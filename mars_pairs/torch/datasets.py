@@ -56,7 +56,7 @@ from mars_pairs.errors import (
     SampleIndexError,
 )
 from mars_pairs.store.dataset_info import read_dataset_info
-from mars_pairs.store.dem_codec import version_suffixes
+from mars_pairs.store.dense_codec import version_suffixes
 from mars_pairs.store.filter_args import sample_index
 from mars_pairs.store.fs import Location, dataset_root, join
 from mars_pairs.store.integrity import MemberSpec, check_member, repeated_keys

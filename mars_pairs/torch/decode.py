@@ -5,7 +5,9 @@ correspondence); stage 2 writes its [C, H, W] tensor in one pass.
 
 The DEM chip is a quantized uint16 TIFF (``store.dem_codec``: 0.13 ms a 256 px chip) and
 ``ground_px`` a lossless float32 TIFF (``store.float_tiff``) in format version 2, both
-``.npy`` in version 1; told apart by the member's first bytes.
+``.npy`` in version 1; every dense member is a lossless TIFF (``store.dense_codec``) from
+version 3, a ``.npy`` array or a PNG image in version 2; told apart by the member's first
+bytes.
 
 JPEG members are decoded by simplejpeg (libjpeg-turbo, accurate DCT and fancy upsampling:
 the pixels Pillow gives), 0.43 ms against Pillow's 0.84 ms for the demo's 384 px ground
@@ -28,8 +30,10 @@ from PIL import Image
 
 from mars_pairs.errors import ArgumentError
 from mars_pairs.store.dem_codec import DEM_MEMBER, decode_dem, is_npy
+from mars_pairs.store.dense_codec import decode_dense
 from mars_pairs.store.float_tiff import decode_float_tiff
-from mars_pairs.store.members import OPTIONAL_FIELDS
+from mars_pairs.store.members import DENSE_FIELDS, OPTIONAL_FIELDS
+from mars_pairs.store.strip_tiff import is_tiff
 
 DEFAULT_FIELDS = ("ground", "ortho", "dem", "viewshed")
 
@@ -48,7 +52,7 @@ LABEL_FIELDS = ("terrain", "terrain_on_map")
 
 
 #: tar member suffixes of the fields (the ground image's is in the manifest's ground_member;
-#: a format version 1 dataset's DEM chip is ``dem.npy``, ``store.dem_codec.DEM_NPY_MEMBER``)
+#: older formats' suffixes: ``store.dense_codec.version_suffixes``)
 MEMBER_SUFFIXES = {
     "ground": "ground.jpg",
     "ortho": "ortho.png",
@@ -56,14 +60,14 @@ MEMBER_SUFFIXES = {
     "viewshed": "viewshed.png",
     "corr": "corr.npy",
     "meta": "meta.json",
-    "range": "range.npy",
-    "depth": "depth.npy",
-    "hits": "hits.npy",
-    "ortho_view": "ortho_view.png",
-    "view_valid": "view_valid.png",
-    "dem_view": "dem_view.npy",
-    "ground_on_map": "ground_on_map.png",
-    "ground_on_map_cover": "ground_on_map_cover.png",
+    "range": "range.tif",
+    "depth": "depth.tif",
+    "hits": "hits.tif",
+    "ortho_view": "ortho_view.tif",
+    "view_valid": "view_valid.tif",
+    "dem_view": "dem_view.tif",
+    "ground_on_map": "ground_on_map.tif",
+    "ground_on_map_cover": "ground_on_map_cover.tif",
     "ground_px": "ground_px.tif",
     "terrain": "terrain.png",
     "terrain_on_map": "terrain_on_map.png",
@@ -214,6 +218,8 @@ def decode_raw(
         return dem
     if field == "ground_px":
         return _decode_npy(data) if is_npy(data) else decode_float_tiff(data)
+    if field in DENSE_FIELDS and is_tiff(data):  # format version 3 on
+        return _dense_tiff(field, data)
     if field in ("corr", "range", "depth", "dem_view"):
         return _decode_npy(data).astype(np.float32, copy=False)
     if field == "hits":  # float64: map coordinates in the millions
@@ -223,6 +229,25 @@ def decode_raw(
     if field in ("ortho_view", "view_valid", "ground_on_map_cover", *LABEL_FIELDS):
         return _image_u8(data, "L")
     raise ArgumentError(f"unknown field {field!r}; expected one of {list(KNOWN_FIELDS)}")
+
+
+#: the stage-1 dtype of each dense field a TIFF holds (``store.dense_codec.CODECS``)
+_DENSE_DTYPES = {"hits": np.dtype(np.float64), "range": np.dtype(np.float32),
+                 "depth": np.dtype(np.float32), "dem_view": np.dtype(np.float32)}  # fmt: skip
+
+
+def _dense_tiff(field: str, data: bytes | bytearray) -> np.ndarray:
+    """A dense member's TIFF (``store.dense_codec``) as its stage-1 array: uint8 images and
+    masks (``ground_on_map`` RGB, a grey one's value repeated, as from its PNG), float32
+    grids, float64 ``hits``; ValueError for a TIFF of another pixel type or over
+    MAX_MEMBER_PIXELS pixels."""
+    pixels = decode_dense(data, MAX_MEMBER_PIXELS)
+    want = _DENSE_DTYPES.get(field, np.dtype(np.uint8))
+    if pixels.dtype != want:
+        raise ValueError(f"{field} TIFF: {pixels.dtype} pixels, expected {want}")
+    if field == "ground_on_map" and pixels.ndim == 2:
+        return np.repeat(pixels[..., None], 3, axis=2)
+    return pixels
 
 
 def chw_shape(raw: np.ndarray) -> tuple[int, int, int]:

@@ -45,10 +45,6 @@ def _img(data: bytes) -> np.ndarray:
     return np.asarray(Image.open(io.BytesIO(data)))
 
 
-def _npy(data: bytes) -> np.ndarray:
-    return np.load(io.BytesIO(data), allow_pickle=False)
-
-
 def _grey(rgb: np.ndarray) -> np.ndarray:
     return rgb.astype(np.float64).mean(axis=-1) if rgb.ndim == 3 else rgb.astype(np.float64)
 
@@ -75,13 +71,14 @@ def test_members_written_located_and_checksummed(dense: Path) -> None:
     for m in samples.values():
         meta = json.loads(m["meta.json"])
         h, w = (len(range(0, meta["height"], STRIDE)), len(range(0, meta["width"], STRIDE)))
-        assert _npy(m["range.npy"]).shape == (h, w) and _npy(m["range.npy"]).dtype == np.float32
-        assert _npy(m["depth.npy"]).dtype == np.float32
-        assert _npy(m["hits.npy"]).shape == (h, w, 3) and _npy(m["hits.npy"]).dtype == np.float64
+        grids = {f: tiff_array(m[f"{f}.tif"]) for f in ("range", "depth", "hits", "dem_view")}
+        assert grids["range"].shape == (h, w) and grids["range"].dtype == np.float32
+        assert grids["depth"].dtype == grids["dem_view"].dtype == np.float32
+        assert grids["hits"].shape == (h, w, 3) and grids["hits"].dtype == np.float64
         assert tiff_array(m["ground_px.tif"]).shape == (CHIP["size_px"], CHIP["size_px"], 2)
         assert meta["dense_stride"] == STRIDE and set(meta["dense_members"]) >= {"range"}
         # range >= depth > 0 where the ray hit
-        r, d = _npy(m["range.npy"]), _npy(m["depth.npy"])
+        r, d = tiff_array(m["range.tif"]), tiff_array(m["depth.tif"])
         ok = np.isfinite(r)
         assert ok.sum() > 100 and np.all(r[ok] >= d[ok] - 1e-3) and np.all(d[ok] > 0)
 
@@ -111,18 +108,18 @@ def test_closure_ground_on_map_and_map_from_rover(dense: Path) -> None:
     beyond_chip = 0
     for key, m in sample_members(dense).items():
         ortho = _img(m["ortho.png"]).astype(np.float64)
-        cover = _img(m["ground_on_map_cover.png"]) > 0
-        on_map = _grey(_img(m["ground_on_map.png"]))
+        cover = tiff_array(m["ground_on_map_cover.tif"]) > 0
+        on_map = _grey(tiff_array(m["ground_on_map.tif"]))
         if cover.sum() >= 500:
             r = np.corrcoef(on_map[cover], ortho[cover])[0, 1]
             assert r >= 0.95, (key, r, cover.sum())
             checked_map += 1
         ground = _grey(_img(m["ground.jpg"]))[::STRIDE, ::STRIDE]
-        valid = _img(m["view_valid.png"]) > 0
-        seen = _img(m["ortho_view.png"]).astype(np.float64)
-        dem_view = _npy(m["dem_view.npy"])
-        hits = _npy(m["hits.npy"])
-        hit = np.isfinite(_npy(m["range.npy"]))
+        valid = tiff_array(m["view_valid.tif"]) > 0
+        seen = tiff_array(m["ortho_view.tif"]).astype(np.float64)
+        dem_view = tiff_array(m["dem_view.tif"])
+        hits = tiff_array(m["hits.tif"])
+        hit = np.isfinite(tiff_array(m["range.tif"]))
         # every hit within the radius is on the (gap-free) map: all valid, and only they
         assert np.array_equal(valid, hit), (key, valid.sum(), hit.sum())
         assert np.array_equal(np.isfinite(dem_view), valid)
@@ -164,7 +161,7 @@ def test_range_and_depth_match_the_independent_march(dense: Path, small_mission:
     errors_r, errors_d = [], []
     rows = rows_by_key(dense)
     for key, m in list(sample_members(dense).items())[:2]:
-        r, d = _npy(m["range.npy"]), _npy(m["depth.npy"])
+        r, d = tiff_array(m["range.tif"]), tiff_array(m["depth.tif"])
         h, w = r.shape
         lines, samples = np.meshgrid(np.arange(h)[::2], np.arange(w)[::2], indexing="ij")
         pixels = np.column_stack([samples.ravel() * STRIDE, lines.ravel() * STRIDE]).astype(float)
@@ -275,7 +272,7 @@ def test_classes_move_between_image_and_chip(
             assert agree >= 0.98, (key, agree, cover.sum())
             checked += 1
         # chip -> image through the hits at the dense stride
-        hits = _npy(m["hits.npy"])
+        hits = tiff_array(m["hits.tif"])
         chip_px = grid.to_pixel(hits[..., 0], hits[..., 1])
         back, valid = chip_to_image(chip_cls.astype(np.int16), chip_px, nearest=True, fill=-1)
         truth_cls = image_cls[::STRIDE, ::STRIDE]

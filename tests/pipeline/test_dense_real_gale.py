@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import io
 import json
 from pathlib import Path
 
@@ -13,7 +12,7 @@ import pytest
 from mars_pairs.pipeline.builder.run import run_build
 from mars_pairs.pipeline.config import parse_config
 from support import independent_truth as truth
-from support.members import rows_by_key, sample_members
+from support.members import rows_by_key, sample_members, tiff_array
 from support.real_gale import GALE, make_gale_labels
 
 #: builds, subprocesses or servers: more than ~3 s a test (`make test-fast` skips them)
@@ -47,8 +46,8 @@ def test_range_and_depth_on_real_gale(built: Path) -> None:
     labels = built / json.loads((built / "dataset.json").read_text())["labels_root"]
     arrays: dict[str, dict[str, np.ndarray]] = {}
     for key, members in sample_members(built).items():
-        for name in ("range.npy", "depth.npy"):
-            arrays.setdefault(key, {})[name] = np.load(io.BytesIO(members[name]))
+        for name in ("range.tif", "depth.tif"):
+            arrays.setdefault(key, {})[name] = tiff_array(members[name])
     er, ed = [], []
     for key, a in arrays.items():
         lab = truth.read_label_fields(labels / rows[key]["label_path"])  # relative to the root
@@ -61,8 +60,8 @@ def test_range_and_depth_on_real_gale(built: Path) -> None:
         rel[ok] = cam.enu.from_map(hits[ok]) - cam.centre_enu
         t_range = np.linalg.norm(rel, axis=1)
         t_depth = rel @ (cam.rot @ (lab.a / np.linalg.norm(lab.a)))
-        r = a["range.npy"].ravel().astype(np.float64)
-        d = a["depth.npy"].ravel().astype(np.float64)
+        r = a["range.tif"].ravel().astype(np.float64)
+        d = a["depth.tif"].ravel().astype(np.float64)
         both = np.isfinite(r) & np.isfinite(t_range) & (t_range < 0.9 * RADIUS_M)
         assert both.sum() >= 0.9 * (np.isfinite(t_range) & (t_range < 0.9 * RADIUS_M)).sum() - 5
         er.append(np.abs(r[both] - t_range[both]))

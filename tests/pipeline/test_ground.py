@@ -388,3 +388,38 @@ def test_a_mipl_navcam_img_reads_and_its_image_is_chosen_by_type(tmp_path: Path)
     with Image.open(io.BytesIO(got.data)) as im:
         expected = np.clip(np.rint((pixels - lo) / (hi - lo) * 255), 0, 255)
         np.testing.assert_array_equal(np.asarray(im), expected)
+
+
+@pytest.mark.parametrize("mode", ["RGB", "L"])
+def test_kept_pixels_are_the_decoded_image(mode: str) -> None:
+    """The pixels kept for the dense members are Pillow's decode: grey (H, W); colour as
+    Pillow holds it, RGBX (H, W, 4), whose first 3 bands are the RGB values."""
+    from mars_pairs.pipeline.sample.ground import decoded_size
+
+    rng = np.random.default_rng(2)
+    shape = (24, 40, 3) if mode == "RGB" else (24, 40)
+    buf = io.BytesIO()
+    Image.fromarray(rng.integers(0, 256, size=shape, dtype=np.uint8)).save(buf, format="JPEG")
+    kept: list[np.ndarray] = []
+    assert decoded_size(buf.getvalue(), Path("x.jpg"), kept) == (40, 24)
+    want = np.asarray(Image.open(io.BytesIO(buf.getvalue())))
+    (pixels,) = kept
+    if mode == "RGB":
+        assert pixels.shape == (24, 40, 4) and np.array_equal(pixels[..., :3], want)
+    else:
+        assert pixels.shape == (24, 40) and np.array_equal(pixels, want)
+
+
+def test_colours_laid_on_the_map_from_rgbx_are_those_from_rgb() -> None:
+    from mars_pairs.pipeline.sample.dense import ground_on_map
+
+    rng = np.random.default_rng(8)
+    rgb = rng.integers(0, 256, size=(30, 50, 3), dtype=np.uint8)
+    rgbx = np.concatenate([rgb, np.full((30, 50, 1), 255, dtype=np.uint8)], axis=2)
+    ground_px = np.stack([rng.uniform(-2, 52, (16, 16)), rng.uniform(-2, 32, (16, 16))], -1)
+    ground_px = ground_px.astype(np.float32)
+    ground_px[rng.random((16, 16)) < 0.3] = np.nan
+    colours, cover = ground_on_map(rgb, ground_px)
+    padded, padded_cover = ground_on_map(rgbx, ground_px)
+    assert colours.shape == padded.shape == (16, 16, 3) and 0 < cover.sum() < 16 * 16
+    assert np.array_equal(colours, padded) and np.array_equal(cover, padded_cover)

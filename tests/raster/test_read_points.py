@@ -98,3 +98,57 @@ def test_points_in_another_crs_are_reprojected(tmp_path: Path) -> None:
     with ChipReader(path) as reader:
         got = reader.read_points(x + 5000.0, y - 300.0, shifted)
     np.testing.assert_allclose(got, _expected(x, y), atol=1e-3)
+
+
+@pytest.mark.parametrize(
+    ("dtype", "nodata"), [("uint8", 0), ("float32", -3.4028234663852886e38), ("float32", np.nan)]
+)
+def test_a_band_masked_by_its_nodata_reads_as_through_its_gdal_mask(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, dtype: str, nodata: float
+) -> None:
+    """The band read as it is and its nodata checked at each point's 2 x 2 gives the values
+    (NaN included) of the band read through GDAL's mask and converted to float32."""
+    rng = np.random.default_rng(4)
+    raw = rng.integers(1, 250, size=(H, W)).astype(dtype)
+    raw[rng.random((H, W)) < 0.04] = nodata  # scattered holes
+    raw[:, 0] = nodata  # and an edge column
+    profile = {
+        "driver": "GTiff", "width": W, "height": H, "count": 1, "dtype": dtype,
+        "crs": MSL_PLACES_CRS, "transform": Affine(2.0, 0.0, LEFT, 0.0, -2.0, TOP),
+        "nodata": nodata,
+    }  # fmt: skip
+    with rasterio.open(tmp_path / "holes.tif", "w", **profile) as dst:
+        dst.write(raw, 1)
+    col = np.concatenate([rng.uniform(-1.0, W, 3000), rng.integers(0, W, 500).astype(float)])
+    row = np.concatenate([rng.uniform(-1.0, H, 3000), rng.integers(0, H, 500).astype(float)])
+    x, y = LEFT + 2.0 * (col + 0.5), TOP - 2.0 * (row + 0.5)  # pixel centres among them
+    with ChipReader(tmp_path / "holes.tif") as reader:
+        assert reader._plain_nodata(1) is not None  # the fast path
+        fast = reader.read_points(x, y, MSL_PLACES_CRS)
+        monkeypatch.setattr(ChipReader, "_plain_nodata", lambda self, band: None)
+        masked = reader.read_points(x, y, MSL_PLACES_CRS)
+    assert 100 < np.isnan(fast).sum() < len(x) - 100
+    np.testing.assert_array_equal(fast, masked)
+
+
+def test_a_band_with_an_alpha_mask_reads_nan_next_to_a_masked_pixel(tmp_path: Path) -> None:
+    raw = _raw().astype(np.uint8)
+    alpha = np.full((H, W), 255, dtype=np.uint8)
+    alpha[NODATA_AT] = 0
+    profile = {
+        "driver": "GTiff", "width": W, "height": H, "count": 2, "dtype": "uint8",
+        "crs": MSL_PLACES_CRS, "transform": Affine(2.0, 0.0, LEFT, 0.0, -2.0, TOP),
+        "photometric": "MINISBLACK", "alpha": "YES",
+    }  # fmt: skip
+    with rasterio.open(tmp_path / "alpha.tif", "w", **profile) as dst:
+        dst.write(raw, 1)
+        dst.write(alpha, 2)
+    r, c = NODATA_AT
+    with ChipReader(tmp_path / "alpha.tif") as reader:
+        assert reader._plain_nodata(1) is None  # the mask is read
+        got = reader.read_points(
+            np.array([LEFT + 2.0 * (c + 0.8), LEFT + 10.0]),
+            np.array([TOP - 2.0 * (r + 0.9), TOP - 10.0]),
+            MSL_PLACES_CRS,
+        )
+    assert np.isnan(got[0]) and got[1] == pytest.approx(3 * 4.5 + 7 * 4.5)  # between 4 centres

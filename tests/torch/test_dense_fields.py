@@ -208,3 +208,89 @@ def test_ground_px_follows_ground_size(dense_dir: Path) -> None:
     ok = small["ground_on_map_cover"][0].bool()
     carried = CarryToChip("ground", "c", nearest=False)(small)
     assert carried["c_valid"][ok].float().mean() > 0.99
+
+
+def _as_version_2(src: Path, dst: Path) -> None:
+    """``src`` rewritten as a format version 2 folder in ``dst``: every dense ``.tif`` member
+    but ``ground_px.tif`` replaced by the ``.npy`` (``np.save``) or PNG (Pillow) of GDAL's
+    reading of it, the manifest's location columns and dataset.json's version to match."""
+    import io
+    import json
+    import shutil
+    import tarfile
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from PIL import Image
+
+    from mars_pairs.store.seal import seal
+    from mars_pairs.store.shards import ShardWriter
+    from support.members import tiff_array
+
+    shutil.copytree(src, dst)
+    table = pq.read_table(dst / "manifest.parquet")
+    rows = {r["key"]: i for i, r in enumerate(table.select(["key"]).to_pylist())}
+    columns = {c: table[c].to_pylist() for c in table.column_names}
+    for shard in sorted((dst / "shards").glob("*.tar")):
+        samples: dict[str, dict[str, bytes]] = {}
+        with tarfile.open(shard) as tar:
+            for info in tar.getmembers():
+                key, _, member = info.name.partition(".")
+                fh = tar.extractfile(info)
+                assert fh is not None
+                samples.setdefault(key, {})[member] = fh.read()
+        rel = shard.relative_to(dst).as_posix()
+        shard.unlink()
+        with ShardWriter(dst, rel) as writer:
+            for key, members in samples.items():
+                old: dict[str, bytes] = {}
+                for member, data in members.items():
+                    field, _, suffix = member.partition(".")
+                    if suffix != "tif" or field in ("dem", "ground_px"):
+                        old[member] = data
+                        continue
+                    buf = io.BytesIO()
+                    pixels = tiff_array(data)
+                    if pixels.dtype == np.uint8:
+                        Image.fromarray(pixels).save(buf, format="PNG")
+                        old[f"{field}.png"] = buf.getvalue()
+                    else:
+                        np.save(buf, pixels, allow_pickle=False)
+                        old[f"{field}.npy"] = buf.getvalue()
+                for member, loc in writer.add(key, old).items():
+                    field = "ground" if member.startswith("ground.") else member.split(".")[0]
+                    i = rows[key]
+                    columns[f"{field}_offset"][i] = loc.offset
+                    columns[f"{field}_size"][i] = loc.size
+                    columns[f"{field}_crc32c"][i] = loc.crc32c
+    arrays = [pa.array(columns[c], type=table.schema.field(c).type) for c in table.column_names]
+    pq.write_table(pa.Table.from_arrays(arrays, schema=table.schema), dst / "manifest.parquet")
+    doc = json.loads((dst / "dataset.json").read_text())
+    doc["format_version"] = 2
+    doc.pop("files", None)
+    seal(dst, doc)  # dataset.json and SHA256SUMS over the rewritten files
+
+
+def test_a_version_2_dataset_reads_its_npy_and_png_members_as_the_tiffs(
+    dense_dir: Path, tmp_path: Path
+) -> None:
+    from mars_pairs.store.verify import verify_dataset
+
+    old_root = tmp_path / "v2"
+    _as_version_2(dense_dir, old_root)
+    assert not verify_dataset(old_root).damage
+    with (
+        MarsPairsDataset(dense_dir, fields=FIELDS) as new,
+        MarsPairsDataset(old_root, fields=FIELDS, verify=True) as old,
+    ):
+        assert len(old) == len(new) > 0
+        for i in range(len(new)):
+            a = new[i]
+            b = old[old.index_of(a["meta"]["key"])]
+            for field in FIELDS:
+                assert a[field].dtype == b[field].dtype, field
+                assert torch.equal(a[field].nan_to_num(-1), b[field].nan_to_num(-1)), field
+        assert old.member_name(0, "hits").endswith(".hits.npy")
+        assert old.member_name(0, "ground_on_map").endswith(".ground_on_map.png")
+        assert old.member_name(0, "ground_px").endswith(".ground_px.tif")
+        assert new.member_name(0, "hits").endswith(".hits.tif")

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 from PIL import Image, ImageFile
 
 from mars_pairs.errors import ImageError
@@ -45,13 +46,15 @@ class GroundImage:
     size: tuple[int, int]  # (width, height) pixels of the member
     observation: Observation
     meta: dict[str, Any] = field(default_factory=dict)
-    pixels: np.ndarray | None = None  # uint8 (H, W) or (H, W, 3), when asked for
+    #: when asked for: uint8 (H, W), (H, W, 3), or (H, W, 4) whose 4th band is padding (a
+    #: browse image's RGB pixels as Pillow holds them, RGBX, handed on without a copy)
+    pixels: np.ndarray | None = None
 
 
 def ground_image(obs: Observation, encoding: str, keep_pixels: bool = False) -> GroundImage:
     """The checked ground member of ``obs``; ImageError (naming the file) on any fault.
-    ``keep_pixels``: also hand on the decoded pixels (uint8 (H, W) or (H, W, 3), the
-    member's own decode) for the dense members."""
+    ``keep_pixels``: also hand on the decoded pixels (``GroundImage.pixels``, the member's
+    own decode) for the dense members."""
     path = obs.image_path
     if path is None or not Path(path).is_file():
         raise ImageError(f"{obs.label_path}: no image file beside the label")
@@ -96,6 +99,22 @@ def _as_pixels(im: Image.Image) -> np.ndarray:
     return np.asarray(im)
 
 
+def _kept_pixels(im: Image.Image) -> np.ndarray:
+    """A decoded image's pixels without a copy where Pillow exports them (Arrow): uint8
+    (H, W) for L, (H, W, 4) RGBX for RGB (the 4th band padding); else ``_as_pixels``'s
+    (H, W) or (H, W, 3) copy."""
+    if im.mode in ("L", "RGB") and hasattr(im, "__arrow_c_array__"):
+        try:
+            arr = pa.array(im)
+            if im.mode == "L":
+                return np.asarray(arr.to_numpy(zero_copy_only=True)).reshape(im.height, im.width)
+            padded = arr.values.to_numpy(zero_copy_only=True)  # RGBX, 4 bytes a pixel
+            return np.asarray(padded).reshape(im.height, im.width, 4)
+        except (ValueError, TypeError, pa.ArrowException):
+            pass
+    return _as_pixels(im)
+
+
 def decoded_size(
     data: bytes, path: Path, pixels: list[np.ndarray] | None = None
 ) -> tuple[int, int]:
@@ -112,7 +131,7 @@ def decoded_size(
                 im.load()  # every pixel: a truncated or corrupted stream fails here
                 size: tuple[int, int] = im.size
                 if pixels is not None:
-                    pixels.append(_as_pixels(im))
+                    pixels.append(_kept_pixels(im))
     except Exception as exc:  # Pillow raises OSError, SyntaxError, ValueError, ... on bad data
         raise ImageError(f"{path}: corrupted or truncated image: {exc}") from exc
     if data[:2] == b"\xff\xd8" and not data.rstrip(b"\x00").endswith(b"\xff\xd9"):
