@@ -154,16 +154,21 @@ class ChipReader:
     file.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, dataset: Any = None) -> None:
+        """Open the raster at ``path``; or, with ``dataset`` (an open rasterio dataset of
+        ``path``, e.g. ``Terrain.dem_dataset``), read through it: its GDAL block cache is
+        shared with its other reads, and ``close`` leaves it open for its owner."""
         self.path = str(path)
+        self._owned = dataset is None
         try:
-            self.dataset = open_raster(self.path)
+            self.dataset = open_raster(self.path) if dataset is None else dataset
         except rasterio.errors.RasterioError as exc:
             raise TerrainError(f"{self.path}: cannot open the raster: {exc}") from None
         try:
             self.grid = NorthUp.of(self.dataset, self.path, "raster")
         except TerrainError:
-            self.dataset.close()
+            if self._owned:
+                self.dataset.close()
             raise
         self.crs_wkt = self.dataset.crs.to_wkt() if self.dataset.crs else ""
         self._ranges: dict[int, ValueRange] = {}
@@ -254,8 +259,7 @@ class ChipReader:
         win = self._window(box)
         if win is None:
             return np.full((n, n), np.nan, dtype=np.float32)
-        values = self.grid.read(self.dataset, band, win, masked=True)
-        values = values.astype(np.float32).filled(np.nan)
+        values = self.grid.read_nan(self.dataset, band, win)
         src_transform = window_transform(win, self.grid.transform)
         if same:
             return _sample_grid(values, src_transform, grid, nearest)
@@ -297,8 +301,7 @@ class ChipReader:
                 if not len(sel):
                     continue
                 strip = Window(win.col_off, win.row_off + r0, win.width, r1 - r0)
-                data = self.grid.read(self.dataset, band, strip, masked=True)
-                data = data.astype(np.float32).filled(np.nan)
+                data = self.grid.read_nan(self.dataset, band, strip)
                 values[sel] = sample_at(data, u[sel], v[sel] - r0, nearest=False)[0]
         except rasterio.errors.RasterioError as exc:
             raise TerrainError(
@@ -324,8 +327,9 @@ class ChipReader:
         return Window(col0, row0, col1 - col0, row1 - row0)
 
     def close(self) -> None:
-        """Close the raster."""
-        self.dataset.close()
+        """Close the raster (a dataset handed in stays open)."""
+        if self._owned:
+            self.dataset.close()
 
     def __enter__(self) -> ChipReader:
         return self

@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 from affine import Affine
+from numpy.typing import NDArray
+from rasterio.enums import MaskFlags
 from rasterio.windows import Window
 
 from mars_pairs.errors import TerrainError
@@ -93,3 +95,57 @@ class NorthUp:
         """``dataset.read(indexes, window=...)`` for a north-up ``window``, in north-up order;
         ``kwargs`` as rasterio's (``masked``, ``out_shape``, ``boundless``, ...)."""
         return self.orient(dataset.read(indexes, window=self.own_window(window), **kwargs))
+
+    def read_nan(self, dataset: Any, band: int, window: Window) -> NDArray[np.float32]:
+        """Band ``band`` in a north-up ``window`` as float32, NaN where its GDAL mask says no
+        data: the same values as ``read(..., masked=True)`` cast to float32 and filled with
+        NaN, without building the mask band and a masked array. A band without a mask, or
+        whose mask is a nodata value ``nodata_mask`` tests as GDAL does (float32; an integer
+        type with an integral value inside its range), is read once and compared here; any
+        other (an alpha band, a per-dataset or internal mask, float64) goes through rasterio's
+        masked read."""
+        flags = dataset.mask_flag_enums[band - 1]
+        if flags == [MaskFlags.all_valid]:
+            return np.asarray(self.read(dataset, band, window), dtype=np.float32)
+        nodata = dataset.nodatavals[band - 1]
+        if flags != [MaskFlags.nodata] or not _compared_here(dataset.dtypes[band - 1], nodata):
+            masked = self.read(dataset, band, window, masked=True)
+            return np.asarray(masked.astype(np.float32).filled(np.nan))
+        data = self.read(dataset, band, window)
+        return with_nodata_nan(data, float(nodata))
+
+
+def _compared_here(dtype: str, nodata: float | None) -> bool:
+    """Whether ``nodata_mask`` tests a band of ``dtype`` as GDAL does: float32, or an
+    integer type with an integral ``nodata`` inside its range."""
+    if nodata is None:
+        return False
+    if dtype == "float32":
+        return True
+    if dtype in ("uint8", "int8", "uint16", "int16", "uint32", "int32"):
+        info = np.iinfo(dtype)
+        return float(nodata).is_integer() and info.min <= nodata <= info.max
+    return False
+
+
+def nodata_mask(data: NDArray[Any], nodata: float) -> NDArray[np.bool_]:
+    """Where ``data`` (float32, or an integer type with ``nodata`` an integer inside its
+    range) equals ``nodata`` as GDAL's nodata mask band tests it: integers exactly; float32
+    NaN when ``nodata`` is NaN, else ``a == b or |a - b| < eps * |a + b| * 2`` in float32
+    (so near -FLT_MAX, where the sum overflows, every value below about -1e31)."""
+    if np.issubdtype(data.dtype, np.integer):
+        return np.asarray(data == data.dtype.type(int(nodata)))
+    if np.isnan(nodata):
+        return np.isnan(data)
+    nd = np.float32(nodata)
+    eps = np.float32(np.finfo(np.float32).eps)
+    with np.errstate(over="ignore", invalid="ignore"):
+        near = np.abs(data - nd) < eps * np.abs(data + nd) * np.float32(2)
+    return np.asarray((data == nd) | near)
+
+
+def with_nodata_nan(data: NDArray[Any], nodata: float) -> NDArray[np.float32]:
+    """``data`` as float32 with NaN where ``nodata_mask`` is set (a new array)."""
+    out = data.astype(np.float32)
+    out[nodata_mask(data, nodata)] = np.nan
+    return out

@@ -196,6 +196,11 @@ class Terrain:
 
     # -- metadata ----------------------------------------------------------------------------
     @property
+    def dem_dataset(self) -> Any:
+        """The open rasterio dataset of the DEM (for readers that share its block cache)."""
+        return self._dem
+
+    @property
     def crs(self) -> Any:
         """The DEM's raster CRS (``rasterio.crs.CRS``)."""
         return self._dem.crs
@@ -261,13 +266,12 @@ class Terrain:
         """Read band 1 in ``window`` as float32 metres, nodata/masked -> NaN, scale/offset;
         TerrainError naming the DEM when GDAL cannot read it (a truncated or damaged file)."""
         with reading(self.dem_path, "DEM"):
-            arr = self._grid.read(self._dem, 1, window, masked=True)
+            out = self._grid.read_nan(self._dem, 1, window)
         scale = self._dem.scales[0] if self._dem.scales else 1.0
         offset = self._dem.offsets[0] if self._dem.offsets else 0.0
-        out = arr.astype(np.float32).filled(np.nan)
         if scale != 1.0 or offset != 0.0:
             out = out * np.float32(scale) + np.float32(offset)
-        if np.issubdtype(arr.dtype, np.floating):
+        if np.issubdtype(np.dtype(self._dem.dtypes[0]), np.floating):
             out[~np.isfinite(out)] = np.nan
         return np.asarray(out)
 
