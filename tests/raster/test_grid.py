@@ -186,7 +186,7 @@ _NODATA_CASES = [
 
 @pytest.mark.parametrize(("dtype", "nodata"), _NODATA_CASES)
 def test_read_nan_equals_the_masked_read_filled_with_nan(tmp_path, dtype, nodata):
-    values = np.array(_NEAR + [math.nan, -math.inf, 1.0, 7.0, 2.0], dtype=np.float64)
+    values = np.array([*_NEAR, math.nan, -math.inf, 1.0, 7.0, 2.0], dtype=np.float64)
     if np.issubdtype(np.dtype(dtype), np.integer):
         info = np.iinfo(dtype)
         values = np.clip(np.nan_to_num(values, nan=1.0, neginf=info.min), info.min, info.max)
