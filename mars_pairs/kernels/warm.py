@@ -18,14 +18,16 @@ import numpy as np
 from affine import Affine
 
 from mars_pairs.geometry.body import MARS_RADIUS_M
+from mars_pairs.kernels.frustum import frustum_keep, frustum_mask
 from mars_pairs.kernels.raycast import cast_rays
 from mars_pairs.kernels.resample import sample_affine
 from mars_pairs.kernels.viewshed import compute_viewshed
 
 
 def warm_kernels() -> None:
-    """Run the viewshed (wedge and full circle), the ray caster and the chip resampler once
-    on a 16 x 16 grid of 1 m cells."""
+    """Run the viewshed (wedge and full circle), the ray caster, the chip resampler and the
+    view's frustum test (points; a uint8 and a boolean cell selection) once on a 16 x 16
+    grid of 1 m cells."""
     dem = np.linspace(0.0, 3.0, 256, dtype=np.float32).reshape(16, 16)
     transform = Affine(1.0, 0.0, 0.0, 0.0, -1.0, 16.0)
     grid = (dem, transform)
@@ -37,3 +39,11 @@ def warm_kernels() -> None:
     cast_rays(origins, directions, grid, max_range=6.0, observer_xy=(8.5, 7.5))
     for nearest in (False, True):
         sample_affine(dem, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 8, 8, nearest)
+    camera = np.array([[0.0, 0.0, -1.5], [1.0, 0.0, 0.0], [8.0, 10.0, 0.0], [8.0, 0.0, 10.0],
+                       [1.0, 0.0, 0.0], [0.0, 0.01, 0.0]])  # fmt: skip
+    args = (np.array([8.5, 7.5, 0.0]), np.eye(3), MARS_RADIUS_M, np.array([0.0, 0.0, -1.5]),
+            6.0, camera, True, 16, 16)  # fmt: skip
+    frustum_keep(np.array([[10.0, 7.5, 0.0]]), *args)
+    coefficients = np.array(tuple(transform)[:6])
+    for selected in (dem > 1.0, (dem > 1.0).astype(np.uint8)):
+        frustum_mask(selected, dem, coefficients, *args)
