@@ -37,8 +37,9 @@ def warm_kernels() -> None:
     origins = np.array([[8.5, 7.5, 5.0]])
     directions = np.array([[0.6, 0.0, -0.8]])
     cast_rays(origins, directions, grid, max_range=6.0, observer_xy=(8.5, 7.5))
-    for nearest in (False, True):
+    for nearest in (False, True):  # axis-aligned and rotated: both paths
         sample_affine(dem, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 8, 8, nearest)
+        sample_affine(dem, 0.8, -0.6, 4.0, 0.6, 0.8, 2.0, 8, 8, nearest)
     camera = np.array([[0.0, 0.0, -1.5], [1.0, 0.0, 0.0], [8.0, 10.0, 0.0], [8.0, 0.0, 10.0],
                        [1.0, 0.0, 0.0], [0.0, 0.01, 0.0]])  # fmt: skip
     args = (np.array([8.5, 7.5, 0.0]), np.eye(3), MARS_RADIUS_M, np.array([0.0, 0.0, -1.5]),
