@@ -19,6 +19,7 @@ from affine import Affine
 
 from mars_pairs.geometry.body import MARS_RADIUS_M
 from mars_pairs.kernels.frustum import frustum_keep, frustum_mask
+from mars_pairs.kernels.quantize import quantize_steps
 from mars_pairs.kernels.raycast import cast_rays
 from mars_pairs.kernels.resample import sample_affine
 from mars_pairs.kernels.viewshed import compute_viewshed
@@ -45,6 +46,7 @@ def warm_kernels() -> None:
     args = (np.array([8.5, 7.5, 0.0]), np.eye(3), MARS_RADIUS_M, np.array([0.0, 0.0, -1.5]),
             6.0, camera, True, 16, 16)  # fmt: skip
     frustum_keep(np.array([[10.0, 7.5, 0.0]]), *args)
+    quantize_steps(dem, -1.0, 2.0**-7, 65534, 65535)  # a DEM chip's dem.tif values
     coefficients = np.array(tuple(transform)[:6])
     for selected in (dem > 1.0, (dem > 1.0).astype(np.uint8)):
         frustum_mask(selected, dem, coefficients, *args)
