@@ -13,6 +13,7 @@ computed in float64 from the raster's own (``c + a * width``), never through flo
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -23,6 +24,7 @@ from rasterio.enums import MaskFlags
 from rasterio.windows import Window
 
 from mars_pairs.errors import TerrainError
+from mars_pairs.kernels.nodata import float32_nodata_nan
 
 
 @dataclass(frozen=True)
@@ -96,23 +98,33 @@ class NorthUp:
         ``kwargs`` as rasterio's (``masked``, ``out_shape``, ``boundless``, ...)."""
         return self.orient(dataset.read(indexes, window=self.own_window(window), **kwargs))
 
-    def read_nan(self, dataset: Any, band: int, window: Window) -> NDArray[np.float32]:
+    def read_nan(
+        self, dataset: Any, band: int, window: Window, *, nonfinite: bool = False
+    ) -> NDArray[np.float32]:
         """Band ``band`` in a north-up ``window`` as float32, NaN where its GDAL mask says no
         data: the same values as ``read(..., masked=True)`` cast to float32 and filled with
         NaN, without building the mask band and a masked array. A band without a mask, or
         whose mask is a nodata value ``nodata_mask`` tests as GDAL does (float32; an integer
         type with an integral value inside its range), is read once and compared here; any
         other (an alpha band, a per-dataset or internal mask, float64) goes through rasterio's
-        masked read."""
+        masked read. With ``nonfinite``, infinite values are NaN too."""
         flags = dataset.mask_flag_enums[band - 1]
-        if flags == [MaskFlags.all_valid]:
-            return np.asarray(self.read(dataset, band, window), dtype=np.float32)
         nodata = dataset.nodatavals[band - 1]
-        if flags != [MaskFlags.nodata] or not _compared_here(dataset.dtypes[band - 1], nodata):
+        dtype = dataset.dtypes[band - 1]
+        float32 = dtype == "float32" and nodata is not None and not math.isnan(nodata)
+        if flags == [MaskFlags.nodata] and float32:  # one compiled pass
+            data = self.read(dataset, band, window)
+            return float32_nodata_nan(data, np.float32(nodata), nonfinite)
+        if flags == [MaskFlags.all_valid]:
+            out = np.asarray(self.read(dataset, band, window), dtype=np.float32)
+        elif flags != [MaskFlags.nodata] or not _compared_here(dtype, nodata):
             masked = self.read(dataset, band, window, masked=True)
-            return np.asarray(masked.astype(np.float32).filled(np.nan))
-        data = self.read(dataset, band, window)
-        return with_nodata_nan(data, float(nodata))
+            out = np.asarray(masked.astype(np.float32).filled(np.nan))
+        else:
+            out = with_nodata_nan(self.read(dataset, band, window), float(nodata))
+        if nonfinite:
+            out[~np.isfinite(out)] = np.nan
+        return out
 
 
 def _compared_here(dtype: str, nodata: float | None) -> bool:

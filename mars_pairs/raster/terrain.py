@@ -265,14 +265,16 @@ class Terrain:
     def _read_dem(self, window: Window) -> NDArray[np.float32]:
         """Read band 1 in ``window`` as float32 metres, nodata/masked -> NaN, scale/offset;
         TerrainError naming the DEM when GDAL cannot read it (a truncated or damaged file)."""
-        with reading(self.dem_path, "DEM"):
-            out = self._grid.read_nan(self._dem, 1, window)
         scale = self._dem.scales[0] if self._dem.scales else 1.0
         offset = self._dem.offsets[0] if self._dem.offsets else 0.0
-        if scale != 1.0 or offset != 0.0:
+        identity = scale == 1.0 and offset == 0.0
+        floating = np.issubdtype(np.dtype(self._dem.dtypes[0]), np.floating)
+        with reading(self.dem_path, "DEM"):  # infinite values: NaN in the same pass
+            out = self._grid.read_nan(self._dem, 1, window, nonfinite=floating and identity)
+        if not identity:
             out = out * np.float32(scale) + np.float32(offset)
-        if np.issubdtype(np.dtype(self._dem.dtypes[0]), np.floating):
-            out[~np.isfinite(out)] = np.nan
+            if floating:
+                out[~np.isfinite(out)] = np.nan
         return np.asarray(out)
 
     def _dem_cells(self, win: Window, within: DemWindow | None) -> NDArray[np.float32]:

@@ -198,7 +198,10 @@ def test_read_nan_equals_the_masked_read_filled_with_nan(tmp_path, dtype, nodata
         window = Window(2, 1, data.shape[1] - 3, 2)
         expected = grid.read(ds, 1, window, masked=True).astype(np.float32).filled(np.nan)
         got = grid.read_nan(ds, 1, window)
-    assert got.dtype == np.float32
+        no_infinity = grid.read_nan(ds, 1, window, nonfinite=True)
+    assert got.dtype == no_infinity.dtype == np.float32
+    finite_expected = np.where(np.isfinite(expected), expected, np.float32(np.nan))
+    np.testing.assert_array_equal(no_infinity, finite_expected)
     np.testing.assert_array_equal(got, expected)  # NaN where NaN, the same values elsewhere
     if nodata is not None and not math.isnan(nodata) and dtype != "uint8":
         assert np.isnan(got).any()  # the test reads some masked cells
