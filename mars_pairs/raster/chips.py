@@ -22,7 +22,7 @@ from rasterio.crs import CRS
 from rasterio.enums import Resampling
 from rasterio.warp import reproject, transform_bounds
 from rasterio.warp import transform as warp_points
-from rasterio.windows import Window, from_bounds
+from rasterio.windows import Window
 from rasterio.windows import transform as window_transform
 
 from mars_pairs.errors import TerrainError
@@ -109,7 +109,7 @@ def _sample_grid(
     values: NDArray[np.float32], src_transform: Affine, grid: ChipGrid, nearest: bool
 ) -> NDArray[np.float32]:
     """Resample an array on ``src_transform`` onto ``grid`` (same CRS) with the numba kernel."""
-    m = ~src_transform * grid.transform  # chip pixel -> source pixel
+    m = ~src_transform @ grid.transform  # chip pixel -> source pixel
     n = grid.size_px
     return sample_affine(
         np.ascontiguousarray(values, dtype=np.float32), m.a, m.b, m.c, m.d, m.e, m.f, n, n, nearest
@@ -317,7 +317,7 @@ class ChipReader:
         """The north-up pixel window covering map ``box`` (raster CRS) and two pixels more,
         clipped to the raster; None when less than 2 x 2 pixels remain."""
         g = self.grid
-        window = from_bounds(*box, transform=g.transform)
+        window = g.window_of(*box)
         col0 = max(math.floor(window.col_off) - 2, 0)
         row0 = max(math.floor(window.row_off) - 2, 0)
         col1 = min(math.ceil(window.col_off + window.width) + 2, g.width)

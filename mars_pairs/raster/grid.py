@@ -15,13 +15,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
 from affine import Affine
 from numpy.typing import NDArray
 from rasterio.enums import MaskFlags
-from rasterio.windows import Window
+from rasterio.windows import Window, from_bounds
 
 from mars_pairs.errors import TerrainError
 from mars_pairs.kernels.nodata import float32_nodata_nan
@@ -73,6 +74,26 @@ class NorthUp:
         """(left, bottom, right, top) of the raster in its CRS, map units."""
         t = self.transform
         return t.c, t.f + t.e * self.height, t.c + t.a * self.width, t.f
+
+    @cached_property
+    def _inverse(self) -> tuple[float, float, float, float, float, float]:
+        """The coefficients of ``~transform`` (map -> north-up pixel), computed once."""
+        inv = ~self.transform
+        return inv.a, inv.b, inv.c, inv.d, inv.e, inv.f
+
+    def window_of(self, left: float, bottom: float, right: float, top: float) -> Window:
+        """The fractional north-up window of a map box: ``rasterio.windows.from_bounds`` with
+        this grid's transform, the same numbers (its corners through the inverse transform,
+        summed in the same order) without its array round trip; inconsistent bounds go
+        through it (its WindowError)."""
+        if right < left or bottom > top:
+            return from_bounds(left, bottom, right, top, transform=self.transform)
+        a, b, c, d, e, f = self._inverse
+        corners = ((left, top), (right, top), (right, bottom), (left, bottom))
+        cols = [x * a + y * b + c for x, y in corners]
+        rows = [x * d + y * e + f for x, y in corners]
+        col0, row0 = min(cols), min(rows)
+        return Window(col0, row0, max(max(cols) - col0, 0.0), max(max(rows) - row0, 0.0))
 
     def own_window(self, window: Window) -> Window:
         """The raster's own pixel window holding north-up ``window`` (fractional or off the

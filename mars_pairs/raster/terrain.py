@@ -290,7 +290,7 @@ class Terrain:
 
     def _pixel_window(self, left: float, bottom: float, right: float, top: float) -> Window:
         """Integer pixel window covering the box, clipped to the DEM (may be empty)."""
-        w = from_bounds(left, bottom, right, top, transform=self.transform)
+        w = self._grid.window_of(left, bottom, right, top)
         col0 = max(0, math.floor(w.col_off))
         row0 = max(0, math.floor(w.row_off))
         col1 = min(self._dem.width, math.ceil(w.col_off + w.width))

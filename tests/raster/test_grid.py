@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 import rasterio
 from affine import Affine
-from rasterio.windows import Window
+from rasterio.errors import WindowError
+from rasterio.windows import Window, from_bounds
 
 from mars_pairs.errors import TerrainError
 from mars_pairs.raster.chips import ChipGrid, ChipReader, coverage
@@ -217,3 +218,21 @@ def test_a_chip_reader_over_an_open_dataset_reads_it_and_leaves_it_open(tmp_path
         np.testing.assert_array_equal(shared.read(grid), expected)
         shared.close()
         assert not ds.closed
+
+
+@pytest.mark.parametrize("tr", [NORTH_UP, Affine(0.3, 0.0, 123.456, 0.0, -0.7, -98765.4321)])
+def test_window_of_a_box_is_rasterios_from_bounds(tr):
+    grid = NorthUp(tr, COLS, ROWS, False, False)
+    rng = np.random.default_rng(6)
+    for i in range(2000):
+        x0 = tr.c + rng.uniform(-20.0, COLS + 20.0) * tr.a
+        y0 = tr.f + rng.uniform(-20.0, ROWS + 20.0) * tr.e
+        w, h = (0.0, 0.0) if i % 100 == 0 else rng.uniform(0.0, 80.0, 2)
+        box = (x0, y0 - h, x0 + w, y0)
+        expected = from_bounds(*box, transform=tr)
+        got = grid.window_of(*box)
+        assert (got.col_off, got.row_off, got.width, got.height) == (
+            expected.col_off, expected.row_off, expected.width, expected.height,
+        )  # fmt: skip
+    with pytest.raises(WindowError):
+        grid.window_of(X0 + 5.0, Y0 - 5.0, X0, Y0)  # right of left
