@@ -19,7 +19,7 @@ from affine import Affine
 
 from mars_pairs.geometry.body import MARS_RADIUS_M
 from mars_pairs.kernels.frustum import frustum_keep, frustum_mask
-from mars_pairs.kernels.nodata import float32_nodata_nan
+from mars_pairs.kernels.nodata import float32_nodata_nan, uint8_nodata_nan
 from mars_pairs.kernels.quantize import quantize_steps
 from mars_pairs.kernels.raycast import cast_rays
 from mars_pairs.kernels.resample import sample_affine
@@ -50,6 +50,7 @@ def warm_kernels() -> None:
     quantize_steps(dem, -1.0, 2.0**-7, 65534, 65535)  # a DEM chip's dem.tif values
     for nonfinite in (False, True):  # a float32 DEM block read with its nodata
         float32_nodata_nan(dem, np.float32(-3.4028234663852886e38), nonfinite)
+    uint8_nodata_nan(dem.astype(np.uint8), 0)  # an 8-bit ortho's
     coefficients = np.array(tuple(transform)[:6])
     for selected in (dem > 1.0, (dem > 1.0).astype(np.uint8)):
         frustum_mask(selected, dem, coefficients, *args)

@@ -25,7 +25,7 @@ from rasterio.enums import MaskFlags
 from rasterio.windows import Window, from_bounds
 
 from mars_pairs.errors import TerrainError
-from mars_pairs.kernels.nodata import float32_nodata_nan
+from mars_pairs.kernels.nodata import float32_nodata_nan, uint8_nodata_nan
 
 
 @dataclass(frozen=True)
@@ -141,6 +141,8 @@ class NorthUp:
         elif flags != [MaskFlags.nodata] or not _compared_here(dtype, nodata):
             masked = self.read(dataset, band, window, masked=True)
             out = np.asarray(masked.astype(np.float32).filled(np.nan))
+        elif dtype == "uint8":  # an integral nodata in 0..255 (``_compared_here``)
+            out = uint8_nodata_nan(self.read(dataset, band, window), int(nodata))
         else:
             out = with_nodata_nan(self.read(dataset, band, window), float(nodata))
         if nonfinite:
