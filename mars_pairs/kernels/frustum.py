@@ -53,7 +53,8 @@ def _keeps(
         return False
     x = (p0 * cam[2, 0] + p1 * cam[2, 1] + p2 * cam[2, 2]) / denom
     y = (p0 * cam[3, 0] + p1 * cam[3, 1] + p2 * cam[3, 2]) / denom
-    return x >= -0.5 and x <= x_max and y >= -0.5 and y <= y_max
+    inside: bool = x >= -0.5 and x <= x_max and y >= -0.5 and y <= y_max
+    return inside
 
 
 @njit(cache=True, error_model="numpy")

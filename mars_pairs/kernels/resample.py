@@ -74,7 +74,9 @@ def _sample_general(
 
 
 @njit(cache=True)
-def _axis(scale: float, zero: float, shift: float, n: int, size: int) -> tuple:
+def _axis(
+    scale: float, zero: float, shift: float, n: int, size: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One axis of an axis-aligned ``sample_affine``: for each output index k its source
     position t = scale (k + 0.5) + zero 0.5 + shift - 0.5 (``zero``: the other axis's
     coefficient, 0 or -0, so the sum is ``sample_affine``'s bit for bit), whether it lies on

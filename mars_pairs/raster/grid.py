@@ -171,7 +171,7 @@ def nodata_mask(data: NDArray[Any], nodata: float) -> NDArray[np.bool_]:
     if np.issubdtype(data.dtype, np.integer):
         return np.asarray(data == data.dtype.type(int(nodata)))
     if np.isnan(nodata):
-        return np.isnan(data)
+        return np.asarray(np.isnan(data))
     nd = np.float32(nodata)
     eps = np.float32(np.finfo(np.float32).eps)
     with np.errstate(over="ignore", invalid="ignore"):

@@ -214,7 +214,14 @@ def in_view(points_map: np.ndarray, view: AnchoredView) -> np.ndarray:
     return keep & (el >= el0) & (el <= el1)
 
 
-def _frustum_arguments(view: AnchoredView) -> tuple[object, ...] | None:
+#: ``kernels.frustum``'s arguments after the points: origin, inverse Jacobian (transposed),
+#: planet radius, camera centre (local NED), radius, camera vectors, CAHVOR, width, height
+FrustumArguments = tuple[
+    np.ndarray, np.ndarray, float, np.ndarray, float, np.ndarray, bool, int, int
+]
+
+
+def _frustum_arguments(view: AnchoredView) -> FrustumArguments | None:
     """The arguments of ``kernels.frustum`` after the points for the view's test, or None
     when the test is not the compiled one's (band mode; a CAHVORE camera)."""
     camera = view.camera
