@@ -52,5 +52,8 @@ def warm_kernels() -> None:
         float32_nodata_nan(dem, np.float32(-3.4028234663852886e38), nonfinite)
     uint8_nodata_nan(dem.astype(np.uint8), 0)  # an 8-bit ortho's
     coefficients = np.array(tuple(transform)[:6])
-    for selected in (dem > 1.0, (dem > 1.0).astype(np.uint8)):
-        frustum_mask(selected, dem, coefficients, *args)
+    frozen = dem.copy()  # a chip's DEM values, read-only (``SampleContext.chip_values``)
+    frozen.flags.writeable = False
+    # the DEM window's line of sight (uint8) and a chip's seen pixels (bool)
+    frustum_mask((dem > 1.0).astype(np.uint8), dem, coefficients, *args)
+    frustum_mask(dem > 1.0, frozen, coefficients, *args)
