@@ -78,6 +78,7 @@ def test_after_the_warmup_a_new_process_compiles_nothing(tmp_path: Path) -> None
         "mars_pairs.kernels.viewshed._viewshed_kernel",
         "mars_pairs.kernels.raycast._cast_kernel",
         "mars_pairs.kernels.resample.sample_affine",
+        "mars_pairs.kernels.frustum.frustum_mask",
         "mars_pairs.synth.ortho.compose_ortho",
         "mars_pairs.synth.ortho.stamp_rocks",
         "mars_pairs.synth.render.render_depth",

@@ -133,6 +133,11 @@ class MapCamera:
         inv_t: FloatArray = np.linalg.inv(self.jacobian).T
         return inv_t
 
+    @property
+    def inverse_jacobian_t(self) -> FloatArray:
+        """The Jacobian's inverse, transposed, C-contiguous: local NED = (map - origin) @ it."""
+        return np.ascontiguousarray(self._inverse_jacobian_t)
+
     def project_map(self, points_map: ArrayLike) -> FloatArray:
         """Map points (..., 3) -> pixels (..., 2) as (sample, line); NaN behind the camera."""
         return self.camera.project(self.map_to_local(points_map))

@@ -18,14 +18,18 @@ import numpy as np
 from affine import Affine
 
 from mars_pairs.geometry.body import MARS_RADIUS_M
+from mars_pairs.kernels.frustum import frustum_keep, frustum_mask
+from mars_pairs.kernels.nodata import float32_nodata_nan, uint8_nodata_nan
+from mars_pairs.kernels.quantize import quantize_steps
 from mars_pairs.kernels.raycast import cast_rays
 from mars_pairs.kernels.resample import sample_affine
 from mars_pairs.kernels.viewshed import compute_viewshed
 
 
 def warm_kernels() -> None:
-    """Run the viewshed (wedge and full circle), the ray caster and the chip resampler once
-    on a 16 x 16 grid of 1 m cells."""
+    """Run the viewshed (wedge and full circle), the ray caster, the chip resampler and the
+    view's frustum test (points; a uint8 and a boolean cell selection) once on a 16 x 16
+    grid of 1 m cells."""
     dem = np.linspace(0.0, 3.0, 256, dtype=np.float32).reshape(16, 16)
     transform = Affine(1.0, 0.0, 0.0, 0.0, -1.0, 16.0)
     grid = (dem, transform)
@@ -35,5 +39,21 @@ def warm_kernels() -> None:
     origins = np.array([[8.5, 7.5, 5.0]])
     directions = np.array([[0.6, 0.0, -0.8]])
     cast_rays(origins, directions, grid, max_range=6.0, observer_xy=(8.5, 7.5))
-    for nearest in (False, True):
+    for nearest in (False, True):  # axis-aligned and rotated: both paths
         sample_affine(dem, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 8, 8, nearest)
+        sample_affine(dem, 0.8, -0.6, 4.0, 0.6, 0.8, 2.0, 8, 8, nearest)
+    camera = np.array([[0.0, 0.0, -1.5], [1.0, 0.0, 0.0], [8.0, 10.0, 0.0], [8.0, 0.0, 10.0],
+                       [1.0, 0.0, 0.0], [0.0, 0.01, 0.0]])  # fmt: skip
+    args = (np.array([8.5, 7.5, 0.0]), np.eye(3), MARS_RADIUS_M, np.array([0.0, 0.0, -1.5]),
+            6.0, camera, True, 16, 16)  # fmt: skip
+    frustum_keep(np.array([[10.0, 7.5, 0.0]]), *args)
+    quantize_steps(dem, -1.0, 2.0**-7, 65534, 65535)  # a DEM chip's dem.tif values
+    for nonfinite in (False, True):  # a float32 DEM block read with its nodata
+        float32_nodata_nan(dem, np.float32(-3.4028234663852886e38), nonfinite)
+    uint8_nodata_nan(dem.astype(np.uint8), 0)  # an 8-bit ortho's
+    coefficients = np.array(tuple(transform)[:6])
+    frozen = dem.copy()  # a chip's DEM values, read-only (``SampleContext.chip_values``)
+    frozen.flags.writeable = False
+    # the DEM window's line of sight (uint8) and a chip's seen pixels (bool)
+    frustum_mask((dem > 1.0).astype(np.uint8), dem, coefficients, *args)
+    frustum_mask(dem > 1.0, frozen, coefficients, *args)

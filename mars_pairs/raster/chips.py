@@ -22,7 +22,7 @@ from rasterio.crs import CRS
 from rasterio.enums import MaskFlags, Resampling
 from rasterio.warp import reproject, transform_bounds
 from rasterio.warp import transform as warp_points
-from rasterio.windows import Window, from_bounds
+from rasterio.windows import Window
 from rasterio.windows import transform as window_transform
 
 from mars_pairs.errors import TerrainError
@@ -109,7 +109,7 @@ def _sample_grid(
     values: NDArray[np.float32], src_transform: Affine, grid: ChipGrid, nearest: bool
 ) -> NDArray[np.float32]:
     """Resample an array on ``src_transform`` onto ``grid`` (same CRS) with the numba kernel."""
-    m = ~src_transform * grid.transform  # chip pixel -> source pixel
+    m = ~src_transform @ grid.transform  # chip pixel -> source pixel
     n = grid.size_px
     return sample_affine(
         np.ascontiguousarray(values, dtype=np.float32), m.a, m.b, m.c, m.d, m.e, m.f, n, n, nearest
@@ -154,16 +154,21 @@ class ChipReader:
     file.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, dataset: Any = None) -> None:
+        """Open the raster at ``path``; or, with ``dataset`` (an open rasterio dataset of
+        ``path``, e.g. ``Terrain.dem_dataset``), read through it: its GDAL block cache is
+        shared with its other reads, and ``close`` leaves it open for its owner."""
         self.path = str(path)
+        self._owned = dataset is None
         try:
-            self.dataset = open_raster(self.path)
+            self.dataset = open_raster(self.path) if dataset is None else dataset
         except rasterio.errors.RasterioError as exc:
             raise TerrainError(f"{self.path}: cannot open the raster: {exc}") from None
         try:
             self.grid = NorthUp.of(self.dataset, self.path, "raster")
         except TerrainError:
-            self.dataset.close()
+            if self._owned:
+                self.dataset.close()
             raise
         self.crs_wkt = self.dataset.crs.to_wkt() if self.dataset.crs else ""
         self._ranges: dict[int, ValueRange] = {}
@@ -254,8 +259,7 @@ class ChipReader:
         win = self._window(box)
         if win is None:
             return np.full((n, n), np.nan, dtype=np.float32)
-        values = self.grid.read(self.dataset, band, win, masked=True)
-        values = values.astype(np.float32).filled(np.nan)
+        values = self.grid.read_nan(self.dataset, band, win)
         src_transform = window_transform(win, self.grid.transform)
         if same:
             return _sample_grid(values, src_transform, grid, nearest)
@@ -363,7 +367,7 @@ class ChipReader:
         """The north-up pixel window covering map ``box`` (raster CRS) and two pixels more,
         clipped to the raster; None when less than 2 x 2 pixels remain."""
         g = self.grid
-        window = from_bounds(*box, transform=g.transform)
+        window = g.window_of(*box)
         col0 = max(math.floor(window.col_off) - 2, 0)
         row0 = max(math.floor(window.row_off) - 2, 0)
         col1 = min(math.ceil(window.col_off + window.width) + 2, g.width)
@@ -373,8 +377,9 @@ class ChipReader:
         return Window(col0, row0, col1 - col0, row1 - row0)
 
     def close(self) -> None:
-        """Close the raster."""
-        self.dataset.close()
+        """Close the raster (a dataset handed in stays open)."""
+        if self._owned:
+            self.dataset.close()
 
     def __enter__(self) -> ChipReader:
         return self

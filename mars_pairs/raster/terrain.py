@@ -196,6 +196,11 @@ class Terrain:
 
     # -- metadata ----------------------------------------------------------------------------
     @property
+    def dem_dataset(self) -> Any:
+        """The open rasterio dataset of the DEM (for readers that share its block cache)."""
+        return self._dem
+
+    @property
     def crs(self) -> Any:
         """The DEM's raster CRS (``rasterio.crs.CRS``)."""
         return self._dem.crs
@@ -260,15 +265,16 @@ class Terrain:
     def _read_dem(self, window: Window) -> NDArray[np.float32]:
         """Read band 1 in ``window`` as float32 metres, nodata/masked -> NaN, scale/offset;
         TerrainError naming the DEM when GDAL cannot read it (a truncated or damaged file)."""
-        with reading(self.dem_path, "DEM"):
-            arr = self._grid.read(self._dem, 1, window, masked=True)
         scale = self._dem.scales[0] if self._dem.scales else 1.0
         offset = self._dem.offsets[0] if self._dem.offsets else 0.0
-        out = arr.astype(np.float32).filled(np.nan)
-        if scale != 1.0 or offset != 0.0:
+        identity = scale == 1.0 and offset == 0.0
+        floating = np.issubdtype(np.dtype(self._dem.dtypes[0]), np.floating)
+        with reading(self.dem_path, "DEM"):  # infinite values: NaN in the same pass
+            out = self._grid.read_nan(self._dem, 1, window, nonfinite=floating and identity)
+        if not identity:
             out = out * np.float32(scale) + np.float32(offset)
-        if np.issubdtype(arr.dtype, np.floating):
-            out[~np.isfinite(out)] = np.nan
+            if floating:
+                out[~np.isfinite(out)] = np.nan
         return np.asarray(out)
 
     def _dem_cells(self, win: Window, within: DemWindow | None) -> NDArray[np.float32]:
@@ -284,7 +290,7 @@ class Terrain:
 
     def _pixel_window(self, left: float, bottom: float, right: float, top: float) -> Window:
         """Integer pixel window covering the box, clipped to the DEM (may be empty)."""
-        w = from_bounds(left, bottom, right, top, transform=self.transform)
+        w = self._grid.window_of(left, bottom, right, top)
         col0 = max(0, math.floor(w.col_off))
         row0 = max(0, math.floor(w.row_off))
         col1 = min(self._dem.width, math.ceil(w.col_off + w.width))

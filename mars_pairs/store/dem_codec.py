@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from mars_pairs.kernels.quantize import quantize_steps
 from mars_pairs.store.strip_tiff import (
     DESCRIPTION,
     GDAL_METADATA,
@@ -133,10 +134,11 @@ def dem_encoding(dem: np.ndarray) -> DemEncoding:
 
 
 def quantize(dem: np.ndarray, enc: DemEncoding) -> np.ndarray:
-    """uint16 (H, W) values of a float32 chip under ``enc`` (no data: ``enc.nodata``)."""
-    finite = np.isfinite(dem)
-    steps = np.rint((dem.astype(np.float64) - enc.offset_m) / enc.scale_m)
-    return np.where(finite, np.clip(steps, 0, _MAX_STEP), enc.nodata).astype(np.uint16)
+    """uint16 (H, W) values of a float32 chip under ``enc`` (no data: ``enc.nodata``):
+    ``rint((z - offset_m) / scale_m)`` in float64, clipped to [0, 65534] (one compiled pass,
+    ``kernels.quantize``)."""
+    values = np.ascontiguousarray(dem, dtype=np.float32)
+    return quantize_steps(values, enc.offset_m, enc.scale_m, _MAX_STEP, enc.nodata)
 
 
 def dequantize(values: np.ndarray, enc: DemEncoding) -> np.ndarray:

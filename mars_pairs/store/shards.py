@@ -4,7 +4,6 @@ CRC-32C checksum (the ``crc32c`` package: hardware CRC where the CPU has it)."""
 from __future__ import annotations
 
 import contextlib
-import io
 import os
 import tarfile
 from collections.abc import Mapping
@@ -29,7 +28,36 @@ class MemberLocation:
     crc32c: int | None = None
 
 
-_COPY_BUFFER = 64 << 20
+_NUL = b"\0"
+# a regular file's ustar header after its size field, for mtime 0, mode 0o644, uid and gid 0,
+# no user or group names and blank device fields, checksum blank ("        "): as tarfile
+# writes them (``TarInfo.create_ustar_header``)
+_HEAD_MODE = b"0000644\0" + b"0000000\0" * 2
+_HEAD_REST = (
+    b"00000000000\0"  # mtime
+    + b"        "  # checksum, filled in below
+    + tarfile.REGTYPE
+    + _NUL * 100  # linkname
+    + tarfile.POSIX_MAGIC
+    + _NUL * (32 + 32 + 8 + 8 + 155)  # uname, gname, devmajor, devminor, prefix
+)
+
+
+def ustar_header(name: str, size: int) -> bytes:
+    """The 512-byte ustar header block tarfile writes for a regular member ``name`` of
+    ``size`` bytes with the shards' fixed fields (mtime 0, mode 0o644, uid and gid 0, no
+    user or group names), built directly for an ASCII name of at most 100 bytes and a size
+    below 8 GiB; any other through ``tarfile.TarInfo.tobuf`` itself."""
+    raw = name.encode("ascii", "replace")
+    if len(raw) > tarfile.LENGTH_NAME or not name.isascii() or size >= 8 << 30:
+        info = tarfile.TarInfo(name)
+        info.size, info.mtime, info.mode = size, 0, 0o644
+        info.uname = info.gname = ""
+        return info.tobuf(tarfile.USTAR_FORMAT, tarfile.ENCODING, "surrogateescape")
+    head = raw.ljust(100, _NUL) + _HEAD_MODE + b"%011o\0" % size + _HEAD_REST
+    block = head.ljust(tarfile.BLOCKSIZE, _NUL)
+    chksum = sum(block)  # the unsigned sum, the checksum field counted as spaces
+    return block[:148] + b"%06o\0" % chksum + block[155:]
 
 
 class ShardWriter:
@@ -37,6 +65,8 @@ class ShardWriter:
 
     The tar is written under a temporary name and renamed on a clean close, so a killed build
     leaves no half-written shard. ``add`` returns each member's location for the manifest.
+    The bytes are those of ``tarfile`` in ustar format (``ustar_header``; the end: two zero
+    blocks, then zeros to a whole 10240-byte record).
 
     >>> with ShardWriter(root, "shards/shard-000000.tar") as shard:
     ...     locs = shard.add("key", {"ground.jpg": b"...", "meta.json": b"{}"})
@@ -48,12 +78,8 @@ class ShardWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._tmp = temporary_path(self.path)
         self._fh = open(self._tmp, "wb")  # noqa: SIM115 - closed in close()
-        self._tar = tarfile.TarFile(  # (what tarfile.open(mode="w") constructs)
-            fileobj=self._fh,
-            mode="w",
-            format=tarfile.USTAR_FORMAT,
-            copybufsize=_COPY_BUFFER,  # a member in one write, not 16 KiB pieces
-        )
+        self._offset = 0
+        self._ended = False
         self.count = 0
 
     def add(self, key: str, members: dict[str, bytes]) -> dict[str, MemberLocation]:
@@ -62,25 +88,35 @@ class ShardWriter:
             raise ArgumentError(f"sample key must not contain '.' or '/': {key!r}")
         out = {}
         for fld, data in members.items():
-            info = tarfile.TarInfo(f"{key}.{fld}")
-            info.size, info.mtime, info.mode = len(data), 0, 0o644
-            info.uname = info.gname = ""
+            size = len(data)
+            # the data follows its header, padded to whole 512-byte blocks
+            pad = -size % tarfile.BLOCKSIZE
             with naming(self.path):
-                self._tar.addfile(info, io.BytesIO(data))
-            # the data ends the member, padded to whole 512-byte blocks
-            padded = -(-len(data) // tarfile.BLOCKSIZE) * tarfile.BLOCKSIZE
-            out[fld] = MemberLocation(
-                self.relpath, self._tar.offset - padded, len(data), checksum(data)
-            )
+                self._fh.write(ustar_header(f"{key}.{fld}", size))
+                self._fh.write(data)
+                if pad:
+                    self._fh.write(_NUL * pad)
+            start = self._offset + tarfile.BLOCKSIZE
+            self._offset = start + size + pad
+            out[fld] = MemberLocation(self.relpath, start, size, checksum(data))
         self.count += 1
         return out
+
+    def _end(self) -> None:
+        """The end of the archive as tarfile writes it: two zero blocks, then zeros to a
+        whole record (``tarfile.RECORDSIZE``)."""
+        if self._ended:
+            return
+        self._ended = True
+        self._offset += 2 * tarfile.BLOCKSIZE
+        self._fh.write(_NUL * (2 * tarfile.BLOCKSIZE) + _NUL * (-self._offset % tarfile.RECORDSIZE))
 
     def close(self, commit: bool = True) -> None:
         """Finish the tar and rename it into place if ``commit``, else delete it."""
         try:
             if commit:
                 with naming(self.path):
-                    self._tar.close()
+                    self._end()
                     self._fh.flush()
                     os.fsync(self._fh.fileno())
         except OSError:

@@ -10,9 +10,12 @@ import numpy as np
 import pytest
 import rasterio
 from affine import Affine
+from rasterio.errors import WindowError
+from rasterio.windows import Window, from_bounds
 
 from mars_pairs.errors import TerrainError
 from mars_pairs.raster.chips import ChipGrid, ChipReader, coverage
+from mars_pairs.raster.grid import NorthUp
 from mars_pairs.raster.terrain import Terrain
 
 EQC0 = "+proj=eqc +lat_ts=0 +lon_0=0 +R=3396190 +units=m +no_defs"
@@ -170,3 +173,66 @@ def test_coverage_of_nothing_and_of_everything():
     assert coverage(np.full((4, 4), np.nan, np.float32)) == 0.0
     assert coverage(np.zeros((4, 4), np.float32)) == 1.0
     assert coverage(np.zeros((0, 0), np.float32)) == 0.0
+
+
+# values at and around each nodata value, some inside GDAL's float32 tolerance of it and,
+# near -FLT_MAX, where the tolerance's sum overflows
+_NEAR = [-9999.0, -9999.001, -9998.99, 0.0, 1e-30, -3.4e38, -3.0e38, -1e32, -1e30, 5.0, 255.0]
+_NODATA_CASES = [
+    ("float32", -9999.0), ("float32", 0.0), ("float32", -3.4028234663852886e38),
+    ("float32", math.nan), ("uint8", 0.0), ("uint8", 255.0), ("uint8", 1.5),
+    ("int16", -32768.0), ("uint16", 7.0), ("float64", -9999.0), ("uint8", None),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("dtype", "nodata"), _NODATA_CASES)
+def test_read_nan_equals_the_masked_read_filled_with_nan(tmp_path, dtype, nodata):
+    values = np.array([*_NEAR, math.nan, -math.inf, 1.0, 7.0, 2.0], dtype=np.float64)
+    if np.issubdtype(np.dtype(dtype), np.integer):
+        info = np.iinfo(dtype)
+        values = np.clip(np.nan_to_num(values, nan=1.0, neginf=info.min), info.min, info.max)
+    data = np.tile(values.astype(dtype), (3, 1))
+    extra = {} if nodata is None else {"nodata": nodata}
+    path = write(tmp_path / "nd.tif", data, NORTH_UP, **extra)
+    with rasterio.open(path) as ds:
+        grid = NorthUp.of(ds, str(path), "raster")
+        window = Window(2, 1, data.shape[1] - 3, 2)
+        expected = grid.read(ds, 1, window, masked=True).astype(np.float32).filled(np.nan)
+        got = grid.read_nan(ds, 1, window)
+        no_infinity = grid.read_nan(ds, 1, window, nonfinite=True)
+    assert got.dtype == no_infinity.dtype == np.float32
+    finite_expected = np.where(np.isfinite(expected), expected, np.float32(np.nan))
+    np.testing.assert_array_equal(no_infinity, finite_expected)
+    np.testing.assert_array_equal(got, expected)  # NaN where NaN, the same values elsewhere
+    if nodata is not None and not math.isnan(nodata) and dtype != "uint8":
+        assert np.isnan(got).any()  # the test reads some masked cells
+
+
+def test_a_chip_reader_over_an_open_dataset_reads_it_and_leaves_it_open(tmp_path):
+    path = write(tmp_path / "dem.tif", terrain_values(), NORTH_UP, nodata=np.nan)
+    grid = ChipGrid.around(X0 + 30.0, Y0 - 20.0, 10.0, 16, EQC0)
+    with ChipReader(path) as own:
+        expected = own.read(grid)
+    with rasterio.open(path) as ds:
+        shared = ChipReader(path, ds)
+        np.testing.assert_array_equal(shared.read(grid), expected)
+        shared.close()
+        assert not ds.closed
+
+
+@pytest.mark.parametrize("tr", [NORTH_UP, Affine(0.3, 0.0, 123.456, 0.0, -0.7, -98765.4321)])
+def test_window_of_a_box_is_rasterios_from_bounds(tr):
+    grid = NorthUp(tr, COLS, ROWS, False, False)
+    rng = np.random.default_rng(6)
+    for i in range(2000):
+        x0 = tr.c + rng.uniform(-20.0, COLS + 20.0) * tr.a
+        y0 = tr.f + rng.uniform(-20.0, ROWS + 20.0) * tr.e
+        w, h = (0.0, 0.0) if i % 100 == 0 else rng.uniform(0.0, 80.0, 2)
+        box = (x0, y0 - h, x0 + w, y0)
+        expected = from_bounds(*box, transform=tr)
+        got = grid.window_of(*box)
+        assert (got.col_off, got.row_off, got.width, got.height) == (
+            expected.col_off, expected.row_off, expected.width, expected.height,
+        )  # fmt: skip
+    with pytest.raises(WindowError):
+        grid.window_of(X0 + 5.0, Y0 - 5.0, X0, Y0)  # right of left

@@ -14,8 +14,10 @@ from mars_pairs.store.dem_codec import (
     decode_dem,
     decode_dem_values,
     dem_chip,
+    dem_encoding,
     dem_member,
     encode_dem,
+    quantize,
 )
 from mars_pairs.store.float_tiff import decode_float_tiff, encode_float_tiff
 from mars_pairs.torch.decode import decode_member, decode_raw
@@ -115,3 +117,18 @@ def test_dem_chip_reads_either_format() -> None:
     np.save(buf, chip, allow_pickle=False)
     np.testing.assert_array_equal(dem_chip(buf.getvalue()), chip)
     assert _max_error(dem_chip(encode_dem(chip)[0]), chip) <= FINEST_SCALE_M / 2
+
+
+def test_quantize_is_the_rounded_clipped_float64_steps_with_nodata():
+    rng = np.random.default_rng(4)
+    for spread in (0.01, 1.0, 60.0, 500.0):
+        dem = (-2500.0 + rng.normal(0.0, spread, (37, 53))).astype(np.float32)
+        dem[rng.random(dem.shape) < 0.1] = np.nan
+        dem[0, :3] = (np.inf, -np.inf, np.nan)
+        dem[1, :8] = np.round(dem[1, :8] * 256) / 256  # halfway steps: round half to even
+        enc = dem_encoding(dem)
+        steps = np.rint((dem.astype(np.float64) - enc.offset_m) / enc.scale_m)
+        expected = np.where(np.isfinite(dem), np.clip(steps, 0, 65534), enc.nodata)
+        got = quantize(dem, enc)
+        assert got.dtype == np.uint16
+        np.testing.assert_array_equal(got, expected.astype(np.uint16))

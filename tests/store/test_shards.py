@@ -2,15 +2,24 @@
 
 from __future__ import annotations
 
+import io
+import tarfile
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from mars_pairs.errors import DatasetError
 from mars_pairs.store.integrity import checksum
 from mars_pairs.store.manifest import MANIFEST_SCHEMA
 from mars_pairs.store.members import MEMBERS
-from mars_pairs.store.shards import MemberLocation, ShardWriter, read_member, read_members
+from mars_pairs.store.shards import (
+    MemberLocation,
+    ShardWriter,
+    read_member,
+    read_members,
+    ustar_header,
+)
 
 
 def test_checksum_is_crc32c() -> None:
@@ -79,3 +88,54 @@ def test_repeated_keys_are_counted_and_sorted() -> None:
     keys = pa.chunked_array([["b", "a", "b"], ["c", "a", "b"]])
     assert repeated_keys(keys) == [("a", 2), ("b", 3)]
     assert repeated_keys(pa.array(["x", "y"])) == []
+
+
+def _tarfile_bytes(samples: list[tuple[str, dict[str, bytes]]]) -> bytes:
+    """The shard tarfile itself writes for ``samples`` (the headers ``ShardWriter`` fixes)."""
+    buf = io.BytesIO()
+    with tarfile.TarFile(fileobj=buf, mode="w", format=tarfile.USTAR_FORMAT) as tar:
+        for key, members in samples:
+            for fld, data in members.items():
+                info = tarfile.TarInfo(f"{key}.{fld}")
+                info.size, info.mtime, info.mode = len(data), 0, 0o644
+                info.uname = info.gname = ""
+                tar.addfile(info, io.BytesIO(data))
+    return buf.getvalue()
+
+
+def test_a_shard_is_the_tar_tarfile_writes_byte_for_byte(tmp_path):
+    rng = np.random.default_rng(3)
+    sizes = [0, 1, 511, 512, 513, 10240, 3001]
+    samples = [
+        (f"key{i}" + "k" * (88 if i == 2 else 0),  # one name of 100 bytes
+         {f"f{j}.bin": rng.integers(0, 256, sizes[(i + j) % len(sizes)], np.uint8).tobytes()
+          for j in range(3)})
+        for i in range(6)
+    ]  # fmt: skip
+    with ShardWriter(tmp_path, "shard.tar") as shard:
+        locations = [shard.add(key, members) for key, members in samples]
+    raw = (tmp_path / "shard.tar").read_bytes()
+    assert raw == _tarfile_bytes(samples)
+    for (_, members), locs in zip(samples, locations, strict=True):
+        for fld, data in members.items():
+            assert raw[locs[fld].offset : locs[fld].offset + locs[fld].size] == data
+
+
+_ERRORS = "surrogateescape"
+
+
+@pytest.mark.parametrize("size", [0, 1, 512, 10**6, (8 << 30) - 1, 8 << 30])
+@pytest.mark.parametrize("name", ["a.b", "x" * 100, "y" * 101, "d/" + "z" * 100, "caf\u00e9.json"])
+def test_member_headers_are_tarfiles(name, size):
+    info = tarfile.TarInfo(name)
+    info.size, info.mtime, info.mode = size, 0, 0o644
+    info.uname = info.gname = ""
+    try:
+        expected: bytes | str = info.tobuf(tarfile.USTAR_FORMAT, tarfile.ENCODING, _ERRORS)
+    except ValueError as exc:  # a name too long for ustar, a size past its 8 GiB
+        expected = str(exc)
+    try:
+        got: bytes | str = ustar_header(name, size)
+    except ValueError as exc:
+        got = str(exc)
+    assert got == expected

@@ -14,7 +14,7 @@ from mars_pairs.errors import CoverageError
 from mars_pairs.observation import Observation
 from mars_pairs.pipeline.sample.context import SampleContext
 from mars_pairs.pipeline.sample.key import sample_key
-from mars_pairs.pipeline.sample.view import View, in_view
+from mars_pairs.pipeline.sample.view import View, view_mask
 from mars_pairs.raster.chips import ChipGrid, ChipReader, coverage, resample_array
 
 
@@ -126,15 +126,7 @@ def chip_view(visible: np.ndarray, dem: np.ndarray, grid: ChipGrid, view: View) 
     """The chip's viewshed, each pixel tested itself: line of sight of the DEM cell it lies in
     (``visible``: the kernel's mask, nearest) and the view's exact test on the pixel centre's
     own terrain point (``dem`` chip heights): inside the image at the chip's resolution."""
-    rows, cols = np.nonzero(visible & np.isfinite(dem))
-    out = np.zeros_like(visible, dtype=bool)
-    if len(rows):
-        colrow = (cols + 0.5, rows + 0.5)
-        x, y = grid.transform * colrow  # type: ignore[operator]  # affine's hints: floats, not arrays
-        points = np.column_stack([x, y, dem[rows, cols].astype(np.float64)])
-        keep = in_view(points, view)
-        out[rows[keep], cols[keep]] = True
-    return out
+    return view_mask(visible, dem, grid.transform, view).astype(bool)
 
 
 def correspondence(view: View, grid: ChipGrid) -> np.ndarray:

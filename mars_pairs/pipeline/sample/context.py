@@ -46,7 +46,7 @@ class SampleContext:
             places,
             terrain,
             ChipReader(config.inputs.ortho),
-            ChipReader(config.inputs.dem),
+            ChipReader(config.inputs.dem, terrain.dem_dataset),  # the DEM's blocks read once
             terrain.crs.to_wkt(),
             labels,
         )

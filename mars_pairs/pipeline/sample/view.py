@@ -9,11 +9,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
+from affine import Affine
 
 from mars_pairs.geometry.body import MARS_RADIUS_M
 from mars_pairs.geometry.frames import azimuth_elevation_deg
 from mars_pairs.geometry.mapcam import MapCamera
 from mars_pairs.geometry.places import Pose
+from mars_pairs.kernels.frustum import frustum_keep, frustum_mask
 from mars_pairs.kernels.raycast import cast_rays
 from mars_pairs.kernels.viewshed import compute_viewshed
 from mars_pairs.observation import Observation
@@ -192,9 +194,14 @@ def in_view(points_map: np.ndarray, view: AnchoredView) -> np.ndarray:
     In true metres in the rover's local frame: horizontal range from the camera centre at most
     the view radius, and in "frustum" mode the point projects inside the image through the
     camera model; in "band" mode its true azimuth/elevation lies inside the image's band.
-    Line of sight is not tested here (the kernel's mask says that).
+    Line of sight is not tested here (the kernel's mask says that). Frustum mode with a
+    CAHV or CAHVOR camera runs in one compiled pass (``kernels.frustum.frustum_keep``).
     """
     camera = view.camera
+    compiled = _frustum_arguments(view)
+    if compiled is not None:
+        points = np.ascontiguousarray(points_map, dtype=np.float64).reshape(-1, 3)
+        return frustum_keep(points, *compiled)
     local = camera.local_points(points_map, MARS_RADIUS_M)
     rel = local - camera.map_to_local(camera.center_map)
     keep = np.hypot(rel[:, 0], rel[:, 1]) <= view.radius_m
@@ -205,6 +212,55 @@ def in_view(points_map: np.ndarray, view: AnchoredView) -> np.ndarray:
     if (az0, az1) != (0.0, 360.0):
         keep &= (az - az0) % 360.0 <= (az1 - az0) % 360.0
     return keep & (el >= el0) & (el <= el1)
+
+
+#: ``kernels.frustum``'s arguments after the points: origin, inverse Jacobian (transposed),
+#: planet radius, camera centre (local NED), radius, camera vectors, CAHVOR, width, height
+FrustumArguments = tuple[
+    np.ndarray, np.ndarray, float, np.ndarray, float, np.ndarray, bool, int, int
+]
+
+
+def _frustum_arguments(view: AnchoredView) -> FrustumArguments | None:
+    """The arguments of ``kernels.frustum`` after the points for the view's test, or None
+    when the test is not the compiled one's (band mode; a CAHVORE camera)."""
+    camera = view.camera
+    model = camera.camera
+    if view.mode != "frustum" or model.model_type not in ("CAHV", "CAHVOR"):
+        return None
+    distorted = model.model_type == "CAHVOR"
+    none = np.zeros(3)
+    o = model.o if distorted and model.o is not None else none
+    r = model.r if distorted and model.r is not None else none
+    cam = np.stack([model.c, model.a, model.h, model.v, o, r])
+    centre = camera.map_to_local(camera.center_map)
+    return (
+        np.ascontiguousarray(camera.origin_map, dtype=np.float64), camera.inverse_jacobian_t,
+        MARS_RADIUS_M, centre, float(view.radius_m), cam, distorted, camera.width, camera.height,
+    )  # fmt: skip
+
+
+def view_mask(
+    selected: np.ndarray, heights: np.ndarray, transform: Affine, view: AnchoredView
+) -> np.ndarray:
+    """uint8 on a grid (``transform``: pixel corners -> map x, y of the view's CRS): 1 where
+    ``selected`` is nonzero and the cell's centre at its height (``heights``: metres, NaN for
+    none) passes ``in_view``."""
+    compiled = _frustum_arguments(view)
+    if compiled is not None:
+        coefficients = np.array(tuple(transform)[:6], dtype=np.float64)
+        return frustum_mask(
+            np.ascontiguousarray(selected), np.ascontiguousarray(heights), coefficients,
+            *compiled,
+        )  # fmt: skip
+    mask = np.zeros(selected.shape, dtype=np.uint8)
+    rows, cols = _nonzero_in_bbox(selected)
+    if len(rows):
+        x, y = transform @ (cols + 0.5, rows + 0.5)  # type: ignore[operator]  # affine's hints: floats, not arrays
+        points = np.column_stack([x, y, heights[rows, cols].astype(np.float64)])
+        keep = in_view(points, view)
+        mask[rows[keep], cols[keep]] = 1
+    return mask
 
 
 def _nonzero_in_bbox(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -222,14 +278,7 @@ def _nonzero_in_bbox(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def exact_mask(los: np.ndarray, view: AnchoredView) -> np.ndarray:
     """The cells of ``los`` (line-of-sight visible, uint8 on the window grid) in the view."""
-    mask = np.zeros_like(los, dtype=np.uint8)
-    rows, cols = _nonzero_in_bbox(los)
-    if len(rows):
-        x, y = view.window.colrow_to_xy(cols, rows)
-        points = np.column_stack([x, y, view.window.data[rows, cols].astype(np.float64)])
-        keep = in_view(points, view)
-        mask[rows[keep], cols[keep]] = 1
-    return mask
+    return view_mask(los, view.window.data, view.window.transform, view)
 
 
 def line_of_sight(view: AnchoredView, cell: float) -> Sight:
