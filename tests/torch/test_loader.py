@@ -4,6 +4,7 @@ caller's own and equal what a one-process DataLoader gives."""
 from __future__ import annotations
 
 import gc
+import os
 from pathlib import Path
 
 import pytest
@@ -35,9 +36,12 @@ def assert_same(got: list[dict], want: list[dict]) -> None:
 
 
 def test_batches_equal_and_slots_reused(dataset_dir: Path) -> None:
+    """Copying: every batch the caller's own memory, the slots refilled."""
     with MarsPairsDataset(dataset_dir, ground_size=(96, 128)) as ds:
         want = reference(ds, 2)
-        loader = MarsPairsLoader(ds, batch_size=2, num_workers=2, persistent_workers=True)
+        loader = MarsPairsLoader(
+            ds, batch_size=2, num_workers=2, persistent_workers=True, copy_batches=True
+        )
         epochs = [list(loader) for _ in range(4)]  # every batch kept: none may alias another
     for got in epochs:
         assert_same(got, want)
@@ -46,6 +50,62 @@ def test_batches_equal_and_slots_reused(dataset_dir: Path) -> None:
     assert loader.recycled == 4 * len(want) and loader.fresh == 0
     # 20 batches from 2 workers: a few slots each, refilled, not reallocated
     assert 1 <= sum(loader.allocations.values()) <= 8
+
+
+def shm_files() -> set[str]:
+    """The names in /dev/shm (torch's shared memory, were it left behind)."""
+    return set(os.listdir("/dev/shm")) if os.path.isdir("/dev/shm") else set()
+
+
+def test_leased_batches_dropped_each_step_turn_the_slots(dataset_dir: Path) -> None:
+    """A loop that drops each batch: every batch through a slot, each slot's block handed
+    over once, and no shared memory left behind once the loader is gone."""
+    before = shm_files()
+    with MarsPairsDataset(dataset_dir, ground_size=(96, 128)) as ds:
+        want = reference(ds, 2)
+        loader = MarsPairsLoader(ds, batch_size=2, num_workers=2, persistent_workers=True)
+        for _ in range(4):
+            got = []
+            for batch in loader:
+                got.append({k: batch[k].clone() for k in FIELDS} | {"meta": batch["meta"]})
+            assert_same(got, want)
+    assert loader.recycled == 4 * len(want) and loader.fresh == 0
+    assert 1 <= sum(loader.allocations.values()) <= 8
+    assert loader.handovers == sum(loader.allocations.values())  # a block crosses once
+    del loader, batch
+    gc.collect()
+    assert shm_files() <= before
+
+
+def test_kept_leases_never_change(dataset_dir: Path) -> None:
+    """Batches kept past the next step hold their slots: the workers never refill them
+    (they send later batches in new shared memory once their slots are all held)."""
+    with MarsPairsDataset(dataset_dir, ground_size=(96, 128)) as ds:
+        want = reference(ds, 1)
+        loader = MarsPairsLoader(ds, batch_size=1, num_workers=1, persistent_workers=True)
+        epochs = [list(loader) for _ in range(3)]
+        for got in epochs:
+            assert_same(got, want)
+        assert loader.recycled + loader.fresh == 3 * len(want)
+        assert loader.fresh > 0  # 6 slots, every batch of 3 epochs kept
+        del epochs, got
+        gc.collect()
+        fresh = loader.fresh
+        assert_same(
+            list({k: b[k].clone() for k in FIELDS} | {"meta": b["meta"]} for b in loader), want
+        )
+        assert loader.fresh == fresh  # the slots given back, turning again
+
+
+def test_a_lease_modified_in_place_is_the_callers(dataset_dir: Path) -> None:
+    with MarsPairsDataset(dataset_dir, ground_size=(96, 128)) as ds:
+        want = reference(ds, 2)
+        loader = MarsPairsLoader(ds, batch_size=2, num_workers=1)
+        for batch, w in zip(loader, want, strict=True):
+            batch["ground"].zero_()
+            assert int(batch["ground"].sum()) == 0
+            assert torch.equal(batch["ortho"], w["ortho"])
+        assert loader.recycled == len(want)
 
 
 def test_transforms_keep_slots(dataset_dir: Path) -> None:
