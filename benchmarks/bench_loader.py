@@ -4,6 +4,7 @@ and against WebDataset's own pipeline over the same shards.
     python benchmarks/bench_loader.py                     # out/demo/dataset, or build it
     python benchmarks/bench_loader.py --dataset DIR --epochs 20
     python benchmarks/bench_loader.py --compare OTHER_DIR   # + rows over another build
+    python benchmarks/bench_loader.py --only 'persistent$' --only webdataset   # some rows
 
 Uses ``out/demo/dataset`` when it exists, else builds ``configs/demo.yaml`` into a temp dir.
 ``--compare`` adds the anchor, ``MarsPairsDataset[i]`` and the persistent 2-worker loader over
@@ -251,6 +252,16 @@ def rates(
     return best
 
 
+def _wanted(label: str, words: list[str]) -> bool:
+    """Whether a row's label contains one of ``words`` (case-insensitive; a word ending in
+    ``$``: the label ends with it)."""
+    label = label.lower()
+    for word in (w.lower() for w in words):
+        if label.endswith(word[:-1]) if word.endswith("$") else word in label:
+            return True
+    return False
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--dataset", type=Path, default=None)
@@ -259,6 +270,13 @@ def main() -> int:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--batch-size", type=int, default=8)
     p.add_argument("--compare", type=Path, default=None, help="a second dataset folder")
+    p.add_argument(
+        "--only",
+        action="append",
+        default=None,
+        help="only the rows whose label contains this (repeatable; a trailing $: the label "
+        "ends so); the anchor always",
+    )
     args = p.parse_args()
 
     with tempfile.TemporaryDirectory(prefix="bench-loader-") as tmp:
@@ -313,6 +331,9 @@ def main() -> int:
             loops[f"{tag} read + decode only"] = decode_only(args.compare, DEFAULT_FIELDS)
             loops[f"{tag} `MarsPairsDataset[i]` (1 process)"] = dataset_loop(other)
             loops[f"{tag} {ours}"] = loader_loop(other, w, bs, True, collate=None)
+        if args.only:
+            anchor = next(iter(loops))
+            loops = {k: v for k, v in loops.items() if k == anchor or _wanted(k, args.only)}
         rows = list(rates(loops, args.epochs, args.repeats).items())
         load1 = os.getloadavg()[0]
         s = ds[0]

@@ -636,8 +636,9 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
         ]
         target = self._pad_hw.get("ground")
         if target is not None and all("ground" in r for r in raws):
-            # numpy, not torch (see _padded)
-            mask = np.zeros((len(raws), 1, *target), dtype=np.bool_)
+            # numpy, not torch (see _padded); in a loader worker's slot (batch_empty)
+            mask = batch_empty((len(raws), 1, *target), np.dtype(np.bool_))
+            mask.fill(False)
             for j, r in enumerate(raws):
                 h, w = r["ground"].shape[:2]
                 mask[j, :, :h, :w] = True
