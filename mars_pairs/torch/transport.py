@@ -137,12 +137,12 @@ class SlotBoard:
         if ticket.block is not None:
             self._blocks[w, s] = (ticket.generation, ticket.block)
             self._counters[w, 1 + s] = ticket.generation
-        generation, block = self._blocks.get((w, s), (0, None))  # type: ignore[arg-type]
-        if block is None or generation != ticket.generation:
+        held = self._blocks.get((w, s))
+        if held is None or held[0] != ticket.generation:
             raise RuntimeError(
                 f"worker {w} slot {s}: generation {ticket.generation} was never received"
             )
-        return block
+        return held[1]
 
     def release(self, worker: int, slot: int) -> None:
         """Give a held slot back to its worker."""
