@@ -123,6 +123,15 @@ class SlotBoard:
         self._counters = self.counters.numpy()
         self._blocks: dict[tuple[int, int], tuple[int, torch.Tensor]] = {}
 
+    def __getstate__(self) -> dict[str, torch.Tensor]:
+        return {"flags": self.flags, "counters": self.counters}  # (to a worker: no blocks)
+
+    def __setstate__(self, state: dict[str, torch.Tensor]) -> None:
+        self.flags, self.counters = state["flags"], state["counters"]
+        self._flags = self.flags.numpy()
+        self._counters = self.counters.numpy()
+        self._blocks = {}
+
     def worker_slots(self, worker: int) -> BatchSlots:
         """The worker-side slots of ``worker`` (called in the worker)."""
         return BatchSlots(self.flags[worker], self.counters[worker])
@@ -206,7 +215,12 @@ class BatchSlots:
 
     def start(self) -> None:
         """Begin a batch: the free slot with the largest block becomes current (an unused
-        one if none has a block; none if no slot is free), its block empty."""
+        one if none has a block; none if no slot is free), its block empty. While a batch
+        is being made (a current slot not yet lent: a dataset whose batch holds the batches
+        of others, or one whose last batch failed) it goes on in the same slot, after what
+        that slot holds."""
+        if self.current is not None:
+            return
         free = self._free()
         with_block = [s for s in free if self._blocks[s] is not None]
         if with_block:

@@ -7,6 +7,7 @@ import gc
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from torch.utils.data import DataLoader
@@ -338,3 +339,25 @@ def test_persistent_workers_keep_their_slots_across_epochs() -> None:
         assert [int(b["x"][0, 0]) for b in loader] == [0, 2, 4, 6]
     assert loader.recycled == 12 and loader.fresh == 0
     assert sum(loader.allocations.values()) <= 6
+
+
+def test_a_batch_made_of_two_batches_keeps_both_in_the_slot() -> None:
+    """A second start before the slot is lent (a dataset whose batch holds two datasets'
+    batches) goes on after what the slot holds; the slot is lent once."""
+    flags = torch.full((2,), FREE, dtype=torch.uint8)
+    slots = BatchSlots(flags)
+    slots.start()
+    assert slots.current is not None and slots.alloc((4,), np.dtype(np.uint8)) is None  # no block
+    taken = slots.take(LAYOUT)  # the first batch: a block laid out for it
+    assert taken is not None
+    flags[taken[0]] = FREE
+    slots.start()
+    first = slots.alloc((2, 3), np.dtype(np.uint8))
+    slots.start()
+    second = slots.alloc((4,), np.dtype(np.float64))
+    assert first is not None and second is not None
+    first[:] = 7
+    second[:] = 1.5
+    assert (first == 7).all() and slots.cursor == 128
+    lent = slots.lend({}, {})
+    assert lent is not None and flags[lent[0]] == LENT and slots.current is None
