@@ -58,6 +58,24 @@ def shm_files() -> set[str]:
     return set(os.listdir("/dev/shm")) if os.path.isdir("/dev/shm") else set()
 
 
+def child_pids() -> set[int]:
+    """This process's live child processes (Linux /proc; empty elsewhere)."""
+    pids: set[int] = set()
+    task_dir = Path(f"/proc/{os.getpid()}/task")
+    for task in task_dir.iterdir() if task_dir.is_dir() else ():
+        try:
+            pids.update(int(p) for p in (task / "children").read_text().split())
+        except OSError:
+            continue
+    return pids
+
+
+def named_by(names: set[str], pids: set[int]) -> set[str]:
+    """The names holding one of ``pids`` as a ``_``-separated part (torch names its shared
+    memory ``torch_<pid>_...``; other processes on the machine make their own)."""
+    return {n for n in names if {str(p) for p in pids} & set(n.split("_"))}
+
+
 def test_leased_batches_dropped_each_step_turn_the_slots(dataset_dir: Path) -> None:
     """A loop that drops each batch: every batch through a slot, each slot's block handed
     over once, and no shared memory left behind once the loader is gone."""
@@ -65,17 +83,19 @@ def test_leased_batches_dropped_each_step_turn_the_slots(dataset_dir: Path) -> N
     with MarsPairsDataset(dataset_dir, ground_size=(96, 128)) as ds:
         want = reference(ds, 2)
         loader = MarsPairsLoader(ds, batch_size=2, num_workers=2, persistent_workers=True)
+        pids = {os.getpid()}
         for _ in range(4):
             got = []
             for batch in loader:
                 got.append({k: batch[k].clone() for k in FIELDS} | {"meta": batch["meta"]})
+                pids |= child_pids()
             assert_same(got, want)
     assert loader.recycled == 4 * len(want) and loader.fresh == 0
     assert 1 <= sum(loader.allocations.values()) <= 8
     assert loader.handovers == sum(loader.allocations.values())  # a block crosses once
     del loader, batch
     gc.collect()
-    assert shm_files() <= before
+    assert not named_by(shm_files() - before, pids)
 
 
 def test_kept_leases_never_change(dataset_dir: Path) -> None:
