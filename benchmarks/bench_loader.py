@@ -4,11 +4,14 @@ and against WebDataset's own pipeline over the same shards.
     python benchmarks/bench_loader.py                     # out/demo/dataset, or build it
     python benchmarks/bench_loader.py --dataset DIR --epochs 20
     python benchmarks/bench_loader.py --compare OTHER_DIR   # + rows over another build
+    python benchmarks/bench_loader.py --only 'persistent$' --only webdataset   # some rows
 
 Uses ``out/demo/dataset`` when it exists, else builds ``configs/demo.yaml`` into a temp dir.
-``--compare`` adds the anchor, ``MarsPairsDataset[i]`` and the persistent 2-worker loader over
-a second dataset folder (e.g. the same samples built by another version: a format 1 build with
-``dem.npy`` against ``dem.tif``) to the same rounds, so their ratios come from one run.
+``--compare`` adds the anchor, ``MarsPairsDataset[i]``, the persistent 2-worker loader and the
+WebDataset pipeline over a second dataset folder (another build of the same samples, a format 1
+build with ``dem.npy`` against ``dem.tif``; or another dataset, such as the 512-sample build of
+``bench_build.py``) to the same rounds, so their ratios come from one run; its rows' ratios are
+against its own anchor.
 
 Prints a markdown table of samples/s (best of --repeats rounds in which the loops take turns,
 after a warm-up epoch each) for the default fields (ground, ortho, dem, viewshed):
@@ -33,8 +36,9 @@ after a warm-up epoch each) for the default fields (ground, ortho, dem, viewshed
   WebDataset's own .npy).
 
 The ratio column is each row's rate over the decode-only rate (targets: the 2-worker
-DataLoader >= 1.0x and >= the WebDataset row); the CPU column (this process and its worker
-processes, /proc) shows the work per sample, which other processes' load does not change.
+``MarsPairsLoader`` >= 1.3x the anchor and >= 1.3x the WebDataset row); the CPU columns (this
+process and its worker processes, /proc) show the work per sample, which other processes'
+load does not change, and its ratio to the anchor's.
 Wall-clock numbers are noisy on a shared machine (2 workers only help when 2 cores are
 free); the load average is printed.
 """
@@ -251,6 +255,16 @@ def rates(
     return best
 
 
+def _wanted(label: str, words: list[str]) -> bool:
+    """Whether a row's label contains one of ``words`` (case-insensitive; a word ending in
+    ``$``: the label ends with it)."""
+    label = label.lower()
+    for word in (w.lower() for w in words):
+        if label.endswith(word[:-1]) if word.endswith("$") else word in label:
+            return True
+    return False
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--dataset", type=Path, default=None)
@@ -259,6 +273,13 @@ def main() -> int:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--batch-size", type=int, default=8)
     p.add_argument("--compare", type=Path, default=None, help="a second dataset folder")
+    p.add_argument(
+        "--only",
+        action="append",
+        default=None,
+        help="only the rows whose label contains this (repeatable; a trailing $: the label "
+        "ends so); the anchor always",
+    )
     args = p.parse_args()
 
     with tempfile.TemporaryDirectory(prefix="bench-loader-") as tmp:
@@ -307,12 +328,24 @@ def main() -> int:
                 webdataset_pipeline(root, bs), w, None, True, collate=None, loader_class=DataLoader
             ),
         }
+        anchors = [next(iter(loops))]
         if args.compare is not None:
             other = MarsPairsDataset(args.compare)
-            tag = f"({args.compare.name})"
-            loops[f"{tag} read + decode only"] = decode_only(args.compare, DEFAULT_FIELDS)
+            tag = f"({args.compare.parent.name}/{args.compare.name})"
+            anchors.append(f"{tag} read + decode only")
+            loops[anchors[-1]] = decode_only(args.compare, DEFAULT_FIELDS)
             loops[f"{tag} `MarsPairsDataset[i]` (1 process)"] = dataset_loop(other)
             loops[f"{tag} {ours}"] = loader_loop(other, w, bs, True, collate=None)
+            loops[f"{tag} WebDataset pipeline, {w} workers, persistent"] = loader_loop(
+                webdataset_pipeline(args.compare, bs),
+                w,
+                None,
+                True,
+                collate=None,
+                loader_class=DataLoader,
+            )
+        if args.only:
+            loops = {k: v for k, v in loops.items() if k in anchors or _wanted(k, args.only)}
         rows = list(rates(loops, args.epochs, args.repeats).items())
         load1 = os.getloadavg()[0]
         s = ds[0]
@@ -324,11 +357,16 @@ def main() -> int:
         print(f"\n{root}: {len(ds)} samples; fields {shapes}")
         print(f"torch {torch.__version__}, {os.cpu_count()} CPUs, load {load0:.2f} -> {load1:.2f}")
         print()
-        base = rows[0][1][0]
-        print("| loop | samples/s | vs decode only | CPU ms/sample |")
-        print("|---|---:|---:|---:|")
+        print("| loop | samples/s | vs decode only | CPU ms/sample | CPU vs decode only |")
+        print("|---|---:|---:|---:|---:|")
+        base = rows[0][1]
         for label, (value, cpu) in rows:
-            print(f"| {label} | {value:.1f} | {value / base:.2f}x | {cpu:.1f} |")
+            if label in anchors:
+                base = (value, cpu)  # the rows after an anchor are over its dataset
+            print(
+                f"| {label} | {value:.1f} | {value / base[0]:.2f}x | {cpu:.2f} | "
+                f"{cpu / base[1]:.2f}x |"
+            )
     return 0
 
 

@@ -79,6 +79,7 @@ from mars_pairs.torch.decode import (
 from mars_pairs.torch.files import ShardFiles
 from mars_pairs.torch.georef import GEO_COLUMNS, chip_transform, corr_ground_grid
 from mars_pairs.torch.options import DatasetOptions
+from mars_pairs.torch.transport import batch_empty, batch_start
 
 META_COLUMNS = SUMMARY_COLUMNS
 
@@ -589,11 +590,13 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
         Members are decoded to compact arrays first; each field whose shapes agree across the
         batch is then converted into one [B, C, H, W] buffer whose rows are the samples'
         tensors, so ``collate_samples`` hands it on without another copy. The buffers are in
-        this process's memory, also in a DataLoader worker (numpy reuses freed pages, where
-        fresh shared memory is the costly part of transport): the worker's collate stage moves
-        the batch to shared memory, into a recycled slot under
-        :class:`~mars_pairs.torch.loader.MarsPairsLoader`.
+        this process's memory (numpy reuses freed pages, where fresh shared memory is the
+        costly part of transport), except in a
+        :class:`~mars_pairs.torch.loader.MarsPairsLoader` worker: there they lie in the
+        shared-memory slot the batch is sent in (:func:`~mars_pairs.torch.transport.batch_empty`),
+        so the batch reaches the main process without a copy.
         """
+        batch_start()
         checked = [self._checked(i) for i in indices]
         read = [self._raw(i) for i in checked]
         raws = [r for r, _ in read]
@@ -605,9 +608,8 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
             dtype = self._dtypes[name]
             if len(shapes) == 1:
                 shape = (len(raws), *shapes.pop())
-                # private memory, also in a worker (see the docstring); the collate stage
-                # writes the batch into shared memory
-                batch = torch.from_numpy(np.empty(shape, dtype=dtype))
+                # this process's memory, or a loader worker's slot (see the docstring)
+                batch = torch.from_numpy(batch_empty(shape, dtype))
                 for j, (i, r) in enumerate(zip(checked, raws, strict=True)):
                     self._write(i, name, r[name], batch[j].numpy())
                     tensors[j][name] = batch[j]
@@ -634,8 +636,9 @@ class MarsPairsDataset(Dataset[dict[str, Any]]):
         ]
         target = self._pad_hw.get("ground")
         if target is not None and all("ground" in r for r in raws):
-            # numpy, not torch (see _padded)
-            mask = np.zeros((len(raws), 1, *target), dtype=np.bool_)
+            # numpy, not torch (see _padded); in a loader worker's slot (batch_empty)
+            mask = batch_empty((len(raws), 1, *target), np.dtype(np.bool_))
+            mask.fill(False)
             for j, r in enumerate(raws):
                 h, w = r["ground"].shape[:2]
                 mask[j, :, :h, :w] = True

@@ -4,8 +4,10 @@ caller's own and equal what a one-process DataLoader gives."""
 from __future__ import annotations
 
 import gc
+import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from torch.utils.data import DataLoader
@@ -35,9 +37,12 @@ def assert_same(got: list[dict], want: list[dict]) -> None:
 
 
 def test_batches_equal_and_slots_reused(dataset_dir: Path) -> None:
+    """Copying: every batch the caller's own memory, the slots refilled."""
     with MarsPairsDataset(dataset_dir, ground_size=(96, 128)) as ds:
         want = reference(ds, 2)
-        loader = MarsPairsLoader(ds, batch_size=2, num_workers=2, persistent_workers=True)
+        loader = MarsPairsLoader(
+            ds, batch_size=2, num_workers=2, persistent_workers=True, copy_batches=True
+        )
         epochs = [list(loader) for _ in range(4)]  # every batch kept: none may alias another
     for got in epochs:
         assert_same(got, want)
@@ -46,6 +51,82 @@ def test_batches_equal_and_slots_reused(dataset_dir: Path) -> None:
     assert loader.recycled == 4 * len(want) and loader.fresh == 0
     # 20 batches from 2 workers: a few slots each, refilled, not reallocated
     assert 1 <= sum(loader.allocations.values()) <= 8
+
+
+def shm_files() -> set[str]:
+    """The names in /dev/shm (torch's shared memory, were it left behind)."""
+    return set(os.listdir("/dev/shm")) if os.path.isdir("/dev/shm") else set()
+
+
+def child_pids() -> set[int]:
+    """This process's live child processes (Linux /proc; empty elsewhere)."""
+    pids: set[int] = set()
+    task_dir = Path(f"/proc/{os.getpid()}/task")
+    for task in task_dir.iterdir() if task_dir.is_dir() else ():
+        try:
+            pids.update(int(p) for p in (task / "children").read_text().split())
+        except OSError:
+            continue
+    return pids
+
+
+def named_by(names: set[str], pids: set[int]) -> set[str]:
+    """The names holding one of ``pids`` as a ``_``-separated part (torch names its shared
+    memory ``torch_<pid>_...``; other processes on the machine make their own)."""
+    return {n for n in names if {str(p) for p in pids} & set(n.split("_"))}
+
+
+def test_leased_batches_dropped_each_step_turn_the_slots(dataset_dir: Path) -> None:
+    """A loop that drops each batch: every batch through a slot, each slot's block handed
+    over once, and no shared memory left behind once the loader is gone."""
+    before = shm_files()
+    with MarsPairsDataset(dataset_dir, ground_size=(96, 128)) as ds:
+        want = reference(ds, 2)
+        loader = MarsPairsLoader(ds, batch_size=2, num_workers=2, persistent_workers=True)
+        pids = {os.getpid()}
+        for _ in range(4):
+            got = []
+            for batch in loader:
+                got.append({k: batch[k].clone() for k in FIELDS} | {"meta": batch["meta"]})
+                pids |= child_pids()
+            assert_same(got, want)
+    assert loader.recycled == 4 * len(want) and loader.fresh == 0
+    assert 1 <= sum(loader.allocations.values()) <= 8
+    assert loader.handovers == sum(loader.allocations.values())  # a block crosses once
+    del loader, batch
+    gc.collect()
+    assert not named_by(shm_files() - before, pids)
+
+
+def test_kept_leases_never_change(dataset_dir: Path) -> None:
+    """Batches kept past the next step hold their slots: the workers never refill them
+    (they send later batches in new shared memory once their slots are all held)."""
+    with MarsPairsDataset(dataset_dir, ground_size=(96, 128)) as ds:
+        want = reference(ds, 1)
+        loader = MarsPairsLoader(ds, batch_size=1, num_workers=1, persistent_workers=True)
+        epochs = [list(loader) for _ in range(3)]
+        for got in epochs:
+            assert_same(got, want)
+        assert loader.recycled + loader.fresh == 3 * len(want)
+        assert loader.fresh > 0  # 6 slots, every batch of 3 epochs kept
+        del epochs, got
+        gc.collect()
+        fresh = loader.fresh
+        assert_same(
+            list({k: b[k].clone() for k in FIELDS} | {"meta": b["meta"]} for b in loader), want
+        )
+        assert loader.fresh == fresh  # the slots given back, turning again
+
+
+def test_a_lease_modified_in_place_is_the_callers(dataset_dir: Path) -> None:
+    with MarsPairsDataset(dataset_dir, ground_size=(96, 128)) as ds:
+        want = reference(ds, 2)
+        loader = MarsPairsLoader(ds, batch_size=2, num_workers=1)
+        for batch, w in zip(loader, want, strict=True):
+            batch["ground"].zero_()
+            assert int(batch["ground"].sum()) == 0
+            assert torch.equal(batch["ortho"], w["ortho"])
+        assert loader.recycled == len(want)
 
 
 def test_transforms_keep_slots(dataset_dir: Path) -> None:
@@ -278,3 +359,25 @@ def test_persistent_workers_keep_their_slots_across_epochs() -> None:
         assert [int(b["x"][0, 0]) for b in loader] == [0, 2, 4, 6]
     assert loader.recycled == 12 and loader.fresh == 0
     assert sum(loader.allocations.values()) <= 6
+
+
+def test_a_batch_made_of_two_batches_keeps_both_in_the_slot() -> None:
+    """A second start before the slot is lent (a dataset whose batch holds two datasets'
+    batches) goes on after what the slot holds; the slot is lent once."""
+    flags = torch.full((2,), FREE, dtype=torch.uint8)
+    slots = BatchSlots(flags)
+    slots.start()
+    assert slots.current is not None and slots.alloc((4,), np.dtype(np.uint8)) is None  # no block
+    taken = slots.take(LAYOUT)  # the first batch: a block laid out for it
+    assert taken is not None
+    flags[taken[0]] = FREE
+    slots.start()
+    first = slots.alloc((2, 3), np.dtype(np.uint8))
+    slots.start()
+    second = slots.alloc((4,), np.dtype(np.float64))
+    assert first is not None and second is not None
+    first[:] = 7
+    second[:] = 1.5
+    assert (first == 7).all() and slots.cursor == 128
+    lent = slots.lend({}, {})
+    assert lent is not None and flags[lent[0]] == LENT and slots.current is None
