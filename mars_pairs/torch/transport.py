@@ -265,11 +265,11 @@ class BatchSlots:
         slot = self.current
         self.current = None
         block = None if slot is None else self._blocks[slot]
-        if block is not None:
+        if slot is not None and block is not None:
             extra, end = place(missing, self.cursor)
             if end <= block.capacity:
-                self._mark_lent(slot)  # type: ignore[arg-type]  # block implies a slot
-                return slot, block, {**placed, **extra}, False  # type: ignore[return-value]
+                self._mark_lent(slot)
+                return slot, block, {**placed, **extra}, False
         if slot is None:
             free = self._free()
             if not free:
