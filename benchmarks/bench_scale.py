@@ -169,6 +169,7 @@ def _child(index: str, root: Path, pattern: str, kind: str) -> None:
     phases.start("end")
     dataset = json.loads((root / "dataset" / "dataset.json").read_text())
     print(json.dumps({"peaks": phases.peaks, "rss_kib": phases.highest - phases.base,
+                      "peak_kib": phases.highest,
                       "cpu": cpu, "seconds": seconds, "samples": summary.samples,
                       "counts": dataset.get("counts")}))  # fmt: skip
 
@@ -216,9 +217,10 @@ def scale_table(sizes: list[int], per_dir: int, anchor_sizes: list[int] | None =
         f"(no sample built), each case in a fresh process\n"
     )
     print("| labels | stub | duplicate-key record | peak RSS growth MiB: commit pass | merge "
-          "| leak check | rest of the finish | whole build | CPU us/label | seconds "
+          "| leak check | rest of the finish | whole build | whole build peak RSS MiB "
+          "| CPU us/label | seconds "
           "| load (1 min) |")  # fmt: skip
-    print("|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     appends = []
     for size in sizes:
         root = Path(tempfile.mkdtemp(prefix="bench_scale_"))
@@ -236,7 +238,8 @@ def scale_table(sizes: list[int], per_dir: int, anchor_sizes: list[int] | None =
                 print(
                     f"| {size:,} | {kind} | {INDEXES[index]} | {_mib(p['commit'])} "
                     f"| {_mib(p['merge'])} | {_mib(p.get('leak', 0))} | {_mib(p['finish'])} "
-                    f"| {_mib(r['rss_kib'])} | {r['cpu'] * 1e6 / size:.0f} "
+                    f"| {_mib(r['rss_kib'])} | {_mib(r['peak_kib'])} "
+                    f"| {r['cpu'] * 1e6 / size:.0f} "
                     f"| {r['seconds']:.1f} | {os.getloadavg()[0]:.2f} |",
                     flush=True,
                 )
