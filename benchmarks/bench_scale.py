@@ -21,8 +21,8 @@ Each case runs in a fresh subprocess, which reports the growth of its peak resid
 (``VmHWM`` in ``/proc/self/status``, reset through ``/proc/self/clear_refs`` as each phase
 starts) over the resident set as the phase starts: the commit pass (planning, listing,
 chunks, key check, parts; over the value after the imports and a warm-up build), the merge
-(``merge_parts``: manifest and failures), the leak check (``leak_report``, which holds the
-samples' chips and footprints) and the rest of the finish; the whole build's growth is the
+(``merge_parts``: manifest and failures), the leak check (``streamed_leak_report``: a sweep
+over the samples sorted on disk) and the rest of the finish; the whole build's growth is the
 largest phase peak over the commit pass's start. CPU per label from ``resource.getrusage``.
 The anchor, "dict (before)", is the ``dropped`` build with the keys in a ``dict`` in the
 driver (what ``key_index.KeyIndex`` replaced), alternated with it at ``--anchor-sizes``.
@@ -162,7 +162,9 @@ def _child(index: str, root: Path, pattern: str, kind: str) -> None:
     (root / "config.pickle").write_bytes(pickle.dumps(config))
     phases = _Phases()
     run.merge_parts = phases.wrap(run.merge_parts, "merge", "finish")  # type: ignore[assignment]
-    finish.leak_report = phases.wrap(finish.leak_report, "leak", "finish")  # type: ignore[assignment]
+    finish.streamed_leak_report = phases.wrap(  # type: ignore[assignment]
+        finish.streamed_leak_report, "leak", "finish"
+    )
     cpu, start = _cpu(), time.perf_counter()
     summary = run.run_build(config, engine=StubEngine(kind), progress=False)
     seconds, cpu = time.perf_counter() - start, _cpu() - cpu
