@@ -282,6 +282,26 @@ def list_files(root: Location) -> list[str]:
     return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.is_file())
 
 
+def list_names(root: Location) -> list[str]:
+    """The files directly in ``root`` (not in its subfolders), by name, sorted; [] when
+    absent. One listing of the folder itself, whatever its subfolders hold."""
+    if is_url(root):
+        fs, p = filesystem(root)
+        base = p.rstrip("/") + "/"
+        with _remote(root):
+            try:
+                found = fs.ls(p, detail=True)
+            except FileNotFoundError:
+                return []
+        names = (str(f["name"]).rstrip("/") for f in found if f.get("type") == "file")
+        return sorted(n[len(base) :] for n in names if n.startswith(base) and "/" not in n[len(base) :])
+    folder = Path(root)
+    if not folder.is_dir():
+        return []
+    with os.scandir(folder) as entries:
+        return sorted(e.name for e in entries if e.is_file())
+
+
 def total_size(root: Location) -> int:
     """The bytes of every file under ``root`` (one listing on object storage)."""
     if is_url(root):
