@@ -128,11 +128,16 @@ class _Phases:
         self.base = _vm_hwm_kib()
         self.name, self.at, self.peaks = "commit", self.base, {}  # type: ignore[var-annotated]
         self.highest = self.base
+        self.cpu: dict[str, float] = {}  # seconds of CPU a phase
+        self.cpu_at = _cpu()
 
     def start(self, name: str) -> None:
         hwm = _vm_hwm_kib()
         self.highest = max(self.highest, hwm)
         self.peaks[self.name] = max(self.peaks.get(self.name, 0), hwm - self.at)
+        now = _cpu()
+        self.cpu[self.name] = self.cpu.get(self.name, 0.0) + now - self.cpu_at
+        self.cpu_at = now
         with open("/proc/self/clear_refs", "w") as refs:
             refs.write("5")
         self.name, self.at = name, _vm_rss_kib()
@@ -171,7 +176,7 @@ def _child(index: str, root: Path, pattern: str, kind: str) -> None:
     phases.start("end")
     dataset = json.loads((root / "dataset" / "dataset.json").read_text())
     print(json.dumps({"peaks": phases.peaks, "rss_kib": phases.highest - phases.base,
-                      "peak_kib": phases.highest,
+                      "peak_kib": phases.highest, "phase_cpu": phases.cpu,
                       "cpu": cpu, "seconds": seconds, "samples": summary.samples,
                       "counts": dataset.get("counts")}))  # fmt: skip
 
@@ -203,6 +208,10 @@ def _run(*args: str) -> dict[str, Any]:
     return dict(json.loads(done.stdout.strip().splitlines()[-1]))
 
 
+def _phase_cpu(cpu: dict[str, float], size: int) -> str:
+    return " / ".join(f"{cpu.get(k, 0.0) * 1e6 / size:.0f}" for k in ("commit", "merge", "leak", "finish"))
+
+
 def _mib(kib: float) -> str:
     return f"{kib / 1024:.1f}"
 
@@ -220,9 +229,9 @@ def scale_table(sizes: list[int], per_dir: int, anchor_sizes: list[int] | None =
     )
     print("| labels | stub | duplicate-key record | peak RSS growth MiB: commit pass | merge "
           "| leak check | rest of the finish | whole build | whole build peak RSS MiB "
-          "| CPU us/label | seconds "
+          "| CPU us/label | CPU us/label: commit / merge / leak / rest | seconds "
           "| load (1 min) |")  # fmt: skip
-    print("|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     appends = []
     for size in sizes:
         root = Path(tempfile.mkdtemp(prefix="bench_scale_"))
@@ -241,7 +250,7 @@ def scale_table(sizes: list[int], per_dir: int, anchor_sizes: list[int] | None =
                     f"| {size:,} | {kind} | {INDEXES[index]} | {_mib(p['commit'])} "
                     f"| {_mib(p['merge'])} | {_mib(p.get('leak', 0))} | {_mib(p['finish'])} "
                     f"| {_mib(r['rss_kib'])} | {_mib(r['peak_kib'])} "
-                    f"| {r['cpu'] * 1e6 / size:.0f} "
+                    f"| {r['cpu'] * 1e6 / size:.0f} | {_phase_cpu(r['phase_cpu'], size)} "
                     f"| {r['seconds']:.1f} | {os.getloadavg()[0]:.2f} |",
                     flush=True,
                 )
