@@ -209,7 +209,9 @@ def _run(*args: str) -> dict[str, Any]:
 
 
 def _phase_cpu(cpu: dict[str, float], size: int) -> str:
-    return " / ".join(f"{cpu.get(k, 0.0) * 1e6 / size:.0f}" for k in ("commit", "merge", "leak", "finish"))
+    return " / ".join(
+        f"{cpu.get(k, 0.0) * 1e6 / size:.0f}" for k in ("commit", "merge", "leak", "finish")
+    )
 
 
 def _mib(kib: float) -> str:

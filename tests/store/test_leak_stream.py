@@ -19,7 +19,6 @@ import shapely
 
 from mars_pairs.store.leakage import leak_report, streamed_leak_report
 from mars_pairs.store.splits import BUFFER, TRAIN, SplitRule
-
 from tests.store.test_splits import S, rule_for, traverse_case
 
 

@@ -134,8 +134,8 @@ def merge_parts(config: BuildConfig, n_chunks: int) -> Merged:
     """Merge the chunk parts into manifest.parquet (Hilbert order) and failures.parquet, a
     part at a time."""
     out = config.output.dir
-    parts = (fs.read_parquet(part_paths(out, k)[1]) for k in range(n_chunks))
-    fails = (fs.read_parquet(part_paths(out, k)[2]) for k in range(n_chunks))
+    parts = (fs.read_parquet_file(part_paths(out, k)[1]) for k in range(n_chunks))
+    fails = (fs.read_parquet_file(part_paths(out, k)[2]) for k in range(n_chunks))
     return write_merged(config, parts, fails)
 
 
