@@ -10,6 +10,7 @@ than a merge's fan-in, and a window that is emptied and refilled).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -52,7 +53,8 @@ def leaky_manifest(seeds: range, buffer_every: int = 0) -> pa.Table:
     return table.take(pa.array(order))
 
 
-def both(table: pa.Table, tmp_path: Path, batch_rows: int) -> tuple[dict, dict]:  # type: ignore[type-arg]
+def both(table: pa.Table, tmp_path: Path, batch_rows: int) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The streamed report of ``table`` written as a manifest file, and the in-memory one."""
     tmp_path.mkdir(parents=True, exist_ok=True)
     path = tmp_path / "manifest.parquet"
     pq.write_table(table, path, row_group_size=97)
