@@ -23,7 +23,9 @@ starts) over the resident set as the phase starts: the commit pass (planning, li
 chunks, key check, parts; over the value after the imports and a warm-up build), the merge
 (``merge_parts``: manifest and failures), the leak check (``streamed_leak_report``: a sweep
 over the samples sorted on disk) and the rest of the finish; the whole build's growth is the
-largest phase peak over the commit pass's start. CPU per label from ``resource.getrusage``.
+largest phase peak over the commit pass's start, and its peak that largest ``VmHWM`` itself
+(imports included: what "flat" compares, 1M labels against 10k, within 10 %). CPU per label
+from ``resource.getrusage``, for the whole build and a phase.
 The anchor, "dict (before)", is the ``dropped`` build with the keys in a ``dict`` in the
 driver (what ``key_index.KeyIndex`` replaced), alternated with it at ``--anchor-sizes``.
 Prints markdown tables with the load average (1 min) after each case.
