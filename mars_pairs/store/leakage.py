@@ -318,11 +318,7 @@ class _Sweep:
         """Test the batch ``table`` (sweep rows, in sweep order, after those added) against
         itself and the window, then make it part of the window."""
         b = _Samples.of(table, self.size_m)
-        w = self.window
-        if w is not None:
-            reach = min(self.bound, self.rover) if self.train is not None else 0.0
-            reach = reach * (1.0 + 1e-9) + 1e-6  # the float rounding of edges and distances
-            w = w.take(np.flatnonzero(w.east >= float(table["west"][0].as_py()) - reach))
+        w = self._reaching(self.window, float(table["west"][0].as_py()))
         both = b if w is None else w + b
         self._count("chip_chip", b, w, both, "chips", "chips", unordered=True)
         self._count("footprint_footprint", b, w, both, "feet", "feet", unordered=True)
@@ -330,7 +326,19 @@ class _Sweep:
         if self.train is not None:
             self.rover = min(self.rover, self._nearest(b, w, both, "rover"))
             self.gap = min(self.gap, self._nearest(b, w, both, "extents"))
-        self.window = both
+        # every later sample's west edge is at least the batch's last: the window the next
+        # batch meets, and what sizes it (``_batches``)
+        self.window = self._reaching(both, float(table["west"][-1].as_py()))
+
+    def _reaching(self, w: _Samples | None, west: float) -> _Samples | None:
+        """The samples of ``w`` that a sample whose west edge is at ``west`` or east of it
+        may meet or be the nearest pair with: east edge within the nearest distance found
+        (or its bound; 0 without distances to find) west of ``west``."""
+        if w is None:
+            return None
+        reach = min(self.bound, self.rover) if self.train is not None else 0.0
+        reach = reach * (1.0 + 1e-9) + 1e-6  # the float rounding of edges and distances
+        return w.take(np.flatnonzero(w.east >= west - reach))
 
     def _count(
         self, name: str, b: _Samples, w: _Samples | None, both: _Samples,
