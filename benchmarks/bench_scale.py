@@ -220,9 +220,15 @@ def _mib(kib: float) -> str:
     return f"{kib / 1024:.1f}"
 
 
-def scale_table(sizes: list[int], per_dir: int, anchor_sizes: list[int] | None = None) -> None:
+def scale_table(
+    sizes: list[int],
+    per_dir: int,
+    anchor_sizes: list[int] | None = None,
+    stubs: tuple[str, ...] = ("dropped", "sample"),
+) -> None:
     """Print the tables for ``sizes`` labels (``per_dir`` a folder); the dict anchor at
-    ``anchor_sizes`` (default: every size)."""
+    ``anchor_sizes`` (default: every size); the stubs ``stubs`` (the append plan needs
+    ``sample``)."""
     from mars_pairs.synth.label_tree import write_label_tree
 
     anchors = sizes if anchor_sizes is None else anchor_sizes
@@ -241,9 +247,9 @@ def scale_table(sizes: list[int], per_dir: int, anchor_sizes: list[int] | None =
         root = Path(tempfile.mkdtemp(prefix="bench_scale_"))
         try:
             pattern = write_label_tree(root / "labels", size, per_dir=per_dir)
-            cases = [("dropped", "sqlite")]
-            cases += [("dropped", "dict")] if size in anchors else []
-            cases += [("sample", "sqlite")]
+            cases = [("dropped", "sqlite")] if "dropped" in stubs else []
+            cases += [("dropped", "dict")] if size in anchors and "dropped" in stubs else []
+            cases += [("sample", "sqlite")] if "sample" in stubs else []
             for kind, index in cases:
                 for name in ("dataset", "warm", "warm-labels"):
                     shutil.rmtree(root / name, ignore_errors=True)
@@ -258,6 +264,8 @@ def scale_table(sizes: list[int], per_dir: int, anchor_sizes: list[int] | None =
                     f"| {r['seconds']:.1f} | {os.getloadavg()[0]:.2f} |",
                     flush=True,
                 )
+            if "sample" not in stubs:
+                continue
             new = max(100, size // 100)  # a new release: sols after the dataset's
             for i in range(new):
                 sol, j = divmod(i, per_dir)
@@ -286,6 +294,8 @@ def main() -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000])
     parser.add_argument("--anchor-sizes", type=int, nargs="*")
     parser.add_argument("--per-dir", type=int, default=1000)
+    parser.add_argument("--stubs", nargs="+", choices=["dropped", "sample"],
+                        default=["dropped", "sample"])  # fmt: skip
     parser.add_argument("--child", nargs=4, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
@@ -295,7 +305,7 @@ def main() -> None:
         else:
             _child(index, Path(root), pattern, kind)
         return
-    scale_table(args.sizes, args.per_dir, args.anchor_sizes)
+    scale_table(args.sizes, args.per_dir, args.anchor_sizes, tuple(args.stubs))
 
 
 if __name__ == "__main__":
