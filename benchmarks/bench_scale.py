@@ -21,9 +21,11 @@ Each case runs in a fresh subprocess, which reports the growth of its peak resid
 (``VmHWM`` in ``/proc/self/status``, reset through ``/proc/self/clear_refs`` as each phase
 starts) over the resident set as the phase starts: the commit pass (planning, listing,
 chunks, key check, parts; over the value after the imports and a warm-up build), the merge
-(``merge_parts``: manifest and failures), the leak check (``leak_report``, which holds the
-samples' chips and footprints) and the rest of the finish; the whole build's growth is the
-largest phase peak over the commit pass's start. CPU per label from ``resource.getrusage``.
+(``merge_parts``: manifest and failures), the leak check (``streamed_leak_report``: a sweep
+over the samples sorted on disk) and the rest of the finish; the whole build's growth is the
+largest phase peak over the commit pass's start, and its peak that largest ``VmHWM`` itself
+(imports included: what "flat" compares, 1M labels against 10k, within 10 %). CPU per label
+from ``resource.getrusage``, for the whole build and a phase.
 The anchor, "dict (before)", is the ``dropped`` build with the keys in a ``dict`` in the
 driver (what ``key_index.KeyIndex`` replaced), alternated with it at ``--anchor-sizes``.
 Prints markdown tables with the load average (1 min) after each case.
@@ -128,11 +130,16 @@ class _Phases:
         self.base = _vm_hwm_kib()
         self.name, self.at, self.peaks = "commit", self.base, {}  # type: ignore[var-annotated]
         self.highest = self.base
+        self.cpu: dict[str, float] = {}  # seconds of CPU a phase
+        self.cpu_at = _cpu()
 
     def start(self, name: str) -> None:
         hwm = _vm_hwm_kib()
         self.highest = max(self.highest, hwm)
         self.peaks[self.name] = max(self.peaks.get(self.name, 0), hwm - self.at)
+        now = _cpu()
+        self.cpu[self.name] = self.cpu.get(self.name, 0.0) + now - self.cpu_at
+        self.cpu_at = now
         with open("/proc/self/clear_refs", "w") as refs:
             refs.write("5")
         self.name, self.at = name, _vm_rss_kib()
@@ -162,13 +169,16 @@ def _child(index: str, root: Path, pattern: str, kind: str) -> None:
     (root / "config.pickle").write_bytes(pickle.dumps(config))
     phases = _Phases()
     run.merge_parts = phases.wrap(run.merge_parts, "merge", "finish")  # type: ignore[assignment]
-    finish.leak_report = phases.wrap(finish.leak_report, "leak", "finish")  # type: ignore[assignment]
+    finish.streamed_leak_report = phases.wrap(  # type: ignore[assignment]
+        finish.streamed_leak_report, "leak", "finish"
+    )
     cpu, start = _cpu(), time.perf_counter()
     summary = run.run_build(config, engine=StubEngine(kind), progress=False)
     seconds, cpu = time.perf_counter() - start, _cpu() - cpu
     phases.start("end")
     dataset = json.loads((root / "dataset" / "dataset.json").read_text())
     print(json.dumps({"peaks": phases.peaks, "rss_kib": phases.highest - phases.base,
+                      "peak_kib": phases.highest, "phase_cpu": phases.cpu,
                       "cpu": cpu, "seconds": seconds, "samples": summary.samples,
                       "counts": dataset.get("counts")}))  # fmt: skip
 
@@ -200,13 +210,25 @@ def _run(*args: str) -> dict[str, Any]:
     return dict(json.loads(done.stdout.strip().splitlines()[-1]))
 
 
+def _phase_cpu(cpu: dict[str, float], size: int) -> str:
+    return " / ".join(
+        f"{cpu.get(k, 0.0) * 1e6 / size:.0f}" for k in ("commit", "merge", "leak", "finish")
+    )
+
+
 def _mib(kib: float) -> str:
     return f"{kib / 1024:.1f}"
 
 
-def scale_table(sizes: list[int], per_dir: int, anchor_sizes: list[int] | None = None) -> None:
+def scale_table(
+    sizes: list[int],
+    per_dir: int,
+    anchor_sizes: list[int] | None = None,
+    stubs: tuple[str, ...] = ("dropped", "sample"),
+) -> None:
     """Print the tables for ``sizes`` labels (``per_dir`` a folder); the dict anchor at
-    ``anchor_sizes`` (default: every size)."""
+    ``anchor_sizes`` (default: every size); the stubs ``stubs`` (the append plan needs
+    ``sample``)."""
     from mars_pairs.synth.label_tree import write_label_tree
 
     anchors = sizes if anchor_sizes is None else anchor_sizes
@@ -216,17 +238,18 @@ def scale_table(sizes: list[int], per_dir: int, anchor_sizes: list[int] | None =
         f"(no sample built), each case in a fresh process\n"
     )
     print("| labels | stub | duplicate-key record | peak RSS growth MiB: commit pass | merge "
-          "| leak check | rest of the finish | whole build | CPU us/label | seconds "
+          "| leak check | rest of the finish | whole build | whole build peak RSS MiB "
+          "| CPU us/label | CPU us/label: commit / merge / leak / rest | seconds "
           "| load (1 min) |")  # fmt: skip
-    print("|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     appends = []
     for size in sizes:
         root = Path(tempfile.mkdtemp(prefix="bench_scale_"))
         try:
             pattern = write_label_tree(root / "labels", size, per_dir=per_dir)
-            cases = [("dropped", "sqlite")]
-            cases += [("dropped", "dict")] if size in anchors else []
-            cases += [("sample", "sqlite")]
+            cases = [("dropped", "sqlite")] if "dropped" in stubs else []
+            cases += [("dropped", "dict")] if size in anchors and "dropped" in stubs else []
+            cases += [("sample", "sqlite")] if "sample" in stubs else []
             for kind, index in cases:
                 for name in ("dataset", "warm", "warm-labels"):
                     shutil.rmtree(root / name, ignore_errors=True)
@@ -236,10 +259,13 @@ def scale_table(sizes: list[int], per_dir: int, anchor_sizes: list[int] | None =
                 print(
                     f"| {size:,} | {kind} | {INDEXES[index]} | {_mib(p['commit'])} "
                     f"| {_mib(p['merge'])} | {_mib(p.get('leak', 0))} | {_mib(p['finish'])} "
-                    f"| {_mib(r['rss_kib'])} | {r['cpu'] * 1e6 / size:.0f} "
+                    f"| {_mib(r['rss_kib'])} | {_mib(r['peak_kib'])} "
+                    f"| {r['cpu'] * 1e6 / size:.0f} | {_phase_cpu(r['phase_cpu'], size)} "
                     f"| {r['seconds']:.1f} | {os.getloadavg()[0]:.2f} |",
                     flush=True,
                 )
+            if "sample" not in stubs:
+                continue
             new = max(100, size // 100)  # a new release: sols after the dataset's
             for i in range(new):
                 sol, j = divmod(i, per_dir)
@@ -268,6 +294,8 @@ def main() -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000])
     parser.add_argument("--anchor-sizes", type=int, nargs="*")
     parser.add_argument("--per-dir", type=int, default=1000)
+    parser.add_argument("--stubs", nargs="+", choices=["dropped", "sample"],
+                        default=["dropped", "sample"])  # fmt: skip
     parser.add_argument("--child", nargs=4, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
@@ -277,7 +305,7 @@ def main() -> None:
         else:
             _child(index, Path(root), pattern, kind)
         return
-    scale_table(args.sizes, args.per_dir, args.anchor_sizes)
+    scale_table(args.sizes, args.per_dir, args.anchor_sizes, tuple(args.stubs))
 
 
 if __name__ == "__main__":

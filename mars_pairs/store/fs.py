@@ -282,6 +282,28 @@ def list_files(root: Location) -> list[str]:
     return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.is_file())
 
 
+def list_names(root: Location) -> list[str]:
+    """The files directly in ``root`` (not in its subfolders), by name, sorted; [] when
+    absent. One listing of the folder itself, whatever its subfolders hold."""
+    if is_url(root):
+        fs, p = filesystem(root)
+        base = p.rstrip("/") + "/"
+        with _remote(root):
+            try:
+                found = fs.ls(p, detail=True)
+            except FileNotFoundError:
+                return []
+        names = (str(f["name"]).rstrip("/") for f in found if f.get("type") == "file")
+        return sorted(
+            n[len(base) :] for n in names if n.startswith(base) and "/" not in n[len(base) :]
+        )
+    folder = Path(root)
+    if not folder.is_dir():
+        return []
+    with os.scandir(folder) as entries:
+        return sorted(e.name for e in entries if e.is_file())
+
+
 def total_size(root: Location) -> int:
     """The bytes of every file under ``root`` (one listing on object storage)."""
     if is_url(root):
@@ -379,6 +401,19 @@ def read_parquet(path: Location, columns: list[str] | None = None) -> Any:
 
     source, fs = parquet_source(path)
     return pq.read_table(source, columns=columns, filesystem=fs)
+
+
+def read_parquet_file(path: Location) -> Any:
+    """The whole Parquet file at ``path`` as a table, read by its own reader in this thread
+    (not the datasets layer of :func:`read_parquet`, whose set-up costs more than a chunk
+    part's read and whose allocations outlive it); the same table."""
+    import pyarrow.parquet as pq
+
+    if is_url(path):
+        with open_input(path) as fh, pq.ParquetFile(fh) as file:
+            return file.read(use_threads=False)
+    with pq.ParquetFile(Path(path)) as file:
+        return file.read(use_threads=False)
 
 
 def parquet_schema(path: Location) -> Any:

@@ -29,8 +29,8 @@ SortKeys = list[tuple[str, str]]
 #: At most this many runs are merged at once; more are merged in passes.
 FAN_IN = 16
 #: Rows a record batch of a run file: a run is read a batch at a time while merged, so the
-#: merge holds ``FAN_IN`` of them.
-RUN_ROW_GROUP = 256
+#: merge holds ``FAN_IN`` of them (of the manifest's ~70 columns: ~6 MiB of Arrow buffers).
+RUN_ROW_GROUP = 128
 #: Rows the merge puts out at a time (in order: the merge's ``take`` of every column).
 OUT_ROWS = 1024
 

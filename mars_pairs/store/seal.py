@@ -77,7 +77,7 @@ SPLIT_LISTS = re.compile(r"shards-[a-z][a-z0-9_]*\.txt|shardindex-[a-z][a-z0-9_]
 def sealed_names(root: fs.Location) -> list[str]:
     """The files of ``root`` the record covers: ``SEALED``, those of ``OPTIONAL_SEALED``
     present and the per-split shard lists."""
-    names = [n for n in fs.list_files(root) if "/" not in n]
+    names = fs.list_names(root)  # the folder's own files: not its shards' or parts' listing
     lists = sorted(n for n in names if SPLIT_LISTS.fullmatch(n))
     return [*SEALED, *(n for n in OPTIONAL_SEALED if n in names), *lists]
 

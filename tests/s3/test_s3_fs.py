@@ -49,6 +49,8 @@ def test_files_on_s3(s3_prefix: str, tmp_path: Path) -> None:
     fs.upload(local, fs.join(s3_prefix, "shards/a.bin"))
     fs.put_bytes(fs.join(s3_prefix, "b.json"), b"{}")
     assert fs.list_files(s3_prefix) == ["b.json", "shards/a.bin"]
+    assert fs.list_names(s3_prefix) == ["b.json"]  # the folder's own files
+    assert fs.list_names(fs.join(s3_prefix, "none")) == []
     assert fs.read_range(fs.join(s3_prefix, "shards/a.bin"), 3, 4) == b"3456"
     assert fs.size(fs.join(s3_prefix, "shards/a.bin")) == 10
     fs.replace(fs.join(s3_prefix, "b.json"), fs.join(s3_prefix, "c.json"))

@@ -59,6 +59,16 @@ def refused(root: Path) -> bool:
     return False
 
 
+def test_the_record_covers_the_folders_own_files_only(tmp_path: Path) -> None:
+    """A split list or pairs file in a subfolder is not the folder's: not sealed."""
+    (tmp_path / "parts").mkdir()
+    for name in ("shards-val.txt", "pairs.parquet", "shardindex-test.json"):
+        (tmp_path / "parts" / name).write_text("x")
+    (tmp_path / "shards-train.txt").write_text("x")
+    (tmp_path / "shardindex-train.json").mkdir()  # a folder of that name: not a file
+    assert sealed_names(tmp_path) == [*SEALED, "shards-train.txt"]
+
+
 def test_a_build_seals_its_folder(sealed: Path) -> None:
     doc = json.loads((sealed / "dataset.json").read_bytes())
     assert sorted(doc[FILES_KEY]) == sorted(sealed_names(sealed))

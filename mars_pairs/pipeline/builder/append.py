@@ -70,6 +70,7 @@ from mars_pairs.pipeline.builder.stamp import (
 )
 from mars_pairs.pipeline.config import BuildConfig
 from mars_pairs.pipeline.sample.record import labels_root
+from mars_pairs.store import fs
 from mars_pairs.store.atomic import atomic_path
 from mars_pairs.store.dataset_info import DATASET_JSON, DatasetInfo
 
@@ -426,7 +427,7 @@ def merge_append(config: BuildConfig, plan: AppendPlan) -> tuple[Merged, int]:
         for batch in pq.ParquetFile(out / BASE_FILES[base]).iter_batches(RUN_ROWS):
             yield pa.Table.from_batches([batch])
         for k in new_chunks(plan):
-            yield pq.read_table(part_paths(out, k)[part])
+            yield fs.read_parquet_file(part_paths(out, k)[part])
 
     merged = write_merged(config, tables("manifest.parquet", 1), tables("failures.parquet", 2))
     return merged, dropped

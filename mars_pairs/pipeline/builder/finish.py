@@ -11,11 +11,12 @@ moving the folder keeps it whole. A dataset on object storage (``output.dir`` an
 ``store.fs``) names its local inputs and labels root by their absolute paths (no path leads
 from a bucket to them); every file is uploaded whole.
 
-Memory does not grow with the samples but in the leak check: the parts are read one at a time,
-the manifest sorted in runs of ``RUN_ROWS`` rows on scratch disk (``layout.SORT_RUNS``) and merged
-(``store.parquet_stream``), and what dataset.json, the shard indexes and the summary say is
-counted while the files are written (:class:`Merged`); the leak check
-(``store.leakage.leak_report``) reads its columns of the whole manifest."""
+Memory does not grow with the samples: the parts are read one at a time, the manifest sorted
+in runs of ``RUN_ROWS`` rows on scratch disk (``layout.SORT_RUNS``) and merged
+(``store.parquet_stream``), what dataset.json, the shard indexes and the summary say is
+counted while the files are written (:class:`Merged`), and the leak check
+(``store.leakage.streamed_leak_report``) reads the manifest written a batch at a time, its
+samples sorted on the same scratch disk."""
 
 from __future__ import annotations
 
@@ -51,7 +52,7 @@ from mars_pairs.store.croissant import croissant_metadata, dataset_description, 
 from mars_pairs.store.dataset_info import DatasetInfo, dataset_document
 from mars_pairs.store.dem_codec import dataset_dem_encoding
 from mars_pairs.store.geoparquet import crs_name, geo_extremes, named_crs, table_geo_metadata
-from mars_pairs.store.leakage import LEAK_COLUMNS, leak_report
+from mars_pairs.store.leakage import streamed_leak_report
 from mars_pairs.store.manifest import FAILURE_SCHEMA, MANIFEST_SCHEMA
 from mars_pairs.store.pairs import Footprints, write_pairs
 from mars_pairs.store.parquet_stream import RowGroupWriter, merge_runs, sorted_runs
@@ -133,8 +134,8 @@ def merge_parts(config: BuildConfig, n_chunks: int) -> Merged:
     """Merge the chunk parts into manifest.parquet (Hilbert order) and failures.parquet, a
     part at a time."""
     out = config.output.dir
-    parts = (fs.read_parquet(part_paths(out, k)[1]) for k in range(n_chunks))
-    fails = (fs.read_parquet(part_paths(out, k)[2]) for k in range(n_chunks))
+    parts = (fs.read_parquet_file(part_paths(out, k)[1]) for k in range(n_chunks))
+    fails = (fs.read_parquet_file(part_paths(out, k)[2]) for k in range(n_chunks))
     return write_merged(config, parts, fails)
 
 
@@ -386,8 +387,9 @@ def dataset_doc(
     append's ``appends`` and ``build_stamp``), written last by :func:`write_dataset_json`.
     ``input_files`` holds the fingerprints of the PLACES table, DEM and ortho without their paths
     (``fingerprints.input_files``), which ``--append`` checks. ``merged``: the merged files'
-    counts; the leak check reads its columns of the manifest written (``store.leakage``: the
-    one step of the finish whose memory grows with the samples). ``pairs``: the count of
+    counts; the leak check reads the manifest written a batch at a time
+    (``store.leakage.streamed_leak_report``, its sweep's runs in the sort scratch of
+    :func:`write_merged`). ``pairs``: the count of
     pairs.parquet's rows (``counts.pairs``; None: no pairs.parquet)."""
     counts: dict[str, Any] = {"samples": summary.samples, "failures": summary.failures}
     if pairs is not None:
@@ -395,8 +397,8 @@ def dataset_doc(
     if merged.samples:
         counts["by_split"] = dict(merged.by_split)
         counts["by_mission"] = dict(merged.by_mission)
-    leak_columns = fs.read_parquet(merged.manifest, columns=list(LEAK_COLUMNS))
-    leak = leak_report(leak_columns, config.chips.size_m)
+    with _sort_scratch(config.output.dir) as scratch:
+        leak = streamed_leak_report(merged.manifest, config.chips.size_m, scratch)
     crs = named_wkt(dataset_crs(config))
     out = config.output.dir
     root = labels_root(config.inputs.labels)

@@ -135,9 +135,11 @@ def remove_temporaries(out: fs.Location) -> None:
         folder = out / sub
         if not folder.is_dir():
             continue
-        for name in sorted(os.listdir(folder)):
+        with os.scandir(folder) as entries:  # streamed: not a list of every shard and part
+            stale = [e.name for e in entries if is_temporary(sub + e.name)]
+        for name in sorted(stale):
             path = folder / name
-            if is_temporary(sub + name) and path.is_file() and not path.is_symlink():
+            if path.is_file() and not path.is_symlink():
                 path.unlink()
 
 

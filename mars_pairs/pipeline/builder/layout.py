@@ -38,9 +38,10 @@ CLEARING = "parts/clearing.json"
 KEY_INDEX = "parts/keys.sqlite"
 
 
-#: The folder of the finish's sorted runs of manifest rows (``finish.write_merged``), a local
-#: build's scratch while the manifest is merged: made on the first run written, removed when
-#: the merge ends; one a killed build left is cleared or replaced by the next build.
+#: The folder of the finish's sorted runs (the manifest's rows: ``finish.write_merged``; the
+#: leak check's samples: ``store.leakage.streamed_leak_report``), a local build's scratch
+#: while the manifest is merged or checked: made on the first run written, removed when the
+#: step ends; one a killed build left is cleared or replaced by the next build.
 SORT_RUNS = "parts/sort"
 SORT_RUN_FILE = re.compile(r"parts/sort/(run|merged)-[0-9]{3,}(-[0-9]{6,})?\.arrow")
 
