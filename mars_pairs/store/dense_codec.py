@@ -109,8 +109,10 @@ def encode_dense(field: str, values: np.ndarray) -> bytes:
 #: the ASCII tags of the float fields' files: the description float_tiff writes (one file
 #: for ground_px) and GDAL's nodata
 _TEXTS = {
-    name: {DESCRIPTION: json.dumps({"codec": f"{name}-tiff-zstd", "nodata": "nan"}),
-           GDAL_NODATA: "nan"}  # fmt: skip
+    name: {
+        DESCRIPTION: json.dumps({"codec": f"{name}-tiff-zstd", "nodata": "nan"}),
+        GDAL_NODATA: "nan",
+    }
     for name in ("float32", "float64")
 }
 
