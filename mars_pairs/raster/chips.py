@@ -332,15 +332,18 @@ class ChipReader:
         values = sample_at(data, u, v, nearest=False)[0]
         if nodata.size:  # the kernel's 2 x 2 of each point (it makes the off-grid ones NaN)
             h, w = data.shape
-            x = np.clip(np.nan_to_num(u), 0.0, w - 1.0)
-            y = np.clip(np.nan_to_num(v), 0.0, h - 1.0)
+            # NaN points are NaN whatever their mask: fmin/fmax put them anywhere on the grid
+            x = np.fmax(np.fmin(u, w - 1.0), 0.0)
+            y = np.fmax(np.fmin(v, h - 1.0), 0.0)
             c0 = np.minimum(x.astype(np.intp), w - 2) if w > 1 else np.zeros(len(x), np.intp)
             r0 = np.minimum(y.astype(np.intp), h - 2) if h > 1 else np.zeros(len(y), np.intp)
-            c1, r1 = np.minimum(c0 + 1, w - 1), np.minimum(r0 + 1, h - 1)
+            at = r0 * w + c0  # the 2 x 2's flat indices: at, at + dc, at + dr, at + dr + dc
+            dc, dr = int(w > 1), w if h > 1 else 0
+            flat = np.ravel(data)
             value = nodata[0]
             masked = np.zeros(len(x), dtype=bool)
-            for rr, cc in ((r0, c0), (r0, c1), (r1, c0), (r1, c1)):
-                pixel = data[rr, cc]
+            for step in (0, dc, dr, dr + dc):
+                pixel = flat.take(at + step if step else at)
                 masked |= np.isnan(pixel) if np.isnan(value) else pixel == value
             values[masked] = np.nan
         return np.asarray(values, dtype=np.float32)

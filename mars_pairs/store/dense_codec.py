@@ -101,13 +101,20 @@ def encode_dense(field: str, values: np.ndarray) -> bytes:
     """The ``<field>.tif`` bytes of a dense field's array (cast to its codec's pixel type:
     :data:`CODECS`), bit for bit."""
     codec = CODECS[field]
-    dtype = np.dtype(codec.dtype)
-    texts = {}
-    if dtype.kind == "f":  # the description float_tiff writes: one file for ground_px
-        texts = {DESCRIPTION: json.dumps({"codec": f"{dtype}-tiff-zstd", "nodata": "nan"}),
-                 GDAL_NODATA: "nan"}  # fmt: skip
-    pixels = np.asarray(values, dtype=dtype)
+    pixels = np.asarray(values, dtype=codec.dtype)
+    texts = _TEXTS.get(codec.dtype, {})
     return write_strip_tiff(pixels, predictor=codec.predictor, level=codec.level, texts=texts)
+
+
+#: the ASCII tags of the float fields' files: the description float_tiff writes (one file
+#: for ground_px) and GDAL's nodata
+_TEXTS = {
+    name: {
+        DESCRIPTION: json.dumps({"codec": f"{name}-tiff-zstd", "nodata": "nan"}),
+        GDAL_NODATA: "nan",
+    }
+    for name in ("float32", "float64")
+}
 
 
 def decode_dense(data: bytes | bytearray, max_pixels: int | None = None) -> np.ndarray:

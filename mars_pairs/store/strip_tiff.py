@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Mapping
+from functools import lru_cache
 
 import imagecodecs
 import numpy as np
@@ -78,6 +79,23 @@ def write_strip_tiff(
         values = imagecodecs.floatpred_encode(values.reshape(height, width, bands), axis=-2)
     # the array's buffer, not a copy of it
     strip = bytes(imagecodecs.zstd_encode(values, level))  # type: ignore[arg-type]  # any buffer
+    head, at = _header(height, width, bands, dtype.str, predictor, tuple(texts.items()))
+    return b"".join([head[:at], struct.pack("<I", len(strip)), head[at + 4 :], strip])
+
+
+@lru_cache(maxsize=64)
+def _header(
+    height: int,
+    width: int,
+    bands: int,
+    dtype_str: str,
+    predictor: int,
+    texts: tuple[tuple[int, str], ...],
+) -> tuple[bytes, int]:
+    """The bytes before the strip of :func:`write_strip_tiff`'s file (the header, the IFD
+    and the tag values; the strip follows them) with its StripByteCounts value 0, and that
+    value's offset: the same for every image of one layout (built once per layout)."""
+    dtype = np.dtype(dtype_str)
     bits, fmt = _SAMPLE_FORMATS[dtype]
     rgb = bands == 3 and dtype.kind == "u" and bits == 8
     entries: list[tuple[int, int, int, int | bytes]] = [
@@ -89,7 +107,7 @@ def write_strip_tiff(
         (_STRIP_OFFSETS, _LONG, 1, 0),  # set below
         (277, _SHORT, 1, bands),
         (278, _LONG, 1, height),
-        (_STRIP_BYTES, _LONG, 1, len(strip)),
+        (_STRIP_BYTES, _LONG, 1, 0),  # the caller's
         (284, _SHORT, 1, 1),  # chunky
         (317, _SHORT, 1, predictor),
         (339, _SHORT, *_shorts(fmt, bands)),
@@ -97,7 +115,7 @@ def write_strip_tiff(
     extra = bands - (3 if rgb else 1)
     if extra:  # ExtraSamples: the bands past the colour ones, unspecified
         entries.append((338, _SHORT, *_shorts(0, extra)))
-    for tag, text in texts.items():
+    for tag, text in texts:
         data = text.encode("ascii") + b"\x00"
         entries.append((tag, _ASCII, len(data), data))
     entries.sort(key=lambda e: e[0])
@@ -111,14 +129,17 @@ def write_strip_tiff(
             padded = value + b"\x00" * (len(value) % 2)  # word boundaries
             blobs.append(padded)
             pos += len(padded)
-    for tag, kind, count, value in entries:
+    at = 0
+    for i, (tag, kind, count, value) in enumerate(entries):
         if tag == _STRIP_OFFSETS:
             value = pos  # the strip follows the tag values
+        elif tag == _STRIP_BYTES:
+            at = 8 + 2 + 12 * i + 8  # the entry's value field
         elif isinstance(value, bytes):
             value = offsets[tag]
         ifd.append(struct.pack("<HHII", tag, kind, count, value))
     ifd.append(b"\x00\x00\x00\x00")  # no next IFD
-    return b"".join([TIFF_MAGIC, struct.pack("<I", 8), *ifd, *blobs, strip])
+    return b"".join([TIFF_MAGIC, struct.pack("<I", 8), *ifd, *blobs]), at
 
 
 def is_tiff(data: bytes | bytearray) -> bool:

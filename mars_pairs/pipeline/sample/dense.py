@@ -106,8 +106,12 @@ def map_from_rover(
     col, row = dem.xy_to_colrow(x, y)
     dem_view = sample_at(dem.data, col, row, nearest=False)[0]
     valid = np.isfinite(ortho_values) & np.isfinite(dem_view)
-    ortho_view = ortho.value_range().to_uint8(np.where(valid, ortho_values, np.nan))
-    return ortho_view, np.where(valid, dem_view, np.nan).astype(np.float32), valid
+    ortho_view = ortho.value_range().to_uint8(ortho_values)  # NaN -> 0
+    invalid = ~valid
+    ortho_view[invalid] = 0
+    dem_view = np.asarray(dem_view, dtype=np.float32)
+    dem_view[invalid] = np.nan
+    return ortho_view, dem_view, valid
 
 
 def chip_points(grid: ChipGrid, dem: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
