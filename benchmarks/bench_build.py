@@ -30,8 +30,10 @@ labels, the chunk job stubbed.
 ``--slope`` instead measures the build's marginal CPU per sample on the demo's labels
 (``configs/demo.yaml``; its mission in ``out/demo/mission`` unless ``--mission``, generated
 when absent): each build a fresh subprocess (``--workers`` 1: in the process; more: a local
-pool) over the first N and the first 2N labels (``--slope-sizes``), its CPU the process's
-own (``getrusage``) plus its worker processes' (psutil, polled every 50 ms). The slope
+pool) over N and 2N labels (``--slope-sizes``): the first 2N in name order, and every other
+one of them (so both sets, and the N samples between them, mix the cameras as the archive
+does: the demo's names list the Navcam frames first), its CPU the process's own
+(``getrusage``) plus its worker processes' (psutil, polled every 50 ms). The slope
 (CPU(2N) - CPU(N)) / (2N - N samples), from each size's least CPU over the reps, leaves out
 what a build pays once (imports, loading the compiled kernels, opening the rasters, the
 finish). ``--anchor-root DIR``: a checkout of another commit (``git worktree add DIR
@@ -42,9 +44,11 @@ compiled (or loaded) in an untimed warm-up build first.
 from __future__ import annotations
 
 import argparse
+import glob
 import json
 import os
 import resource
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -266,20 +270,31 @@ def slope_table(mission: Path, sizes: list[int], reps: int, workers: int,
     codes = ({"anchor": anchor.resolve()} if anchor is not None else {}) | {"this": here}
     doc = _demo_doc(mission)
     n1, n2 = sizes
+    names = sorted(glob.glob(doc["inputs"]["labels"]))[:n2]
     loads = [os.getloadavg()[0]]
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
+        docs = {}  # each set's labels (and the images beside them) copied to a folder of its own
+        for n, chosen in ((n1, names[::2][:n1]), (n2, names)):
+            folder = root / f"labels-{n}"
+            folder.mkdir()
+            for label in map(Path, chosen):
+                for path in label.parent.glob(label.stem + ".*"):
+                    shutil.copy2(path, folder / path.name)
+            docs[n] = {**doc, "inputs": {**doc["inputs"], "labels": str(folder / "*.xml")}}
         for name, code in codes.items():  # compile or load the kernels, not timed
-            _child_build(code, doc, root / f"warm-{name}", workers, 4)
+            _child_build(code, docs[n1], root / f"warm-{name}", workers, 4)
         cases: dict[tuple[str, int], list[tuple[int, float, float]]] = {}
         for rep in range(reps):
             for n in (n1, n2):
                 for name, code in codes.items():
                     out = root / f"{name}-{n}-{rep}"
-                    cases.setdefault((name, n), []).append(_child_build(code, doc, out, workers, n))
+                    build = _child_build(code, docs[n], out, workers, n)
+                    cases.setdefault((name, n), []).append(build)
                     loads.append(os.getloadavg()[0])
     print(
-        f"build slope: the demo's labels (configs/demo.yaml), first {n1} and first {n2}; "
+        f"build slope: the demo's labels (configs/demo.yaml), the first {n2} in name order "
+        f"and every other one of them ({n1}); "
         f"workers {workers}; best of {reps} builds per case, each a fresh process, "
         f"interleaved; {os.cpu_count()} cores; load (1 min) {min(loads):.2f}-{max(loads):.2f}\n"
     )
