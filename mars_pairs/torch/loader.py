@@ -235,7 +235,7 @@ class MarsPairsLoader(DataLoader[dict[str, Any]]):
         if self.copy_batches or self.pin_memory:
             mine = self._warm.copy(block[: layout_end(ticket.layout)])
             board.release(w, s)
-            if self.pin_memory and torch.accelerator.is_available():
+            if self.pin_memory and _accelerator_available():
                 mine = mine.pin_memory()
             batch.update(block_views(mine, ticket.layout))
         else:
@@ -278,3 +278,12 @@ class LoaderIterator:
 
     def __len__(self) -> int:
         return len(self._inner)
+
+
+def _accelerator_available() -> bool:
+    """Whether pinned memory can serve a device: ``torch.accelerator`` (torch >= 2.6), else
+    CUDA's own test (the torch versions the package allows before it)."""
+    accelerator = getattr(torch, "accelerator", None)
+    if accelerator is not None:
+        return bool(accelerator.is_available())
+    return bool(torch.cuda.is_available())
