@@ -23,6 +23,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import shapely
+from numpy.typing import NDArray
 
 from mars_pairs.store import fs
 from mars_pairs.store.parquet_stream import merge_runs, sorted_runs
@@ -68,17 +69,23 @@ def _min_distance(a: np.ndarray, b: np.ndarray) -> float | None:
 LEAK_COLUMNS = ("split", "easting", "northing", "chip_rotation_deg", "footprint")
 
 
-def leak_report(table: pa.Table, size_m: float) -> dict[str, Any]:
-    """Intersections between the chips/footprints of samples of different splits, and the
-    nearest held-out to train distances (rover to rover, extent to extent), map units."""
+def _outside_buffer(table: pa.Table) -> tuple[NDArray[Any], Any, Any, Any, NDArray[Any]]:
+    """The ``LEAK_COLUMNS`` of the rows outside the buffer zone: split names, rover easting
+    and northing (map units), chip rotation (degrees, null as 0) and footprint WKB."""
     split = np.asarray(table["split"].to_pylist(), dtype=object)
     keep = split != BUFFER
-    split = split[keep]
     x = table["easting"].to_numpy()[keep]
     y = table["northing"].to_numpy()[keep]
     rot = table["chip_rotation_deg"].fill_null(0.0).to_numpy()[keep]
-    chips = chip_polygons(x, y, size_m, rot)
     wkb = np.asarray(table["footprint"].to_pylist(), dtype=object)[keep]
+    return split[keep], x, y, rot, wkb
+
+
+def leak_report(table: pa.Table, size_m: float) -> dict[str, Any]:
+    """Intersections between the chips/footprints of samples of different splits, and the
+    nearest held-out to train distances (rover to rover, extent to extent), map units."""
+    split, x, y, rot, wkb = _outside_buffer(table)
+    chips = chip_polygons(x, y, size_m, rot)
     feet = np.array([None if w is None else shapely.from_wkb(w) for w in wkb], dtype=object)
     counts = {}
     for name, a, b, ordered in (
@@ -199,13 +206,7 @@ class _FirstPass:
         self.last: dict[bool, tuple[float, float]] = {}  # held? -> the last rover seen
 
     def rows(self, table: pa.Table, codes: dict[str, int]) -> pa.Table:
-        split = np.asarray(table["split"].to_pylist(), dtype=object)
-        keep = split != BUFFER
-        split = split[keep]
-        x = table["easting"].to_numpy()[keep]
-        y = table["northing"].to_numpy()[keep]
-        rot = table["chip_rotation_deg"].fill_null(0.0).to_numpy()[keep]
-        wkb = np.asarray(table["footprint"].to_pylist(), dtype=object)[keep]
+        split, x, y, rot, wkb = _outside_buffer(table)
         for name in split:
             codes.setdefault(str(name), len(codes))
         code = np.array([codes[str(name)] for name in split], dtype=np.int32)
