@@ -30,7 +30,9 @@ def _in_memory(config, parts, fails, out: Path) -> tuple[pa.Table, pa.Table]:
     failures = pa.concat_tables(fails) if fails else FAILURE_SCHEMA.empty_table()
     crs = finish.dataset_crs(config)
     manifest = manifest.replace_schema_metadata(table_geo_metadata(manifest, crs))
-    write_parquet_atomic(manifest, out / "manifest.parquet", row_group_size=1024)
+    write_parquet_atomic(
+        manifest, out / "manifest.parquet", row_group_size=finish.MANIFEST_ROW_GROUP
+    )
     write_parquet_atomic(failures, out / "failures.parquet")
     return manifest, failures
 
@@ -71,6 +73,7 @@ def _parts(tmp_path: Path, n: int, seed: int) -> tuple[list[pa.Table], list[pa.T
 @pytest.mark.parametrize("run_rows", [100_000, 97])  # one run in memory; runs on disk
 def test_merge_equals_the_whole_table_sorted(tmp_path: Path, monkeypatch, run_rows) -> None:
     monkeypatch.setattr(finish, "RUN_ROWS", run_rows)
+    monkeypatch.setattr(finish, "MANIFEST_ROW_GROUP", 1024)  # more than one row group
     monkeypatch.setattr(parquet_stream, "FAN_IN", 4)  # merged in passes too
     monkeypatch.setattr(parquet_stream, "RUN_ROW_GROUP", 5)
     monkeypatch.setattr(parquet_stream, "OUT_ROWS", 40)
